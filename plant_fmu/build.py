@@ -1,0 +1,145 @@
+"""Build the plant FMU: generate the description, compile with the system C compiler, pack.
+
+Builds are cached by a digest of everything that goes into them (link count, FMI version,
+variable table, C sources, compiler), so calling :func:`build_fmu` again is cheap, and
+concurrent calls are safe (each writes a temporary file and renames it into place).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+import zipfile
+from pathlib import Path
+
+from . import description
+from .variables import MAX_LINKS, MODEL_IDENTIFIER
+
+C_DIR = Path(__file__).parent / "c"
+MODEL_SOURCES = ["model.c", "fmu_instance.c"]
+HEADERS = ["model.h", "arm_dynamics.h", "fmu_instance.h"]
+CFLAGS = ["-O2", "-std=c99", "-Wall", "-Wextra", "-fPIC", "-shared"]
+
+
+class BuildError(RuntimeError):
+    """The FMU could not be built; the message says why and what to do."""
+
+
+def default_cache_dir() -> Path:
+    """Where built FMUs are cached: $COSIM_CACHE, else ~/.cache/cosim/fmus."""
+    env = os.environ.get("COSIM_CACHE")
+    return Path(env) if env else Path.home() / ".cache" / "cosim" / "fmus"
+
+
+def _fmi_headers() -> Path:
+    import fmpy
+
+    path = Path(fmpy.__file__).parent / "c-code"
+    if not (path / "fmi2Functions.h").exists():
+        raise BuildError(f"FMPy's FMI headers were not found in {path}: reinstall fmpy")
+    return path
+
+
+def _compiler() -> str:
+    cc = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
+    if not cc:
+        raise BuildError("no C compiler found: install gcc (apt-get install gcc) or set CC")
+    return cc
+
+
+def _platform_dir(fmi_version: int) -> str:
+    from fmpy import platform, platform_tuple
+
+    return platform if fmi_version == 2 else platform_tuple
+
+
+def _shared_library_suffix() -> str:
+    return {"win32": ".dll", "darwin": ".dylib"}.get(sys.platform, ".so")
+
+
+def _sources_digest() -> str:
+    h = hashlib.sha256()
+    for name in sorted(MODEL_SOURCES + HEADERS + ["fmi2.c", "fmi3.c"]):
+        h.update(name.encode())
+        h.update((C_DIR / name).read_bytes())
+    return h.hexdigest()
+
+
+def _build_key(links: int, fmi_version: int, cc: str) -> str:
+    h = hashlib.sha256()
+    h.update(f"{links}|{fmi_version}|{cc}|{' '.join(CFLAGS)}|".encode())
+    h.update(_sources_digest().encode())
+    h.update(Path(description.__file__).read_bytes())
+    return h.hexdigest()[:16]
+
+
+def _check_options(links: int, fmi_version: int) -> None:
+    if not isinstance(links, int) or not 1 <= links <= MAX_LINKS:
+        raise BuildError(f"links must be a whole number from 1 to {MAX_LINKS}, got {links!r}")
+    if fmi_version not in (2, 3):
+        raise BuildError(f"fmi_version must be 2 or 3, got {fmi_version!r}")
+
+
+def build_fmu(links: int = 2, fmi_version: int = 2, output: str | Path | None = None,
+              cache_dir: str | Path | None = None) -> Path:
+    """Build (or take from the cache) the ``links``-link arm FMU for FMI 2.0 or 3.0.
+
+    The archive holds Co-Simulation and Model Exchange, the binary for this platform, and
+    its C sources with a ``buildDescription.xml`` so that ``fmpy compile`` can rebuild it
+    elsewhere. Returns the path of the FMU: ``output`` if given, else the cached file.
+    """
+    _check_options(links, fmi_version)
+    cc = _compiler()
+    cache = Path(cache_dir) if cache_dir else default_cache_dir()
+    cache.mkdir(parents=True, exist_ok=True)
+    key = _build_key(links, fmi_version, cc)
+    cached = cache / f"{MODEL_IDENTIFIER}{links}_fmi{fmi_version}_{key}.fmu"
+    if not cached.exists():
+        _build_into(cached, links, fmi_version, cc)
+    if output is None:
+        return cached
+    output = Path(output)
+    output.parent.mkdir(parents=True, exist_ok=True)
+    tmp = output.with_name(f".{output.name}.{os.getpid()}.tmp")
+    shutil.copyfile(cached, tmp)
+    os.replace(tmp, output)
+    return output
+
+
+def _build_into(target: Path, links: int, fmi_version: int, cc: str) -> None:
+    token = description.instantiation_token(links, _sources_digest())
+    glue = f"fmi{fmi_version}.c"
+    with tempfile.TemporaryDirectory(prefix="plant_fmu_") as tmpdir:
+        root = Path(tmpdir)
+        sources = root / "sources"
+        sources.mkdir()
+        for name in MODEL_SOURCES + HEADERS + [glue]:
+            shutil.copyfile(C_DIR / name, sources / name)
+        (sources / "variables.h").write_text(description.variables_header(links, token))
+        (sources / "variables.c").write_text(description.variables_source(links))
+        compiled = MODEL_SOURCES + ["variables.c", glue]
+        (sources / "buildDescription.xml").write_text(
+            description.build_description(fmi_version, compiled))
+        (root / "modelDescription.xml").write_text(
+            description.model_description(links, fmi_version, token))
+
+        binary_dir = root / "binaries" / _platform_dir(fmi_version)
+        binary_dir.mkdir(parents=True)
+        binary = binary_dir / (MODEL_IDENTIFIER + _shared_library_suffix())
+        command = [cc, *CFLAGS, f"-I{sources}", f"-I{_fmi_headers()}",
+                   *[str(sources / s) for s in compiled], "-o", str(binary), "-lm"]
+        result = subprocess.run(command, capture_output=True, text=True)
+        if result.returncode != 0:
+            raise BuildError(f"compiling the {links}-link FMI {fmi_version} plant failed "
+                             f"({' '.join(command)}):\n{result.stderr}")
+
+        tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
+        with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as archive:
+            for path in sorted(root.rglob("*")):
+                if path.is_file():
+                    archive.write(path, path.relative_to(root).as_posix())
+        os.replace(tmp, target)

@@ -1,0 +1,208 @@
+"""Generate modelDescription.xml (FMI 2.0 / 3.0), variables.h/.c and buildDescription.xml
+from the one variable table in :mod:`plant_fmu.variables`."""
+
+from __future__ import annotations
+
+import hashlib
+from xml.sax.saxutils import quoteattr
+
+from .variables import MODEL_IDENTIFIER, first_vr, variables
+
+# name -> (base-unit exponents, display unit or None). Radian is kept as a base unit so
+# that tools can offer degrees.
+UNITS: dict[str, tuple[dict[str, int], tuple[str, float] | None]] = {
+    "s": ({"s": 1}, None),
+    "kg": ({"kg": 1}, None),
+    "m": ({"m": 1}, None),
+    "kg.m2": ({"kg": 1, "m": 2}, None),
+    "N.m.s/rad": ({"kg": 1, "m": 2, "s": -1, "rad": -1}, None),
+    "N.m": ({"kg": 1, "m": 2, "s": -2}, None),
+    "J": ({"kg": 1, "m": 2, "s": -2}, None),
+    "rad": ({"rad": 1}, ("deg", 57.29577951308232)),
+    "rad/s": ({"rad": 1, "s": -1}, ("deg/s", 57.29577951308232)),
+    "rad/s2": ({"rad": 1, "s": -2}, ("deg/s2", 57.29577951308232)),
+    "Hz": ({"s": -1}, None),
+    "m/s2": ({"m": 1, "s": -2}, None),
+}
+
+_KIND = {"independent": "KIND_INDEPENDENT", "parameter": "KIND_PARAMETER",
+         "input": "KIND_INPUT", "output": "KIND_OUTPUT", "local": "KIND_LOCAL"}
+_CHECK = {None: "CHECK_NONE", "finite": "CHECK_FINITE", "positive": "CHECK_POSITIVE",
+          "nonnegative": "CHECK_NONNEGATIVE"}
+# C macro names for groups whose FMI name is not a C identifier.
+_C_GROUP = {"der(qdot)": "qddot"}
+
+
+def instantiation_token(links: int, sources_digest: str) -> str:
+    """A GUID-shaped token that changes whenever the table or the C sources change."""
+    table = repr(variables(links)).encode()
+    h = hashlib.sha256(table + sources_digest.encode()).hexdigest()
+    return "{%s-%s-%s-%s-%s}" % (h[:8], h[8:12], h[12:16], h[16:20], h[20:32])
+
+
+def _fmt(x: float) -> str:
+    return repr(float(x))
+
+
+def _unit_definitions(fmi_version: int) -> str:
+    lines = ["  <UnitDefinitions>"]
+    for name, (exponents, display) in UNITS.items():
+        base = " ".join(f'{k}="{v}"' for k, v in exponents.items())
+        lines.append(f'    <Unit name="{name}">')
+        lines.append(f"      <BaseUnit {base}/>")
+        if display:
+            lines.append(f'      <DisplayUnit name="{display[0]}" factor="{display[1]!r}"/>')
+        lines.append("    </Unit>")
+    lines.append("  </UnitDefinitions>")
+    return "\n".join(lines)
+
+
+def model_description(links: int, fmi_version: int, token: str) -> str:
+    """The modelDescription.xml text of an ``links``-link arm for FMI 2 or 3."""
+    table = variables(links)
+    by_name = {v.name: v for v in table}
+    head = (f'modelName="{MODEL_IDENTIFIER}{links}" '
+            f'description="Planar {links}-link serial arm (Euler-Lagrange, SI units, radians)" '
+            'generationTool="cosim plant_fmu"')
+    experiment = '  <DefaultExperiment startTime="0" stopTime="20" stepSize="0.001"/>'
+    logs = ("  <LogCategories>\n"
+            '    <Category name="logStatusError" description="Errors"/>\n'
+            '    <Category name="logStatusWarning" description="Warnings"/>\n'
+            '    <Category name="logEvents" description="Mode changes and state handling"/>\n'
+            "  </LogCategories>")
+    outputs = [v for v in table if v.causality == "output"]
+    derivatives = [v for v in table if v.derivative_of]
+    states = [by_name[v.derivative_of] for v in derivatives]
+    initial_unknowns = sorted({v.vr: v for v in outputs + states + derivatives}.values(),
+                              key=lambda v: v.vr)
+    if fmi_version == 2:
+        return _fmi2(table, by_name, head, token, experiment, logs, outputs, derivatives,
+                     initial_unknowns)
+    if fmi_version == 3:
+        return _fmi3(table, by_name, head, token, experiment, logs, outputs, derivatives,
+                     initial_unknowns)
+    raise ValueError(f"fmi_version must be 2 or 3, got {fmi_version}")
+
+
+def _fmi2(table, by_name, head, token, experiment, logs, outputs, derivatives,
+          initial_unknowns) -> str:
+    caps = ('modelIdentifier="{}" canGetAndSetFMUstate="true" canSerializeFMUstate="true" '
+            'providesDirectionalDerivative="true"').format(MODEL_IDENTIFIER)
+    out = ['<?xml version="1.0" encoding="UTF-8"?>',
+           f'<fmiModelDescription fmiVersion="2.0" {head} guid="{token}" '
+           'variableNamingConvention="structured" numberOfEventIndicators="0">',
+           f'  <ModelExchange {caps} completedIntegratorStepNotNeeded="true"/>',
+           f'  <CoSimulation {caps} canHandleVariableCommunicationStepSize="true"/>',
+           _unit_definitions(2), logs, experiment, "  <ModelVariables>"]
+    for v in table:
+        attrs = [f"name={quoteattr(v.name)}", f'valueReference="{v.vr}"',
+                 f"description={quoteattr(v.description)}", f'causality="{v.causality}"',
+                 f'variability="{v.variability}"']
+        if v.causality in ("output", "local"):
+            attrs.append('initial="calculated"')
+        real = []
+        if v.unit:
+            real.append(f'unit="{v.unit}"')
+        if v.start is not None:
+            real.append(f'start="{_fmt(v.start)}"')
+        if v.derivative_of:
+            real.append(f'derivative="{by_name[v.derivative_of].vr + 1}"')
+        out.append(f"    <ScalarVariable {' '.join(attrs)}>")
+        out.append(f"      <Real {' '.join(real)}/>")
+        out.append("    </ScalarVariable>")
+    out.append("  </ModelVariables>")
+    out.append("  <ModelStructure>")
+    out.append("    <Outputs>")
+    out += [f'      <Unknown index="{v.vr + 1}"/>' for v in outputs]
+    out.append("    </Outputs>")
+    out.append("    <Derivatives>")
+    out += [f'      <Unknown index="{v.vr + 1}"/>' for v in derivatives]
+    out.append("    </Derivatives>")
+    out.append("    <InitialUnknowns>")
+    out += [f'      <Unknown index="{v.vr + 1}"/>' for v in initial_unknowns]
+    out.append("    </InitialUnknowns>")
+    out.append("  </ModelStructure>")
+    out.append("</fmiModelDescription>")
+    return "\n".join(out) + "\n"
+
+
+def _fmi3(table, by_name, head, token, experiment, logs, outputs, derivatives,
+          initial_unknowns) -> str:
+    caps = ('modelIdentifier="{}" canGetAndSetFMUState="true" canSerializeFMUState="true" '
+            'providesDirectionalDerivatives="true"').format(MODEL_IDENTIFIER)
+    out = ['<?xml version="1.0" encoding="UTF-8"?>',
+           f'<fmiModelDescription fmiVersion="3.0" {head} instantiationToken="{token}" '
+           'variableNamingConvention="flat">',
+           f'  <ModelExchange {caps} needsCompletedIntegratorStep="false"/>',
+           f'  <CoSimulation {caps} canHandleVariableCommunicationStepSize="true" '
+           'hasEventMode="false"/>',
+           _unit_definitions(3), logs, experiment, "  <ModelVariables>"]
+    for v in table:
+        attrs = [f"name={quoteattr(v.name)}", f'valueReference="{v.vr}"',
+                 f"description={quoteattr(v.description)}", f'causality="{v.causality}"',
+                 f'variability="{v.variability}"']
+        if v.causality in ("output", "local"):
+            attrs.append('initial="calculated"')
+        if v.unit:
+            attrs.append(f'unit="{v.unit}"')
+        if v.start is not None:
+            attrs.append(f'start="{_fmt(v.start)}"')
+        if v.derivative_of:
+            attrs.append(f'derivative="{by_name[v.derivative_of].vr}"')
+        out.append(f"    <Float64 {' '.join(attrs)}/>")
+    out.append("  </ModelVariables>")
+    out.append("  <ModelStructure>")
+    out += [f'    <Output valueReference="{v.vr}"/>' for v in outputs]
+    out += [f'    <ContinuousStateDerivative valueReference="{v.vr}"/>' for v in derivatives]
+    out += [f'    <InitialUnknown valueReference="{v.vr}"/>' for v in initial_unknowns]
+    out.append("  </ModelStructure>")
+    out.append("</fmiModelDescription>")
+    return "\n".join(out) + "\n"
+
+
+def variables_header(links: int, token: str) -> str:
+    """variables.h: the value-reference layout the C model indexes by."""
+    table = variables(links)
+    groups = dict.fromkeys(v.group for v in table)
+    lines = ["/* Generated by plant_fmu/description.py from plant_fmu/variables.py. */",
+             "#ifndef VARIABLES_H", "#define VARIABLES_H", "",
+             f"#define N_LINKS {links}",
+             f"#define N_VARIABLES {len(table)}",
+             f'#define MODEL_IDENTIFIER_STRING "{MODEL_IDENTIFIER}"',
+             f'#define INSTANTIATION_TOKEN "{token}"', "",
+             "/* Value reference of the first element of each group (row-major for M). */"]
+    for g in groups:
+        lines.append(f"#define VR_{_C_GROUP.get(g, g)} {first_vr(table, g)}")
+    lines += ["",
+              "typedef enum { KIND_INDEPENDENT, KIND_PARAMETER, KIND_INPUT, KIND_OUTPUT,"
+              " KIND_LOCAL } VariableKind;",
+              "typedef enum { CHECK_NONE, CHECK_FINITE, CHECK_POSITIVE, CHECK_NONNEGATIVE }"
+              " ValueCheck;",
+              "typedef struct {", "    const char *name;", "    const char *unit;",
+              "    VariableKind kind;", "    ValueCheck check;", "    double start;",
+              "} VariableInfo;", "",
+              "extern const VariableInfo VARIABLES[N_VARIABLES];", "", "#endif", ""]
+    return "\n".join(lines)
+
+
+def variables_source(links: int) -> str:
+    """variables.c: name, unit, kind, check and start value of every value reference."""
+    lines = ["/* Generated by plant_fmu/description.py from plant_fmu/variables.py. */",
+             '#include "variables.h"', "",
+             "const VariableInfo VARIABLES[N_VARIABLES] = {"]
+    for v in variables(links):
+        start = _fmt(v.start) if v.start is not None else "0.0"
+        lines.append(f'    {{"{v.name}", "{v.unit or ""}", {_KIND[v.causality]}, '
+                     f"{_CHECK[v.check]}, {start}}},")
+    lines += ["};", ""]
+    return "\n".join(lines)
+
+
+def build_description(fmi_version: int, sources: list[str]) -> str:
+    """sources/buildDescription.xml, read by ``fmpy compile`` to rebuild the binary."""
+    files = "\n".join(f'      <SourceFile name="{s}"/>' for s in sources)
+    return (f'<?xml version="1.0" encoding="UTF-8"?>\n'
+            f'<fmiBuildDescription fmiVersion="{fmi_version}.0">\n'
+            f'  <BuildConfiguration modelIdentifier="{MODEL_IDENTIFIER}">\n'
+            f'    <SourceFileSet language="C99">\n{files}\n    </SourceFileSet>\n'
+            f"  </BuildConfiguration>\n</fmiBuildDescription>\n")
