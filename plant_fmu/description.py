@@ -37,7 +37,7 @@ def instantiation_token(links: int, sources_digest: str) -> str:
     """A GUID-shaped token that changes whenever the table or the C sources change."""
     table = repr(variables(links)).encode()
     h = hashlib.sha256(table + sources_digest.encode()).hexdigest()
-    return "{%s-%s-%s-%s-%s}" % (h[:8], h[8:12], h[12:16], h[16:20], h[20:32])
+    return f"{{{h[:8]}-{h[8:12]}-{h[12:16]}-{h[16:20]}-{h[20:32]}}}"
 
 
 def _fmt(x: float) -> str:
@@ -86,8 +86,8 @@ def model_description(links: int, fmi_version: int, token: str) -> str:
 
 def _fmi2(table, by_name, head, token, experiment, logs, outputs, derivatives,
           initial_unknowns) -> str:
-    caps = ('modelIdentifier="{}" canGetAndSetFMUstate="true" canSerializeFMUstate="true" '
-            'providesDirectionalDerivative="true"').format(MODEL_IDENTIFIER)
+    caps = (f'modelIdentifier="{MODEL_IDENTIFIER}" canGetAndSetFMUstate="true" '
+            'canSerializeFMUstate="true" providesDirectionalDerivative="true"')
     out = ['<?xml version="1.0" encoding="UTF-8"?>',
            f'<fmiModelDescription fmiVersion="2.0" {head} guid="{token}" '
            'variableNamingConvention="structured" numberOfEventIndicators="0">',
@@ -128,8 +128,8 @@ def _fmi2(table, by_name, head, token, experiment, logs, outputs, derivatives,
 
 def _fmi3(table, by_name, head, token, experiment, logs, outputs, derivatives,
           initial_unknowns) -> str:
-    caps = ('modelIdentifier="{}" canGetAndSetFMUState="true" canSerializeFMUState="true" '
-            'providesDirectionalDerivatives="true"').format(MODEL_IDENTIFIER)
+    caps = (f'modelIdentifier="{MODEL_IDENTIFIER}" canGetAndSetFMUState="true" '
+            'canSerializeFMUState="true" providesDirectionalDerivatives="true"')
     out = ['<?xml version="1.0" encoding="UTF-8"?>',
            f'<fmiModelDescription fmiVersion="3.0" {head} instantiationToken="{token}" '
            'variableNamingConvention="flat">',
