@@ -18,8 +18,8 @@ demo: venv
 	$(BIN)/cosim simulate-plant build/PlanarArm2.fmu --stop-time 2
 
 test: venv
-	$(BIN)/ruff check cosim plant_fmu tests benchmarks
+	$(BIN)/ruff check .
 	$(BIN)/python -m pytest
 
 lint: venv
-	$(BIN)/ruff check cosim plant_fmu tests benchmarks
+	$(BIN)/ruff check .
