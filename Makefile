@@ -14,8 +14,7 @@ $(VENV)/.installed: pyproject.toml
 	touch $@
 
 demo: venv
-	$(BIN)/cosim build-fmu --links 2 --fmi-version 2 --output build/PlanarArm2.fmu
-	$(BIN)/cosim simulate-plant build/PlanarArm2.fmu --stop-time 2
+	$(BIN)/cosim run pipelines/paper_two_link.toml --out runs/paper
 
 test: venv
 	$(BIN)/ruff check .

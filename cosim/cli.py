@@ -9,6 +9,8 @@ from pathlib import Path
 
 from plant_fmu import MAX_LINKS, BuildError, build_fmu
 
+from .pipeline import PipelineError
+
 
 class UserError(Exception):
     """A mistake in what the user asked for: printed as one line, no traceback."""
@@ -19,19 +21,52 @@ def _build_fmu(args: argparse.Namespace) -> None:
     print(path)
 
 
-def _simulate_plant(args: argparse.Namespace) -> None:
-    from fmpy import simulate_fmu
+def _run(args: argparse.Namespace) -> None:
+    from .master import Diverged
+    from .pipeline import load_pipeline
+    from .runner import run
 
-    fmu = Path(args.fmu)
-    if not fmu.is_file():
-        raise UserError(f"{fmu}: no such FMU file")
-    result = simulate_fmu(str(fmu), stop_time=args.stop_time, output_interval=args.step)
-    names = [n for n in result.dtype.names if n.startswith(("q[", "qdot[")) or n == "energy"]
-    print("open-loop, zero torque (rad, rad/s, J)")
-    print("  ".join(f"{n:>10}" for n in ["time", *names]))
-    stride = max(1, len(result) // 10)
-    for row in result[::stride]:
-        print("  ".join(f"{row[n]:10.4f}" for n in ["time", *names]))
+    pipeline = load_pipeline(args.pipeline, args.set)
+    out = args.out or Path("runs") / pipeline.name
+    print(f"running {pipeline.name}: {', '.join(pipeline.runs)} "
+          f"({pipeline.simulation.duration:g} s at {1 / pipeline.simulation.step:g} Hz) -> {out}",
+          file=sys.stderr)
+    try:
+        results = run(pipeline, out)
+    except Diverged as exc:
+        raise UserError(f"{exc}; what was computed is kept in {out} (marked incomplete)") \
+            from None
+    except KeyboardInterrupt:
+        raise UserError(f"interrupted; what was computed is kept in {out} "
+                        "(marked incomplete)") from None
+    _print_summary(results)
+    print(f"run folder: {out}")
+
+
+def _print_summary(results) -> None:
+    checks = list(next(iter(results.values())).safety)
+    names = list(results)
+    width = max(len(c) for c in checks) + 2
+    print(f"{'check':<{width}}" + "".join(f"{n:>26}" for n in names))
+    for check in checks:
+        row = f"{check:<{width}}"
+        for name in names:
+            entry = results[name].safety.get(check)
+            if entry is None:
+                row += f"{'-':>26}"
+                continue
+            mark = "ok" if entry["satisfied"] else "VIOLATED"
+            row += f"{entry['worst']:>9.3f} <= {entry['bound']:<7.3f} {mark:>8}"
+        print(row)
+    for name, r in results.items():
+        m = r.metrics
+        tau = ", ".join(f"{x:.1f}" for x in m["peak_torque"])
+        obs = m["observer_velocity_error_rms_after_1s"]
+        obs_text = ", ".join(f"{x:.3f}" for x in obs) if obs else "-"
+        sps = m["steps_per_second"]
+        print(f"{name}: peak torque [{tau}] N.m, observer velocity RMS error after 1 s "
+              f"[{obs_text}] rad/s, min H {m['min_barrier_H']:.3g}, "
+              f"{m['wall_time_s']:.2f} s wall, {sps or 0:,.0f} steps/s")
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -52,13 +87,16 @@ def _parser() -> argparse.ArgumentParser:
                    help="where to write the FMU (default: the build cache)")
     p.set_defaults(func=_build_fmu)
 
-    p = sub.add_parser("simulate-plant", help="simulate a plant FMU open-loop with FMPy",
-                       description="Simulate an FMU with zero input torque and print its joint "
-                       "angles (rad), velocities (rad/s) and energy (J).")
-    p.add_argument("fmu", help="the FMU file")
-    p.add_argument("--stop-time", type=float, default=2.0, help="seconds (default 2)")
-    p.add_argument("--step", type=float, default=1e-3, help="output interval, s (default 1e-3)")
-    p.set_defaults(func=_simulate_plant)
+    p = sub.add_parser("run", help="run a pipeline (TOML) and write its run folder",
+                       description="Run every run of a pipeline through the co-simulation "
+                       "master and write summary.json and the traces into the run folder.")
+    p.add_argument("pipeline", help="pipeline file, e.g. pipelines/paper_two_link.toml")
+    p.add_argument("--out", type=Path, default=None,
+                   help="run folder (default: runs/<pipeline name>)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY.PATH=VALUE",
+                   help="override a pipeline key with a TOML value, e.g. controller.kv=25 or "
+                   "'plant.fmu=\"arm.fmu\"' (repeatable)")
+    p.set_defaults(func=_run)
     return parser
 
 
@@ -66,7 +104,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     try:
         args.func(args)
-    except (UserError, BuildError) as exc:
+    except (UserError, BuildError, PipelineError) as exc:
         print(f"cosim: error: {exc}", file=sys.stderr)
         return 2
     return 0

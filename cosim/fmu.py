@@ -1,0 +1,240 @@
+"""The plant as the master sees it: an FMU (FMI 2.0 or 3.0 Co-Simulation) behind FMPy.
+
+Extracted and instantiated once, value references resolved once, and the per-step calls
+go straight to the FMI functions with preallocated ctypes buffers that alias numpy arrays,
+so a step allocates nothing.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import shutil
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from fmpy import extract, read_model_description
+from fmpy.fmi1 import FMICallException
+
+
+class FmuError(RuntimeError):
+    """The FMU refused a call or does not fit; the message names the file and the call."""
+
+
+@dataclass
+class PlantVariables:
+    """Our interface, in the FMU's own names: one name per joint (M row-major, n×n)."""
+
+    tau: list[str]
+    q: list[str]
+    qdot: list[str] | None = None
+    M: list[str] | None = None
+
+    @classmethod
+    def default(cls, links: int) -> PlantVariables:
+        idx = range(1, links + 1)
+        return cls(tau=[f"tau[{i}]" for i in idx], q=[f"q[{i}]" for i in idx],
+                   qdot=[f"qdot[{i}]" for i in idx],
+                   M=[f"M[{i},{j}]" for i in idx for j in idx])
+
+
+@dataclass
+class Fmu:
+    """One Co-Simulation instance of a plant FMU.
+
+    After :meth:`start`, ``q``, ``qdot`` and ``M`` (numpy arrays) hold the latest outputs and
+    :meth:`step` applies ``tau`` (held over the step) and advances by ``h`` seconds.
+    """
+
+    path: Path
+    variables: PlantVariables
+    parameters: dict[str, float] = field(default_factory=dict)
+    messages: list[str] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self.path = Path(self.path)
+        self.model_description = read_model_description(str(self.path))
+        md = self.model_description
+        if md.coSimulation is None:
+            raise FmuError(f"{self.path}: the FMU has no Co-Simulation interface")
+        self.fmi_version = int(md.fmiVersion[0])
+        self.by_name = {v.name: v for v in md.modelVariables}
+        self.links = len(self.variables.q)
+        self.has_qdot = bool(self.variables.qdot)
+        self.has_M = bool(self.variables.M)
+        self.q = np.zeros(self.links)
+        self.qdot = np.full(self.links, np.nan)
+        self.M = np.full((self.links, self.links), np.nan)
+        self.tau = np.zeros(self.links)
+        outputs = self.variables.q + (self.variables.qdot or []) + (self.variables.M or [])
+        self._outputs = np.zeros(len(outputs))
+        self._vr_tau = self._refs(self.variables.tau)
+        self._vr_out = self._refs(outputs)
+        self._unzip: str | None = None
+        self._instance = None
+        self.time = 0.0
+
+    def _refs(self, names: list[str]):
+        missing = [n for n in names if n not in self.by_name]
+        if missing:
+            raise FmuError(f"{self.path}: no variable named {missing[0]!r}")
+        refs = [self.by_name[n].valueReference for n in names]
+        return (ctypes.c_uint32 * len(refs))(*refs)
+
+    # Life cycle ---------------------------------------------------------------------------
+
+    def start(self, start_time: float = 0.0) -> None:
+        """Instantiate (first call only, else reset), set parameters, initialise."""
+        md = self.model_description
+        if self._instance is None:
+            self._unzip = extract(str(self.path))
+            common = dict(guid=md.guid, unzipDirectory=self._unzip, instanceName="plant",
+                          modelIdentifier=md.coSimulation.modelIdentifier)
+            if self.fmi_version == 2:
+                from fmpy.fmi2 import FMU2Slave
+
+                self._instance = FMU2Slave(**common)
+                self._call("instantiate", self._instance.instantiate,
+                           callbacks=self._fmi2_callbacks())
+            else:
+                from fmpy.fmi3 import FMU3Slave
+
+                self._instance = FMU3Slave(**common)
+                self._call("instantiate", self._instance.instantiate, logMessage=self._log3)
+            self._bind_raw_functions()
+        else:
+            self._call("reset", self._instance.reset)
+        inst = self._instance
+        if self.fmi_version == 2:
+            self._call("setupExperiment", inst.setupExperiment, startTime=start_time)
+        self._call("enterInitializationMode", inst.enterInitializationMode,
+                   **({"startTime": start_time} if self.fmi_version == 3 else {}))
+        if self.parameters:
+            names = list(self.parameters)
+            values = [float(self.parameters[n]) for n in names]
+            setter = inst.setReal if self.fmi_version == 2 else inst.setFloat64
+            self._call("set parameters", setter, list(self._refs(names)), values)
+        self._call("exitInitializationMode", inst.exitInitializationMode)
+        self.time = start_time
+        self._read_outputs()
+
+    def _fmi2_callbacks(self):
+        from fmpy.fmi2 import (
+            fmi2CallbackAllocateMemoryTYPE,
+            fmi2CallbackFreeMemoryTYPE,
+            fmi2CallbackFunctions,
+            fmi2CallbackLoggerTYPE,
+        )
+        from fmpy.logging import addLoggerProxy
+
+        libc = ctypes.CDLL(None)
+        libc.calloc.restype = ctypes.c_void_p
+        libc.free.argtypes = [ctypes.c_void_p]
+        callbacks = fmi2CallbackFunctions()
+        callbacks.logger = fmi2CallbackLoggerTYPE(self._log2)
+        callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(libc.calloc)
+        callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(libc.free)
+        addLoggerProxy(ctypes.byref(callbacks))
+        self._callbacks = callbacks  # keep alive as long as the instance
+        return callbacks
+
+    def _log2(self, env, name, status, category, message) -> None:
+        self.messages.append(message.decode(errors="replace"))
+
+    def _log3(self, env, status, category, message) -> None:
+        self.messages.append(message.decode(errors="replace"))
+
+    def _call(self, what: str, function, *args, **kwargs):
+        try:
+            return function(*args, **kwargs)
+        except FMICallException as exc:
+            raise FmuError(self._describe_failure(what, exc)) from None
+
+    def _describe_failure(self, what: str, detail) -> str:
+        log = f": {self.messages[-1]}" if self.messages else ""
+        return f"{self.path.name}: {what} failed at t = {self.time:.6g} s ({detail}){log}"
+
+    def _bind_raw_functions(self) -> None:
+        """The per-step FMI functions, called with preallocated buffers."""
+        inst = self._instance
+        dll = inst.dll
+        self._component = inst.component
+        self._tau_buffer = self.tau.ctypes.data_as(ctypes.POINTER(ctypes.c_double))
+        self._out_buffer = self._outputs.ctypes.data_as(ctypes.POINTER(ctypes.c_double))
+        if self.fmi_version == 2:
+            self._set = dll.fmi2SetReal
+            self._get = dll.fmi2GetReal
+            self._do_step = dll.fmi2DoStep
+            self._set.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_size_t,
+                                  ctypes.c_void_p]
+            self._get.argtypes = self._set.argtypes
+            self._do_step.argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.c_double,
+                                      ctypes.c_int]
+        else:
+            self._set = dll.fmi3SetFloat64
+            self._get = dll.fmi3GetFloat64
+            self._do_step = dll.fmi3DoStep
+            self._set.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_size_t,
+                                  ctypes.c_void_p, ctypes.c_size_t]
+            self._get.argtypes = self._set.argtypes
+            self._do_step.argtypes = [ctypes.c_void_p, ctypes.c_double, ctypes.c_double,
+                                      ctypes.c_bool] + [ctypes.c_void_p] * 4
+            self._flags = (ctypes.c_bool * 3)()
+            self._last_time = ctypes.c_double()
+            self._flag_ptrs = [ctypes.byref(self._flags, i) for i in range(3)]
+        for f in (self._set, self._get, self._do_step):
+            f.restype = ctypes.c_int
+        n_tau, n_out = len(self._vr_tau), len(self._vr_out)
+        if self.fmi_version == 2:
+            self._set_args = (self._component, self._vr_tau, n_tau, self._tau_buffer)
+            self._get_args = (self._component, self._vr_out, n_out, self._out_buffer)
+        else:
+            self._set_args = (self._component, self._vr_tau, n_tau, self._tau_buffer, n_tau)
+            self._get_args = (self._component, self._vr_out, n_out, self._out_buffer, n_out)
+
+    # Per step -------------------------------------------------------------------------------
+
+    def step(self, t: float, h: float) -> None:
+        """Apply ``tau`` (zero-order hold) and advance from ``t`` to ``t + h`` seconds."""
+        self.time = t
+        if self._set(*self._set_args) > 1:
+            raise FmuError(self._describe_failure("setting tau", "status error"))
+        if self.fmi_version == 2:
+            status = self._do_step(self._component, self.time, h, 1)
+        else:
+            status = self._do_step(self._component, self.time, h, True, *self._flag_ptrs,
+                                   ctypes.byref(self._last_time))
+        if status > 1:
+            raise FmuError(self._describe_failure("doStep", f"status {status}"))
+        self.time = t + h
+        self._read_outputs()
+
+    def _read_outputs(self) -> None:
+        if self._get(*self._get_args) > 1:
+            raise FmuError(self._describe_failure("reading outputs", "status error"))
+        n = self.links
+        self.q[:] = self._outputs[:n]
+        k = n
+        if self.has_qdot:
+            self.qdot[:] = self._outputs[k:k + n]
+            k += n
+        if self.has_M:
+            self.M[:] = self._outputs[k:k + n * n].reshape(n, n)
+
+    def close(self) -> None:
+        if self._instance is not None:
+            try:
+                self._instance.terminate()
+            except FMICallException:
+                pass
+            self._instance.freeInstance()
+            self._instance = None
+        if self._unzip:
+            shutil.rmtree(self._unzip, ignore_errors=True)
+            self._unzip = None
+
+    def __enter__(self) -> Fmu:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()

@@ -1,0 +1,147 @@
+"""Safe sets (13)–(18), Theorem 1 quantities, barrier functions H1 (28), H2 (29) and the
+run metrics, evaluated from a trace (vectorised over its rows).
+
+Ground truth (true q̇, true observer error) is used here for evaluation only, never for control.
+The ideal NN weights in (28)–(29) are unknown; W̃ = W_ideal − Ŵ is evaluated with
+W_ideal = 0, so tr(W̃ᵀF⁻¹W̃) = ‖Ŵ‖²_F / F for the scalar gains F, G, Fo used here.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .trace import Trace
+
+
+@dataclass
+class SafeSet:
+    """Bounds, SI units. The paper's Sec. IV values are the defaults."""
+
+    position_bound: float = 20.0  # α_max of ‖x1 − q_s‖, rad
+    velocity_bound: float = 13.5  # α_max of ‖x̂2 − q̇_s‖, rad/s
+    error_bound: float = 1.0  # E1 of ‖e‖, rad
+    error_rate_bound: float = 5.0  # E2 of ‖ė‖, rad/s
+    observer_error_bound: float = 1.0  # ε_max of (16), rad/s and rad
+    Z_Wo_tilde: float = 20.0  # bounds of (17)-(18) used in H1, H2
+    Z_Wc_tilde: float = 50.0
+    Z_Vc_tilde: float = 50.0
+
+
+@dataclass
+class Gains:
+    """The controller/observer gains the barriers need."""
+
+    Lambda: np.ndarray  # (n,)
+    F: float
+    G: float
+    Fo: float
+    output_feedback: bool  # proposed (x̂2) or full state (q̇)
+
+
+def theorem1(trace: Trace, safe: SafeSet, lam: np.ndarray) -> dict[str, float]:
+    """E1, E2 by their formulas in (14), and R = M_R − M_r, the bound on ‖r̂‖ of (15)
+    under which ‖e‖ ≤ E1 and ‖ė‖ ≤ E2 (our reading: ‖e‖ ≤ R/λmin(Λ), ‖ė‖ ≤ R + λmax‖e‖)."""
+    dq = np.linalg.norm(trace["q_s"] - trace["q_d"], axis=1).max()
+    dv = np.linalg.norm(trace["qdot_s"] - trace["qdot_d"], axis=1).max()
+    lmin, lmax = float(np.min(lam)), float(np.max(lam))
+    m_big = lmin * safe.error_bound
+    r_bound = min(m_big, safe.error_rate_bound * lmin / (lmin + lmax))
+    return {"E1_formula": abs(safe.position_bound - dq),
+            "E2_formula": abs(safe.velocity_bound - dv), "E1": safe.error_bound,
+            "E2": safe.error_rate_bound, "M_R": m_big,
+            "M_r": m_big - r_bound, "R": r_bound}
+
+
+def check_signals(trace: Trace, safe: SafeSet, gains: Gains) -> dict[str, tuple[np.ndarray, float]]:
+    """Every safety check: name -> (value per row, upper bound). Values are ≥ 0."""
+    q_dev = trace["q"] - trace["q_s"]
+    used_velocity = trace["qdot_d"] - trace["edot"]  # x̂2 (proposed) or q̇ (baseline)
+    v_dev = used_velocity - trace["qdot_s"]
+    true_dev = trace["qdot"] - trace["qdot_s"]
+    eps = safe.observer_error_bound if gains.output_feedback else 0.0
+    r_bound = theorem1(trace, safe, gains.Lambda)["R"]
+    checks = {}
+    for name, signal, bound in [
+        ("position", q_dev, safe.position_bound),
+        ("velocity_estimated", v_dev, safe.velocity_bound),
+        ("velocity_true", true_dev, safe.velocity_bound + eps),
+        ("error", trace["e"], safe.error_bound),
+        ("error_rate", trace["edot"], safe.error_rate_bound),
+    ]:
+        checks[f"{name}_joint1"] = (np.abs(signal[:, 0]), bound)
+        checks[f"{name}_norm"] = (np.linalg.norm(signal, axis=1), bound)
+    checks["filtered_error_norm"] = (np.linalg.norm(trace["r_hat"], axis=1), r_bound)
+    if gains.output_feedback:
+        checks["observer_error_norm"] = (
+            np.linalg.norm(trace["qdot"] - trace["qdot_hat"], axis=1), eps)
+    return checks
+
+
+def reference_values(trace: Trace, safe: SafeSet) -> dict[str, np.ndarray]:
+    """What the checks read for the reference itself: a set it leaves cannot be kept."""
+    pos = trace["q_d"] - trace["q_s"]
+    vel = trace["qdot_d"] - trace["qdot_s"]
+    return {"position_joint1": np.abs(pos[:, 0]), "position_norm": np.linalg.norm(pos, axis=1),
+            "velocity_estimated_joint1": np.abs(vel[:, 0]),
+            "velocity_estimated_norm": np.linalg.norm(vel, axis=1),
+            "velocity_true_joint1": np.abs(vel[:, 0]),
+            "velocity_true_norm": np.linalg.norm(vel, axis=1)}
+
+
+def barriers(trace: Trace, safe: SafeSet, gains: Gains) -> dict[str, np.ndarray]:
+    """H1 (28), H2 (29) and H = H1 + H2 per row."""
+    eps = safe.observer_error_bound
+    x1_err = np.sum((trace["q"] - trace["q_hat"]) ** 2, axis=1)
+    x2_err = np.sum((trace["qdot"] - trace["qdot_hat"]) ** 2, axis=1)
+    k0 = trace["k0"]
+    h1 = 0.5 * ((k0 * eps**2 - k0 * x1_err) + (eps**2 - x2_err)
+                + (safe.Z_Wo_tilde**2 - trace["W_o_norm"] ** 2) / gains.Fo)
+    r = trace["r_hat"]
+    mass = trace["M"]
+    sigma_max = np.linalg.eigvalsh(mass)[:, -1]
+    r_m_r = np.einsum("ki,kij,kj->k", r, mass, r)
+    r_bound = theorem1(trace, safe, gains.Lambda)["R"]
+    h2 = 0.5 * ((safe.error_bound**2 - np.sum(trace["e"] ** 2, axis=1))
+                + (sigma_max * r_bound**2 - r_m_r)
+                + (safe.Z_Wc_tilde**2 - trace["W_norm"] ** 2) / gains.F
+                + (safe.Z_Vc_tilde**2 - trace["V_norm"] ** 2) / gains.G)
+    return {"H1": h1, "H2": h2, "H": h1 + h2}
+
+
+def evaluate(trace: Trace, safe: SafeSet, gains: Gains) -> tuple[dict, dict]:
+    """(metrics, safety) for summary.json, from the completed rows of the trace."""
+    checks = check_signals(trace, safe, gains)
+    reference = reference_values(trace, safe)
+    safety = {}
+    for name, (values, bound) in checks.items():
+        worst = float(np.max(values)) if len(values) else float("nan")
+        entry = {"bound": float(bound), "worst": worst, "satisfied": bool(worst <= bound)}
+        if name in reference:
+            entry["reference_worst"] = float(np.max(reference[name]))
+        safety[name] = entry
+
+    t = trace.time
+    after_1s = t >= 1.0
+    obs_err = trace["qdot"] - trace["qdot_hat"]
+    h = barriers(trace, safe, gains)
+
+    def per_joint(x: np.ndarray) -> list[float]:
+        return [float(v) for v in x]
+
+    metrics = {
+        "rms_error": per_joint(np.sqrt(np.mean(trace["e"] ** 2, axis=0))),
+        "max_error": per_joint(np.max(np.abs(trace["e"]), axis=0)),
+        "rms_error_rate": per_joint(np.sqrt(np.mean(trace["edot"] ** 2, axis=0))),
+        "max_error_rate": per_joint(np.max(np.abs(trace["edot"]), axis=0)),
+        "observer_velocity_error_rms_after_1s": per_joint(
+            np.sqrt(np.mean(obs_err[after_1s] ** 2, axis=0))) if after_1s.any() else None,
+        "peak_torque": per_joint(np.max(np.abs(trace["tau"]), axis=0)),
+        "rms_torque": per_joint(np.sqrt(np.mean(trace["tau"] ** 2, axis=0))),
+        "min_barrier_H": float(np.min(h["H"])),
+        "min_barrier_H1": float(np.min(h["H1"])),
+        "min_barrier_H2": float(np.min(h["H2"])),
+        "theorem1": theorem1(trace, safe, gains.Lambda),
+    }
+    return metrics, safety
