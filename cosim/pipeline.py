@@ -110,7 +110,7 @@ class Controller(Section):
     z_wc: NonNegativeFloat = 10.0
     c0: NonNegativeFloat = 150.0
     c1: NonNegativeFloat = 0.1
-    delta: PositiveFloat = 0.25
+    delta: PositiveFloat = 1.0
     psi_b: NonNegativeFloat = 20.0
     hidden: Annotated[int, Field(ge=1, le=200)] = 10
 

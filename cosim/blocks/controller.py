@@ -102,7 +102,7 @@ class NnController:
     z_wc: float = 10.0  # proposed's Z_Wc in (27)
     c0: float = 150.0
     c1: float = 0.1
-    delta: float = 0.25
+    delta: float = 1.0
     psi_b: float = 20.0
     hidden: int = 10
     name: str = "controller"
