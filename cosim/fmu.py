@@ -182,6 +182,7 @@ class Fmu:
             self._flags = (ctypes.c_bool * 3)()
             self._last_time = ctypes.c_double()
             self._flag_ptrs = [ctypes.byref(self._flags, i) for i in range(3)]
+            self._flag_ptrs.append(ctypes.byref(self._last_time))
         for f in (self._set, self._get, self._do_step):
             f.restype = ctypes.c_int
         n_tau, n_out = len(self._vr_tau), len(self._vr_out)
@@ -202,8 +203,7 @@ class Fmu:
         if self.fmi_version == 2:
             status = self._do_step(self._component, self.time, h, 1)
         else:
-            status = self._do_step(self._component, self.time, h, True, *self._flag_ptrs,
-                                   ctypes.byref(self._last_time))
+            status = self._do_step(self._component, self.time, h, True, *self._flag_ptrs)
         if status > 1:
             raise FmuError(self._describe_failure("doStep", f"status {status}"))
         self.time = t + h

@@ -129,6 +129,7 @@ class FlnnObserver:
         self._tau_d = np.broadcast_to(np.asarray(self.tau_d, float), (n,)).copy()
         self._s = np.zeros(3 * n + self._n_basis * n)  # x̂1, ẑ2, q̂̈, Ŵo (weights start at 0)
         self._trace = trace
+        self._modes = (trace.dt, self.substeps, LAWS[self.law], BASES[self.basis])
         self._args = (trace["q_meas"], trace["tau"], trace["M"], trace["q_d"], trace["q_hat"],
                       trace["qdot_hat"], trace["k0"], trace["W_o_norm"])
         self._started = False
@@ -146,6 +147,5 @@ class FlnnObserver:
     def step(self, k: int) -> bool:
         if not self._started:
             self._initialise(self._trace)
-        return _observer_step(k, self._trace.dt, self.substeps, LAWS[self.law],
-                              BASES[self.basis], self._p, self._tau_d, self._s, self._n_basis,
+        return _observer_step(k, *self._modes, self._p, self._tau_d, self._s, self._n_basis,
                               *self._args)
