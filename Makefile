@@ -4,8 +4,21 @@ PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV := .venv
 BIN := $(VENV)/bin
 
-.PHONY: demo test lint venv
+.PHONY: demo test lint venv render-deps
 venv: $(VENV)/.installed
+
+# Software Vulkan (Debian's mesa-vulkan-drivers) so the tests can render the recording in the
+# real Rerun viewer without a GPU or display. Without it those tests skip and say why.
+LAVAPIPE := /usr/share/vulkan/icd.d/lvp_icd.x86_64.json
+render-deps:
+	@test -e $(LAVAPIPE) || { \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null; then \
+	    export DEBIAN_FRONTEND=noninteractive; \
+	    { apt-get install -y -q mesa-vulkan-drivers || \
+	      { apt-get update -q && apt-get install -y -q mesa-vulkan-drivers; }; } >/dev/null \
+	      || echo "note: could not install mesa-vulkan-drivers; viewer tests will skip"; \
+	  else echo "note: $(LAVAPIPE) is missing (apt-get install mesa-vulkan-drivers as root);" \
+	    "viewer tests will skip"; fi; }
 
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -16,7 +29,7 @@ $(VENV)/.installed: pyproject.toml
 demo: venv
 	$(BIN)/cosim run pipelines/paper_two_link.toml --out runs/paper
 
-test: venv
+test: venv render-deps
 	$(BIN)/ruff check .
 	$(BIN)/python -m pytest
 

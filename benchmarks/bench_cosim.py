@@ -1,24 +1,31 @@
-"""Closed-loop cost against the FMU alone, in one process.
+"""Closed-loop cost against the FMU alone, and what writing the recording costs, in one
+process.
 
-Times the full closed loop of the paper's proposed run (observer + NN controller + FMU) and
-an FMU-only loop (the same FMU, same adapter, constant torque, same step count), each the
-best of a few repetitions, and prints as its last line
+1. The paper's two runs (baseline + proposed, 20 s at 1 kHz) through ``cosim.run`` into a
+   run folder, without and with ``recording.rrd``: the loops' wall time (what the master
+   measures, chunks handed to the recording writer included) and the whole call (start-up,
+   evaluation, summary and the writer's final flush included), and the file's size.
+2. The full closed loop of the paper's proposed run (observer + NN controller + FMU) against
+   an FMU-only loop (the same FMU, same adapter, constant torque, same step count).
+
+Each figure is the best of a few repetitions. The last line is
 
     closed_loop_us_per_step=X fmu_only_us_per_step=Y ratio=X/Y
 
-Run: .venv/bin/python benchmarks/bench_cosim.py [--duration 20] [--repeat 3]
+Run: .venv/bin/python benchmarks/bench_cosim.py [--duration 20] [--repeat 3] [--no-recording]
 """
 
 from __future__ import annotations
 
 import argparse
+import tempfile
 import time
 from pathlib import Path
 
 from cosim.fmu import Fmu, PlantVariables
 from cosim.master import simulate
 from cosim.pipeline import load_pipeline
-from cosim.runner import make_blocks, plant_path
+from cosim.runner import make_blocks, plant_path, run
 from cosim.trace import Trace
 
 PIPELINE = Path(__file__).resolve().parent.parent / "pipelines" / "paper_two_link.toml"
@@ -42,11 +49,47 @@ def fmu_only(plant: Fmu, duration: float, h: float = 1e-3) -> float:
     return (time.perf_counter() - start) / steps
 
 
+def paper_run(record: bool, out: Path) -> tuple[float, float, float]:
+    """(sum of the runs' loop wall times, wall time of the whole call, time the loops spent
+    handing rows to the recording writer), in seconds."""
+    start = time.perf_counter()
+    results = run(load_pipeline(PIPELINE), out, progress=False, record=record, figures=False)
+    total = time.perf_counter() - start
+    return (sum(r.metrics["wall_time_s"] for r in results.values()), total,
+            sum(r.metrics.get("recording_handoff_s", 0.0) for r in results.values()))
+
+
+def recording_cost(repeat: int) -> None:
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(tmp)
+        paper_run(False, out)  # JIT compile and FMU build outside the timing
+        plain, recorded = [], []
+        for _ in range(repeat):  # interleaved, so a slow spell of the machine hits both
+            plain.append(paper_run(False, out))
+            recorded.append(paper_run(True, out))
+        size = (out / "recording.rrd").stat().st_size
+    loop_off, loop_on = min(p[0] for p in plain), min(r[0] for r in recorded)
+    call_off, call_on = min(p[1] for p in plain), min(r[1] for r in recorded)
+    print(f"paper pipeline, 2 runs x 20 s at 1 kHz, best of {repeat}:")
+    print(f"  loops without recording {loop_off:.3f} s, with {loop_on:.3f} s: "
+          f"recording_overhead_loop={100 * (loop_on / loop_off - 1):.1f} %")
+    print(f"  whole call without recording {call_off:.3f} s, with {call_on:.3f} s: "
+          f"recording_overhead_call={100 * (call_on / call_off - 1):.1f} %")
+    handoff = min(r[2] for r in recorded)
+    print(f"  the loops' own share (handing rows over): {1e3 * handoff:.1f} ms = "
+          f"{100 * handoff / loop_off:.1f} % of the loops")
+    print(f"  recording.rrd {size / 1e6:.1f} MB")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--duration", type=float, default=20.0, help="simulated seconds")
     parser.add_argument("--repeat", type=int, default=3, help="repetitions (best is kept)")
+    parser.add_argument("--no-recording", action="store_true",
+                        help="skip the recording on/off comparison")
     args = parser.parse_args()
+    if not args.no_recording:
+        recording_cost(args.repeat)
     pipeline = load_pipeline(PIPELINE)
     plant = Fmu(plant_path(pipeline), PlantVariables.default(2))
     try:

@@ -24,6 +24,7 @@ def _build_fmu(args: argparse.Namespace) -> None:
 def _run(args: argparse.Namespace) -> None:
     from .master import Diverged
     from .pipeline import load_pipeline
+    from .recording import RecordingError
     from .runner import run
 
     pipeline = load_pipeline(args.pipeline, args.set)
@@ -32,15 +33,34 @@ def _run(args: argparse.Namespace) -> None:
           f"({pipeline.simulation.duration:g} s at {1 / pipeline.simulation.step:g} Hz) -> {out}",
           file=sys.stderr)
     try:
-        results = run(pipeline, out)
+        results = run(pipeline, out, record=not args.no_recording, spawn=args.spawn,
+                      connect=args.connect, figures=not args.no_figures)
     except Diverged as exc:
         raise UserError(f"{exc}; what was computed is kept in {out} (marked incomplete)") \
             from None
     except KeyboardInterrupt:
         raise UserError(f"interrupted; what was computed is kept in {out} "
                         "(marked incomplete)") from None
+    except RecordingError as exc:
+        raise UserError(f"{exc}; summary.json and the traces in {out} are complete") from None
     _print_summary(results)
     print(f"run folder: {out}")
+    if not args.no_recording:
+        print(f"review: cosim view {out}   (or: rerun {out / 'recording.rrd'})")
+
+
+def _view(args: argparse.Namespace) -> None:
+    from .viewer import ViewerError, recording_path, screenshot, view
+
+    try:
+        if args.screenshot:
+            print(screenshot(recording_path(args.run_dir), args.screenshot))
+            return
+        status = view(args.run_dir)
+    except ViewerError as exc:
+        raise UserError(str(exc)) from None
+    if status:
+        raise UserError(f"the Rerun viewer exited with status {status}")
 
 
 def _print_summary(results) -> None:
@@ -89,14 +109,35 @@ def _parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("run", help="run a pipeline (TOML) and write its run folder",
                        description="Run every run of a pipeline through the co-simulation "
-                       "master and write summary.json and the traces into the run folder.")
+                       "master and write the run folder: summary.json, trace_<run>.npz, "
+                       "recording.rrd (Rerun) and PNG figures. SI units, radians.")
     p.add_argument("pipeline", help="pipeline file, e.g. pipelines/paper_two_link.toml")
     p.add_argument("--out", type=Path, default=None,
                    help="run folder (default: runs/<pipeline name>)")
     p.add_argument("--set", action="append", default=[], metavar="KEY.PATH=VALUE",
                    help="override a pipeline key with a TOML value, e.g. controller.kv=25 or "
                    "'plant.fmu=\"arm.fmu\"' (repeatable)")
+    live = p.add_mutually_exclusive_group()
+    live.add_argument("--spawn", action="store_true",
+                      help="start a Rerun viewer that follows the runs live (needs a display)")
+    live.add_argument("--connect", metavar="URL", default=None,
+                      help="stream to a Rerun viewer already running at URL, e.g. "
+                      "rerun+http://127.0.0.1:9876/proxy")
+    p.add_argument("--no-recording", action="store_true",
+                   help="do not write recording.rrd (summary, traces and figures only)")
+    p.add_argument("--no-figures", action="store_true",
+                   help="do not write the PNG figures (Figs. 2-4 of the paper)")
     p.set_defaults(func=_run)
+
+    p = sub.add_parser("view", help="open a run folder's recording in the Rerun viewer",
+                       description="Open RUN_DIR/recording.rrd in the Rerun viewer, with the "
+                       "layout stored in it (the paper's Figs. 2-4 per run, barriers, observer "
+                       "error, the arm). Without a display, says how to view it elsewhere.")
+    p.add_argument("run_dir", metavar="RUN_DIR", help="a run folder, or an .rrd file")
+    p.add_argument("--screenshot", metavar="PNG", type=Path, default=None,
+                   help="instead of opening a window, render the layout headless (software "
+                   "Vulkan: Debian's mesa-vulkan-drivers) and save it as PNG")
+    p.set_defaults(func=_view)
     return parser
 
 

@@ -193,6 +193,24 @@ class Fmu:
             self._set_args = (self._component, self._vr_tau, n_tau, self._tau_buffer, n_tau)
             self._get_args = (self._component, self._vr_out, n_out, self._out_buffer, n_out)
 
+    def describe(self) -> dict:
+        """What the recording's properties say of the plant: model name, instantiation token
+        (FMI 2 GUID), FMI version, file, and every real parameter's value as used (after
+        :meth:`start`, so pipeline overrides show; else the start values)."""
+        md = self.model_description
+        names = [v.name for v in md.modelVariables
+                 if v.causality == "parameter" and v.type in ("Real", "Float64")]
+        values: list[float] = []
+        if self._instance is not None and names:
+            getter = self._instance.getReal if self.fmi_version == 2 else self._instance.getFloat64
+            values = [float(x) for x in getter(list(self._refs(names)))]
+        else:
+            values = [float(self.by_name[n].start or "nan") for n in names]
+        return {"model_name": md.modelName, "instantiation_token": md.guid,
+                "fmi_version": md.fmiVersion, "file": str(self.path),
+                "generation_tool": md.generationTool or "",
+                "parameters": dict(zip(names, values, strict=True))}
+
     # Per step -------------------------------------------------------------------------------
 
     def step(self, t: float, h: float) -> None:

@@ -20,10 +20,12 @@ from .blocks.controller import NnController
 from .blocks.observer import FlnnObserver
 from .blocks.reference import SinusoidReference
 from .blocks.sensor import PositionSensor
+from .figures import write_figures
 from .fmu import Fmu, FmuError, PlantVariables
 from .master import Diverged, simulate
 from .pipeline import Pipeline, PipelineError, Run
-from .safety import Gains, SafeSet, evaluate
+from .recording import Recorder, RunSpec, package_versions
+from .safety import Gains, SafeSet, check_signals, evaluate
 from .trace import Trace
 
 
@@ -35,7 +37,7 @@ class RunResult:
     safety: dict
     complete: bool
     error: str | None = None
-    extra: dict = field(default_factory=dict)
+    failure: BaseException | None = field(default=None, repr=False)
 
     def summary(self) -> dict:
         out = {"complete": self.complete, "metrics": self.metrics, "safety": self.safety}
@@ -98,11 +100,15 @@ def _progress(name: str, total: int):
     return report
 
 
-def run(pipeline: Pipeline, out_dir: str | Path | None = None,
-        progress: bool = True) -> dict[str, RunResult]:
-    """Run every run of ``pipeline``; write the run folder if ``out_dir`` is given.
+def run(pipeline: Pipeline, out_dir: str | Path | None = None, progress: bool = True,
+        record: bool = True, spawn: bool = False, connect: str | None = None,
+        figures: bool = True) -> dict[str, RunResult]:
+    """Run every run of ``pipeline``; write the run folder if ``out_dir`` is given: summary,
+    traces, ``recording.rrd`` (unless ``record`` is false) and PNG figures.
 
-    Raises :class:`Diverged` (after writing what was computed) when a run diverges.
+    ``spawn`` starts a Rerun viewer that follows the runs live; ``connect`` streams to one
+    already running at that URL. Raises :class:`Diverged` (or ``KeyboardInterrupt``) after
+    writing what was computed, marked incomplete.
     """
     path = plant_path(pipeline)
     links = pipeline.plant.builtin.links if pipeline.plant.builtin else None
@@ -114,38 +120,118 @@ def run(pipeline: Pipeline, out_dir: str | Path | None = None,
     out = Path(out_dir) if out_dir else None
     if out:
         out.mkdir(parents=True, exist_ok=True)
-    plant = Fmu(path, variables, dict(pipeline.plant.parameters))
+    # The recording writer starts first: it imports Rerun while the plant loads.
+    recorder = _open_recorder(out, pipeline, spawn, connect) if out and record else None
+    plant: Fmu | None = None
+    failure: BaseException | None = None
     try:
+        plant = Fmu(path, variables, dict(pipeline.plant.parameters))
+        plant.start(0.0)  # refuses bad parameters before anything runs
+        plant_info = plant.describe()
+        if recorder is not None:
+            recorder.set_properties(_properties(pipeline, plant_info))
         for name, spec in pipeline.runs.items():
-            blocks = make_blocks(pipeline, spec, links)
-            trace = Trace(links, steps, sim.step)
-            report = _progress(name, steps) if progress else None
-            error, wall = None, float("nan")
-            try:
-                wall = simulate(plant, blocks, trace, progress=report)
-            except (Diverged, KeyboardInterrupt) as exc:
-                error = str(exc) or "interrupted (Ctrl-C)"
-                raise_after = exc
-            else:
-                raise_after = None
-            finally:
-                if report and sys.stderr.isatty():
-                    print(file=sys.stderr)
-            done = trace.completed()
-            metrics, safety = evaluate(done, safe_set(pipeline), gains(spec, links))
-            metrics["wall_time_s"] = wall
-            metrics["steps_per_second"] = steps / wall if wall == wall and wall > 0 else None
-            metrics["simulated_time_s"] = float(done.time[-1]) if done.rows_done else 0.0
-            results[name] = RunResult(name, done, metrics, safety, error is None, error)
+            result = _run_one(name, spec, pipeline, plant, links, steps,
+                              _link_lengths(plant_info, links), recorder, progress)
+            results[name] = result
             if out:
-                write_run_folder(out, pipeline, results, plant)
-            if raise_after is not None:
-                raise raise_after
+                write_run_folder(out, pipeline, results, plant_info)
+            if not result.complete:
+                failure = result.failure
+                break
     except FmuError as exc:
         raise PipelineError(str(exc)) from None
     finally:
-        plant.close()
+        if plant is not None:
+            plant.close()
+        complete = failure is None and len(results) == len(pipeline.runs)
+        if recorder is not None:
+            reason = next((r.error for r in results.values() if r.error), "") or ""
+            recorder.close(complete, reason)
+        if out and figures and results:
+            _write_figures(out, pipeline, results)
+    if failure is not None:
+        raise failure
     return results
+
+
+def _run_one(name: str, spec: Run, pipeline: Pipeline, plant: Fmu, links: int, steps: int,
+             link_lengths: np.ndarray, recorder: Recorder | None, progress: bool) -> RunResult:
+    """One run through the master, recorded chunk by chunk (one simulated second each)."""
+    sim = pipeline.simulation
+    blocks = make_blocks(pipeline, spec, links)
+    trace = Trace(links, steps, sim.step)
+    safe, run_gains = safe_set(pipeline), gains(spec, links)
+    report = _progress(name, steps) if progress else None
+    if recorder is not None:
+        recorder.begin_run(RunSpec(name, links, sim.step, sim.duration, safe, run_gains,
+                                   link_lengths))
+
+    def on_chunk(k: int) -> None:
+        if report:
+            report(k)
+        if recorder is not None:
+            recorder.send_rows(name, trace.arrays, trace.rows_done)
+
+    error, wall, failure = None, float("nan"), None
+    handed_over = recorder.handoff_seconds if recorder is not None else 0.0
+    try:
+        wall = simulate(plant, blocks, trace, progress=on_chunk,
+                        progress_every=max(1, int(round(1.0 / sim.step))))
+    except (Diverged, KeyboardInterrupt) as exc:
+        error, failure = str(exc) or "interrupted (Ctrl-C)", exc
+    finally:
+        if report and sys.stderr.isatty():
+            print(file=sys.stderr)
+    done = trace.completed()
+    metrics, safety = evaluate(done, safe, run_gains)
+    metrics["wall_time_s"] = wall
+    metrics["steps_per_second"] = steps / wall if wall == wall and wall > 0 else None
+    metrics["simulated_time_s"] = float(done.time[-1]) if done.rows_done else 0.0
+    if recorder is not None:  # the loop's share of writing the recording
+        metrics["recording_handoff_s"] = recorder.handoff_seconds - handed_over
+    result = RunResult(name, done, metrics, safety, error is None, error, failure)
+    if recorder is not None:
+        recorder.send_rows(name, trace.arrays, trace.rows_done)
+        recorder.end_run(name, result.summary())
+    return result
+
+
+def _open_recorder(out: Path, pipeline: Pipeline, spawn: bool,
+                   connect: str | None) -> Recorder:
+    sim = pipeline.simulation
+    title = (f"{pipeline.name}: {' vs '.join(pipeline.runs)} "
+             f"({sim.duration:g} s at {1 / sim.step:g} Hz)")
+    return Recorder(out / "recording.rrd", title, list(pipeline.runs), spawn=spawn,
+                    connect=connect)
+
+
+def _properties(pipeline: Pipeline, plant_info: dict) -> dict[str, dict]:
+    resolved = json.dumps(_jsonable(pipeline.model_dump(by_alias=True)))
+    return {
+        "pipeline": {"name": pipeline.name, "description": pipeline.description or "",
+                     "resolved": resolved},
+        "plant": {**{k: v for k, v in plant_info.items() if k != "parameters"},
+                  "parameters": json.dumps(plant_info["parameters"])},
+        "versions": package_versions(),
+    }
+
+
+def _link_lengths(plant_info: dict, links: int) -> np.ndarray:
+    """Link lengths for drawing the arm: the FMU's ``l[i]`` parameters, else 1 m each."""
+    params = plant_info["parameters"]
+    names = [f"l[{i}]" for i in range(1, links + 1)]
+    if all(n in params for n in names):
+        return np.array([params[n] for n in names])
+    return np.ones(links)
+
+
+def _write_figures(out: Path, pipeline: Pipeline, results: dict[str, RunResult]) -> None:
+    links = next(iter(results.values())).trace.links
+    checks = {name: check_signals(r.trace, safe_set(pipeline), gains(pipeline.runs[name], links))
+              for name, r in results.items()}
+    write_figures(out, {n: r.trace.time for n, r in results.items()}, checks,
+                  {n: r.trace["tau"] for n, r in results.items()})
 
 
 def _count_joints(path: Path) -> int:
@@ -173,15 +259,16 @@ def _jsonable(x):
 
 
 def write_run_folder(out: Path, pipeline: Pipeline, results: dict[str, RunResult],
-                     plant: Fmu) -> None:
+                     plant_info: dict) -> None:
     """summary.json plus one trace_<run>.npz per run (all signals, SI units)."""
     complete = all(r.complete for r in results.values()) and len(results) == len(pipeline.runs)
-    md = plant.model_description
     summary = {
         "complete": complete,
         "pipeline": pipeline.model_dump(by_alias=True),
-        "plant": {"path": str(plant.path), "model_name": md.modelName,
-                  "fmi_version": md.fmiVersion, "guid": md.guid},
+        "plant": {"path": plant_info["file"], "model_name": plant_info["model_name"],
+                  "fmi_version": plant_info["fmi_version"],
+                  "guid": plant_info["instantiation_token"],
+                  "parameters": plant_info["parameters"]},
         "runs": {name: r.summary() for name, r in results.items()},
     }
     tmp = out / "summary.json.tmp"

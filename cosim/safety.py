@@ -8,11 +8,16 @@ W_ideal = 0, so tr(W̃ᵀF⁻¹W̃) = ‖Ŵ‖²_F / F for the scalar gains F, G
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
 
 from .trace import Trace
+
+# What the checks and barriers read: a Trace, or any mapping of signal name -> rows (the
+# recording writer passes one chunk of rows as a plain dict).
+Signals = Trace | Mapping[str, np.ndarray]
 
 
 @dataclass
@@ -40,7 +45,7 @@ class Gains:
     output_feedback: bool  # proposed (x̂2) or full state (q̇)
 
 
-def theorem1(trace: Trace, safe: SafeSet, lam: np.ndarray) -> dict[str, float]:
+def theorem1(trace: Signals, safe: SafeSet, lam: np.ndarray) -> dict[str, float]:
     """E1, E2 by their formulas in (14), and R = M_R − M_r, the bound on ‖r̂‖ of (15)
     under which ‖e‖ ≤ E1 and ‖ė‖ ≤ E2 (our reading: ‖e‖ ≤ R/λmin(Λ), ‖ė‖ ≤ R + λmax‖e‖)."""
     dq = np.linalg.norm(trace["q_s"] - trace["q_d"], axis=1).max()
@@ -54,43 +59,54 @@ def theorem1(trace: Trace, safe: SafeSet, lam: np.ndarray) -> dict[str, float]:
             "M_r": m_big - r_bound, "R": r_bound}
 
 
-def check_signals(trace: Trace, safe: SafeSet, gains: Gains) -> dict[str, tuple[np.ndarray, float]]:
-    """Every safety check: name -> (value per row, upper bound). Values are ≥ 0."""
+@dataclass
+class Check:
+    """One safe-set check over rows: ``value`` must stay within [lower, upper].
+
+    A joint check's value is signed (x1,1 − q_s,1, say) with lower = −upper, so the figures
+    show the signal itself against its band; a norm check's value is ≥ 0 with lower = 0.
+    """
+
+    value: np.ndarray
+    upper: float
+    lower: float
+    reference: np.ndarray | None = None  # the same quantity for the reference trajectory
+
+    @property
+    def magnitude(self) -> np.ndarray:
+        return np.abs(self.value)
+
+
+def check_signals(trace: Signals, safe: SafeSet, gains: Gains) -> dict[str, Check]:
+    """Every safety check by name, in the order summary.json lists them."""
     q_dev = trace["q"] - trace["q_s"]
     used_velocity = trace["qdot_d"] - trace["edot"]  # x̂2 (proposed) or q̇ (baseline)
     v_dev = used_velocity - trace["qdot_s"]
     true_dev = trace["qdot"] - trace["qdot_s"]
+    ref_pos = trace["q_d"] - trace["q_s"]
+    ref_vel = trace["qdot_d"] - trace["qdot_s"]
     eps = safe.observer_error_bound if gains.output_feedback else 0.0
     r_bound = theorem1(trace, safe, gains.Lambda)["R"]
     checks = {}
-    for name, signal, bound in [
-        ("position", q_dev, safe.position_bound),
-        ("velocity_estimated", v_dev, safe.velocity_bound),
-        ("velocity_true", true_dev, safe.velocity_bound + eps),
-        ("error", trace["e"], safe.error_bound),
-        ("error_rate", trace["edot"], safe.error_rate_bound),
+    for name, signal, bound, ref in [
+        ("position", q_dev, safe.position_bound, ref_pos),
+        ("velocity_estimated", v_dev, safe.velocity_bound, ref_vel),
+        ("velocity_true", true_dev, safe.velocity_bound + eps, ref_vel),
+        ("error", trace["e"], safe.error_bound, None),
+        ("error_rate", trace["edot"], safe.error_rate_bound, None),
     ]:
-        checks[f"{name}_joint1"] = (np.abs(signal[:, 0]), bound)
-        checks[f"{name}_norm"] = (np.linalg.norm(signal, axis=1), bound)
-    checks["filtered_error_norm"] = (np.linalg.norm(trace["r_hat"], axis=1), r_bound)
+        checks[f"{name}_joint1"] = Check(signal[:, 0], bound, -bound,
+                                         None if ref is None else ref[:, 0])
+        checks[f"{name}_norm"] = Check(np.linalg.norm(signal, axis=1), bound, 0.0,
+                                       None if ref is None else np.linalg.norm(ref, axis=1))
+    checks["filtered_error_norm"] = Check(np.linalg.norm(trace["r_hat"], axis=1), r_bound, 0.0)
     if gains.output_feedback:
-        checks["observer_error_norm"] = (
-            np.linalg.norm(trace["qdot"] - trace["qdot_hat"], axis=1), eps)
+        checks["observer_error_norm"] = Check(
+            np.linalg.norm(trace["qdot"] - trace["qdot_hat"], axis=1), eps, 0.0)
     return checks
 
 
-def reference_values(trace: Trace, safe: SafeSet) -> dict[str, np.ndarray]:
-    """What the checks read for the reference itself: a set it leaves cannot be kept."""
-    pos = trace["q_d"] - trace["q_s"]
-    vel = trace["qdot_d"] - trace["qdot_s"]
-    return {"position_joint1": np.abs(pos[:, 0]), "position_norm": np.linalg.norm(pos, axis=1),
-            "velocity_estimated_joint1": np.abs(vel[:, 0]),
-            "velocity_estimated_norm": np.linalg.norm(vel, axis=1),
-            "velocity_true_joint1": np.abs(vel[:, 0]),
-            "velocity_true_norm": np.linalg.norm(vel, axis=1)}
-
-
-def barriers(trace: Trace, safe: SafeSet, gains: Gains) -> dict[str, np.ndarray]:
+def barriers(trace: Signals, safe: SafeSet, gains: Gains) -> dict[str, np.ndarray]:
     """H1 (28), H2 (29) and H = H1 + H2 per row."""
     eps = safe.observer_error_bound
     x1_err = np.sum((trace["q"] - trace["q_hat"]) ** 2, axis=1)
@@ -112,14 +128,13 @@ def barriers(trace: Trace, safe: SafeSet, gains: Gains) -> dict[str, np.ndarray]
 
 def evaluate(trace: Trace, safe: SafeSet, gains: Gains) -> tuple[dict, dict]:
     """(metrics, safety) for summary.json, from the completed rows of the trace."""
-    checks = check_signals(trace, safe, gains)
-    reference = reference_values(trace, safe)
     safety = {}
-    for name, (values, bound) in checks.items():
-        worst = float(np.max(values)) if len(values) else float("nan")
-        entry = {"bound": float(bound), "worst": worst, "satisfied": bool(worst <= bound)}
-        if name in reference:
-            entry["reference_worst"] = float(np.max(reference[name]))
+    for name, check in check_signals(trace, safe, gains).items():
+        worst = float(np.max(check.magnitude)) if len(check.value) else float("nan")
+        entry = {"bound": float(check.upper), "worst": worst,
+                 "satisfied": bool(worst <= check.upper)}
+        if check.reference is not None and len(check.reference):
+            entry["reference_worst"] = float(np.max(np.abs(check.reference)))
         safety[name] = entry
 
     t = trace.time

@@ -3,19 +3,16 @@
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
+from cli_helpers import LOW_GAIN_LAGGED, PAPER, cosim_cli
 from scipy.integrate import solve_ivp
 
 from cosim.master import Diverged, simulate
 from cosim.pipeline import PipelineError, load_pipeline
 from cosim.runner import make_blocks, run
 from cosim.trace import Trace
-
-PAPER = "pipelines/paper_two_link.toml"
 
 
 @pytest.fixture(scope="module")
@@ -165,11 +162,6 @@ def test_bad_pipelines_get_one_clear_message(override, expected):
     assert expected in str(info.value)
 
 
-def cosim_cli(*args):
-    return subprocess.run([sys.executable, "-m", "cosim.cli", *args], capture_output=True,
-                          text=True, timeout=600)
-
-
 def test_cli_reports_bad_input_without_traceback(tmp_path):
     result = cosim_cli("run", PAPER, "--out", str(tmp_path / "x"), "--set", "controller.kvv=1")
     assert result.returncode == 2
@@ -177,10 +169,6 @@ def test_cli_reports_bad_input_without_traceback(tmp_path):
     assert "Traceback" not in result.stderr
     missing = cosim_cli("run", str(tmp_path / "nope.toml"))
     assert missing.returncode == 2 and "no such pipeline file" in missing.stderr
-
-
-LOW_GAIN_LAGGED = ["--set", 'observer.basis="lagged"', "--set", "observer.kp=10",
-                   "--set", "observer.kd=10", "--set", "observer.nu=1.0"]
 
 
 def test_diverging_run_names_the_block_and_keeps_what_was_computed(tmp_path):

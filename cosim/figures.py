@@ -1,0 +1,82 @@
+"""PNG figures for reports, in the manner of the paper's Figs. 2-4: joint 1's position and
+velocity (Fig. 2) and their errors (Fig. 3) for every run on one set of axes, with the safe
+region shaded green and the unsafe region red, and each run's torques (Fig. 4).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from pathlib import Path
+
+import numpy as np
+
+from .recording import FIGURE_CHECKS, JOINT_COLORS
+from .safety import Check
+
+# Run colours: the paper draws the classical controller in orange, then ours.
+RUN_COLORS = ["tab:orange", "tab:blue", "tab:green", "tab:purple", "tab:brown", "tab:olive"]
+FIGURES = {
+    "fig2_position_velocity.png": ("position_joint1", "velocity_estimated_joint1"),
+    "fig3_errors.png": ("error_joint1", "error_rate_joint1"),
+}
+
+
+def _shade(ax, lower: float, upper: float) -> None:
+    """Green inside [lower, upper], red outside, over whatever the data's y-range is."""
+    low, high = ax.get_ylim()
+    span = max(high - low, upper - lower)
+    low, high = min(low, lower - 0.1 * span), max(high, upper + 0.1 * span)
+    ax.axhspan(lower, upper, color="tab:green", alpha=0.12, lw=0)
+    ax.axhspan(upper, high, color="tab:red", alpha=0.10, lw=0)
+    ax.axhspan(low, lower, color="tab:red", alpha=0.10, lw=0)
+    for bound in (lower, upper):
+        ax.axhline(bound, color="darkgreen", lw=0.8, ls="--")
+    ax.set_ylim(low, high)
+
+
+def write_figures(out: Path, time: Mapping[str, np.ndarray],
+                  checks: Mapping[str, Mapping[str, Check]],
+                  torques: Mapping[str, np.ndarray]) -> list[Path]:
+    """Write the figures into ``out``; ``time``, ``checks`` (from safety.check_signals) and
+    ``torques`` are per run name. Returns the files written."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    written = []
+    runs = list(checks)
+    for filename, pair in FIGURES.items():
+        fig, axes = plt.subplots(1, 2, figsize=(12, 4.2), constrained_layout=True)
+        for ax, check_name in zip(axes, pair, strict=True):
+            first = checks[runs[0]][check_name]
+            if first.reference is not None:
+                ax.plot(time[runs[0]], first.reference, color="black", lw=0.9, ls=":",
+                        label="reference")
+            for i, run in enumerate(runs):
+                ax.plot(time[run], checks[run][check_name].value, lw=1.0,
+                        color=RUN_COLORS[i % len(RUN_COLORS)], label=run)
+            _shade(ax, first.lower, first.upper)
+            ax.set_xlabel("time (s)")
+            ax.set_ylabel(FIGURE_CHECKS[check_name])
+            ax.set_title(f"joint 1: {FIGURE_CHECKS[check_name].split(' (')[0]}")
+            ax.legend(loc="lower right", fontsize=8)
+        fig.savefig(out / filename, dpi=110)
+        plt.close(fig)
+        written.append(out / filename)
+
+    fig, axes = plt.subplots(len(runs), 1, figsize=(10, 2.6 * len(runs)), sharex=True,
+                             constrained_layout=True, squeeze=False)
+    for ax, run in zip(axes[:, 0], runs, strict=True):
+        tau = torques[run]
+        for j in range(tau.shape[1]):
+            color = np.array(JOINT_COLORS[j % len(JOINT_COLORS)]) / 255
+            ax.plot(time[run], tau[:, j], lw=0.8, color=color, label=f"τ{j + 1}")
+        ax.set_ylabel("torque (N·m)")
+        ax.set_title(f"{run}: joint torques")
+        ax.legend(loc="upper right", fontsize=8)
+    axes[-1, 0].set_xlabel("time (s)")
+    fig.savefig(out / "fig4_torques.png", dpi=110)
+    plt.close(fig)
+    written.append(out / "fig4_torques.png")
+    return written

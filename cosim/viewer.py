@@ -1,0 +1,140 @@
+"""Opening a recording in the Rerun viewer: on this machine's display, or headless for a
+screenshot (tests and reports)."""
+
+from __future__ import annotations
+
+import os
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+LAVAPIPE_ICD = Path("/usr/share/vulkan/icd.d/lvp_icd.x86_64.json")  # mesa-vulkan-drivers
+
+
+class ViewerError(RuntimeError):
+    """The viewer could not be found, started or reached."""
+
+
+def viewer_binary() -> Path:
+    """The Rerun viewer executable shipped with rerun-sdk (the ``rerun_cli`` package)."""
+    import rerun_cli
+
+    path = Path(rerun_cli.__file__).parent / ("rerun.exe" if sys.platform == "win32" else "rerun")
+    if not path.exists():
+        raise ViewerError(f"the Rerun viewer is not installed at {path}; "
+                          "reinstall rerun-sdk (pip install 'rerun-sdk>=0.41')")
+    return path
+
+
+def recording_path(run_dir: str | Path) -> Path:
+    """``RUN_DIR/recording.rrd`` (or an .rrd path itself), checked to exist."""
+    path = Path(run_dir)
+    if path.is_dir():
+        if not (path / "recording.rrd").is_file():
+            raise ViewerError(f"{path} has no recording.rrd (was it run with --no-recording?)")
+        return path / "recording.rrd"
+    if not path.is_file():
+        raise ViewerError(f"{path} does not exist: give a run folder or an .rrd file")
+    return path
+
+
+def has_display() -> bool:
+    if sys.platform in ("darwin", "win32"):
+        return True
+    return bool(os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
+def no_display_help(path: Path) -> str:
+    return (f"no display here (DISPLAY and WAYLAND_DISPLAY are unset). To review {path}:\n"
+            f"  - copy it to a machine with a display and run: rerun {path.name}\n"
+            f"  - or serve it to a browser from here: {viewer_binary()} --serve-web {path}\n"
+            f"    and open the printed http:// address (forward the port if remote)")
+
+
+def view(run_dir: str | Path) -> int:
+    """Open the run folder's recording in the viewer; returns the viewer's exit status."""
+    path = recording_path(run_dir)
+    if not has_display():
+        raise ViewerError(no_display_help(path))
+    return subprocess.call([str(viewer_binary()), str(path)])
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def headless_renderer_available() -> str | None:
+    """None if a headless render can be tried here, else the reason it cannot."""
+    if sys.platform != "linux":
+        return "headless rendering is set up for Linux only"
+    if not LAVAPIPE_ICD.exists():
+        return (f"{LAVAPIPE_ICD} is missing: install Debian's mesa-vulkan-drivers "
+                "(software Vulkan) to render without a GPU")
+    return None
+
+
+@contextmanager
+def headless_viewer(recording: str | Path | None = None, size: str = "1600x1000",
+                    timeout: float = 60.0) -> Iterator[tuple[object, str]]:
+    """The real Rerun viewer, headless (software Vulkan) on 127.0.0.1, optionally showing
+    ``recording``. Yields (``rerun.experimental.ViewerClient``, the URL an SDK streams to);
+    stops the viewer afterwards."""
+    from rerun.experimental import ViewerClient
+
+    reason = headless_renderer_available()
+    if reason:
+        raise ViewerError(reason)
+    port = free_port()
+    url = f"rerun+http://127.0.0.1:{port}/proxy"
+    env = dict(os.environ, VK_ICD_FILENAMES=str(LAVAPIPE_ICD), RERUN_ANALYTICS="0")
+    command = [str(viewer_binary()), "--headless", "--renderer", "vulkan", "--bind",
+               "127.0.0.1", "--port", str(port), "--window-size", size,
+               "--hide-welcome-screen", *([str(recording)] if recording else [])]
+    process = subprocess.Popen(command, env=env, stdout=subprocess.DEVNULL,
+                               stderr=subprocess.PIPE)
+    try:
+        deadline = time.monotonic() + timeout
+        while True:
+            if process.poll() is not None:
+                raise ViewerError(f"the viewer exited with status {process.returncode}: "
+                                  f"{process.stderr.read().decode(errors='replace')[-500:]}")
+            try:
+                client = ViewerClient.connect(url)
+                break
+            except Exception:  # not listening yet
+                if time.monotonic() > deadline:
+                    raise ViewerError(f"the viewer did not answer on port {port}") from None
+                time.sleep(0.3)
+        yield client, url
+    finally:
+        process.terminate()
+        try:
+            process.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            process.kill()
+
+
+def wait_for_recording(client, timeout: float = 60.0) -> None:
+    """Until the viewer shows a recording (then a moment more, for the views to draw)."""
+    deadline = time.monotonic() + timeout
+    while not client.get_state().active_recording:
+        if time.monotonic() > deadline:
+            raise ViewerError("the viewer did not load the recording")
+        time.sleep(0.3)
+    time.sleep(1.0)
+
+
+def screenshot(recording: str | Path, png: str | Path, size: str = "1600x1000",
+               timeout: float = 60.0) -> Path:
+    """Render ``recording`` in the real viewer, headless, and save a screenshot of its
+    default blueprint to ``png``."""
+    with headless_viewer(recording, size, timeout) as (client, _):
+        wait_for_recording(client, timeout)
+        client.save_screenshot(str(png))
+    return Path(png)

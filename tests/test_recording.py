@@ -1,0 +1,308 @@
+"""The Rerun recording: written from the paper's runs, read back with rerun-sdk's own reader,
+checked against the trace and summary.json, and rendered in the real viewer (headless)."""
+
+from __future__ import annotations
+
+import json
+import signal
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+import rerun as rr
+from cli_helpers import LOW_GAIN_LAGGED, PAPER, cosim_cli
+from rerun.chunk import RrdReader
+
+from cosim.master import Diverged
+from cosim.pipeline import load_pipeline
+from cosim.recording import (
+    BARRIERS,
+    BOUND_COLOR,
+    DERIVED_ENTITIES,
+    JOINT_COLORS,
+    TRACE_ENTITIES,
+    VIOLATION_COLOR,
+)
+from cosim.runner import gains, run, safe_set
+from cosim.safety import barriers
+from cosim.viewer import (
+    ViewerError,
+    headless_renderer_available,
+    headless_viewer,
+    screenshot,
+    viewer_binary,
+    wait_for_recording,
+)
+
+STEPS = 20_000  # the paper's 20 s at 1 kHz
+RUNS = ("baseline", "proposed")
+
+
+@pytest.fixture(scope="module")
+def paper(tmp_path_factory):
+    """The paper pipeline, run once into a run folder: (folder, results, summary.json)."""
+    out = tmp_path_factory.mktemp("paper")
+    results = run(load_pipeline(PAPER), out, progress=False)
+    summary = json.loads((out / "summary.json").read_text())
+    return out, results, summary
+
+
+def read_store(path):
+    return RrdReader(path).stream().collect()
+
+
+@pytest.fixture(scope="module")
+def store(paper):
+    return read_store(paper[0] / "recording.rrd")
+
+
+@pytest.fixture(scope="module")
+def tables(store):
+    """One table per run on the sim_time index (one query per run is much faster than one
+    per entity)."""
+    return {name: store.reader("sim_time", contents=f"/{name}/**").to_arrow_table()
+            for name in RUNS}
+
+
+def scalars(table, entity: str) -> np.ndarray:
+    """The entity's Scalars as (rows, width), rows where it has no value dropped."""
+    column = table.column(f"{entity}:Scalars:scalars")
+    values = [v for v in column.to_pylist() if v is not None]
+    return np.array(values, dtype=float)
+
+
+def times(table, entity: str) -> np.ndarray:
+    """sim_time (s) of the entity's rows; none if it never got a value."""
+    if f"{entity}:Scalars:scalars" not in table.column_names:
+        return np.zeros(0)
+    column = table.column(f"{entity}:Scalars:scalars").to_pylist()
+    ns = np.array(table.column("sim_time").cast("int64").to_pylist())
+    return ns[[v is not None for v in column]] / 1e9
+
+
+def properties(store) -> dict:
+    table = store.reader(None, contents="/__properties/**").to_arrow_table()
+    out = {}
+    for name in table.column_names:
+        if name.startswith("property:"):
+            value = table.column(name).to_pylist()[0]
+            out[name.removeprefix("property:")] = value[0] if isinstance(value, list) else value
+    return out
+
+
+def per_step_entities(checks) -> list[str]:
+    return ([*TRACE_ENTITIES, *DERIVED_ENTITIES]
+            + [f"safety/{c}/value" for c in checks] + [f"barrier/{b}" for b in BARRIERS])
+
+
+def test_every_entity_exists_with_one_row_per_step(paper, store, tables):
+    _, _, summary = paper
+    paths = set(store.schema().entity_paths())
+    for name in RUNS:
+        checks = summary["runs"][name]["safety"]
+        for entity in per_step_entities(checks):
+            values = scalars(tables[name], f"/{name}/{entity}")
+            assert len(values) == STEPS + 1, entity
+            assert np.all(np.isfinite(values)), entity
+        for check in checks:
+            for side in ("upper", "lower", "violation"):
+                assert f"/{name}/safety/{check}/{side}" in paths
+        for part in ("links", "joints", "desired"):
+            assert f"/{name}/arm/{part}" in paths
+    t = times(tables["proposed"], "/proposed/plant/q")
+    np.testing.assert_allclose(t, np.arange(STEPS + 1) * 1e-3, atol=1e-9)
+
+
+def test_values_equal_the_trace(paper, tables):
+    _, results, _ = paper
+    for name in RUNS:
+        trace = results[name].trace
+        for entity, (signal_name, _) in TRACE_ENTITIES.items():
+            recorded = scalars(tables[name], f"/{name}/{entity}")
+            expected = trace[signal_name].reshape(len(recorded), -1)
+            assert np.array_equal(recorded, expected), entity
+        for entity, (true, estimate, _) in DERIVED_ENTITIES.items():
+            recorded = scalars(tables[name], f"/{name}/{entity}")
+            assert np.array_equal(recorded, trace[true] - trace[estimate]), entity
+        pipeline = load_pipeline(PAPER)
+        expected = barriers(trace, safe_set(pipeline), gains(pipeline.runs[name], 2))
+        for b in BARRIERS:
+            recorded = scalars(tables[name], f"/{name}/barrier/{b}")[:, 0]
+            np.testing.assert_allclose(recorded, expected[b], rtol=1e-12)
+
+
+def test_safety_entities_match_summary(paper, tables):
+    """Worst |value| equals summary.json's worst; bounds are the summary's; a marker is at
+    the start of every excursion and only outside the bound."""
+    _, results, summary = paper
+    for name in RUNS:
+        table = tables[name]
+        for check, entry in summary["runs"][name]["safety"].items():
+            base = f"/{name}/safety/{check}"
+            value = scalars(table, f"{base}/value")[:, 0]
+            assert np.max(np.abs(value)) == pytest.approx(entry["worst"], rel=1e-12), check
+            upper = scalars(table, f"{base}/upper")[:, 0]
+            lower = scalars(table, f"{base}/lower")[:, 0]
+            assert np.all(upper == entry["bound"])
+            assert np.all(lower == (-entry["bound"] if check.endswith("joint1") else 0.0))
+            outside = (value > upper[0]) | (value < lower[0])
+            marks = np.round(times(table, f"{base}/violation") * 1000).astype(int)
+            assert np.all(outside[marks]), check
+            starts = np.flatnonzero(outside & ~np.concatenate(([False], outside[:-1])))
+            assert set(starts) <= set(marks), check
+            assert (len(marks) == 0) == entry["satisfied"], check
+    # The paper's claim as recorded: the recording's max |q̇1| for the baseline is the
+    # summary's worst true velocity (q̇_s1, the sampled midpoint of q̇_d1, is 0 to ~1e-8).
+    qdot1 = scalars(tables["baseline"], "/baseline/plant/qdot")[:, 0]
+    assert np.max(np.abs(qdot1)) == pytest.approx(summary["runs"]["baseline"]["safety"][
+        "velocity_true_joint1"]["worst"], rel=1e-8)
+    assert np.max(np.abs(qdot1)) > 13.5
+
+
+def test_arm_is_drawn_from_forward_kinematics(paper, tables):
+    """Joint positions at 50 Hz against the two-link closed form (y negated: Rerun's 2D
+    views are y-down)."""
+    _, results, _ = paper
+    q = results["proposed"].trace["q"]
+    column = tables["proposed"].column("/proposed/arm/joints:Points2D:positions").to_pylist()
+    rows = [(k, v) for k, v in enumerate(column) if v is not None]
+    assert [k for k, _ in rows] == list(range(0, STEPS + 1, 20))
+    for k, points in rows[::97]:
+        q1, q2 = q[k]
+        expected = [[0, 0], [np.cos(q1), -np.sin(q1)],
+                    [np.cos(q1) + np.cos(q1 + q2), -np.sin(q1) - np.sin(q1 + q2)]]
+        np.testing.assert_allclose(points, expected, atol=1e-5)  # stored as float32
+
+
+def test_properties_blueprint_and_verification(paper, store):
+    out, results, summary = paper
+    props = properties(store)
+    assert json.loads(props["pipeline:resolved"]) == summary["pipeline"]
+    assert props["plant:model_name"] == "PlanarArm2"
+    assert props["plant:instantiation_token"] == summary["plant"]["guid"]
+    assert props["plant:fmi_version"] == "2.0"
+    assert json.loads(props["plant:parameters"])["m[2]"] == 2.3
+    assert props["versions:rerun-sdk"] == rr.__version__
+    for name in RUNS:
+        assert json.loads(props[f"run_{name}:metrics"])["peak_torque"] == \
+            summary["runs"][name]["metrics"]["peak_torque"]
+        assert props[f"run_{name}:complete"] is True
+    assert props["status:complete"] is True
+    assert props["RecordingInfo:name"].startswith("paper_two_link: baseline vs proposed")
+    assert RrdReader(out / "recording.rrd").blueprints(), "no blueprint stored"
+    verify = subprocess.run([str(viewer_binary()), "rrd", "verify",
+                             str(out / "recording.rrd")], capture_output=True, text=True,
+                            env={"RERUN_ANALYTICS": "0", "PATH": "/usr/bin:/bin"})
+    assert verify.returncode == 0, verify.stderr[-2000:]
+
+
+def test_recording_size_budget(paper):
+    """Budget: the paper's two runs, 20 s at 1 kHz, in at most 40 MB."""
+    assert (paper[0] / "recording.rrd").stat().st_size <= 40e6
+
+
+def test_figures_are_written(paper):
+    import matplotlib.image
+
+    for name in ("fig2_position_velocity.png", "fig3_errors.png", "fig4_torques.png"):
+        image = matplotlib.image.imread(paper[0] / name)
+        assert image.shape[0] > 300 and image.shape[1] > 800
+        assert image[..., :3].std() > 0.05, f"{name} looks blank"
+
+
+def test_diverged_run_leaves_a_readable_recording_marked_incomplete(tmp_path):
+    pipeline = load_pipeline(PAPER, [o for o in LOW_GAIN_LAGGED if o != "--set"])
+    with pytest.raises(Diverged):
+        run(pipeline, tmp_path, progress=False, figures=False)
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    done = summary["runs"]["baseline"]["metrics"]["simulated_time_s"]
+    store = read_store(tmp_path / "recording.rrd")
+    props = properties(store)
+    assert props["status:complete"] is False
+    assert "diverged in the observer block" in props["status:reason"]
+    assert props["RecordingInfo:name"].endswith("(incomplete)")
+    table = store.reader("sim_time", contents="/baseline/**").to_arrow_table()
+    q = scalars(table, "/baseline/plant/q")
+    assert len(q) == round(done * 1000) + 1
+    trace = np.load(tmp_path / "trace_baseline.npz")
+    assert np.array_equal(q, trace["q"])
+
+
+def test_interrupted_run_leaves_a_readable_recording_marked_incomplete(tmp_path):
+    """Ctrl-C (SIGINT) a real `cosim run` part-way through: what was computed is recorded."""
+    out = tmp_path / "run"
+    process = subprocess.Popen(
+        [sys.executable, "-m", "cosim.cli", "run", PAPER, "--out", str(out), "--no-figures",
+         "--set", "simulation.duration=200"], stderr=subprocess.PIPE, text=True)
+    for line in process.stderr:  # progress lines: interrupt once the loop is under way
+        if "baseline: 25 %" in line:
+            break
+    time.sleep(0.5)
+    process.send_signal(signal.SIGINT)
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 2
+    assert "interrupted" in err and "Traceback" not in err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["complete"] is False
+    done = summary["runs"]["baseline"]["metrics"]["simulated_time_s"]
+    assert 50 < done < 200
+    store = read_store(out / "recording.rrd")
+    props = properties(store)
+    assert props["status:complete"] is False
+    table = store.reader("sim_time", contents="/baseline/plant/q").to_arrow_table()
+    assert len(scalars(table, "/baseline/plant/q")) == round(done * 1000) + 1
+
+
+def _renderer_or_skip():
+    reason = headless_renderer_available()
+    if reason:
+        pytest.skip(f"cannot render headless here: {reason}")
+
+
+def colour_pixels(image: np.ndarray, rgb, tolerance: int = 40) -> int:
+    return int(np.sum(np.all(np.abs(image[..., :3].astype(int) - rgb) < tolerance, axis=-1)))
+
+
+def test_recording_renders_in_the_real_viewer(paper, tmp_path):
+    """The stored blueprint opens with its plots drawn: the bounds (green), joint-1 series
+    (blue) and the baseline's violation markers (red) are all on screen."""
+    _renderer_or_skip()
+    import matplotlib.image
+
+    png = screenshot(paper[0] / "recording.rrd", tmp_path / "viewer.png")
+    image = (matplotlib.image.imread(png) * 255).astype(np.uint8)
+    assert image.shape[:2] == (1000, 1600)
+    assert colour_pixels(image, BOUND_COLOR) > 2000
+    assert colour_pixels(image, JOINT_COLORS[0]) > 2000
+    assert colour_pixels(image, VIOLATION_COLOR) > 100
+
+
+def test_live_viewer_follows_a_run(tmp_path):
+    """`--connect URL`: a viewer already running receives the recording while it is written,
+    with the same layout; the file is written too."""
+    _renderer_or_skip()
+    try:
+        with headless_viewer() as (client, url):
+            result = cosim_cli("run", PAPER, "--out", str(tmp_path), "--no-figures",
+                               "--connect", url, "--set", "simulation.duration=2")
+            assert result.returncode == 0, result.stderr
+            wait_for_recording(client)
+            state = client.get_state()
+            assert state.active_recording
+    except ViewerError as exc:
+        pytest.fail(str(exc))
+    store = read_store(tmp_path / "recording.rrd")
+    table = store.reader("sim_time", contents="/proposed/plant/q").to_arrow_table()
+    assert len(scalars(table, "/proposed/plant/q")) == 2001
+
+
+def test_view_without_display_says_how(tmp_path, paper):
+    env_free = subprocess.run(
+        [sys.executable, "-m", "cosim.cli", "view", str(paper[0])], capture_output=True,
+        text=True, env={"PATH": "/usr/bin:/bin", "HOME": str(tmp_path)})
+    assert env_free.returncode == 2
+    assert "no display" in env_free.stderr and "--serve-web" in env_free.stderr
+    missing = cosim_cli("view", str(tmp_path))
+    assert missing.returncode == 2 and "has no recording.rrd" in missing.stderr
