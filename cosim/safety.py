@@ -126,6 +126,18 @@ def barriers(trace: Signals, safe: SafeSet, gains: Gains) -> dict[str, np.ndarra
     return {"H1": h1, "H2": h2, "H": h1 + h2}
 
 
+def torque_reversals(tau: np.ndarray, dt: float, fraction: float = 0.01) -> np.ndarray:
+    """Chattering, per joint: how often per second the torque's step-to-step change flips
+    sign with both changes larger than ``fraction`` of that joint's peak torque. A smooth
+    torque scores near 0; a loop that chatters at the sampling rate scores in the hundreds."""
+    if len(tau) < 3:
+        return np.zeros(tau.shape[1])
+    change = np.diff(tau, axis=0)
+    big = np.abs(change) > fraction * np.max(np.abs(tau), axis=0)
+    flips = (np.sign(change[1:]) != np.sign(change[:-1])) & big[1:] & big[:-1]
+    return flips.sum(axis=0) / (len(tau) * dt)
+
+
 def evaluate(trace: Trace, safe: SafeSet, gains: Gains) -> tuple[dict, dict]:
     """(metrics, safety) for summary.json, from the completed rows of the trace."""
     safety = {}
@@ -154,6 +166,7 @@ def evaluate(trace: Trace, safe: SafeSet, gains: Gains) -> tuple[dict, dict]:
             np.sqrt(np.mean(obs_err[after_1s] ** 2, axis=0))) if after_1s.any() else None,
         "peak_torque": per_joint(np.max(np.abs(trace["tau"]), axis=0)),
         "rms_torque": per_joint(np.sqrt(np.mean(trace["tau"] ** 2, axis=0))),
+        "torque_reversals_per_s": per_joint(torque_reversals(trace["tau"], trace.dt)),
         "min_barrier_H": float(np.min(h["H"])),
         "min_barrier_H1": float(np.min(h["H1"])),
         "min_barrier_H2": float(np.min(h["H2"])),
