@@ -42,7 +42,9 @@ def _run(args: argparse.Namespace) -> None:
         raise UserError(f"interrupted; what was computed is kept in {out} "
                         "(marked incomplete)") from None
     except RecordingError as exc:
-        raise UserError(f"{exc}; summary.json and the traces in {out} are complete") from None
+        kept = (f"summary.json and the traces in {out} are complete"
+                if (out / "summary.json").exists() else "nothing was run")
+        raise UserError(f"{exc}; {kept}") from None
     _print_summary(results)
     print(f"run folder: {out}")
     if not args.no_recording:

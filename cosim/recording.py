@@ -301,7 +301,8 @@ def _writer_main(inbox: Connection, outbox: Connection) -> None:
         rec = rr.RecordingStream("cosim", recording_id=header["recording_id"])
         sinks = [rr.FileSink(path)]
         if live.get("spawn"):
-            rr.spawn(port=live["port"], connect=False, recording=rec)
+            rr.spawn(port=live["port"], connect=False, recording=rec,
+                     executable_path=live["viewer"])
             sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{live['port']}/proxy"))
         elif live.get("connect"):
             sinks.append(rr.GrpcSink(live["connect"]))
@@ -374,7 +375,16 @@ class Recorder:
         self._error: str | None = None
         self._ready = False
         header = {"name": name, "runs": run_names, "recording_id": str(uuid.uuid4())}
-        live = {"spawn": spawn, "connect": connect, "port": port}
+        live = {"spawn": spawn, "connect": connect, "port": port, "viewer": None}
+        if spawn:
+            from .viewer import has_display, viewer_binary
+
+            if not has_display():
+                raise RecordingError("--spawn needs a display (DISPLAY and WAYLAND_DISPLAY "
+                                     "are unset): run without it and open the recording "
+                                     "with `cosim view` where there is one, or stream to a "
+                                     "viewer with --connect URL")
+            live["viewer"] = str(viewer_binary())
         # A plain child interpreter (not multiprocessing), so that calling run() from a
         # script without a __main__ guard works; two pipes carry pickled messages.
         from_parent, to_child = os.pipe()  # (read end, write end)
