@@ -306,3 +306,12 @@ def test_view_without_display_says_how(tmp_path, paper):
     assert "no display" in env_free.stderr and "--serve-web" in env_free.stderr
     missing = cosim_cli("view", str(tmp_path))
     assert missing.returncode == 2 and "has no recording.rrd" in missing.stderr
+
+
+def test_spawn_without_display_is_refused_before_running(tmp_path):
+    result = subprocess.run(
+        [sys.executable, "-m", "cosim.cli", "run", PAPER, "--out", str(tmp_path), "--spawn"],
+        capture_output=True, text=True, env={"PATH": "/usr/bin:/bin", "HOME": str(tmp_path)})
+    assert result.returncode == 2
+    assert "--spawn needs a display" in result.stderr and "nothing was run" in result.stderr
+    assert "Traceback" not in result.stderr
