@@ -1,0 +1,53 @@
+"""Sweep pipeline keys over a grid for one run and print its safety checks, peak torque and
+torque reversals (chattering) per point: how the paper pipeline's gains were chosen.
+
+    .venv/bin/python benchmarks/sweep.py pipelines/paper_two_link.toml proposed \\
+        --grid runs.proposed.controller.delta=1,4,6 --grid runs.proposed.controller.psi_b=20,25
+
+Each --grid KEY=V1,V2,... takes TOML values, as `cosim run --set` does; the grid is their
+product. SI units, radians.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+
+from cosim.master import Diverged
+from cosim.pipeline import load_pipeline
+from cosim.runner import run
+
+CHECKS = ("position_joint1", "velocity_estimated_joint1", "velocity_true_joint1",
+          "error_joint1", "error_rate_joint1")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("pipeline")
+    parser.add_argument("run", help="the run to sweep (the others are skipped)")
+    parser.add_argument("--grid", action="append", default=[], metavar="KEY=V1,V2,...")
+    args = parser.parse_args()
+    axes = []
+    for item in args.grid:
+        key, _, values = item.partition("=")
+        axes.append([f"{key}={v}" for v in values.split(",")])
+    print("point | " + " | ".join(CHECKS) + " | peak torque (N·m) | reversals/s")
+    for point in itertools.product(*axes):
+        pipeline = load_pipeline(args.pipeline, list(point))
+        pipeline.runs = {args.run: pipeline.runs[args.run]}
+        label = " ".join(p.split(".")[-1] for p in point) or "(as is)"
+        try:
+            result = run(pipeline, None, progress=False)[args.run]
+        except Diverged as exc:
+            print(f"{label} | diverged: {exc}")
+            continue
+        cells = [f"{result.safety[c]['worst']:.3f}{'' if result.safety[c]['satisfied'] else '!'}"
+                 for c in CHECKS]
+        m = result.metrics
+        print(f"{label} | " + " | ".join(cells)
+              + f" | {'/'.join(f'{x:.0f}' for x in m['peak_torque'])}"
+              + f" | {'/'.join(f'{x:.1f}' for x in m['torque_reversals_per_s'])}", flush=True)
+
+
+if __name__ == "__main__":
+    main()
