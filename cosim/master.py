@@ -27,7 +27,8 @@ class Diverged(RuntimeError):
 def simulate(plant: Fmu, blocks: Sequence[Block], trace: Trace,
              progress: Callable[[int], None] | None = None, progress_every: int = 1000) -> float:
     """Run the closed loop over all rows of ``trace``. Returns the wall time in seconds of
-    steps 1..N (step 0 is left out: it is where the blocks' JIT kernels get compiled).
+    steps 1..N (step 0 is left out: it is where the blocks' JIT kernels get compiled, and its
+    progress call may wait for a recording writer to start).
 
     On divergence raises :class:`Diverged`; ``trace.rows_done`` then counts the rows that
     were completed, which stay valid for logging.
@@ -55,8 +56,8 @@ def simulate(plant: Fmu, blocks: Sequence[Block], trace: Trace,
             plant.step(t, h)
         except FmuError as exc:
             raise Diverged("the plant FMU", t, str(exc)) from None
-        if k == 0:
-            start = time.perf_counter()
         if progress is not None and k % progress_every == 0:
             progress(k)
+        if k == 0:
+            start = time.perf_counter()
     return time.perf_counter() - start

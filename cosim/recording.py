@@ -421,8 +421,11 @@ class Recorder:
         return None
 
     def wait_ready(self, timeout: float = 60.0) -> None:
-        """Block until the writer has opened its sinks (it imports Rerun first, about a
-        second), so the first chunks do not queue up while the loop runs."""
+        """Block until the writer has opened its sinks (it imports Rerun first, about half a
+        second), so that chunks do not pile up in the pipe while the loop runs. Called by
+        the first :meth:`send_rows`, which the master makes at step 0, outside its timing
+        and while the blocks' JIT kernels load. Raises :class:`RecordingError` if the writer
+        could not start."""
         if self._ready or self._error is not None:
             return
         try:
@@ -440,7 +443,6 @@ class Recorder:
         self._send(("properties", properties))
 
     def begin_run(self, spec: RunSpec) -> None:
-        self.wait_ready()
         self.sent[spec.name] = 0
         self._send(("begin", spec))
 
@@ -450,6 +452,7 @@ class Recorder:
         start = self.sent[run]
         if upto <= start:
             return
+        self.wait_ready()  # the first call waits (the writer imports Rerun meanwhile)
         began = time.perf_counter()
         self._send(("rows", run, start, {k: a[start:upto] for k, a in arrays.items()}))
         self.sent[run] = upto

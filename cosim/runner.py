@@ -130,7 +130,6 @@ def run(pipeline: Pipeline, out_dir: str | Path | None = None, progress: bool = 
         plant_info = plant.describe()
         if recorder is not None:
             recorder.set_properties(_properties(pipeline, plant_info))
-            recorder.wait_ready()  # a writer that cannot start stops us before any run
         for name, spec in pipeline.runs.items():
             result = _run_one(name, spec, pipeline, plant, links, steps,
                               _link_lengths(plant_info, links), recorder, progress)
