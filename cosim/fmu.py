@@ -200,7 +200,6 @@ class Fmu:
         md = self.model_description
         names = [v.name for v in md.modelVariables
                  if v.causality == "parameter" and v.type in ("Real", "Float64")]
-        values: list[float] = []
         if self._instance is not None and names:
             getter = self._instance.getReal if self.fmi_version == 2 else self._instance.getFloat64
             values = [float(x) for x in getter(list(self._refs(names)))]

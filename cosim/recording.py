@@ -43,6 +43,7 @@ from pathlib import Path
 import numpy as np
 
 from .safety import Check, Gains, SafeSet, barriers, check_signals
+from .trace import SIGNALS
 
 # One colour per joint, the same in every run (matplotlib's tab10).
 JOINT_COLORS = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (148, 103, 189),
@@ -208,9 +209,8 @@ class _Writer:
         self.runs[spec.name] = spec
         root, n = f"/{spec.name}", spec.links
         colors = (JOINT_COLORS * n)[:n]
-        scalar_signals = ("k0", "W_o_norm", "W_norm", "V_norm")
         for entity, (signal_name, stem) in TRACE_ENTITIES.items():
-            width = 1 if signal_name in scalar_signals else n
+            width = 1 if SIGNALS[signal_name] == "1" else n
             self.rec.log(f"{root}/{entity}", rr.SeriesLines(
                 names=series_names(stem, width), colors=colors[:width]), static=True)
         for entity, (_, _, stem) in DERIVED_ENTITIES.items():
@@ -408,17 +408,18 @@ class Recorder:
         try:
             self._outbox.send(message)
         except OSError:
-            self._error = self._reply(5.0) or "the recording writer stopped"
+            kind, text = self._receive(5.0)
+            self._error = text if kind == "error" else "the recording writer stopped"
 
-    def _reply(self, timeout: float) -> str | None:
-        """The writer's error message, if it sent one within ``timeout`` seconds."""
+    def _receive(self, timeout: float) -> tuple[str, str]:
+        """The writer's next message, (kind, text); ("error", why) if none comes in
+        ``timeout`` seconds or the pipe is closed."""
         try:
             if self._inbox.poll(timeout):
-                kind, text = self._inbox.recv()
-                return text if kind == "error" else None
+                return self._inbox.recv()
         except (EOFError, OSError):
-            return "the recording writer stopped unexpectedly"
-        return None
+            return "error", "the recording writer stopped unexpectedly"
+        return "error", f"the recording writer did not answer within {timeout:g} s"
 
     def wait_ready(self, timeout: float = 60.0) -> None:
         """Block until the writer has opened its sinks (it imports Rerun first, about half a
@@ -428,11 +429,7 @@ class Recorder:
         could not start."""
         if self._ready or self._error is not None:
             return
-        try:
-            ready = self._inbox.poll(timeout)
-            kind, text = self._inbox.recv() if ready else ("error", "no answer")
-        except (EOFError, OSError):
-            kind, text = "error", "it stopped unexpectedly"
+        kind, text = self._receive(timeout)
         if kind != "ready":
             self._error = text
             raise RecordingError(f"{self.path}: the recording writer did not start: {text}")
@@ -465,17 +462,11 @@ class Recorder:
         """Finish the file. Raises :class:`RecordingError` if the writer failed."""
         self._send(("close", {"complete": complete, "reason": reason}))
         if self._error is None:
-            try:
-                while self._inbox.poll(timeout):
-                    kind, text = self._inbox.recv()
-                    if kind != "ready":
-                        break
-                else:
-                    kind, text = "error", f"the writer did not finish within {timeout:g} s"
-                if kind == "error":
-                    self._error = text
-            except (EOFError, OSError):
-                self._error = "the recording writer stopped unexpectedly"
+            kind, text = self._receive(timeout)
+            if kind == "ready":  # never waited for: no rows were sent
+                kind, text = self._receive(timeout)
+            if kind == "error":
+                self._error = text
         self._outbox.close()
         self._inbox.close()
         try:

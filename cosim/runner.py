@@ -146,7 +146,7 @@ def run(pipeline: Pipeline, out_dir: str | Path | None = None, progress: bool = 
             plant.close()
         complete = failure is None and len(results) == len(pipeline.runs)
         if recorder is not None:
-            reason = next((r.error for r in results.values() if r.error), "") or ""
+            reason = next((r.error for r in results.values() if r.error), "")
             recorder.close(complete, reason)
         if out and figures and results:
             _write_figures(out, pipeline, results)
@@ -260,7 +260,8 @@ def _jsonable(x):
 
 def write_run_folder(out: Path, pipeline: Pipeline, results: dict[str, RunResult],
                      plant_info: dict) -> None:
-    """summary.json plus one trace_<run>.npz per run (all signals, SI units)."""
+    """summary.json over the runs so far, and trace_<run>.npz (all signals, SI units) for the
+    run just finished, the last of ``results``; the earlier runs' traces are on disk."""
     complete = all(r.complete for r in results.values()) and len(results) == len(pipeline.runs)
     summary = {
         "complete": complete,
@@ -274,5 +275,5 @@ def write_run_folder(out: Path, pipeline: Pipeline, results: dict[str, RunResult
     tmp = out / "summary.json.tmp"
     tmp.write_text(json.dumps(_jsonable(summary), indent=2) + "\n")
     tmp.replace(out / "summary.json")
-    for name, r in results.items():
-        np.savez_compressed(out / f"trace_{name}.npz", time=r.trace.time, **r.trace.arrays)
+    name, latest = next(reversed(results.items()))
+    np.savez_compressed(out / f"trace_{name}.npz", time=latest.trace.time, **latest.trace.arrays)
