@@ -22,7 +22,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from cosim.fmu import Fmu, PlantVariables
+from cosim.fmu import Fmu
 from cosim.master import simulate
 from cosim.pipeline import load_pipeline
 from cosim.runner import make_blocks, plant_path, run
@@ -35,7 +35,7 @@ def closed_loop(plant: Fmu, duration: float) -> float:
     pipeline = load_pipeline(PIPELINE, [f"simulation.duration={duration}"])
     steps = int(round(duration / pipeline.simulation.step))
     trace = Trace(2, steps, pipeline.simulation.step)
-    wall = simulate(plant, make_blocks(pipeline, pipeline.runs["proposed"], 2), trace)
+    wall = simulate(plant, make_blocks(pipeline, pipeline.runs["proposed"], plant), trace)
     return wall / steps
 
 
@@ -91,7 +91,7 @@ def main() -> None:
     if not args.no_recording:
         recording_cost(args.repeat)
     pipeline = load_pipeline(PIPELINE)
-    plant = Fmu(plant_path(pipeline), PlantVariables.default(2))
+    plant = Fmu(plant_path(pipeline))
     try:
         closed_loop(plant, 0.01)  # JIT compile outside the timing
         closed = min(closed_loop(plant, args.duration) for _ in range(args.repeat))

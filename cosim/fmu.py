@@ -13,29 +13,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from fmpy import extract, read_model_description
 from fmpy.fmi1 import FMICallException
+from fmpy.model_description import ModelDescription
 
+from .interface import FmuError, PlantVariables, extract, open_plant
 
-class FmuError(RuntimeError):
-    """The FMU refused a call or does not fit; the message names the file and the call."""
-
-
-@dataclass
-class PlantVariables:
-    """Our interface, in the FMU's own names: one name per joint (M row-major, n×n)."""
-
-    tau: list[str]
-    q: list[str]
-    qdot: list[str] | None = None
-    M: list[str] | None = None
-
-    @classmethod
-    def default(cls, links: int) -> PlantVariables:
-        idx = range(1, links + 1)
-        return cls(tau=[f"tau[{i}]" for i in idx], q=[f"q[{i}]" for i in idx],
-                   qdot=[f"qdot[{i}]" for i in idx],
-                   M=[f"M[{i},{j}]" for i in idx for j in idx])
+_STATUS = {2: "status Discard", 3: "status Error", 4: "status Fatal", 5: "status Pending"}
 
 
 @dataclass
@@ -44,20 +27,24 @@ class Fmu:
 
     After :meth:`start`, ``q``, ``qdot`` and ``M`` (numpy arrays) hold the latest outputs and
     :meth:`step` applies ``tau`` (held over the step) and advances by ``h`` seconds.
+    ``mapping`` is ``plant.variables``: our interface key -> the FMU's names (unset keys:
+    the built-in plant's names). The file, the mapping and the parameters are checked by
+    :func:`cosim.interface.open_plant` first; ``variables`` then holds the mapping as used.
     """
 
     path: Path
-    variables: PlantVariables
+    mapping: dict[str, list[str] | None] | None = None
     parameters: dict[str, float] = field(default_factory=dict)
     messages: list[str] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         self.path = Path(self.path)
-        self.model_description = read_model_description(str(self.path))
-        md = self.model_description
-        if md.coSimulation is None:
-            raise FmuError(f"{self.path}: the FMU has no Co-Simulation interface")
+        md, variables = open_plant(self.path, self.mapping, self.parameters)
+        self.model_description: ModelDescription = md
+        self.variables: PlantVariables = variables
         self.fmi_version = int(md.fmiVersion[0])
+        self._set_name, self._get_name = (("SetReal", "GetReal") if self.fmi_version == 2
+                                          else ("SetFloat64", "GetFloat64"))
         self.by_name = {v.name: v for v in md.modelVariables}
         self.links = len(self.variables.q)
         self.has_qdot = bool(self.variables.qdot)
@@ -75,9 +62,7 @@ class Fmu:
         self.time = 0.0
 
     def _refs(self, names: list[str]):
-        missing = [n for n in names if n not in self.by_name]
-        if missing:
-            raise FmuError(f"{self.path}: no variable named {missing[0]!r}")
+        """Value references of names :func:`open_plant` has checked."""
         refs = [self.by_name[n].valueReference for n in names]
         return (ctypes.c_uint32 * len(refs))(*refs)
 
@@ -93,28 +78,29 @@ class Fmu:
             if self.fmi_version == 2:
                 from fmpy.fmi2 import FMU2Slave
 
-                self._instance = FMU2Slave(**common)
-                self._call("instantiate", self._instance.instantiate,
-                           callbacks=self._fmi2_callbacks())
+                instance = FMU2Slave(**common)
+                self._call("Instantiate", instance.instantiate, callbacks=self._fmi2_callbacks())
             else:
                 from fmpy.fmi3 import FMU3Slave
 
-                self._instance = FMU3Slave(**common)
-                self._call("instantiate", self._instance.instantiate, logMessage=self._log3)
+                instance = FMU3Slave(**common)
+                self._call("Instantiate", instance.instantiate, logMessage=self._log3)
+            self._instance = instance
             self._bind_raw_functions()
         else:
-            self._call("reset", self._instance.reset)
+            self._call("Reset", self._instance.reset)
         inst = self._instance
         if self.fmi_version == 2:
-            self._call("setupExperiment", inst.setupExperiment, startTime=start_time)
-        self._call("enterInitializationMode", inst.enterInitializationMode,
+            self._call("SetupExperiment", inst.setupExperiment, startTime=start_time)
+        self._call("EnterInitializationMode", inst.enterInitializationMode,
                    **({"startTime": start_time} if self.fmi_version == 3 else {}))
         if self.parameters:
             names = list(self.parameters)
             values = [float(self.parameters[n]) for n in names]
             setter = inst.setReal if self.fmi_version == 2 else inst.setFloat64
-            self._call("set parameters", setter, list(self._refs(names)), values)
-        self._call("exitInitializationMode", inst.exitInitializationMode)
+            self._call(f"{self._set_name} (plant.parameters)", setter, list(self._refs(names)),
+                       values)
+        self._call("ExitInitializationMode", inst.exitInitializationMode)
         self.time = start_time
         self._read_outputs()
 
@@ -149,10 +135,17 @@ class Fmu:
             return function(*args, **kwargs)
         except FMICallException as exc:
             raise FmuError(self._describe_failure(what, exc)) from None
+        except Exception as exc:  # FMPy raises a bare Exception when instantiate gives NULL
+            if what != "Instantiate":
+                raise
+            raise FmuError(self._describe_failure(what, f"{exc}: the FMU returned no "
+                                                  "instance")) from None
 
     def _describe_failure(self, what: str, detail) -> str:
+        """``what``: the FMI function without its fmi2/fmi3 prefix, e.g. "DoStep"."""
         log = f": {self.messages[-1]}" if self.messages else ""
-        return f"{self.path.name}: {what} failed at t = {self.time:.6g} s ({detail}){log}"
+        return (f"{self.path.name}: fmi{self.fmi_version}{what} failed at t = {self.time:.6g} s "
+                f"({detail}){log}")
 
     def _bind_raw_functions(self) -> None:
         """The per-step FMI functions, called with preallocated buffers."""
@@ -216,19 +209,20 @@ class Fmu:
         """Apply ``tau`` (zero-order hold) and advance from ``t`` to ``t + h`` seconds."""
         self.time = t
         if self._set(*self._set_args) > 1:
-            raise FmuError(self._describe_failure("setting tau", "status error"))
+            raise FmuError(self._describe_failure(self._set_name + " (tau)", "status error"))
         if self.fmi_version == 2:
             status = self._do_step(self._component, self.time, h, 1)
         else:
             status = self._do_step(self._component, self.time, h, True, *self._flag_ptrs)
         if status > 1:
-            raise FmuError(self._describe_failure("doStep", f"status {status}"))
+            detail = _STATUS.get(status, f"status {status}")
+            raise FmuError(self._describe_failure("DoStep", detail))
         self.time = t + h
         self._read_outputs()
 
     def _read_outputs(self) -> None:
         if self._get(*self._get_args) > 1:
-            raise FmuError(self._describe_failure("reading outputs", "status error"))
+            raise FmuError(self._describe_failure(self._get_name + " (outputs)", "status error"))
         n = self.links
         self.q[:] = self._outputs[:n]
         k = n

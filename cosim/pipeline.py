@@ -39,10 +39,22 @@ class BuiltinPlant(Section):
     fmi_version: Literal[2, 3] = 2
 
 
+class PlantVariables(Section):
+    """Our interface in the FMU's names, one name per joint (M: n×n, row-major). Unset: our
+    FMU's names (``tau[1]``, ``q[1]``, …; ``qdot``/``M`` only where the FMU has them);
+    ``[]`` for ``qdot`` or ``M``: not mapped."""
+
+    tau: list[str] | None = None  # inputs, N·m
+    q: list[str] | None = None  # outputs, rad
+    qdot: list[str] | None = None  # outputs, rad/s
+    M: list[str] | None = None  # outputs, kg·m²
+
+
 class Plant(Section):
     builtin: BuiltinPlant | None = None
     fmu: str | None = None  # path relative to the pipeline file
-    parameters: dict[str, FiniteFloat] = {}
+    parameters: dict[str, FiniteFloat] = {}  # FMU parameter and start values, by FMU name
+    variables: PlantVariables = PlantVariables()
 
     @model_validator(mode="after")
     def _one_source(self) -> Plant:
@@ -115,6 +127,19 @@ class Controller(Section):
     hidden: Annotated[int, Field(ge=1, le=200)] = 10
 
 
+class InertiaModel(Section):
+    """Where the observer's M(q) (Assumption 3) comes from: ``fmu`` (its mapped M outputs),
+    ``nominal`` (this planar chain, evaluated at the measured position) or ``auto`` (the FMU's
+    when mapped, else nominal). Per link; unset: the paper's arm (m = 0.8, 2.3 kg, l = lc =
+    1 m, I = 0), further links 1 kg, 1 m, like the built-in plant's defaults."""
+
+    source: Literal["auto", "fmu", "nominal"] = "auto"
+    m: list[PositiveFloat] | None = None  # kg
+    l: list[PositiveFloat] | None = None  # m, joint i to joint i+1  # noqa: E741
+    lc: list[FiniteFloat] | None = None  # m, joint i to the link's centre of mass
+    I: list[NonNegativeFloat] | None = None  # kg·m², about the centre of mass  # noqa: E741
+
+
 class Safety(Section):
     position_bound: PositiveFloat = 20.0
     velocity_bound: PositiveFloat = 13.5
@@ -130,9 +155,10 @@ class Run(Section):
     sensor: Sensor = Sensor()
     observer: Observer = Observer()
     controller: Controller = Controller()
+    inertia_model: InertiaModel = InertiaModel()
 
 
-RUN_SECTIONS = ("sensor", "observer", "controller")
+RUN_SECTIONS = ("sensor", "observer", "controller", "inertia_model")
 
 
 class Pipeline(Section):
@@ -145,6 +171,7 @@ class Pipeline(Section):
     sensor: Sensor = Sensor()
     observer: Observer = Observer()
     controller: Controller = Controller()
+    inertia_model: InertiaModel = InertiaModel()
     runs: dict[str, Run] = {}
 
     @model_validator(mode="before")
@@ -254,5 +281,6 @@ def load_pipeline(path: str | Path, overrides: list[str] | None = None) -> Pipel
         data = apply_override(data, assignment)
     pipeline = validate(data, str(path))
     if pipeline.plant.fmu is not None:
-        pipeline.plant.fmu = str((path.parent / pipeline.plant.fmu).resolve())
+        fmu = Path(pipeline.plant.fmu).expanduser()
+        pipeline.plant.fmu = str(fmu if fmu.is_absolute() else (path.parent / fmu).resolve())
     return pipeline

@@ -17,11 +17,12 @@ import numpy as np
 from plant_fmu import build_fmu
 
 from .blocks.controller import NnController
+from .blocks.inertia import InertiaModel, default_links
 from .blocks.observer import FlnnObserver
 from .blocks.reference import SinusoidReference
 from .blocks.sensor import PositionSensor
 from .figures import write_figures
-from .fmu import Fmu, FmuError, PlantVariables
+from .fmu import Fmu, FmuError
 from .master import Diverged, simulate
 from .pipeline import Pipeline, PipelineError, Run
 from .recording import Recorder, RunSpec, package_versions
@@ -38,15 +39,19 @@ class RunResult:
     complete: bool
     error: str | None = None
     failure: BaseException | None = field(default=None, repr=False)
+    inertia_model: dict = field(default_factory=dict)  # source and link parameters used
 
     def summary(self) -> dict:
-        out = {"complete": self.complete, "metrics": self.metrics, "safety": self.safety}
+        out = {"complete": self.complete, "inertia_model": self.inertia_model,
+               "metrics": self.metrics, "safety": self.safety}
         if self.error:
             out["error"] = self.error
         return out
 
 
 def plant_path(pipeline: Pipeline) -> Path:
+    """The plant FMU file: the pipeline's ``plant.fmu``, or the built-in plant, built on
+    demand and cached by its build options."""
     if pipeline.plant.fmu is not None:
         path = Path(pipeline.plant.fmu)
         if not path.is_file():
@@ -56,21 +61,77 @@ def plant_path(pipeline: Pipeline) -> Path:
     return build_fmu(links=b.links, fmi_version=b.fmi_version)
 
 
-def make_blocks(pipeline: Pipeline, run: Run, links: int) -> list:
+def open_plant(pipeline: Pipeline) -> Fmu:
+    """The pipeline's plant FMU, checked: file, Co-Simulation binary, ``plant.variables``
+    and ``plant.parameters`` (:class:`PipelineError` naming the file and the variable)."""
+    try:
+        return Fmu(plant_path(pipeline), pipeline.plant.variables.model_dump(),
+                   dict(pipeline.plant.parameters))
+    except FmuError as exc:
+        raise PipelineError(str(exc)) from None
+
+
+def inertia_source(run: Run, plant: Fmu) -> str:
+    """Resolve ``inertia_model.source``: "fmu" when the plant maps M (for "auto"), else
+    "nominal"."""
+    source = run.inertia_model.source
+    return ("fmu" if plant.has_M else "nominal") if source == "auto" else source
+
+
+def check_sizes(pipeline: Pipeline, plant: Fmu) -> None:
+    """Everything sized per joint must have the plant's n entries, and each run must find
+    the plant outputs it reads; else one :class:`PipelineError` naming the key."""
+    n, file = plant.links, plant.path.name
+    joints = f"the plant ({file}) has {n} joint{'s' * (n != 1)}"
     ref = pipeline.reference
-    if len(ref.offset) != links:
-        raise PipelineError(f"reference.offset has {len(ref.offset)} joints, the plant has "
-                            f"{links}")
+    if len(ref.offset) != n:
+        raise PipelineError(f"reference.offset has {len(ref.offset)} entries (one per joint, "
+                            f"rad); {joints}")
+    for name, run in pipeline.runs.items():
+        sized = {"controller.kv": run.controller.kv, "controller.lambda": run.controller.lam,
+                 "observer.tau_d": run.observer.tau_d,
+                 "observer.initial_velocity": run.observer.initial_velocity,
+                 **{f"inertia_model.{k}": getattr(run.inertia_model, k)
+                    for k in ("m", "l", "lc", "I")}}
+        for key, value in sized.items():
+            if isinstance(value, list) and len(value) != n:
+                raise PipelineError(f"{key} (run '{name}') has {len(value)} entries; {joints}")
+        if run.controller.variant == "baseline" and not plant.has_qdot:
+            raise PipelineError(
+                f"run '{name}': the full-state baseline reads the true joint velocity, but "
+                f"{file} has no qdot mapping (no outputs qdot[1]..qdot[{n}]); map them with "
+                "plant.variables.qdot = [...] or drop the run")
+        if run.inertia_model.source == "fmu" and not plant.has_M:
+            raise PipelineError(
+                f"inertia_model.source = \"fmu\" (run '{name}'), but {file} has no M mapping "
+                f"(no outputs M[1,1]..M[{n},{n}]); map them with plant.variables.M = [...] "
+                "(n×n, row-major) or use source = \"nominal\"")
+
+
+def inertia_model(run: Run, plant: Fmu) -> InertiaModel:
+    """The run's inertia model block, its nominal links filled in (the paper's arm unless
+    the pipeline gives them)."""
+    links = {k: getattr(run.inertia_model, k) or v
+             for k, v in default_links(plant.links).items()}
+    return InertiaModel(inertia_source(run, plant), **links)
+
+
+def describe_inertia(model: InertiaModel, plant: Fmu) -> str:
+    if model.source == "fmu":
+        return f"from {plant.path.name}'s M outputs ({', '.join(plant.variables.M[:2])}, …)"
+    return (f"nominal (m = {model.m} kg, l = {model.l} m, lc = {model.lc} m, I = {model.I} "
+            f"kg·m²) at the measured position"
+            + ("" if plant.has_M else f"; {plant.path.name} maps no M outputs"))
+
+
+def make_blocks(pipeline: Pipeline, run: Run, plant: Fmu) -> list:
+    """reference, sensor, inertia model, observer, controller: the order data flows in."""
+    ref = pipeline.reference
     amplitude = np.array(ref.amplitude, float)
     phase = np.array(ref.phase, float) if ref.phase is not None else np.zeros_like(amplitude)
     reference = SinusoidReference(np.array(ref.offset, float), amplitude,
                                   np.array(ref.frequency, float), phase, ref.safe_case)
-    for section, key in [(run.controller, "kv"), (run.controller, "lam")]:
-        value = getattr(section, key)
-        if isinstance(value, list) and len(value) != links:
-            raise PipelineError(f"controller.{'lambda' if key == 'lam' else key} has "
-                                f"{len(value)} entries, the plant has {links} joints")
-    return [reference, PositionSensor(**run.sensor.model_dump()),
+    return [reference, PositionSensor(**run.sensor.model_dump()), inertia_model(run, plant),
             FlnnObserver(**run.observer.model_dump()),
             NnController(**run.controller.model_dump())]
 
@@ -110,10 +171,13 @@ def run(pipeline: Pipeline, out_dir: str | Path | None = None, progress: bool = 
     already running at that URL. Raises :class:`Diverged` (or ``KeyboardInterrupt``) after
     writing what was computed, marked incomplete.
     """
-    path = plant_path(pipeline)
-    links = pipeline.plant.builtin.links if pipeline.plant.builtin else None
-    variables = PlantVariables.default(links or _count_joints(path))
-    links = len(variables.q)
+    plant = open_plant(pipeline)
+    try:
+        check_sizes(pipeline, plant)
+    except PipelineError:
+        plant.close()
+        raise
+    links = plant.links
     sim = pipeline.simulation
     steps = int(round(sim.duration / sim.step))
     results: dict[str, RunResult] = {}
@@ -122,17 +186,15 @@ def run(pipeline: Pipeline, out_dir: str | Path | None = None, progress: bool = 
         out.mkdir(parents=True, exist_ok=True)
     # The recording writer starts first: it imports Rerun while the plant loads.
     recorder = _open_recorder(out, pipeline, spawn, connect) if out and record else None
-    plant: Fmu | None = None
     failure: BaseException | None = None
     try:
-        plant = Fmu(path, variables, dict(pipeline.plant.parameters))
         plant.start(0.0)  # refuses bad parameters before anything runs
         plant_info = plant.describe()
         if recorder is not None:
             recorder.set_properties(_properties(pipeline, plant_info))
         for name, spec in pipeline.runs.items():
-            result = _run_one(name, spec, pipeline, plant, links, steps,
-                              _link_lengths(plant_info, links), recorder, progress)
+            result = _run_one(name, spec, pipeline, plant, steps,
+                              _link_lengths(plant_info, spec, links), recorder, progress)
             results[name] = result
             if out:
                 write_run_folder(out, pipeline, results, plant_info)
@@ -142,8 +204,7 @@ def run(pipeline: Pipeline, out_dir: str | Path | None = None, progress: bool = 
     except FmuError as exc:
         raise PipelineError(str(exc)) from None
     finally:
-        if plant is not None:
-            plant.close()
+        plant.close()
         complete = failure is None and len(results) == len(pipeline.runs)
         if recorder is not None:
             reason = next((r.error for r in results.values() if r.error), "")
@@ -155,11 +216,15 @@ def run(pipeline: Pipeline, out_dir: str | Path | None = None, progress: bool = 
     return results
 
 
-def _run_one(name: str, spec: Run, pipeline: Pipeline, plant: Fmu, links: int, steps: int,
+def _run_one(name: str, spec: Run, pipeline: Pipeline, plant: Fmu, steps: int,
              link_lengths: np.ndarray, recorder: Recorder | None, progress: bool) -> RunResult:
     """One run through the master, recorded chunk by chunk (one simulated second each)."""
     sim = pipeline.simulation
-    blocks = make_blocks(pipeline, spec, links)
+    links = plant.links
+    blocks = make_blocks(pipeline, spec, plant)
+    model = next(b for b in blocks if isinstance(b, InertiaModel))
+    if progress:
+        print(f"  {name}: inertia model {describe_inertia(model, plant)}", file=sys.stderr)
     trace = Trace(links, steps, sim.step)
     safe, run_gains = safe_set(pipeline), gains(spec, links)
     report = _progress(name, steps) if progress else None
@@ -190,7 +255,9 @@ def _run_one(name: str, spec: Run, pipeline: Pipeline, plant: Fmu, links: int, s
     metrics["simulated_time_s"] = float(done.time[-1]) if done.rows_done else 0.0
     if recorder is not None:  # the loop's share of writing the recording
         metrics["recording_handoff_s"] = recorder.handoff_seconds - handed_over
-    result = RunResult(name, done, metrics, safety, error is None, error, failure)
+    result = RunResult(name, done, metrics, safety, error is None, error, failure,
+                       {"source": model.source, "m": model.m, "l": model.l, "lc": model.lc,
+                        "I": model.I} if model.source == "nominal" else {"source": "fmu"})
     if recorder is not None:
         recorder.send_rows(name, trace.arrays, trace.rows_done)
         recorder.end_run(name, result.summary())
@@ -217,13 +284,14 @@ def _properties(pipeline: Pipeline, plant_info: dict) -> dict[str, dict]:
     }
 
 
-def _link_lengths(plant_info: dict, links: int) -> np.ndarray:
-    """Link lengths for drawing the arm: the FMU's ``l[i]`` parameters, else 1 m each."""
+def _link_lengths(plant_info: dict, run: Run, links: int) -> np.ndarray:
+    """Link lengths for drawing the arm: the FMU's ``l[i]`` parameters, else the run's
+    nominal model's (1 m each unless given)."""
     params = plant_info["parameters"]
     names = [f"l[{i}]" for i in range(1, links + 1)]
     if all(n in params for n in names):
         return np.array([params[n] for n in names])
-    return np.ones(links)
+    return np.array(run.inertia_model.l or [1.0] * links)
 
 
 def _write_figures(out: Path, pipeline: Pipeline, results: dict[str, RunResult]) -> None:
@@ -232,18 +300,6 @@ def _write_figures(out: Path, pipeline: Pipeline, results: dict[str, RunResult])
               for name, r in results.items()}
     write_figures(out, {n: r.trace.time for n, r in results.items()}, checks,
                   {n: r.trace["tau"] for n, r in results.items()})
-
-
-def _count_joints(path: Path) -> int:
-    from fmpy import read_model_description
-
-    names = {v.name for v in read_model_description(str(path)).modelVariables}
-    n = 0
-    while f"q[{n + 1}]" in names:
-        n += 1
-    if n == 0:
-        raise PipelineError(f"{path}: no output named q[1]: not an arm FMU of this interface")
-    return n
 
 
 def _jsonable(x):

@@ -115,7 +115,8 @@ def barriers(trace: Signals, safe: SafeSet, gains: Gains) -> dict[str, np.ndarra
     h1 = 0.5 * ((k0 * eps**2 - k0 * x1_err) + (eps**2 - x2_err)
                 + (safe.Z_Wo_tilde**2 - trace["W_o_norm"] ** 2) / gains.Fo)
     r = trace["r_hat"]
-    mass = trace["M"]
+    # The plant's own M(q) when its FMU outputs it, else the controller's model of it.
+    mass = trace["M"] if np.isfinite(trace["M"]).all() else trace["M_model"]
     sigma_max = np.linalg.eigvalsh(mass)[:, -1]
     r_m_r = np.einsum("ki,kij,kj->k", r, mass, r)
     r_bound = theorem1(trace, safe, gains.Lambda)["R"]

@@ -16,8 +16,8 @@ SIGNALS: dict[str, str] = {
     "q_d": "n", "qdot_d": "n", "qddot_d": "n", "q_s": "n", "qdot_s": "n",
     # plant (ground truth from the FMU)
     "q": "n", "qdot": "n", "M": "nn",
-    # sensor
-    "q_meas": "n",
+    # sensor, and the controller's inertia model M̂(q) (the FMU's M or a nominal model)
+    "q_meas": "n", "M_model": "nn",
     # observer
     "q_hat": "n", "qdot_hat": "n", "k0": "1", "W_o_norm": "1",
     # controller

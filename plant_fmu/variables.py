@@ -18,7 +18,7 @@ MODEL_IDENTIFIER = "PlanarArm"
 MAX_LINKS = 7
 
 # Paper's arm (Lewis et al., SPEC §2) for links 1 and 2; extra links get 1 kg.
-_PAPER_MASSES = (0.8, 2.3)
+PAPER_MASSES = (0.8, 2.3)
 
 
 @dataclass(frozen=True)
@@ -64,7 +64,7 @@ _BLOCKS: tuple[_Block, ...] = (
     _Block("time", "", "independent", "continuous", "s", "Simulation time"),
     # Link parameters.
     _Block("m", "n", "parameter", "fixed", "kg", "Mass of link i",
-           _per_link(_PAPER_MASSES, 1.0), "positive"),
+           _per_link(PAPER_MASSES, 1.0), "positive"),
     _Block("l", "n", "parameter", "fixed", "m", "Length of link i (joint i to joint i+1)",
            _const(1.0), "positive"),
     _Block("lc", "n", "parameter", "fixed", "m",

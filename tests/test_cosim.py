@@ -97,6 +97,8 @@ class PythonArm:
     """SPEC §2's closed form integrated by solve_ivp (DOP853, rtol 1e-12) each step: an
     independent stand-in for the FMU with the same interface as cosim.fmu.Fmu."""
 
+    links, has_M, has_qdot = 2, True, True
+
     def __init__(self):
         self.q, self.qdot = np.zeros(2), np.zeros(2)
         self.M, self.tau = np.zeros((2, 2)), np.zeros(2)
@@ -135,16 +137,16 @@ def test_closed_loop_on_the_fmu_equals_an_independent_integration(variant, durat
     """Same blocks, FMU vs SPEC §2 integrated by solve_ivp. The proposed loop's high gains
     amplify the 1e-10 difference of the two integrators after ~0.7 s (measured in the
     README), so it is compared over 0.5 s; the full-state loop over 2 s."""
-    from cosim.fmu import Fmu, PlantVariables
+    from cosim.fmu import Fmu
     from plant_fmu import build_fmu
 
     pipeline = load_pipeline(PAPER, [f"simulation.duration={duration}"])
     spec = pipeline.runs[variant]
     steps = int(round(duration / 1e-3))
     traces = []
-    for plant in (Fmu(build_fmu(2, 2), PlantVariables.default(2)), PythonArm()):
+    for plant in (Fmu(build_fmu(2, 2)), PythonArm()):
         trace = Trace(2, steps, 1e-3)
-        simulate(plant, make_blocks(pipeline, spec, 2), trace)
+        simulate(plant, make_blocks(pipeline, spec, plant), trace)
         traces.append(trace)
     fmu, ref = traces
     assert np.ptp(ref["q"][:, 0]) > 1.0  # the arm really moved

@@ -130,7 +130,7 @@ class FlnnObserver:
         self._s = np.zeros(3 * n + self._n_basis * n)  # x̂1, ẑ2, q̂̈, Ŵo (weights start at 0)
         self._trace = trace
         self._modes = (trace.dt, self.substeps, LAWS[self.law], BASES[self.basis])
-        self._args = (trace["q_meas"], trace["tau"], trace["M"], trace["q_d"], trace["q_hat"],
+        self._args = (trace["q_meas"], trace["tau"], trace["M_model"], trace["q_d"], trace["q_hat"],
                       trace["qdot_hat"], trace["k0"], trace["W_o_norm"])
         self._started = False
 

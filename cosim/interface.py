@@ -1,0 +1,230 @@
+"""Does an FMU fit cosim's plant interface? Open it safely and map our names onto its own.
+
+The interface, per joint i of n: input ``tau`` (N·m), outputs ``q`` (rad) and, optionally,
+``qdot`` (rad/s) and the inertia matrix ``M`` (n×n row-major, kg·m²), each a Real (FMI 2.0)
+or Float64 (FMI 3.0) scalar variable. n is the number of ``q`` names: mapped in the
+pipeline, else counted from outputs named ``q[1]``, ``q[2]``, … as the built-in plant has.
+
+Every check here reports what is wrong in one message naming the file and the variable,
+and what would be valid, so a user's FMU is refused before anything runs.
+"""
+
+from __future__ import annotations
+
+import tempfile
+import zipfile
+from dataclasses import dataclass
+from pathlib import Path, PurePosixPath
+
+import fmpy
+from fmpy.model_description import ModelDescription, ValidationError
+
+REAL_TYPES = ("Real", "Float64")
+# What each interface key must be in the FMU, and what it is called in messages.
+ROLES = {"tau": ("input", "joint torques"), "q": ("output", "joint angles"),
+         "qdot": ("output", "joint velocities"), "M": ("output", "inertia matrix")}
+
+
+class FmuError(RuntimeError):
+    """An FMU that cannot be used, or that failed a call; the message names the file, the
+    variable or FMI call, and what would be valid."""
+
+
+@dataclass
+class PlantVariables:
+    """Our interface, in the FMU's own names: one name per joint (M row-major, n×n)."""
+
+    tau: list[str]
+    q: list[str]
+    qdot: list[str] | None = None
+    M: list[str] | None = None
+
+    @property
+    def links(self) -> int:
+        return len(self.q)
+
+    @classmethod
+    def default(cls, links: int) -> PlantVariables:
+        """The built-in plant's names."""
+        idx = range(1, links + 1)
+        return cls(tau=[f"tau[{i}]" for i in idx], q=[f"q[{i}]" for i in idx],
+                   qdot=[f"qdot[{i}]" for i in idx],
+                   M=[f"M[{i},{j}]" for i in idx for j in idx])
+
+
+def read_description(path: str | Path) -> ModelDescription:
+    """The FMU's model description, or :class:`FmuError` saying why the file is not an FMU."""
+    path = Path(path)
+    if not path.exists():
+        raise FmuError(f"{path}: no such FMU file")
+    if path.is_dir():
+        raise FmuError(f"{path}: is a folder; give the .fmu file (a zip archive)")
+    if not zipfile.is_zipfile(path):
+        raise FmuError(f"{path}: not an FMU: not a zip archive (is the file complete?)")
+    try:
+        with zipfile.ZipFile(path) as archive:
+            names = archive.namelist()
+            if "modelDescription.xml" not in names:
+                raise FmuError(f"{path}: not an FMU: the archive has no modelDescription.xml "
+                               "at its top level")
+            bad = archive.testzip()
+        if bad is not None:
+            raise FmuError(f"{path}: the archive is damaged: entry {bad!r} fails its CRC check")
+        return fmpy.read_model_description(str(path))
+    except FmuError:
+        raise
+    except ValidationError as exc:
+        raise FmuError(f"{path}: modelDescription.xml is not valid FMI: "
+                       + "; ".join(exc.problems[:3])) from None
+    except Exception as exc:  # zipfile and lxml errors: a damaged file, not a user's bug
+        raise FmuError(f"{path}: cannot read modelDescription.xml: {exc}") from None
+
+
+def check_co_simulation(path: str | Path, md: ModelDescription) -> None:
+    """Co-Simulation interface present, with a binary for this machine."""
+    path = Path(path)
+    if md.coSimulation is None:
+        kinds = "Model Exchange only" if md.modelExchange is not None else "no interface"
+        raise FmuError(f"{path}: the FMU has no Co-Simulation interface ({kinds}); cosim "
+                       "steps the plant as a Co-Simulation slave: export it with "
+                       "Co-Simulation")
+    platform = fmpy.platform if md.fmiVersion.startswith("2") else fmpy.platform_tuple
+    suffix = fmpy.sharedLibraryExtension
+    binary = f"binaries/{platform}/{md.coSimulation.modelIdentifier}{suffix}"
+    with zipfile.ZipFile(path) as archive:
+        names = archive.namelist()
+    if binary in names:
+        return
+    present = sorted({n.split("/")[1] for n in names
+                      if n.startswith("binaries/") and n.count("/") >= 2 and n.split("/")[1]})
+    has_sources = any(n.startswith("sources/") and n.endswith(".c") for n in names)
+    hint = (f"; it carries C sources: `fmpy compile {path}` builds one" if has_sources
+            else "; export it for this platform")
+    raise FmuError(f"{path}: no Co-Simulation binary for this platform ({binary} is missing; "
+                   f"the FMU has binaries for: {', '.join(present) or 'none'}){hint}")
+
+
+def extract(path: str | Path) -> str:
+    """Unzip into a fresh temporary folder, refusing any entry that would land outside it
+    (``../``, absolute paths, drive letters): a real FMU never holds one."""
+    path = Path(path)
+    target = Path(tempfile.mkdtemp(prefix="cosim_fmu_")).resolve()
+    with zipfile.ZipFile(path) as archive:
+        for name in archive.namelist():
+            pure = PurePosixPath(name.replace("\\", "/"))
+            inside = (target / pure).resolve()
+            if (pure.is_absolute() or ":" in name or ".." in pure.parts
+                    or not inside.is_relative_to(target)):
+                target.rmdir()
+                raise FmuError(f"{path}: refusing to extract: the archive entry {name!r} "
+                               "points outside the FMU's folder")
+        archive.extractall(target)
+    return str(target)
+
+
+def map_variables(md: ModelDescription, requested: dict[str, list[str] | None] | None = None
+                  ) -> tuple[PlantVariables | None, list[str]]:
+    """Our interface mapped onto ``md``'s variables: (mapping, []) when it fits, else
+    (None, every problem found). ``requested`` holds ``plant.variables``: per key a list of
+    names, None for the default names, ``[]`` for an optional key left unmapped."""
+    requested = requested or {}
+    by_name = {v.name: v for v in md.modelVariables}
+    q = requested.get("q")
+    if q is None:
+        q = []
+        while f"q[{len(q) + 1}]" in by_name:
+            q.append(f"q[{len(q) + 1}]")
+        if not q:
+            return None, [f"no outputs named q[1], q[2], …: map the joint angles with "
+                          f"plant.variables.q = [...] (its Real outputs: "
+                          f"{_list(_names(md, 'output'))})"]
+    if not q:
+        return None, ["plant.variables.q is empty: the plant needs at least one joint"]
+    n = len(q)
+    default = PlantVariables.default(n)
+    mapping: dict[str, list[str] | None] = {"q": q}
+    for key in ("tau", "qdot", "M"):
+        names = requested.get(key)
+        if names is None:
+            names = getattr(default, key)
+            if key != "tau" and not all(name in by_name for name in names):
+                names = None  # optional, and the FMU does not have our names: not mapped
+        mapping[key] = names or None
+    problems = []
+    if mapping["tau"] is None:
+        problems.append("plant.variables.tau is empty: the plant needs one torque input "
+                        "per joint")
+    for key, names in mapping.items():
+        if names is None:
+            continue
+        expected = n * n if key == "M" else n
+        if len(names) != expected:
+            what = f"{n}×{n} = {expected}" if key == "M" else f"{n}"
+            problems.append(f"plant.variables.{key} has {len(names)} names, the plant has "
+                            f"{n} joints (from plant.variables.q), so it needs {what}")
+            continue
+        problems += [p for name in names if (p := _check(md, by_name, key, name))]
+    if problems:
+        return None, problems
+    return PlantVariables(**mapping), []
+
+
+def _check(md: ModelDescription, by_name: dict, key: str, name: str) -> str | None:
+    causality, what = ROLES[key]
+    var = by_name.get(name)
+    where = f"plant.variables.{key} ({what})"
+    if var is None:
+        return (f"{where} names {name!r}, which is not a variable of the FMU (its Real "
+                f"{causality}s: {_list(_names(md, causality))})")
+    if var.type not in REAL_TYPES:
+        return f"{where} names {name!r}, which is {var.type}; it must be Real (Float64)"
+    if var.dimensions:
+        return f"{where} names {name!r}, which is an array; map its scalar elements"
+    if var.causality != causality:
+        return (f"{where} names {name!r}, whose causality is {var.causality}; it must be "
+                f"an {causality}")
+    return None
+
+
+def check_parameters(path: str | Path, md: ModelDescription, parameters: dict[str, float]
+                     ) -> None:
+    """``plant.parameters``: each name a Real variable whose value may be set before the
+    FMU initialises (a parameter, an input, or a start value)."""
+    by_name = {v.name: v for v in md.modelVariables}
+    for name in parameters:
+        var = by_name.get(name)
+        if var is None:
+            raise FmuError(f"plant.parameters: {name!r} is not a variable of {Path(path).name} "
+                           f"(its parameters: {_list(_names(md, 'parameter'))})")
+        settable = (var.causality in ("parameter", "input")
+                    or (var.initial in ("exact", "approx") and var.variability != "constant"))
+        if var.type not in REAL_TYPES or not settable:
+            raise FmuError(f"plant.parameters: {name!r} in {Path(path).name} is a "
+                           f"{var.variability} {var.type} {var.causality}; only Real "
+                           "parameters, inputs and start values can be set")
+
+
+def open_plant(path: str | Path, requested: dict[str, list[str] | None] | None = None,
+               parameters: dict[str, float] | None = None
+               ) -> tuple[ModelDescription, PlantVariables]:
+    """Every check a plant FMU must pass before it runs, in the order a user would fix
+    them; raises :class:`FmuError` naming the file and all the interface's problems."""
+    md = read_description(path)
+    check_co_simulation(path, md)
+    variables, problems = map_variables(md, requested)
+    if variables is None:
+        raise FmuError(f"{path}: does not fit the plant interface: " + "; ".join(problems))
+    check_parameters(path, md, parameters or {})
+    return md, variables
+
+
+def _names(md: ModelDescription, causality: str) -> list[str]:
+    return [v.name for v in md.modelVariables
+            if v.causality == causality and v.type in REAL_TYPES]
+
+
+def _list(names: list[str], limit: int = 12) -> str:
+    if not names:
+        return "none"
+    more = f", … ({len(names)} in all)" if len(names) > limit else ""
+    return ", ".join(names[:limit]) + more
