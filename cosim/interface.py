@@ -88,9 +88,15 @@ def check_co_simulation(path: str | Path, md: ModelDescription) -> None:
         raise FmuError(f"{path}: the FMU has no Co-Simulation interface ({kinds}); cosim "
                        "steps the plant as a Co-Simulation slave: export it with "
                        "Co-Simulation")
+    check_binary(path, md, md.coSimulation.modelIdentifier, "Co-Simulation")
+
+
+def check_binary(path: str | Path, md: ModelDescription, model_identifier: str,
+                 interface: str) -> None:
+    """The FMU carries ``model_identifier``'s shared library for this machine."""
+    path = Path(path)
     platform = fmpy.platform if md.fmiVersion.startswith("2") else fmpy.platform_tuple
-    suffix = fmpy.sharedLibraryExtension
-    binary = f"binaries/{platform}/{md.coSimulation.modelIdentifier}{suffix}"
+    binary = f"binaries/{platform}/{model_identifier}{fmpy.sharedLibraryExtension}"
     with zipfile.ZipFile(path) as archive:
         names = archive.namelist()
     if binary in names:
@@ -100,7 +106,7 @@ def check_co_simulation(path: str | Path, md: ModelDescription) -> None:
     has_sources = any(n.startswith("sources/") and n.endswith(".c") for n in names)
     hint = (f"; it carries C sources: `fmpy compile {path}` builds one" if has_sources
             else "; export it for this platform")
-    raise FmuError(f"{path}: no Co-Simulation binary for this platform ({binary} is missing; "
+    raise FmuError(f"{path}: no {interface} binary for this platform ({binary} is missing; "
                    f"the FMU has binaries for: {', '.join(present) or 'none'}){hint}")
 
 
@@ -137,7 +143,7 @@ def map_variables(md: ModelDescription, requested: dict[str, list[str] | None] |
         if not q:
             return None, [f"no outputs named q[1], q[2], …: map the joint angles with "
                           f"plant.variables.q = [...] (its Real outputs: "
-                          f"{_list(_names(md, 'output'))})"]
+                          f"{_list(real_names(md, 'output'))})"]
     if not q:
         return None, ["plant.variables.q is empty: the plant needs at least one joint"]
     n = len(q)
@@ -160,7 +166,8 @@ def map_variables(md: ModelDescription, requested: dict[str, list[str] | None] |
         expected = n * n if key == "M" else n
         if len(names) != expected:
             what = f"{n}×{n} = {expected}" if key == "M" else f"{n}"
-            problems.append(f"plant.variables.{key} has {len(names)} names, the plant has "
+            problems.append(f"plant.variables.{key} has {len(names)} name"
+                            f"{'s' * (len(names) != 1)}, the plant has "
                             f"{n} joints (from plant.variables.q), so it needs {what}")
             continue
         problems += [p for name in names if (p := _check(md, by_name, key, name))]
@@ -175,7 +182,7 @@ def _check(md: ModelDescription, by_name: dict, key: str, name: str) -> str | No
     where = f"plant.variables.{key} ({what})"
     if var is None:
         return (f"{where} names {name!r}, which is not a variable of the FMU (its Real "
-                f"{causality}s: {_list(_names(md, causality))})")
+                f"{causality}s: {_list(real_names(md, causality))})")
     if var.type not in REAL_TYPES:
         return f"{where} names {name!r}, which is {var.type}; it must be Real (Float64)"
     if var.dimensions:
@@ -195,7 +202,7 @@ def check_parameters(path: str | Path, md: ModelDescription, parameters: dict[st
         var = by_name.get(name)
         if var is None:
             raise FmuError(f"plant.parameters: {name!r} is not a variable of {Path(path).name} "
-                           f"(its parameters: {_list(_names(md, 'parameter'))})")
+                           f"(its parameters: {_list(real_names(md, 'parameter'))})")
         settable = (var.causality in ("parameter", "input")
                     or (var.initial in ("exact", "approx") and var.variability != "constant"))
         if var.type not in REAL_TYPES or not settable:
@@ -218,7 +225,8 @@ def open_plant(path: str | Path, requested: dict[str, list[str] | None] | None =
     return md, variables
 
 
-def _names(md: ModelDescription, causality: str) -> list[str]:
+def real_names(md: ModelDescription, causality: str) -> list[str]:
+    """Names of the Real (Float64) variables of one causality, in the FMU's order."""
     return [v.name for v in md.modelVariables
             if v.causality == causality and v.type in REAL_TYPES]
 

@@ -244,6 +244,10 @@ def validate(data: dict, source: str = "pipeline") -> Pipeline:
         raise PipelineError(f"{source}: {_format(exc.errors()[0], Pipeline)}") from None
 
 
+# plant.fmu and plant.builtin are alternatives: setting one with --set drops the other.
+PLANT_SOURCES = {"fmu": "builtin", "builtin": "fmu"}
+
+
 def apply_override(data: dict, assignment: str) -> dict:
     """``key.path=VALUE`` with VALUE in TOML syntax (strings quoted: plant.fmu="x.fmu")."""
     if "=" not in assignment:
@@ -265,22 +269,30 @@ def apply_override(data: dict, assignment: str) -> dict:
             raise PipelineError(f"--set {assignment!r}: '{key}' is a value, not a table")
         node = child
     node[keys[-1]] = value
+    if keys[:-1] == ["plant"] and keys[-1] in PLANT_SOURCES:  # swap the plant, not add one
+        node.pop(PLANT_SOURCES[keys[-1]], None)
     return out
 
 
-def load_pipeline(path: str | Path, overrides: list[str] | None = None) -> Pipeline:
-    """Read, override (``--set`` style) and validate a pipeline file."""
-    path = Path(path)
-    if not path.is_file():
-        raise PipelineError(f"{path}: no such pipeline file")
-    try:
-        data = tomllib.loads(path.read_text())
-    except tomllib.TOMLDecodeError as exc:
-        raise PipelineError(f"{path}: not valid TOML: {exc}") from None
+def load_pipeline(path: str | Path | None, overrides: list[str] | None = None) -> Pipeline:
+    """Read, override (``--set`` style) and validate a pipeline file; ``None``: the defaults
+    (the paper's scenario) with the overrides."""
+    if path is None:
+        data: dict = {}
+        source, base = "--set", Path.cwd()  # plant.fmu relative to where the user is
+    else:
+        path = Path(path)
+        if not path.is_file():
+            raise PipelineError(f"{path}: no such pipeline file")
+        try:
+            data = tomllib.loads(path.read_text())
+        except tomllib.TOMLDecodeError as exc:
+            raise PipelineError(f"{path}: not valid TOML: {exc}") from None
+        source, base = str(path), path.parent
     for assignment in overrides or []:
         data = apply_override(data, assignment)
-    pipeline = validate(data, str(path))
+    pipeline = validate(data, source)
     if pipeline.plant.fmu is not None:
         fmu = Path(pipeline.plant.fmu).expanduser()
-        pipeline.plant.fmu = str(fmu if fmu.is_absolute() else (path.parent / fmu).resolve())
+        pipeline.plant.fmu = str(fmu if fmu.is_absolute() else (base / fmu).resolve())
     return pipeline
