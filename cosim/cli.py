@@ -93,7 +93,7 @@ def _print_linearization(path: Path, info, parameters: dict[str, float]) -> None
     point = linearize_at_start(path, inputs, outputs, parameters)
     system = point.system
     np.set_printoptions(precision=5, suppress=False, linewidth=100)
-    print(f"\nlinearised about the start state (t = 0 s, after initialisation):")
+    print("\nlinearised about the start state (t = 0 s, after initialisation):")
     print(f"  x0    = {point.x0}   ({', '.join(system.state_labels)})")
     print(f"  u0    = {point.u0}")
     print(f"  xdot0 = {point.xdot0}"
