@@ -248,12 +248,26 @@ def validate(data: dict, source: str = "pipeline") -> Pipeline:
 PLANT_SOURCES = {"fmu": "builtin", "builtin": "fmu"}
 
 
+def _key_path(path: str) -> list[str]:
+    """A dotted key as TOML reads it (quoted parts may hold dots or brackets:
+    plant.parameters."m[2]"), else split at the dots (plant.parameters.m[2])."""
+    try:
+        node = tomllib.loads(f"{path} = 0")
+    except tomllib.TOMLDecodeError:
+        return [k.strip() for k in path.split(".")]
+    keys = []
+    while isinstance(node, dict):
+        (key, node), = node.items()
+        keys.append(key)
+    return keys
+
+
 def apply_override(data: dict, assignment: str) -> dict:
     """``key.path=VALUE`` with VALUE in TOML syntax (strings quoted: plant.fmu="x.fmu")."""
     if "=" not in assignment:
         raise PipelineError(f"--set {assignment!r}: expected KEY.PATH=VALUE, e.g. controller.kv=25")
     path, raw = assignment.split("=", 1)
-    keys = [k.strip() for k in path.strip().split(".")]
+    keys = _key_path(path.strip())
     if not all(keys):
         raise PipelineError(f"--set {assignment!r}: empty key in {path!r}")
     try:
