@@ -65,7 +65,7 @@ def _view(args: argparse.Namespace) -> None:
         raise UserError(f"the Rerun viewer exited with status {status}")
 
 
-def _inspect(args: argparse.Namespace) -> None:
+def _inspect(args: argparse.Namespace) -> int:
     from .inspection import inspect_fmu
     from .interface import FmuError
     from .pipeline import load_pipeline
@@ -79,8 +79,7 @@ def _inspect(args: argparse.Namespace) -> None:
             _print_linearization(args.fmu, info, dict(pipeline.plant.parameters))
     except FmuError as exc:
         raise UserError(str(exc)) from None
-    if not info.fits:
-        raise SystemExit(1)  # the report says why; 1, not 2: the command itself worked
+    return 0 if info.fits else 1  # the report says why; 1, not 2: the command itself worked
 
 
 def _print_linearization(path: Path, info, parameters: dict[str, float]) -> None:
@@ -208,11 +207,10 @@ def _parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     args = _parser().parse_args(argv)
     try:
-        args.func(args)
+        return args.func(args) or 0  # a command may return its own status (inspect: 1)
     except (UserError, BuildError, PipelineError) as exc:
         print(f"cosim: error: {exc}", file=sys.stderr)
         return 2
-    return 0
 
 
 if __name__ == "__main__":

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import ctypes
 import shutil
+from collections import deque
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -35,7 +36,8 @@ class Fmu:
     path: Path
     mapping: dict[str, list[str] | None] | None = None
     parameters: dict[str, float] = field(default_factory=dict)
-    messages: list[str] = field(default_factory=list)
+    # The FMU's latest log messages (logging is on, so the reason for a failure is here).
+    messages: deque[str] = field(default_factory=lambda: deque(maxlen=100))
 
     def __post_init__(self) -> None:
         self.path = Path(self.path)
@@ -79,12 +81,14 @@ class Fmu:
                 from fmpy.fmi2 import FMU2Slave
 
                 instance = FMU2Slave(**common)
-                self._call("Instantiate", instance.instantiate, callbacks=self._fmi2_callbacks())
+                self._call("Instantiate", instance.instantiate, callbacks=self._fmi2_callbacks(),
+                           loggingOn=True)
             else:
                 from fmpy.fmi3 import FMU3Slave
 
                 instance = FMU3Slave(**common)
-                self._call("Instantiate", instance.instantiate, logMessage=self._log3)
+                self._call("Instantiate", instance.instantiate, logMessage=self._log3,
+                           loggingOn=True)
             self._instance = instance
             self._bind_raw_functions()
         else:

@@ -24,6 +24,14 @@ class Diverged(RuntimeError):
         super().__init__(f"the run diverged in {where} at t = {t:.6g} s{extra}")
 
 
+class PlantFailed(Diverged):
+    """The plant FMU returned an error status from a step; ``detail`` names the FMI call."""
+
+    def __init__(self, t: float, detail: str):
+        self.where, self.t = "the plant FMU", t
+        RuntimeError.__init__(self, f"the plant FMU stopped the run at t = {t:.6g} s: {detail}")
+
+
 def simulate(plant: Fmu, blocks: Sequence[Block], trace: Trace,
              progress: Callable[[int], None] | None = None, progress_every: int = 1000) -> float:
     """Run the closed loop over all rows of ``trace``. Returns the wall time in seconds of
@@ -55,7 +63,7 @@ def simulate(plant: Fmu, blocks: Sequence[Block], trace: Trace,
         try:
             plant.step(t, h)
         except FmuError as exc:
-            raise Diverged("the plant FMU", t, str(exc)) from None
+            raise PlantFailed(t, str(exc)) from None
         if progress is not None and k % progress_every == 0:
             progress(k)
         if k == 0:

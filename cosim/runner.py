@@ -174,9 +174,10 @@ def run(pipeline: Pipeline, out_dir: str | Path | None = None, progress: bool = 
     plant = open_plant(pipeline)
     try:
         check_sizes(pipeline, plant)
-    except PipelineError:
+        plant.start(0.0)  # refuses bad parameters before anything is written
+    except (PipelineError, FmuError) as exc:
         plant.close()
-        raise
+        raise PipelineError(str(exc)) from None
     links = plant.links
     sim = pipeline.simulation
     steps = int(round(sim.duration / sim.step))
@@ -184,11 +185,10 @@ def run(pipeline: Pipeline, out_dir: str | Path | None = None, progress: bool = 
     out = Path(out_dir) if out_dir else None
     if out:
         out.mkdir(parents=True, exist_ok=True)
-    # The recording writer starts first: it imports Rerun while the plant loads.
+    # The writer imports Rerun in its own process while the first run compiles its blocks.
     recorder = _open_recorder(out, pipeline, spawn, connect) if out and record else None
     failure: BaseException | None = None
     try:
-        plant.start(0.0)  # refuses bad parameters before anything runs
         plant_info = plant.describe()
         if recorder is not None:
             recorder.set_properties(_properties(pipeline, plant_info))
