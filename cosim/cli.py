@@ -85,7 +85,7 @@ def _inspect(args: argparse.Namespace) -> int:
 def _print_linearization(path: Path, info, parameters: dict[str, float]) -> None:
     import numpy as np
 
-    from .linearize import linearize_at_start
+    from .linearization import linearize_at_start
 
     inputs = info.mapping.tau if info.fits else None
     outputs = info.mapping.q + (info.mapping.qdot or []) if info.fits else None
@@ -117,8 +117,8 @@ def _print_summary(results) -> None:
         row = f"{check:<{width}}"
         for name in names:
             entry = results[name].safety.get(check)
-            if entry is None:
-                row += f"{'-':>26}"
+            if entry is None or entry["worst"] is None:  # not checked / no qdot to check
+                row += f"{'-' if entry is None else 'n/a (no qdot)':>26}"
                 continue
             mark = "ok" if entry["satisfied"] else "VIOLATED"
             row += f"{entry['worst']:>9.3f} <= {entry['bound']:<7.3f} {mark:>8}"

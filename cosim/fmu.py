@@ -192,7 +192,8 @@ class Fmu:
 
     def describe(self) -> dict:
         """What the recording's properties say of the plant: model name, instantiation token
-        (FMI 2 GUID), FMI version, file, and every real parameter's value as used (after
+        (FMI 2 GUID), FMI version, file, our interface in its names (``plant.variables`` as
+        used), and every real parameter's value as used (after
         :meth:`start`, so pipeline overrides show; else the start values)."""
         md = self.model_description
         names = [v.name for v in md.modelVariables
@@ -205,6 +206,7 @@ class Fmu:
         return {"model_name": md.modelName, "instantiation_token": md.guid,
                 "fmi_version": md.fmiVersion, "file": str(self.path),
                 "generation_tool": md.generationTool or "",
+                "variables": {k: v for k, v in vars(self.variables).items() if v},
                 "parameters": dict(zip(names, values, strict=True))}
 
     # Per step -------------------------------------------------------------------------------

@@ -278,7 +278,8 @@ def _properties(pipeline: Pipeline, plant_info: dict) -> dict[str, dict]:
     return {
         "pipeline": {"name": pipeline.name, "description": pipeline.description or "",
                      "resolved": resolved},
-        "plant": {**{k: v for k, v in plant_info.items() if k != "parameters"},
+        "plant": {**{k: v for k, v in plant_info.items() if k not in ("parameters", "variables")},
+                  "variables": json.dumps(plant_info["variables"]),
                   "parameters": json.dumps(plant_info["parameters"])},
         "versions": package_versions(),
     }
@@ -325,6 +326,7 @@ def write_run_folder(out: Path, pipeline: Pipeline, results: dict[str, RunResult
         "plant": {"path": plant_info["file"], "model_name": plant_info["model_name"],
                   "fmi_version": plant_info["fmi_version"],
                   "guid": plant_info["instantiation_token"],
+                  "variables": plant_info["variables"],
                   "parameters": plant_info["parameters"]},
         "runs": {name: r.summary() for name, r in results.items()},
     }

@@ -143,6 +143,12 @@ def evaluate(trace: Trace, safe: SafeSet, gains: Gains) -> tuple[dict, dict]:
     """(metrics, safety) for summary.json, from the completed rows of the trace."""
     safety = {}
     for name, check in check_signals(trace, safe, gains).items():
+        if len(check.value) and np.isnan(check.value).all():
+            # Only the ground-truth velocity can be missing: a plant without a qdot mapping.
+            safety[name] = {"bound": float(check.upper), "worst": None, "satisfied": None,
+                            "unavailable": "needs the true joint velocity: the plant maps "
+                            "no qdot"}
+            continue
         worst = float(np.max(check.magnitude)) if len(check.value) else float("nan")
         entry = {"bound": float(check.upper), "worst": worst,
                  "satisfied": bool(worst <= check.upper)}

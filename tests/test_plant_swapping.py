@@ -19,12 +19,13 @@ import pytest
 from cli_helpers import PAPER, cosim_cli
 from fmu_helpers import FmuInstance, fmu_parameters
 
+from cosim import linearize  # the public, importable function
 from cosim.blocks.inertia import planar_mass_matrix
 from cosim.cli import main
 from cosim.fmu import Fmu
 from cosim.inspection import inspect_fmu
 from cosim.interface import FmuError
-from cosim.linearize import linearize, linearize_at_start
+from cosim.linearization import linearize_at_start
 from cosim.pipeline import load_pipeline
 from cosim.runner import run
 
@@ -109,6 +110,26 @@ def test_mapping_from_the_command_line_with_a_notice_of_the_inertia_model(foreig
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["plant"]["model_name"] == "PythonArm" and summary["complete"]
     assert summary["runs"]["proposed"]["inertia_model"]["m"] == [0.8, 2.3]
+
+
+def test_a_plant_without_qdot_runs_the_proposed_controller_with_those_checks_unavailable(
+        foreign_fmu, tmp_path):
+    """Output feedback needs only q: the true velocity's checks are reported as unavailable,
+    not as violated, and the recording is still written."""
+    pipeline = load_pipeline(PAPER, [f'plant.fmu="{foreign_fmu}"', *FOREIGN_MAPPING[:2],
+                                     "simulation.duration=1.5"])
+    del pipeline.runs["baseline"]
+    result = run(pipeline, tmp_path, progress=False, figures=False)["proposed"]
+    assert result.complete and np.isnan(result.trace["qdot"]).all()
+    for check in ("velocity_true_joint1", "velocity_true_norm", "observer_error_norm"):
+        entry = result.safety[check]
+        assert entry["worst"] is None and entry["satisfied"] is None
+        assert "no qdot" in entry["unavailable"]
+    assert result.safety["error_joint1"]["satisfied"]
+    summary = json.loads((tmp_path / "summary.json").read_text())
+    assert summary["complete"] and "qdot" not in summary["plant"]["variables"]
+    assert summary["plant"]["variables"]["q"] == ["shoulder", "elbow"]
+    assert (tmp_path / "recording.rrd").stat().st_size > 1e5
 
 
 # Other pipelines -----------------------------------------------------------------------------

@@ -1,7 +1,7 @@
 """Linearise an FMU about its start state into a python-control state-space model, from the
 FMU's own directional derivatives (Model Exchange): ``cosim inspect FMU --linearize``.
 
-    from cosim.linearize import linearize
+    from cosim import linearize
     sys = linearize("arm.fmu", inputs=["tau[1]", "tau[2]"], outputs=["q[1]", "q[2]"])
     sys.poles()
 
