@@ -129,10 +129,14 @@ class Fmu:
         return callbacks
 
     def _log2(self, env, name, status, category, message) -> None:
-        self.messages.append(message.decode(errors="replace"))
+        self._log(message)
 
     def _log3(self, env, status, category, message) -> None:
-        self.messages.append(message.decode(errors="replace"))
+        self._log(message)
+
+    def _log(self, message: bytes) -> None:
+        # One line each: a message is quoted inside our one-line errors.
+        self.messages.append(" ".join(message.decode(errors="replace").split()))
 
     def _call(self, what: str, function, *args, **kwargs):
         try:
