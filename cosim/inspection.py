@@ -65,7 +65,8 @@ class FmuInfo:
                  + ("; Model Exchange with directional derivatives"
                     if self.directional_derivatives else ""),
                  f"  platforms   {', '.join(self.platforms) or 'none'} (this machine: {here})"]
-        for causality in CAUSALITIES:
+        present = {v.causality for v in self.variables}
+        for causality in [*CAUSALITIES, *sorted(present - set(CAUSALITIES))]:
             group = [v for v in self.variables if v.causality == causality]
             if not group:
                 continue

@@ -16,20 +16,28 @@ from .trace import Trace
 
 
 class Diverged(RuntimeError):
-    """A block produced a non-finite value or the FMU refused a step."""
+    """The run cannot go on: a block produced a non-finite value (or the plant failed, below).
+    ``where`` and ``t`` (s) say where and when."""
 
     def __init__(self, where: str, t: float, detail: str = ""):
         self.where, self.t = where, t
+        super().__init__(self.describe(where, t, detail))
+
+    @staticmethod
+    def describe(where: str, t: float, detail: str) -> str:
         extra = f": {detail}" if detail else ""
-        super().__init__(f"the run diverged in {where} at t = {t:.6g} s{extra}")
+        return f"the run diverged in {where} at t = {t:.6g} s{extra}"
 
 
 class PlantFailed(Diverged):
     """The plant FMU returned an error status from a step; ``detail`` names the FMI call."""
 
     def __init__(self, t: float, detail: str):
-        self.where, self.t = "the plant FMU", t
-        RuntimeError.__init__(self, f"the plant FMU stopped the run at t = {t:.6g} s: {detail}")
+        super().__init__("the plant FMU", t, detail)
+
+    @staticmethod
+    def describe(where: str, t: float, detail: str) -> str:
+        return f"{where} stopped the run at t = {t:.6g} s: {detail}"
 
 
 def simulate(plant: Fmu, blocks: Sequence[Block], trace: Trace,
