@@ -243,13 +243,16 @@ class Fmu:
             self.M[:] = self._outputs[k:k + n * n].reshape(n, n)
 
     def close(self) -> None:
+        """Terminate and free the instance, unload its library, delete the extracted files."""
         if self._instance is not None:
+            instance, self._instance = self._instance, None
             try:
-                self._instance.terminate()
+                instance.terminate()
             except FMICallException:
                 pass
-            self._instance.freeInstance()
-            self._instance = None
+            getattr(instance, f"fmi{self.fmi_version}FreeInstance")(instance.component)
+            _release_pythonfmu(instance.dll)
+            instance.freeLibrary()
         if self._unzip:
             shutil.rmtree(self._unzip, ignore_errors=True)
             self._unzip = None
@@ -259,3 +262,16 @@ class Fmu:
 
     def __exit__(self, *exc) -> None:
         self.close()
+
+
+def _release_pythonfmu(dll) -> None:
+    """PythonFMU (0.7.0) FMUs keep their interpreter guard in a static ``shared_ptr`` that
+    the library's unload hook resets after C++ has already destroyed it: a use after free at
+    process exit (or unload) that corrupts the heap, so that the process aborts with
+    "corrupted double-linked list" after all its work is done, about one exit in two.
+    Resetting it ourselves, through the hook it exports, while the library is loaded and
+    the pointer alive, leaves both later resets nothing to do."""
+    release = getattr(dll, "finalizePythonInterpreter", None)
+    if release is not None:
+        release.restype = None
+        release()
