@@ -89,10 +89,12 @@ def linearize_at_start(path: str | Path, inputs: list[str] | None = None,
 
     x_vr, dx_vr = refs(states), refs(derivatives)
     u_vr, y_vr = refs(by_name[n] for n in inputs), refs(by_name[n] for n in outputs)
+    parameters = parameters or {}
+    settings = (refs(by_name[n] for n in parameters), [float(v) for v in parameters.values()])
     unzip = extract(path)
     instance = None
     try:
-        instance = _start_model_exchange(path, md, unzip, parameters or {})
+        instance = _start_model_exchange(path, md, unzip, *settings)
         get = instance.getReal if md.fmiVersion.startswith("2") else instance.getFloat64
         x0, xdot0 = np.array(get(x_vr)), np.array(get(dx_vr))
         u0 = np.array(get(u_vr)) if u_vr else np.zeros(0)
@@ -117,13 +119,11 @@ def linearize_at_start(path: str | Path, inputs: list[str] | None = None,
         shutil.rmtree(unzip, ignore_errors=True)
 
 
-def _start_model_exchange(path: Path, md, unzip: str, parameters: dict[str, float]):
-    """Instantiate, set parameters, initialise and enter continuous-time mode at t = 0."""
+def _start_model_exchange(path: Path, md, unzip: str, vrs: list[int], values: list[float]):
+    """Instantiate, set the parameters ``vrs`` to ``values``, initialise and enter
+    continuous-time mode at t = 0."""
     common = dict(guid=md.guid, unzipDirectory=unzip, instanceName="linearize",
                   modelIdentifier=md.modelExchange.modelIdentifier)
-    names, values = list(parameters), [float(v) for v in parameters.values()]
-    by_name = {v.name: v for v in md.modelVariables}
-    vrs = [by_name[n].valueReference for n in names]
     try:
         if md.fmiVersion.startswith("2"):
             from fmpy.fmi2 import FMU2Model
@@ -132,7 +132,7 @@ def _start_model_exchange(path: Path, md, unzip: str, parameters: dict[str, floa
             instance.instantiate()
             instance.setupExperiment(startTime=0.0)
             instance.enterInitializationMode()
-            if names:
+            if vrs:
                 instance.setReal(vrs, values)
             instance.exitInitializationMode()
             while instance.newDiscreteStates()[0]:  # event iteration at t = 0
@@ -143,7 +143,7 @@ def _start_model_exchange(path: Path, md, unzip: str, parameters: dict[str, floa
             instance = FMU3Model(**common)
             instance.instantiate()
             instance.enterInitializationMode(startTime=0.0)
-            if names:
+            if vrs:
                 instance.setFloat64(vrs, values)
             instance.exitInitializationMode()
             while instance.updateDiscreteStates()[0]:

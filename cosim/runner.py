@@ -17,7 +17,7 @@ import numpy as np
 from plant_fmu import build_fmu
 
 from .blocks.controller import NnController
-from .blocks.inertia import InertiaModel, default_links
+from .blocks.inertia import InertiaModel
 from .blocks.observer import FlnnObserver
 from .blocks.reference import SinusoidReference
 from .blocks.sensor import PositionSensor
@@ -109,18 +109,17 @@ def check_sizes(pipeline: Pipeline, plant: Fmu) -> None:
 
 
 def inertia_model(run: Run, plant: Fmu) -> InertiaModel:
-    """The run's inertia model block, its nominal links filled in (the paper's arm unless
-    the pipeline gives them)."""
-    links = {k: getattr(run.inertia_model, k) or v
-             for k, v in default_links(plant.links).items()}
-    return InertiaModel(inertia_source(run, plant), **links)
+    """The run's inertia model block (nominal links: the pipeline's, else the paper's arm)."""
+    spec = run.inertia_model
+    return InertiaModel(inertia_source(run, plant), spec.m, spec.l, spec.lc, spec.I)
 
 
 def describe_inertia(model: InertiaModel, plant: Fmu) -> str:
     if model.source == "fmu":
         return f"from {plant.path.name}'s M outputs ({', '.join(plant.variables.M[:2])}, …)"
-    return (f"nominal (m = {model.m} kg, l = {model.l} m, lc = {model.lc} m, I = {model.I} "
-            f"kg·m²) at the measured position"
+    links = model.nominal_links(plant.links)
+    return (f"nominal (m = {links['m']} kg, l = {links['l']} m, lc = {links['lc']} m, "
+            f"I = {links['I']} kg·m²) at the measured position"
             + ("" if plant.has_M else f"; {plant.path.name} maps no M outputs"))
 
 
@@ -256,8 +255,8 @@ def _run_one(name: str, spec: Run, pipeline: Pipeline, plant: Fmu, steps: int,
     if recorder is not None:  # the loop's share of writing the recording
         metrics["recording_handoff_s"] = recorder.handoff_seconds - handed_over
     result = RunResult(name, done, metrics, safety, error is None, error, failure,
-                       {"source": model.source, "m": model.m, "l": model.l, "lc": model.lc,
-                        "I": model.I} if model.source == "nominal" else {"source": "fmu"})
+                       {"source": "nominal", **model.nominal_links(links)}
+                       if model.source == "nominal" else {"source": "fmu"})
     if recorder is not None:
         recorder.send_rows(name, trace.arrays, trace.rows_done)
         recorder.end_run(name, result.summary())

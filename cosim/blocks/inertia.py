@@ -64,10 +64,16 @@ def planar_mass_matrix(q, m, l, lc, inertia, out):  # noqa: E741
             out[j, i] = total
 
 
+@njit(cache=True)
+def _nominal_step(k, position, m, l, lc, inertia, out):  # noqa: E741
+    planar_mass_matrix(position[k], m, l, lc, inertia, out[k])
+
+
 @dataclass
 class InertiaModel:
     """``source``: "fmu" or "nominal" (the runner resolves the pipeline's "auto"); ``m``,
-    ``l``, ``lc``, ``I``: the nominal chain's per-link kg, m, m, kg·m²."""
+    ``l``, ``lc``, ``I``: the nominal chain's per-link kg, m, m, kg·m² (unset: the paper's
+    arm, :func:`default_links`)."""
 
     source: str = "nominal"
     m: list[float] | None = None
@@ -76,18 +82,24 @@ class InertiaModel:
     I: list[float] | None = None  # noqa: E741
     name: str = "inertia model"
 
+    def nominal_links(self, links: int) -> dict[str, list[float]]:
+        """The nominal chain as used for ``links`` joints: given values, else the defaults."""
+        return {key: getattr(self, key) or value
+                for key, value in default_links(links).items()}
+
     def reset(self, trace: Trace) -> None:
-        defaults = default_links(trace.links)
-        self._links = tuple(np.asarray(getattr(self, key) or defaults[key], float)
-                            for key in ("m", "l", "lc", "I"))
         self._from_plant = self.source == "fmu"
-        self._plant = trace["M"]
-        self._position = trace["q_meas"]
-        self._out = trace["M_model"]
+        if self._from_plant:
+            # M̂ is the plant's own M: the trace's M_model is that same array, so a step
+            # has nothing to copy.
+            trace.arrays["M_model"] = trace["M"]
+            return
+        links = self.nominal_links(trace.links)
+        self._args = (trace["q_meas"],
+                      *(np.asarray(links[key], float) for key in ("m", "l", "lc", "I")),
+                      trace["M_model"])
 
     def step(self, k: int) -> bool:
-        if self._from_plant:
-            self._out[k] = self._plant[k]
-        else:
-            planar_mass_matrix(self._position[k], *self._links, self._out[k])
+        if not self._from_plant:
+            _nominal_step(k, *self._args)
         return True  # a non-finite M̂ makes the observer's output non-finite: caught there
