@@ -25,8 +25,9 @@ from pathlib import Path
 from cosim.fmu import Fmu
 from cosim.master import simulate
 from cosim.pipeline import load_pipeline
-from cosim.runner import make_blocks, plant_path, run
 from cosim.trace import Trace
+
+from cosim.runner import make_blocks, plant_path, run
 
 PIPELINE = Path(__file__).resolve().parent.parent / "pipelines" / "paper_two_link.toml"
 

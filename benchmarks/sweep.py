@@ -15,6 +15,7 @@ import itertools
 
 from cosim.master import Diverged
 from cosim.pipeline import load_pipeline
+
 from cosim.runner import run
 
 CHECKS = ("position_joint1", "velocity_estimated_joint1", "velocity_true_joint1",

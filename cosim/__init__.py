@@ -11,8 +11,8 @@ from importlib import import_module
 __version__ = "0.1.0"
 
 # Imported on first use, so that `cosim --help` does not pay for numba, control and FMPy.
-_PUBLIC = {"build_fmu": "plant_fmu", "inspect_fmu": "cosim.inspection",
-           "linearize": "cosim.linearization", "load_pipeline": "cosim.pipeline",
+_PUBLIC = {"build_fmu": "plant_fmu", "inspect_fmu": "cosim.plant.inspection",
+           "linearize": "cosim.plant.linearization", "load_pipeline": "cosim.config",
            "run": "cosim.runner"}
 __all__ = sorted(_PUBLIC)
 

@@ -9,7 +9,7 @@ from pathlib import Path
 
 from plant_fmu import MAX_LINKS, BuildError, build_fmu
 
-from .pipeline import PipelineError
+from .config.schema import PipelineError
 
 
 class UserError(Exception):
@@ -22,9 +22,9 @@ def _build_fmu(args: argparse.Namespace) -> None:
 
 
 def _run(args: argparse.Namespace) -> None:
-    from .master import Diverged
-    from .pipeline import load_pipeline
-    from .recording import RecordingError
+    from .config import load_pipeline
+    from .engine import Diverged
+    from .outputs.recording import RecordingError
     from .runner import run
 
     pipeline = load_pipeline(args.pipeline, args.set)
@@ -52,7 +52,7 @@ def _run(args: argparse.Namespace) -> None:
 
 
 def _view(args: argparse.Namespace) -> None:
-    from .viewer import ViewerError, recording_path, screenshot, view
+    from .outputs.viewer import ViewerError, recording_path, screenshot, view
 
     try:
         if args.screenshot:
@@ -66,9 +66,9 @@ def _view(args: argparse.Namespace) -> None:
 
 
 def _inspect(args: argparse.Namespace) -> int:
-    from .inspection import inspect_fmu
-    from .interface import FmuError
-    from .pipeline import load_pipeline
+    from .config import load_pipeline
+    from .plant.inspection import inspect_fmu
+    from .plant.mapping import FmuError
 
     pipeline = load_pipeline(args.pipeline, args.set)
     mapping = pipeline.plant.variables.model_dump()
@@ -85,7 +85,7 @@ def _inspect(args: argparse.Namespace) -> int:
 def _print_linearization(path: Path, info, parameters: dict[str, float]) -> None:
     import numpy as np
 
-    from .linearization import linearize_at_start
+    from .plant.linearization import linearize_at_start
 
     inputs = info.mapping.tau if info.fits else None
     outputs = info.mapping.q + (info.mapping.qdot or []) if info.fits else None

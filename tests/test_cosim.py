@@ -9,11 +9,11 @@ import pytest
 from cli_helpers import LOW_GAIN_LAGGED, PAPER, cosim_cli
 from scipy.integrate import solve_ivp
 
-from cosim.master import Diverged, simulate
-from cosim.pipeline import PipelineError, load_pipeline
-from cosim.runner import make_blocks, run
-from cosim.safety import torque_reversals
-from cosim.trace import Trace
+from cosim.assemble import assemble_run
+from cosim.config import PipelineError, load_pipeline
+from cosim.engine import Diverged, simulate
+from cosim.evaluate import torque_reversals
+from cosim.runner import run
 
 
 @pytest.fixture(scope="module")
@@ -95,7 +95,7 @@ def test_error_driven_observer_converges(paper_run):
 
 class PythonArm:
     """SPEC §2's closed form integrated by solve_ivp (DOP853, rtol 1e-12) each step: an
-    independent stand-in for the FMU with the same interface as cosim.fmu.Fmu."""
+    independent stand-in for the FMU with the same interface as cosim.plant.fmu.Fmu."""
 
     links, has_M, has_qdot = 2, True, True
 
@@ -137,16 +137,16 @@ def test_closed_loop_on_the_fmu_equals_an_independent_integration(variant, durat
     """Same blocks, FMU vs SPEC §2 integrated by solve_ivp. The proposed loop's high gains
     amplify the 1e-10 difference of the two integrators after ~0.7 s (measured in the
     README), so it is compared over 0.5 s; the full-state loop over 2 s."""
-    from cosim.fmu import Fmu
+    from cosim.plant.fmu import Fmu
     from plant_fmu import build_fmu
 
     pipeline = load_pipeline(PAPER, [f"simulation.duration={duration}"])
-    spec = pipeline.runs[variant]
     steps = int(round(duration / 1e-3))
     traces = []
     for plant in (Fmu(build_fmu(2, 2)), PythonArm()):
-        trace = Trace(2, steps, 1e-3)
-        simulate(plant, make_blocks(pipeline, spec, plant), trace)
+        plan = assemble_run(pipeline, variant, plant)
+        trace = plan.new_trace(steps)
+        simulate(plant, plan, trace)
         traces.append(trace)
     fmu, ref = traces
     assert np.ptp(ref["q"][:, 0]) > 1.0  # the arm really moved

@@ -22,11 +22,11 @@ from fmu_helpers import FmuInstance, fmu_parameters
 from cosim import linearize  # the public, importable function
 from cosim.blocks.inertia import planar_mass_matrix
 from cosim.cli import main
-from cosim.fmu import Fmu
-from cosim.inspection import inspect_fmu
-from cosim.interface import FmuError
-from cosim.linearization import linearize_at_start
-from cosim.pipeline import load_pipeline
+from cosim.config import load_pipeline
+from cosim.plant.fmu import Fmu
+from cosim.plant.inspection import inspect_fmu
+from cosim.plant.linearization import linearize_at_start
+from cosim.plant.mapping import FmuError
 from cosim.runner import run
 
 FOREIGN_ARM = Path(__file__).parent / "foreign" / "python_arm.py"
@@ -100,7 +100,7 @@ def test_pythonfmu_arm_under_other_names_matches_the_builtin_plant(foreign_fmu, 
 EXIT_SCRIPT = """
 import sys
 import cosim.blocks.controller  # numba, numpy's Fortran runtime: what made the heap matter
-from cosim.fmu import Fmu
+from cosim.plant.fmu import Fmu
 plant = Fmu(sys.argv[1], {"tau": ["shoulder_torque", "elbow_torque"],
                           "q": ["shoulder", "elbow"]})
 for _ in range(2):
@@ -431,7 +431,7 @@ def test_linearize_cli_prints_the_poles_and_refuses_a_cs_only_fmu(plant_fmu, for
 
 
 def test_extraction_refuses_entries_outside_its_folder(plant_fmu, tmp_path):
-    from cosim.interface import extract
+    from cosim.plant.mapping import extract
 
     for name in ("../escaped.txt", "/abs.txt", "a/../../escaped.txt"):
         bad = rewrite(plant_fmu(2, 2), tmp_path / "bad.fmu", add=[(name, b"x")])

@@ -16,38 +16,90 @@ the κ‖r̂‖ decay terms implicit so that they never overshoot. Weights start
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import Annotated, Literal, NamedTuple
 
 import numpy as np
 from numba import njit
+from pydantic import Field
 
-from ..trace import Trace
+from ..config.schema import GainVector, NonNegativeFloat, PositiveFloat, Section
+from ..signals import Signal
+from .base import Block, BlockContext, Ports, register_block
 
 VARIANTS = ("baseline", "proposed")
 
 
-@njit(cache=True)
-def _controller_step(k, dt, proposed, p, lam, kv, s, hidden, y, vel, q_d, qd_d, qdd_d,
-                     tau, e_out, edot_out, r_out, nn_out, v_out, w_norm_out, v_norm_out):
-    n = y.shape[1]
-    f_gain, g_gain, kappa, kz, z_w, c0, c1, delta, psi_b = (p[0], p[1], p[2], p[3], p[4],
-                                                            p[5], p[6], p[7], p[8])
-    n_in = 1 + 5 * n
-    W = s[0:(hidden + 1) * n].reshape((hidden + 1, n))
-    V = s[(hidden + 1) * n:(hidden + 1) * n + n_in * hidden].reshape((n_in, hidden))
+class ControllerParams(Section):
+    """Kv [N·m·s/rad], Λ [1/s], F, G (scalars × I), κ, Kz, Z_B or Z_Wc, C0, C1, δ, ψ_B,
+    hidden width. Vectors may be given per joint or as one scalar."""
 
-    e = q_d[k] - y[k]
-    edot = qd_d[k] - vel[k]
-    r = edot + lam * e
+    variant: Literal["baseline", "proposed"] = "proposed"
+    kv: GainVector = 20.0  # Kv
+    lam: GainVector = Field(5.0, alias="lambda")  # Λ
+    f: PositiveFloat = 10.0  # F
+    g: PositiveFloat = 12.0  # G
+    kappa: PositiveFloat = 0.1  # κ
+    kz: NonNegativeFloat = 5.0  # Kz
+    z_b: NonNegativeFloat = 10.0  # Z_B, the baseline's bound on ‖Z‖ (Lewis)
+    z_wc: NonNegativeFloat = 10.0  # Z_Wc in (27), the proposed controller's
+    c0: NonNegativeFloat = 150.0  # C0
+    c1: NonNegativeFloat = 0.1  # C1
+    delta: PositiveFloat = 1.0  # δ
+    psi_b: NonNegativeFloat = 20.0  # ψ_B
+    hidden: Annotated[int, Field(ge=1, le=200)] = 10
+
+
+class ControllerArgs(NamedTuple):
+    dt: float  # master step, s
+    proposed: bool
+    f: float
+    g: float
+    kappa: float
+    kz: float
+    z_w: float  # Z_B (baseline) or Z_Wc (proposed)
+    c0: float
+    c1: float
+    delta: float
+    psi_b: float
+    hidden: int
+    lam: np.ndarray  # (n,)
+    kv: np.ndarray  # (n,)
+    state: np.ndarray  # Ŵ ((hidden+1) × n), V̂ ((1+5n) × hidden), flat
+    position: np.ndarray  # q (baseline) or q_meas (proposed)
+    velocity: np.ndarray  # q̇ (baseline) or x̂2 (proposed)
+    q_d: np.ndarray
+    qdot_d: np.ndarray
+    qddot_d: np.ndarray
+    tau: np.ndarray
+    e: np.ndarray
+    edot: np.ndarray
+    r_hat: np.ndarray
+    nn_output: np.ndarray
+    v_c: np.ndarray
+    W_norm: np.ndarray
+    V_norm: np.ndarray
+
+
+@njit(cache=True)
+def controller_step(k, a):
+    n = a.position.shape[1]
+    hidden = a.hidden
+    n_in = 1 + 5 * n
+    W = a.state[0:(hidden + 1) * n].reshape((hidden + 1, n))
+    V = a.state[(hidden + 1) * n:(hidden + 1) * n + n_in * hidden].reshape((n_in, hidden))
+
+    e = a.q_d[k] - a.position[k]
+    edot = a.qdot_d[k] - a.velocity[k]
+    r = edot + a.lam * e
     xi = np.empty(n_in)
     xi[0] = 1.0
     xi[1:1 + n] = e
     xi[1 + n:1 + 2 * n] = edot
-    xi[1 + 2 * n:1 + 3 * n] = q_d[k]
-    xi[1 + 3 * n:1 + 4 * n] = qd_d[k]
-    xi[1 + 4 * n:1 + 5 * n] = qdd_d[k]
-    a = V.T @ xi
-    sig = 1.0 / (1.0 + np.exp(-a))
+    xi[1 + 2 * n:1 + 3 * n] = a.q_d[k]
+    xi[1 + 3 * n:1 + 4 * n] = a.qdot_d[k]
+    xi[1 + 4 * n:1 + 5 * n] = a.qddot_d[k]
+    act = V.T @ xi
+    sig = 1.0 / (1.0 + np.exp(-act))
     sig_hat = np.empty(hidden + 1)
     sig_hat[0] = 1.0
     sig_hat[1:] = sig
@@ -59,71 +111,70 @@ def _controller_step(k, dt, proposed, p, lam, kv, s, hidden, y, vel, q_d, qd_d, 
     z_norm = np.sqrt(w_norm**2 + v_norm**2)  # ‖Ẑ‖_F, Ẑ = diag(V̂, Ŵ)
     r_sq = np.sum(r**2)
     r_norm = np.sqrt(r_sq)
-    v = -kz * (z_norm + z_w) * r
-    if proposed:  # eq. (27)
-        v -= (kappa * (z_w + c1 / kappa) ** 2 / 4.0 + c0) / np.sqrt(delta + r_sq) * r
+    v = -a.kz * (z_norm + a.z_w) * r
+    if a.proposed:  # eq. (27)
+        v -= (a.kappa * (a.z_w + a.c1 / a.kappa) ** 2 / 4.0 + a.c0) / np.sqrt(a.delta + r_sq) * r
         v -= e
-        v -= psi_b**2 / (delta + r_sq) * r
-    torque = f_hat + kv * r - v
+        v -= a.psi_b**2 / (a.delta + r_sq) * r
+    torque = f_hat + a.kv * r - v
 
-    tau[k] = torque
-    e_out[k] = e
-    edot_out[k] = edot
-    r_out[k] = r
-    nn_out[k] = f_hat
-    v_out[k] = v
-    w_norm_out[k] = w_norm
-    v_norm_out[k] = v_norm
+    a.tau[k] = torque
+    a.e[k] = e
+    a.edot[k] = edot
+    a.r_hat[k] = r
+    a.nn_output[k] = f_hat
+    a.v_c[k] = v
+    a.W_norm[k] = w_norm
+    a.V_norm[k] = v_norm
 
     # (25)-(26) over [t_k, t_k+1)
+    dt = a.dt
     s_prime_a = np.zeros(hidden + 1)
-    s_prime_a[1:] = dsig * a  # σ̂' V̂ᵀ ξ
+    s_prime_a[1:] = dsig * act  # σ̂' V̂ᵀ ξ
     w_r = W @ r
     back = dsig * w_r[1:]  # σ̂'ᵀ Ŵ r̂
-    W[:, :] = (W + dt * f_gain * np.outer(sig_hat - s_prime_a, r)) / (1.0 + dt * kappa
-                                                                      * f_gain * r_norm)
-    V[:, :] = (V + dt * g_gain * np.outer(xi, back)) / (1.0 + dt * kappa * g_gain * r_norm)
+    W[:, :] = (W + dt * a.f * np.outer(sig_hat - s_prime_a, r)) / (1.0 + dt * a.kappa * a.f
+                                                                    * r_norm)
+    V[:, :] = (V + dt * a.g * np.outer(xi, back)) / (1.0 + dt * a.kappa * a.g * r_norm)
     return np.isfinite(np.sum(torque) + w_norm + v_norm)
 
 
-@dataclass
-class NnController:
-    """Parameters: Kv [N·m·s/rad], Λ [1/s], F, G (scalars × I), κ, Kz, Z_B or Z_Wc, C0, C1,
-    δ, ψ_B, hidden width. Vectors may be given per joint or as one scalar."""
+@register_block
+class NnController(Block):
+    kind = "controller"
+    Params = ControllerParams
+    kernel = controller_step
 
-    variant: str = "proposed"
-    kv: float | list[float] = 20.0
-    lam: float | list[float] = 5.0  # Λ
-    f: float = 10.0  # F
-    g: float = 12.0  # G
-    kappa: float = 0.1
-    kz: float = 5.0
-    z_b: float = 10.0  # baseline's bound on ‖Z‖ (Lewis)
-    z_wc: float = 10.0  # proposed's Z_Wc in (27)
-    c0: float = 150.0
-    c1: float = 0.1
-    delta: float = 1.0
-    psi_b: float = 20.0
-    hidden: int = 10
-    name: str = "controller"
+    def __init__(self, params: ControllerParams, context: BlockContext):
+        super().__init__(params, context)
+        baseline = params.variant == "baseline"
+        # The baseline is full state (the plant's true q, q̇); the proposed controller sees
+        # only the sensor and the observer.
+        self.position, self.velocity = ("q", "qdot") if baseline else ("q_meas", "qdot_hat")
+        self.inputs = (self.position, self.velocity, "q_d", "qdot_d", "qddot_d")
+        self.outputs = {
+            "tau": Signal("n", "N·m", "joint torque τ", "controller/tau"),
+            "e": Signal("n", "rad", "tracking error e = q_d − q", "controller/e"),
+            "edot": Signal("n", "rad/s", "error rate ė (ė̂ for the proposed controller)",
+                           "controller/edot"),
+            "r_hat": Signal("n", "rad/s", "filtered error r̂ = ė̂ + Λe", "controller/r_hat"),
+            "nn_output": Signal("n", "N·m", "NN output f̂ = Ŵᵀσ̂(V̂ᵀξ)",
+                                "controller/nn_output", "f_hat"),
+            "v_c": Signal("n", "N·m", "robust term v (v_c of (27))", "controller/v_c"),
+            "W_norm": Signal("1", "-", "output weights ‖Ŵc‖", "controller/W_norm", "‖Ŵc‖"),
+            "V_norm": Signal("1", "-", "hidden weights ‖V̂c‖", "controller/V_norm", "‖V̂c‖"),
+        }
 
-    def reset(self, trace: Trace) -> None:
-        n = trace.links
-        self._lam = np.broadcast_to(np.asarray(self.lam, float), (n,)).copy()
-        self._kv = np.broadcast_to(np.asarray(self.kv, float), (n,)).copy()
-        z_w = self.z_b if self.variant == "baseline" else self.z_wc
-        self._p = np.array([self.f, self.g, self.kappa, self.kz, z_w, self.c0, self.c1,
-                            self.delta, self.psi_b])
+    def reset(self, ports: Ports) -> None:
+        p, n = self.params, self.context.links
         n_in = 1 + 5 * n
-        self._s = np.zeros((self.hidden + 1) * n + n_in * self.hidden)
-        velocity = trace["qdot"] if self.variant == "baseline" else trace["qdot_hat"]
-        position = trace["q"] if self.variant == "baseline" else trace["q_meas"]
-        self._proposed = self.variant == "proposed"
-        self._dt = trace.dt
-        self._args = (position, velocity, trace["q_d"], trace["qdot_d"], trace["qddot_d"],
-                      trace["tau"], trace["e"], trace["edot"], trace["r_hat"],
-                      trace["nn_output"], trace["v_c"], trace["W_norm"], trace["V_norm"])
-
-    def step(self, k: int) -> bool:
-        return _controller_step(k, self._dt, self._proposed, self._p, self._lam, self._kv,
-                                self._s, self.hidden, *self._args)
+        inp, out = ports.inputs, ports.outputs
+        self.args = ControllerArgs(
+            self.context.dt, p.variant == "proposed", p.f, p.g, p.kappa, p.kz,
+            p.z_b if p.variant == "baseline" else p.z_wc, p.c0, p.c1, p.delta, p.psi_b,
+            p.hidden, np.broadcast_to(np.asarray(p.lam, float), (n,)).copy(),
+            np.broadcast_to(np.asarray(p.kv, float), (n,)).copy(),
+            np.zeros((p.hidden + 1) * n + n_in * p.hidden),  # weights start at zero
+            inp[self.position], inp[self.velocity], inp["q_d"], inp["qdot_d"], inp["qddot_d"],
+            out["tau"], out["e"], out["edot"], out["r_hat"], out["nn_output"], out["v_c"],
+            out["W_norm"], out["V_norm"])

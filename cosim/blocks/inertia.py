@@ -18,14 +18,29 @@ SI units, radians.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import Literal, NamedTuple
 
 import numpy as np
 from numba import njit
 
 from plant_fmu.variables import PAPER_MASSES
 
-from ..trace import Trace
+from ..config.schema import FiniteFloat, NonNegativeFloat, PositiveFloat, Section
+from ..signals import Signal
+from .base import Block, BlockContext, Ports, register_block
+
+
+class InertiaModelParams(Section):
+    """Where the observer's M(q) (Assumption 3) comes from: ``fmu`` (its mapped M outputs),
+    ``nominal`` (this planar chain, evaluated at the measured position) or ``auto`` (the FMU's
+    when mapped, else nominal). Per link; unset: the paper's arm (m = 0.8, 2.3 kg, l = lc =
+    1 m, I = 0), further links 1 kg, 1 m, like the built-in plant's defaults."""
+
+    source: Literal["auto", "fmu", "nominal"] = "auto"
+    m: list[PositiveFloat] | None = None  # kg
+    l: list[PositiveFloat] | None = None  # m, joint i to joint i+1  # noqa: E741
+    lc: list[FiniteFloat] | None = None  # m, joint i to the link's centre of mass
+    I: list[NonNegativeFloat] | None = None  # kg·m², about the centre of mass  # noqa: E741
 
 
 def default_links(links: int) -> dict[str, list[float]]:
@@ -64,42 +79,60 @@ def planar_mass_matrix(q, m, l, lc, inertia, out):  # noqa: E741
             out[j, i] = total
 
 
+class NominalArgs(NamedTuple):
+    q_meas: np.ndarray
+    m: np.ndarray  # kg
+    l: np.ndarray  # m  # noqa: E741
+    lc: np.ndarray  # m
+    inertia: np.ndarray  # kg·m²
+    M_model: np.ndarray
+
+
 @njit(cache=True)
-def _nominal_step(k, position, m, l, lc, inertia, out):  # noqa: E741
-    planar_mass_matrix(position[k], m, l, lc, inertia, out[k])
+def nominal_step(k, a):
+    planar_mass_matrix(a.q_meas[k], a.m, a.l, a.lc, a.inertia, a.M_model[k])
+    return True  # a non-finite M̂ makes the observer's output non-finite: caught there
 
 
-@dataclass
-class InertiaModel:
-    """``source``: "fmu" or "nominal" (the runner resolves the pipeline's "auto"); ``m``,
-    ``l``, ``lc``, ``I``: the nominal chain's per-link kg, m, m, kg·m² (unset: the paper's
-    arm, :func:`default_links`)."""
+# M̂ is not recorded: it is n² series per run of little use on their own (the plant's M is
+# in the trace files).
+M_MODEL = Signal("nn", "kg·m²", "the controller's inertia model M̂(q)")
 
-    source: str = "nominal"
-    m: list[float] | None = None
-    l: list[float] | None = None  # noqa: E741
-    lc: list[float] | None = None
-    I: list[float] | None = None  # noqa: E741
-    name: str = "inertia model"
 
-    def nominal_links(self, links: int) -> dict[str, list[float]]:
-        """The nominal chain as used for ``links`` joints: given values, else the defaults."""
-        return {key: getattr(self, key) or value
-                for key, value in default_links(links).items()}
+@register_block
+class InertiaModel(Block):
+    """``source`` "auto" resolves here: "fmu" when the plant outputs M, else "nominal"."""
 
-    def reset(self, trace: Trace) -> None:
-        self._from_plant = self.source == "fmu"
-        if self._from_plant:
+    kind = "inertia_model"
+    Params = InertiaModelParams
+
+    def __init__(self, params: InertiaModelParams, context: BlockContext):
+        super().__init__(params, context)
+        source = params.source
+        if source == "auto":
+            source = "fmu" if "M" in context.plant_outputs else "nominal"
+        self.source = source
+        self.inputs = ("M",) if source == "fmu" else ("q_meas",)
+        self.outputs = {"M_model": M_MODEL}
+        if source == "nominal":
+            self.kernel = nominal_step
+
+    def nominal_links(self) -> dict[str, list[float]]:
+        """The nominal chain as used: given values, else the defaults."""
+        return {key: getattr(self.params, key) or value
+                for key, value in default_links(self.context.links).items()}
+
+    def reset(self, ports: Ports) -> None:
+        if self.source == "fmu":
             # M̂ is the plant's own M: the trace's M_model is that same array, so a step
             # has nothing to copy.
-            trace.arrays["M_model"] = trace["M"]
+            ports.trace.arrays["M_model"] = ports.inputs["M"]
             return
-        links = self.nominal_links(trace.links)
-        self._args = (trace["q_meas"],
-                      *(np.asarray(links[key], float) for key in ("m", "l", "lc", "I")),
-                      trace["M_model"])
+        links = self.nominal_links()
+        self.args = NominalArgs(ports.inputs["q_meas"],
+                                *(np.asarray(links[key], float) for key in ("m", "l", "lc", "I")),
+                                ports.outputs["M_model"])
 
-    def step(self, k: int) -> bool:
-        if not self._from_plant:
-            _nominal_step(k, *self._args)
-        return True  # a non-finite M̂ makes the observer's output non-finite: caught there
+    def describe(self) -> dict:
+        return ({"source": "nominal", **self.nominal_links()} if self.source == "nominal"
+                else {"source": "fmu"})

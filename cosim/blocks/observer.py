@@ -17,19 +17,66 @@ Weight laws: "paper" is (24) as printed, Ŵo' = Fo(κo·1 − Ŵo), which has no
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import Annotated, Literal, NamedTuple
 
 import numpy as np
 from numba import njit
+from pydantic import Field
 
-from ..trace import Trace
+from ..config.schema import FiniteFloat, NonNegativeFloat, PositiveFloat, Section
+from ..signals import Signal
+from .base import Block, BlockContext, Ports, register_block
 
 LAWS = {"paper": 0, "error_driven": 1}
 BASES = {"lagged": 0, "no_acceleration": 1}
 
 
+class ObserverParams(Section):
+    """Gains of (5)–(10) and (24); see the module docstring for ``law`` and ``basis``."""
+
+    kp: PositiveFloat = 100.0  # kp, 1/s
+    kd: PositiveFloat = 100.0  # kD, 1/s
+    nu: PositiveFloat = 5e-4  # ν of (8)
+    z_wo: NonNegativeFloat = 10.0  # Z_Wo, bound on ‖Wo‖
+    eps_om: NonNegativeFloat = 1.0  # ε_oM
+    zeta_om: NonNegativeFloat = 1.0  # ζ_oM
+    fo: PositiveFloat = 1.0  # Fo (scalar × I)
+    kappa_o: NonNegativeFloat = 6.0  # κo
+    law: Literal["paper", "error_driven"] = "error_driven"
+    basis: Literal["lagged", "no_acceleration"] = "no_acceleration"
+    substeps: Annotated[int, Field(ge=1, le=1000)] = 10  # per master step
+    tau_d: FiniteFloat | list[FiniteFloat] = 0.01  # N·m, the disturbance (7) assumes known
+    initial_velocity: Literal["desired", "zero"] | list[FiniteFloat] = "desired"  # rad/s
+
+
 def basis_size(links: int, basis: str) -> int:
     return (5 if basis == "lagged" else 4) * links
+
+
+class ObserverArgs(NamedTuple):
+    dt: float  # master step, s
+    substeps: int
+    law: int  # LAWS
+    basis: int  # BASES
+    kp: float
+    kd: float
+    nu: float
+    z_wo: float
+    eps_sum: float  # ε_oM + ζ_oM
+    fo: float
+    kappa_o: float
+    n_basis: int
+    tau_d: np.ndarray  # (n,) N·m
+    initial_velocity: np.ndarray  # (n,) x̂2(0)
+    state: np.ndarray  # x̂1, ẑ2, q̂̈, Ŵo (n_basis × n), flat
+    q_meas: np.ndarray
+    tau: np.ndarray
+    M_model: np.ndarray
+    q_d: np.ndarray
+    q_hat: np.ndarray
+    qdot_hat: np.ndarray
+    k0: np.ndarray
+    W_o_norm: np.ndarray
 
 
 @njit(cache=True)
@@ -46,106 +93,96 @@ def _basis(x1, x2, qdd, basis, out):
 
 
 @njit(cache=True)
-def _gain(p, n_basis, x1_err_norm, w_norm, e_norm):
+def _gain(a, x1_err_norm, w_norm, e_norm):
     """k0 of eq. (8)."""
-    kp, kd, nu, z_wo, eps_sum = p[0], p[1], p[2], p[3], p[4]
-    num = kp * kd * x1_err_norm + np.sqrt(n_basis) * (z_wo + w_norm) + eps_sum + e_norm
-    den = 2.0 * np.sqrt(kp * kd) * (x1_err_norm * x1_err_norm + nu)
+    num = (a.kp * a.kd * x1_err_norm + np.sqrt(a.n_basis) * (a.z_wo + w_norm) + a.eps_sum
+           + e_norm)
+    den = 2.0 * np.sqrt(a.kp * a.kd) * (x1_err_norm * x1_err_norm + a.nu)
     return (num / den) ** 2
 
 
 @njit(cache=True)
-def _observer_step(k, dt, substeps, law, basis, p, tau_d, s, n_basis, q_meas, tau, mass,
-                   q_d, q_hat, qdot_hat, k0_out, w_norm_out):
-    n = q_meas.shape[1]
-    kp, kd, fo, kappa_o = p[0], p[1], p[5], p[6]
-    c = kp + kd
+def observer_step(k, a):
+    n = a.q_meas.shape[1]
+    n_basis = a.n_basis
+    kp = a.kp
+    c = kp + a.kd
+    s = a.state
     x1 = s[0:n]
     z2 = s[n:2 * n]
     qdd = s[2 * n:3 * n]
     W = s[3 * n:3 * n + n_basis * n].reshape((n_basis, n))
     sigma = np.empty(n_basis)
-    if k > 0:  # integrate over [t_{k-1}, t_k] under the torque held over that interval
-        y0 = q_meas[k - 1]
-        dy = q_meas[k] - y0
-        torque_term = np.linalg.solve(mass[k - 1], tau[k - 1] - tau_d)
-        e_norm = np.sqrt(np.sum((q_d[k - 1] - y0) ** 2))
-        h = dt / substeps
-        for j in range(substeps):
-            y = y0 + dy * ((j + 1) / substeps)
+    if k == 0:  # x̂1(0) = y(0): x̃1(0) = 0; x̂2(0) as configured
+        x1[:] = a.q_meas[0]
+        z2[:] = a.initial_velocity
+    else:  # integrate over [t_{k-1}, t_k] under the torque held over that interval
+        y0 = a.q_meas[k - 1]
+        dy = a.q_meas[k] - y0
+        torque_term = np.linalg.solve(a.M_model[k - 1], a.tau[k - 1] - a.tau_d)
+        e_norm = np.sqrt(np.sum((a.q_d[k - 1] - y0) ** 2))
+        h = a.dt / a.substeps
+        for j in range(a.substeps):
+            y = y0 + dy * ((j + 1) / a.substeps)
             x1_err = y - x1
             x1_err_norm = np.sqrt(np.sum(x1_err**2))
             x2 = z2 + kp * x1_err
-            k0 = _gain(p, n_basis, x1_err_norm, np.sqrt(np.sum(W**2)), e_norm)
-            _basis(x1, x2, qdd, basis, sigma)
+            k0 = _gain(a, x1_err_norm, np.sqrt(np.sum(W**2)), e_norm)
+            _basis(x1, x2, qdd, a.basis, sigma)
             g = W.T @ sigma + torque_term
             denom = 1.0 + h * c + h * h * k0
             x1_new = (x1 + h * z2 + h * h * g + (h * c + h * h * k0) * y) / denom
             z2_new = z2 + h * (g + k0 * (y - x1_new))
             qdd[:] = (z2_new + kp * (y - x1_new) - x2) / h
-            if law == 0:  # (24): exact solution of Ŵo' = Fo(κo·1 − Ŵo) over h
-                decay = np.exp(-fo * h)
-                W[:, :] = kappa_o + (W - kappa_o) * decay
+            if a.law == 0:  # (24): exact solution of Ŵo' = Fo(κo·1 − Ŵo) over h
+                decay = np.exp(-a.fo * h)
+                W[:, :] = a.kappa_o + (W - a.kappa_o) * decay
             else:  # error-driven, decay term implicit so it never overshoots
-                W[:, :] = (W + h * fo * np.outer(sigma, x1_err)) / (1.0 + h * kappa_o * fo
-                                                                   * x1_err_norm)
+                W[:, :] = (W + h * a.fo * np.outer(sigma, x1_err)) / (
+                    1.0 + h * a.kappa_o * a.fo * x1_err_norm)
             x1[:] = x1_new
             z2[:] = z2_new
-    y = q_meas[k]
+    y = a.q_meas[k]
     x1_err = y - x1
     x1_err_norm = np.sqrt(np.sum(x1_err**2))
     w_norm = np.sqrt(np.sum(W**2))
-    q_hat[k] = x1
-    qdot_hat[k] = z2 + kp * x1_err
-    k0_out[k] = _gain(p, n_basis, x1_err_norm, w_norm, np.sqrt(np.sum((q_d[k] - y) ** 2)))
-    w_norm_out[k] = w_norm
-    return np.isfinite(np.sum(qdot_hat[k]) + np.sum(x1) + w_norm)
+    a.q_hat[k] = x1
+    a.qdot_hat[k] = z2 + kp * x1_err
+    a.k0[k] = _gain(a, x1_err_norm, w_norm, np.sqrt(np.sum((a.q_d[k] - y) ** 2)))
+    a.W_o_norm[k] = w_norm
+    return np.isfinite(np.sum(a.qdot_hat[k]) + np.sum(x1) + w_norm)
 
 
-@dataclass
-class FlnnObserver:
-    """Parameters: kp, kD [1/s], ν, Z_Wo, ε_oM, ζ_oM, Fo, κo; see eqs. (8) and (24)."""
+@register_block
+class FlnnObserver(Block):
+    kind = "observer"
+    Params = ObserverParams
+    kernel = observer_step
 
-    kp: float = 100.0
-    kd: float = 100.0  # kD
-    nu: float = 5e-4  # ν
-    z_wo: float = 10.0  # Z_Wo
-    eps_om: float = 1.0  # ε_oM
-    zeta_om: float = 1.0  # ζ_oM
-    fo: float = 1.0  # Fo
-    kappa_o: float = 6.0  # κo
-    law: str = "error_driven"
-    basis: str = "no_acceleration"
-    substeps: int = 10
-    tau_d: tuple[float, ...] | float = 0.01  # disturbance assumed known in (7), N·m
-    initial_velocity: str | list[float] = "desired"  # "desired" (q̇_d(0)), "zero", or values
-    name: str = "observer"
+    def __init__(self, params: ObserverParams, context: BlockContext):
+        super().__init__(params, context)
+        self.inputs = ("q_meas", "M_model", "q_d", "qdot_d")
+        self.delayed = ("tau",)  # τ held over the previous step
+        self.outputs = {
+            "q_hat": Signal("n", "rad", "position estimate x̂1", "observer/q_hat"),
+            "qdot_hat": Signal("n", "rad/s", "velocity estimate x̂2", "observer/qdot_hat"),
+            "k0": Signal("1", "1/s²", "observer gain k0 of (8)", "observer/k0"),
+            "W_o_norm": Signal("1", "-", "FLNN weight norm ‖Ŵo‖", "observer/W_norm", "‖Ŵo‖"),
+        }
 
-    def reset(self, trace: Trace) -> None:
-        n = trace.links
-        self._n_basis = basis_size(n, self.basis)
-        self._p = np.array([self.kp, self.kd, self.nu, self.z_wo, self.eps_om + self.zeta_om,
-                            self.fo, self.kappa_o])
-        self._tau_d = np.broadcast_to(np.asarray(self.tau_d, float), (n,)).copy()
-        self._s = np.zeros(3 * n + self._n_basis * n)  # x̂1, ẑ2, q̂̈, Ŵo (weights start at 0)
-        self._trace = trace
-        self._modes = (trace.dt, self.substeps, LAWS[self.law], BASES[self.basis])
-        self._args = (trace["q_meas"], trace["tau"], trace["M_model"], trace["q_d"], trace["q_hat"],
-                      trace["qdot_hat"], trace["k0"], trace["W_o_norm"])
-        self._started = False
-
-    def _initialise(self, trace: Trace) -> None:
-        n = trace.links
-        self._s[0:n] = trace["q_meas"][0]  # x̂1(0) = y(0): x̃1(0) = 0
-        if isinstance(self.initial_velocity, str):
-            v0 = trace["qdot_d"][0] if self.initial_velocity == "desired" else np.zeros(n)
+    def reset(self, ports: Ports) -> None:
+        p, n = self.params, self.context.links
+        n_basis = basis_size(n, p.basis)
+        if isinstance(p.initial_velocity, str):
+            v0 = (ports.inputs["qdot_d"][0] if p.initial_velocity == "desired"
+                  else np.zeros(n))
         else:
-            v0 = np.asarray(self.initial_velocity, float)
-        self._s[n:2 * n] = v0
-        self._started = True
-
-    def step(self, k: int) -> bool:
-        if not self._started:
-            self._initialise(self._trace)
-        return _observer_step(k, *self._modes, self._p, self._tau_d, self._s, self._n_basis,
-                              *self._args)
+            v0 = np.asarray(p.initial_velocity, float)
+        inp, out = ports.inputs, ports.outputs
+        self.args = ObserverArgs(
+            self.context.dt, p.substeps, LAWS[p.law], BASES[p.basis], p.kp, p.kd, p.nu,
+            p.z_wo, p.eps_om + p.zeta_om, p.fo, p.kappa_o, n_basis,
+            np.broadcast_to(np.asarray(p.tau_d, float), (n,)).copy(), np.array(v0, float),
+            np.zeros(3 * n + n_basis * n),  # weights start at 0
+            inp["q_meas"], inp["tau"], inp["M_model"], inp["q_d"],
+            out["q_hat"], out["qdot_hat"], out["k0"], out["W_o_norm"])

@@ -3,23 +3,59 @@ trajectories q_s, q̇_s of Remark 1 (case i: q_s = q_d; case ii: constant midpoi
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import Literal
 
 import numpy as np
+from pydantic import model_validator
 
-from ..trace import Trace
+from ..config.schema import FiniteFloat, NonNegativeFloat, Section
+from ..signals import Signal
+from .base import Block, BlockContext, Ports, register_block
 
 
-@dataclass
-class SinusoidReference:
-    """q_d,i(t) = offset_i + Σ_j amplitude_ij sin(frequency_ij t + phase_ij), rad, rad/s."""
+class ReferenceParams(Section):
+    """q_d,i(t) = offset_i + Σ_j amplitude_ij sin(frequency_ij t + phase_ij)."""
 
-    offset: np.ndarray  # (n,)
-    amplitude: np.ndarray  # (n, m)
-    frequency: np.ndarray  # (n, m), rad/s
-    phase: np.ndarray  # (n, m), rad
-    safe_case: str = "midpoint"  # "tracking" (case i) or "midpoint" (case ii)
-    name: str = "reference"
+    offset: list[FiniteFloat] = [0.0, 0.0]  # rad
+    amplitude: list[list[FiniteFloat]] = [[20.0], [10.0]]  # rad
+    frequency: list[list[NonNegativeFloat]] = [[0.5], [1.0]]  # rad/s
+    phase: list[list[FiniteFloat]] | None = None  # rad, default 0
+    safe_case: Literal["tracking", "midpoint"] = "midpoint"  # Remark 1 case i / ii
+
+    @model_validator(mode="after")
+    def _shapes(self) -> ReferenceParams:
+        n = len(self.offset)
+        for key in ("amplitude", "frequency", "phase"):
+            value = getattr(self, key)
+            if value is None:
+                continue
+            if len(value) != n:
+                raise ValueError(f"reference.{key} has {len(value)} rows, offset has {n} joints")
+            if any(len(row) != len(self.amplitude[i]) for i, row in enumerate(value)):
+                raise ValueError(f"reference.{key} rows must match reference.amplitude's")
+        return self
+
+
+@register_block
+class SinusoidReference(Block):
+    kind = "reference"
+    Params = ReferenceParams
+
+    def __init__(self, params: ReferenceParams, context: BlockContext):
+        super().__init__(params, context)
+        self.outputs = {
+            "q_d": Signal("n", "rad", "desired position q_d", "reference/q_d"),
+            "qdot_d": Signal("n", "rad/s", "desired velocity q̇_d", "reference/qdot_d"),
+            "qddot_d": Signal("n", "rad/s²", "desired acceleration q̈_d", "reference/qddot_d"),
+            # The safe trajectories are drawn as the safety checks' bounds, not as series.
+            "q_s": Signal("n", "rad", "safe-set centre q_s (Remark 1)"),
+            "qdot_s": Signal("n", "rad/s", "safe-set centre q̇_s (Remark 1)"),
+        }
+        self.offset = np.array(params.offset, float)
+        self.amplitude = np.array(params.amplitude, float)
+        self.frequency = np.array(params.frequency, float)
+        self.phase = (np.array(params.phase, float) if params.phase is not None
+                      else np.zeros_like(self.amplitude))
 
     def evaluate(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """q_d, q̇_d, q̈_d at the times t (shape (len(t), n) each)."""
@@ -30,15 +66,13 @@ class SinusoidReference:
         qdd = -(a * w**2 * np.sin(arg)).sum(-1)
         return q, qd, qdd
 
-    def reset(self, trace: Trace) -> None:
+    def reset(self, ports: Ports) -> None:
         # The reference is open-loop: the whole run is computed here, vectorised.
-        q, qd, qdd = self.evaluate(trace.time)
-        trace["q_d"][:], trace["qdot_d"][:], trace["qddot_d"][:] = q, qd, qdd
-        if self.safe_case == "tracking":
-            trace["q_s"][:], trace["qdot_s"][:] = q, qd
+        out = ports.outputs
+        q, qd, qdd = self.evaluate(ports.trace.time)
+        out["q_d"][:], out["qdot_d"][:], out["qddot_d"][:] = q, qd, qdd
+        if self.params.safe_case == "tracking":
+            out["q_s"][:], out["qdot_s"][:] = q, qd
         else:  # (max_t + min_t) / 2 over the run, as in the paper's Sec. IV
-            trace["q_s"][:] = (q.max(0) + q.min(0)) / 2
-            trace["qdot_s"][:] = (qd.max(0) + qd.min(0)) / 2
-
-    def step(self, k: int) -> bool:
-        return True
+            out["q_s"][:] = (q.max(0) + q.min(0)) / 2
+            out["qdot_s"][:] = (qd.max(0) + qd.min(0)) / 2

@@ -3,29 +3,53 @@ this; the baseline reads the true velocity from the plant."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
+from numba import njit
 
-from ..trace import Trace
+from ..config.schema import NonNegativeFloat, Section
+from ..signals import Signal
+from .base import Block, BlockContext, Ports, register_block
 
 
-@dataclass
-class PositionSensor:
-    noise_std: float = 0.0  # rad, white Gaussian per sample
-    resolution: float = 0.0  # rad, quantisation step (0: none)
+class SensorParams(Section):
+    noise_std: NonNegativeFloat = 0.0  # rad, white Gaussian per sample
+    resolution: NonNegativeFloat = 0.0  # rad, quantisation step (0: none)
     seed: int = 0
-    name: str = "sensor"
 
-    def reset(self, trace: Trace) -> None:
-        self._q = trace["q"]
-        self._out = trace["q_meas"]
-        rng = np.random.default_rng(self.seed)
-        self._noise = rng.normal(0.0, self.noise_std, self._q.shape) if self.noise_std else None
 
-    def step(self, k: int) -> bool:
-        y = self._q[k] if self._noise is None else self._q[k] + self._noise[k]
-        if self.resolution:
-            y = np.round(y / self.resolution) * self.resolution
-        self._out[k] = y
-        return True
+class SensorArgs(NamedTuple):
+    q: np.ndarray  # true position, rows
+    noise: np.ndarray  # rows × n, drawn in reset (zeros without noise)
+    resolution: float
+    q_meas: np.ndarray
+
+
+@njit(cache=True)
+def sensor_step(k, a):
+    for i in range(a.q.shape[1]):
+        y = a.q[k, i] + a.noise[k, i]
+        if a.resolution > 0.0:
+            y = np.round(y / a.resolution) * a.resolution
+        a.q_meas[k, i] = y
+    return True
+
+
+@register_block
+class PositionSensor(Block):
+    kind = "sensor"
+    Params = SensorParams
+    kernel = sensor_step
+
+    def __init__(self, params: SensorParams, context: BlockContext):
+        super().__init__(params, context)
+        self.inputs = ("q",)
+        self.outputs = {"q_meas": Signal("n", "rad", "measured position y", "sensor/q_meas")}
+
+    def reset(self, ports: Ports) -> None:
+        q = ports.inputs["q"]
+        p = self.params
+        rng = np.random.default_rng(p.seed)
+        noise = rng.normal(0.0, p.noise_std, q.shape) if p.noise_std else np.zeros(q.shape)
+        self.args = SensorArgs(q, noise, float(p.resolution), ports.outputs["q_meas"])

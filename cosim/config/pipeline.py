@@ -1,8 +1,11 @@
 """Pipelines: TOML files naming the plant, the blocks with their parameters, and the runs.
 
-Validated with pydantic on load: an unknown key, a wrong type or an out-of-range value ends
-with one :class:`PipelineError` naming the key and what is allowed. Each run's sections
-(``[runs.NAME.controller]`` …) are merged over the pipeline's top-level sections.
+The schema is assembled from the block registry: every registered block's ``Params`` is a
+table (``[controller]``, ``[observer]``, …) at the top level and in each run, and each run
+may name its chain of blocks (``blocks = [...]``, default :data:`DEFAULT_CHAIN`). Validated
+with pydantic on load: an unknown key, a wrong type or an out-of-range value ends with one
+:class:`PipelineError` naming the key and what is allowed. Each run's tables
+(``[runs.NAME.controller]`` …) are merged over the pipeline's top-level tables.
 SI units, radians.
 """
 
@@ -13,20 +16,10 @@ import tomllib
 from pathlib import Path
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
+from pydantic import BaseModel, Field, ValidationError, create_model, model_validator
 
-PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
-NonNegativeFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
-FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
-GainVector = PositiveFloat | list[PositiveFloat]
-
-
-class PipelineError(ValueError):
-    """A pipeline that cannot be run; the message names the key or file at fault."""
-
-
-class Section(BaseModel):
-    model_config = ConfigDict(extra="forbid", populate_by_name=True)
+from ..blocks import BLOCKS, DEFAULT_CHAIN
+from .schema import FiniteFloat, PipelineError, PositiveFloat, Section
 
 
 class Simulation(Section):
@@ -65,119 +58,50 @@ class Plant(Section):
         return self
 
 
-class Reference(Section):
-    """q_d,i(t) = offset_i + Σ_j amplitude_ij sin(frequency_ij t + phase_ij)."""
-
-    offset: list[FiniteFloat] = [0.0, 0.0]  # rad
-    amplitude: list[list[FiniteFloat]] = [[20.0], [10.0]]  # rad
-    frequency: list[list[NonNegativeFloat]] = [[0.5], [1.0]]  # rad/s
-    phase: list[list[FiniteFloat]] | None = None  # rad, default 0
-    safe_case: Literal["tracking", "midpoint"] = "midpoint"  # Remark 1 case i / ii
-
-    @model_validator(mode="after")
-    def _shapes(self) -> Reference:
-        n = len(self.offset)
-        for key in ("amplitude", "frequency", "phase"):
-            value = getattr(self, key)
-            if value is None:
-                continue
-            if len(value) != n:
-                raise ValueError(f"reference.{key} has {len(value)} rows, offset has {n} joints")
-            if any(len(row) != len(self.amplitude[i]) for i, row in enumerate(value)):
-                raise ValueError(f"reference.{key} rows must match reference.amplitude's")
-        return self
-
-
-class Sensor(Section):
-    noise_std: NonNegativeFloat = 0.0  # rad
-    resolution: NonNegativeFloat = 0.0  # rad
-    seed: int = 0
-
-
-class Observer(Section):
-    kp: PositiveFloat = 100.0
-    kd: PositiveFloat = 100.0
-    nu: PositiveFloat = 5e-4
-    z_wo: NonNegativeFloat = 10.0
-    eps_om: NonNegativeFloat = 1.0
-    zeta_om: NonNegativeFloat = 1.0
-    fo: PositiveFloat = 1.0
-    kappa_o: NonNegativeFloat = 6.0
-    law: Literal["paper", "error_driven"] = "error_driven"
-    basis: Literal["lagged", "no_acceleration"] = "no_acceleration"
-    substeps: Annotated[int, Field(ge=1, le=1000)] = 10
-    tau_d: FiniteFloat | list[FiniteFloat] = 0.01  # N·m, the disturbance (7) assumes known
-    initial_velocity: Literal["desired", "zero"] | list[FiniteFloat] = "desired"
-
-
-class Controller(Section):
-    variant: Literal["baseline", "proposed"] = "proposed"
-    kv: GainVector = 20.0
-    lam: GainVector = Field(5.0, alias="lambda")
-    f: PositiveFloat = 10.0
-    g: PositiveFloat = 12.0
-    kappa: PositiveFloat = 0.1
-    kz: NonNegativeFloat = 5.0
-    z_b: NonNegativeFloat = 10.0
-    z_wc: NonNegativeFloat = 10.0
-    c0: NonNegativeFloat = 150.0
-    c1: NonNegativeFloat = 0.1
-    delta: PositiveFloat = 1.0
-    psi_b: NonNegativeFloat = 20.0
-    hidden: Annotated[int, Field(ge=1, le=200)] = 10
-
-
-class InertiaModel(Section):
-    """Where the observer's M(q) (Assumption 3) comes from: ``fmu`` (its mapped M outputs),
-    ``nominal`` (this planar chain, evaluated at the measured position) or ``auto`` (the FMU's
-    when mapped, else nominal). Per link; unset: the paper's arm (m = 0.8, 2.3 kg, l = lc =
-    1 m, I = 0), further links 1 kg, 1 m, like the built-in plant's defaults."""
-
-    source: Literal["auto", "fmu", "nominal"] = "auto"
-    m: list[PositiveFloat] | None = None  # kg
-    l: list[PositiveFloat] | None = None  # m, joint i to joint i+1  # noqa: E741
-    lc: list[FiniteFloat] | None = None  # m, joint i to the link's centre of mass
-    I: list[NonNegativeFloat] | None = None  # kg·m², about the centre of mass  # noqa: E741
-
-
 class Safety(Section):
-    position_bound: PositiveFloat = 20.0
-    velocity_bound: PositiveFloat = 13.5
-    error_bound: PositiveFloat = 1.0
-    error_rate_bound: PositiveFloat = 5.0
-    observer_error_bound: PositiveFloat = 1.0
-    z_wo_tilde: PositiveFloat = 20.0
+    position_bound: PositiveFloat = 20.0  # α_max of ‖x1 − q_s‖, rad
+    velocity_bound: PositiveFloat = 13.5  # α_max of ‖x̂2 − q̇_s‖, rad/s
+    error_bound: PositiveFloat = 1.0  # E1, rad
+    error_rate_bound: PositiveFloat = 5.0  # E2, rad/s
+    observer_error_bound: PositiveFloat = 1.0  # ε_max of (16)
+    z_wo_tilde: PositiveFloat = 20.0  # bounds of (17)-(18) used in H1, H2
     z_wc_tilde: PositiveFloat = 50.0
     z_vc_tilde: PositiveFloat = 50.0
 
 
 class Run(Section):
-    sensor: Sensor = Sensor()
-    observer: Observer = Observer()
-    controller: Controller = Controller()
-    inertia_model: InertiaModel = InertiaModel()
+    """One run: its chain of blocks and their tables (merged over the top level's)."""
 
+    blocks: list[str] = list(DEFAULT_CHAIN)
 
-RUN_SECTIONS = ("sensor", "observer", "controller", "inertia_model")
+    @model_validator(mode="after")
+    def _known_blocks(self) -> Run:
+        for kind in self.blocks:
+            if kind not in BLOCKS:
+                raise ValueError(f"blocks: {kind!r} is not a registered block (registered: "
+                                 f"{', '.join(BLOCKS)})")
+        return self
+
+    def block_params(self, kind: str) -> Section:
+        return getattr(self, kind)
 
 
 class Pipeline(Section):
+    """The fixed tables; the block tables are added from the registry by
+    :func:`pipeline_model`."""
+
     name: str = "pipeline"
     description: str = ""
     simulation: Simulation = Simulation()
     plant: Plant = Plant()
-    reference: Reference = Reference()
     safety: Safety = Safety()
-    sensor: Sensor = Sensor()
-    observer: Observer = Observer()
-    controller: Controller = Controller()
-    inertia_model: InertiaModel = InertiaModel()
-    runs: dict[str, Run] = {}
+    # Then a table per registered block, and last ``runs: dict[str, Run]`` (added by
+    # pipeline_model, so that a bad top-level key is reported before the runs inheriting it).
 
     @model_validator(mode="before")
     @classmethod
     def _merge_runs(cls, data: Any) -> Any:
-        """Each run inherits the top-level sensor/observer/controller, then overrides."""
+        """Each run inherits the top-level block tables, then overrides."""
         if not isinstance(data, dict):
             return data
         runs = data.get("runs")
@@ -190,12 +114,28 @@ class Pipeline(Section):
                 merged[name] = spec
                 continue
             run = dict(spec)
-            for section in RUN_SECTIONS:
+            for section in BLOCKS:
                 base = data.get(section, {})
                 if isinstance(base, dict) and isinstance(run.get(section, {}), dict):
                     run[section] = {**base, **run.get(section, {})}
             merged[name] = run
         return {**data, "runs": merged}
+
+
+_MODELS: dict[tuple, tuple[type[Pipeline], type[Run]]] = {}
+
+
+def pipeline_model() -> tuple[type[Pipeline], type[Run]]:
+    """The Pipeline and Run models for the blocks registered now (built once per registry
+    state): every block's ``Params`` as a table, with its defaults."""
+    key = tuple((kind, cls) for kind, cls in BLOCKS.items())
+    if key not in _MODELS:
+        tables = {kind: (cls.Params, cls.Params()) for kind, cls in BLOCKS.items()}
+        run = create_model("Run", __base__=Run, **tables)
+        pipeline = create_model("Pipeline", __base__=Pipeline, **tables,
+                                runs=(dict[str, run], {}))
+        _MODELS[key] = pipeline, run
+    return _MODELS[key]
 
 
 def _format(error: dict, root: type[BaseModel]) -> str:
@@ -215,33 +155,34 @@ def _format(error: dict, root: type[BaseModel]) -> str:
     return f"key '{key}': {msg}{shown}"
 
 
-def _allowed_keys(model: type[BaseModel], loc: tuple) -> list[str]:
+def _allowed_keys(root: type[BaseModel], loc: tuple) -> list[str]:
     """The field names at ``loc`` in the schema (dict keys like run names are skipped)."""
-    current: Any = model
+    current: Any = root
     for part in loc:
         if not (isinstance(current, type) and issubclass(current, BaseModel)):
             return []
         field = current.model_fields.get(str(part))
         if field is None:  # a run name inside `runs`
-            current = Run if current is Pipeline else None
+            current = pipeline_model()[1] if issubclass(current, Pipeline) else None
             continue
         annotation = field.annotation
         current = next((a for a in getattr(annotation, "__args__", (annotation,))
                         if isinstance(a, type) and issubclass(a, BaseModel)), None)
         if current is None and str(part) == "runs":
-            current = Pipeline
+            current = root
     if isinstance(current, type) and issubclass(current, BaseModel):
         return [f.alias or name for name, f in current.model_fields.items()]
     return []
 
 
 def validate(data: dict, source: str = "pipeline") -> Pipeline:
+    model = pipeline_model()[0]
     try:
-        return Pipeline.model_validate(data)
+        return model.model_validate(data)
     except ValidationError as exc:
         # The first problem only: runs inherit the top-level sections, so one bad key
         # would otherwise be reported once more for every run.
-        raise PipelineError(f"{source}: {_format(exc.errors()[0], Pipeline)}") from None
+        raise PipelineError(f"{source}: {_format(exc.errors()[0], model)}") from None
 
 
 # plant.fmu and plant.builtin are alternatives: setting one with --set drops the other.

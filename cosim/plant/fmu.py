@@ -17,7 +17,8 @@ import numpy as np
 from fmpy.fmi1 import FMICallException
 from fmpy.model_description import ModelDescription
 
-from .interface import FmuError, PlantVariables, extract, open_plant
+from ..engine.fused import FusedIo, function_pointer
+from .mapping import FmuError, PlantVariables, extract, open_plant
 
 _STATUS = {2: "status Discard", 3: "status Error", 4: "status Fatal", 5: "status Pending"}
 
@@ -30,7 +31,7 @@ class Fmu:
     :meth:`step` applies ``tau`` (held over the step) and advances by ``h`` seconds.
     ``mapping`` is ``plant.variables``: our interface key -> the FMU's names (unset keys:
     the built-in plant's names). The file, the mapping and the parameters are checked by
-    :func:`cosim.interface.open_plant` first; ``variables`` then holds the mapping as used.
+    :func:`cosim.plant.mapping.open_plant` first; ``variables`` then holds the mapping as used.
     """
 
     path: Path
@@ -59,6 +60,7 @@ class Fmu:
         self._outputs = np.zeros(len(outputs))
         self._vr_tau = self._refs(self.variables.tau)
         self._vr_out = self._refs(outputs)
+        self._flag_buffer = np.zeros(4)  # fmi3DoStep's three flags and last time
         self._unzip: str | None = None
         self._instance = None
         self.time = 0.0
@@ -214,6 +216,25 @@ class Fmu:
                 "parameters": dict(zip(names, values, strict=True))}
 
     # Per step -------------------------------------------------------------------------------
+
+    def fused_io(self) -> FusedIo:
+        """The per-step FMI functions and handles for the fused loop (after :meth:`start`)."""
+        version = self.fmi_version
+        functions = tuple(function_pointer(f, version, role) for f, role in
+                          ((self._set, "set"), (self._do_step, "step"), (self._get, "get")))
+        component = ctypes.cast(self._component, ctypes.c_void_p).value
+        handles = (component, np.array(self._vr_tau, dtype=np.uint32),
+                   np.array(self._vr_out, dtype=np.uint32), self._outputs,
+                   self.links if self.has_qdot else 0,
+                   self.links ** 2 if self.has_M else 0, self._flag_buffer)
+        return FusedIo(version, functions, handles)
+
+    def describe_failure(self, call: int, status: int, t: float) -> str:
+        """The message for a failed per-step call of the fused loop: ``call`` 0, 1, 2 for
+        set (tau), doStep, get (outputs), at ``t`` seconds."""
+        self.time = t
+        what = (self._set_name + " (tau)", "DoStep", self._get_name + " (outputs)")[call]
+        return self._describe_failure(what, _STATUS.get(status, f"status {status}"))
 
     def step(self, t: float, h: float) -> None:
         """Apply ``tau`` (zero-order hold) and advance from ``t`` to ``t + h`` seconds."""

@@ -13,11 +13,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .trace import Trace
+from ..signals import Trace
 
 # What the checks and barriers read: a Trace, or any mapping of signal name -> rows (the
-# recording writer passes one chunk of rows as a plain dict).
+# evaluator passes one chunk of rows as a plain dict).
 Signals = Trace | Mapping[str, np.ndarray]
+
+# The signals the checks, barriers and metrics read: the assembly refuses a chain that does
+# not produce them.
+EVALUATION_INPUTS = ("q", "qdot", "M", "q_d", "qdot_d", "q_s", "qdot_s", "q_hat", "qdot_hat",
+                     "k0", "W_o_norm", "M_model", "tau", "e", "edot", "r_hat", "W_norm",
+                     "V_norm")
 
 
 @dataclass
@@ -77,24 +83,48 @@ class Check:
         return np.abs(self.value)
 
 
-def check_signals(trace: Signals, safe: SafeSet, gains: Gains) -> dict[str, Check]:
-    """Every safety check by name, in the order summary.json lists them."""
-    q_dev = trace["q"] - trace["q_s"]
-    used_velocity = trace["qdot_d"] - trace["edot"]  # x̂2 (proposed) or q̇ (baseline)
-    v_dev = used_velocity - trace["qdot_s"]
-    true_dev = trace["qdot"] - trace["qdot_s"]
+def _deviations(trace: Signals, safe: SafeSet, gains: Gains
+                ) -> list[tuple[str, np.ndarray | None, float, np.ndarray | None]]:
+    """(check stem, signal per row and joint, bound, the reference's own signal) of the
+    per-joint checks; a signal of None is not computed (references only)."""
     ref_pos = trace["q_d"] - trace["q_s"]
     ref_vel = trace["qdot_d"] - trace["qdot_s"]
     eps = safe.observer_error_bound if gains.output_feedback else 0.0
-    r_bound = theorem1(trace, safe, gains.Lambda)["R"]
+    return [("position", "q", safe.position_bound, ref_pos),
+            ("velocity_estimated", "used_velocity", safe.velocity_bound, ref_vel),
+            ("velocity_true", "qdot", safe.velocity_bound + eps, ref_vel),
+            ("error", "e", safe.error_bound, None),
+            ("error_rate", "edot", safe.error_rate_bound, None)]
+
+
+def check_references(trace: Signals, safe: SafeSet, gains: Gains) -> dict[str, np.ndarray]:
+    """The reference trajectory's own value of each check that has one (joint 1, norm)."""
+    out = {}
+    for name, _, _, ref in _deviations(trace, safe, gains):
+        if ref is not None:
+            out[f"{name}_joint1"] = ref[:, 0]
+            out[f"{name}_norm"] = np.linalg.norm(ref, axis=1)
+    return out
+
+
+def check_signals(trace: Signals, safe: SafeSet, gains: Gains,
+                  r_bound: float | None = None) -> dict[str, Check]:
+    """Every safety check by name, in the order summary.json lists them. ``r_bound``: R of
+    Theorem 1 (default: from these rows' reference)."""
+    signals = {
+        "q": trace["q"] - trace["q_s"],
+        # x̂2 (proposed) or q̇ (baseline): the velocity the controller used
+        "used_velocity": trace["qdot_d"] - trace["edot"] - trace["qdot_s"],
+        "qdot": trace["qdot"] - trace["qdot_s"],
+        "e": trace["e"],
+        "edot": trace["edot"],
+    }
+    eps = safe.observer_error_bound if gains.output_feedback else 0.0
+    if r_bound is None:
+        r_bound = theorem1(trace, safe, gains.Lambda)["R"]
     checks = {}
-    for name, signal, bound, ref in [
-        ("position", q_dev, safe.position_bound, ref_pos),
-        ("velocity_estimated", v_dev, safe.velocity_bound, ref_vel),
-        ("velocity_true", true_dev, safe.velocity_bound + eps, ref_vel),
-        ("error", trace["e"], safe.error_bound, None),
-        ("error_rate", trace["edot"], safe.error_rate_bound, None),
-    ]:
+    for name, key, bound, ref in _deviations(trace, safe, gains):
+        signal = signals[key]
         checks[f"{name}_joint1"] = Check(signal[:, 0], bound, -bound,
                                          None if ref is None else ref[:, 0])
         checks[f"{name}_norm"] = Check(np.linalg.norm(signal, axis=1), bound, 0.0,
@@ -106,8 +136,9 @@ def check_signals(trace: Signals, safe: SafeSet, gains: Gains) -> dict[str, Chec
     return checks
 
 
-def barriers(trace: Signals, safe: SafeSet, gains: Gains) -> dict[str, np.ndarray]:
-    """H1 (28), H2 (29) and H = H1 + H2 per row."""
+def barriers(trace: Signals, safe: SafeSet, gains: Gains,
+             r_bound: float | None = None) -> dict[str, np.ndarray]:
+    """H1 (28), H2 (29) and H = H1 + H2 per row (``r_bound`` as in :func:`check_signals`)."""
     eps = safe.observer_error_bound
     x1_err = np.sum((trace["q"] - trace["q_hat"]) ** 2, axis=1)
     x2_err = np.sum((trace["qdot"] - trace["qdot_hat"]) ** 2, axis=1)
@@ -119,7 +150,8 @@ def barriers(trace: Signals, safe: SafeSet, gains: Gains) -> dict[str, np.ndarra
     mass = trace["M"] if np.isfinite(trace["M"]).all() else trace["M_model"]
     sigma_max = np.linalg.eigvalsh(mass)[:, -1]
     r_m_r = np.einsum("ki,kij,kj->k", r, mass, r)
-    r_bound = theorem1(trace, safe, gains.Lambda)["R"]
+    if r_bound is None:
+        r_bound = theorem1(trace, safe, gains.Lambda)["R"]
     h2 = 0.5 * ((safe.error_bound**2 - np.sum(trace["e"] ** 2, axis=1))
                 + (sigma_max * r_bound**2 - r_m_r)
                 + (safe.Z_Wc_tilde**2 - trace["W_norm"] ** 2) / gains.F
@@ -139,10 +171,12 @@ def torque_reversals(tau: np.ndarray, dt: float, fraction: float = 0.01) -> np.n
     return flips.sum(axis=0) / (len(tau) * dt)
 
 
-def evaluate(trace: Trace, safe: SafeSet, gains: Gains) -> tuple[dict, dict]:
-    """(metrics, safety) for summary.json, from the completed rows of the trace."""
+def summarise(trace: Trace, checks: Mapping[str, Check], h: Mapping[str, np.ndarray],
+              safe: SafeSet, gains: Gains) -> tuple[dict, dict]:
+    """(metrics, safety) for summary.json, from the completed rows of the trace and their
+    checks and barriers."""
     safety = {}
-    for name, check in check_signals(trace, safe, gains).items():
+    for name, check in checks.items():
         if len(check.value) and np.isnan(check.value).all():
             # Only the ground-truth velocity can be missing: a plant without a qdot mapping.
             safety[name] = {"bound": float(check.upper), "worst": None, "satisfied": None,
@@ -159,10 +193,12 @@ def evaluate(trace: Trace, safe: SafeSet, gains: Gains) -> tuple[dict, dict]:
     t = trace.time
     after_1s = t >= 1.0
     obs_err = trace["qdot"] - trace["qdot_hat"]
-    h = barriers(trace, safe, gains)
 
     def per_joint(x: np.ndarray) -> list[float]:
         return [float(v) for v in x]
+
+    def lowest(x: np.ndarray) -> float:
+        return float(np.min(x)) if len(x) else float("nan")
 
     metrics = {
         "rms_error": per_joint(np.sqrt(np.mean(trace["e"] ** 2, axis=0))),
@@ -174,9 +210,9 @@ def evaluate(trace: Trace, safe: SafeSet, gains: Gains) -> tuple[dict, dict]:
         "peak_torque": per_joint(np.max(np.abs(trace["tau"]), axis=0)),
         "rms_torque": per_joint(np.sqrt(np.mean(trace["tau"] ** 2, axis=0))),
         "torque_reversals_per_s": per_joint(torque_reversals(trace["tau"], trace.dt)),
-        "min_barrier_H": float(np.min(h["H"])),
-        "min_barrier_H1": float(np.min(h["H1"])),
-        "min_barrier_H2": float(np.min(h["H2"])),
+        "min_barrier_H": lowest(h["H"]),
+        "min_barrier_H1": lowest(h["H1"]),
+        "min_barrier_H2": lowest(h["H2"]),
         "theorem1": theorem1(trace, safe, gains.Lambda),
     }
     return metrics, safety

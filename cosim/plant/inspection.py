@@ -1,6 +1,6 @@
 """What an FMU offers, and whether it fits cosim's plant interface: ``cosim inspect FMU``.
 
-    from cosim.inspection import inspect_fmu
+    from cosim.plant.inspection import inspect_fmu
     info = inspect_fmu("arm.fmu", {"q": ["shoulder", "elbow"]})
     print(info)            # the report `cosim inspect` prints
     info.fits, info.problems
@@ -15,7 +15,7 @@ from xml.etree import ElementTree
 
 import fmpy
 
-from .interface import (
+from .mapping import (
     FmuError,
     PlantVariables,
     check_co_simulation,

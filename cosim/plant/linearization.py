@@ -22,7 +22,7 @@ import control
 import numpy as np
 
 from .inspection import provides_directional_derivatives
-from .interface import (
+from .mapping import (
     FmuError,
     check_binary,
     check_parameters,

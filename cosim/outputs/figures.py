@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .recording import FIGURE_CHECKS, JOINT_COLORS
-from .safety import Check
+from ..evaluate import Check
+from .recording.layout import FIGURE_CHECKS, JOINT_COLORS
 
 # Run colours: the paper draws the classical controller in orange, then ours.
 RUN_COLORS = ["tab:orange", "tab:blue", "tab:green", "tab:purple", "tab:brown", "tab:olive"]

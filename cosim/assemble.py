@@ -1,0 +1,282 @@
+"""Assembly: a pipeline becomes a :class:`Scenario` (the plant, and per run its blocks in
+order, wired signal by signal), checked before anything runs or is written.
+
+Wiring is checked as python-control's ``interconnect`` does: every input a block reads must
+be produced before it (by the plant or an earlier block; a *delayed* input by any block),
+every signal has one producer (a block that reads and writes a signal filters it), the
+plant's torque input and the evaluation's signals must be produced, and every output must
+be read by something or recorded. Each problem is one :class:`PipelineError` naming the run,
+the block and the signal.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from plant_fmu import build_fmu
+
+from .blocks import BLOCKS, Block, BlockContext, Ports
+from .config import Pipeline, PipelineError
+from .evaluate import EVALUATION_INPUTS, Evaluator, SafeSet, gains
+from .plant import PLANT_INPUT, PLANT_INPUT_ENTITY, PLANT_OUTPUTS
+from .plant.fmu import Fmu, FmuError
+from .signals import Signal, Trace
+
+
+@dataclass
+class RunPlan:
+    """One run, assembled: blocks in order, the trace's signals and where each block's
+    ports are in it."""
+
+    name: str
+    blocks: list[Block]
+    signals: dict[str, Signal]  # trace key -> declaration, plant outputs first
+    inputs: list[dict[str, str]]  # per block: port -> trace key
+    outputs: list[dict[str, str]]
+    plant_input: str  # trace key of the torque the plant is given
+    safe: SafeSet
+    links: int
+    dt: float
+    params: object  # the run's validated tables (pipeline.runs[name])
+
+    def new_trace(self, steps: int) -> Trace:
+        return Trace(self.signals, self.links, steps, self.dt)
+
+    def reset(self, trace: Trace) -> None:
+        """Bind every block to ``trace`` and set its initial state, in chain order."""
+        for block, ins, outs in zip(self.blocks, self.inputs, self.outputs, strict=True):
+            block.reset(Ports({port: trace[key] for port, key in ins.items()},
+                              {port: trace[key] for port, key in outs.items()}, trace))
+
+    def evaluator(self, trace: Trace) -> Evaluator:
+        return Evaluator(trace, self.safe, gains(self.params, self.links))
+
+    def entities(self) -> dict[str, tuple[str, str]]:
+        """Recording entity under ``/<run>/`` -> (trace key, series-name stem), from the
+        declarations; the torque applied to the plant also as ``plant/tau``."""
+        out = {}
+        for key, signal in self.signals.items():
+            if signal.entity is not None:
+                out[signal.entity] = (key, signal.label or key)
+        out[PLANT_INPUT_ENTITY] = (self.plant_input, PLANT_INPUT)
+        return out
+
+    def block(self, kind: str) -> Block | None:
+        return next((b for b in self.blocks if b.kind == kind), None)
+
+
+@dataclass
+class Scenario:
+    """The pipeline, its plant (opened and started once, to check it), and every run."""
+
+    pipeline: Pipeline
+    plant: Fmu
+    runs: dict[str, RunPlan] = field(default_factory=dict)
+
+    @property
+    def steps(self) -> int:
+        sim = self.pipeline.simulation
+        return int(round(sim.duration / sim.step))
+
+    def close(self) -> None:
+        self.plant.close()
+
+
+def plant_path(pipeline: Pipeline) -> Path:
+    """The plant FMU file: the pipeline's ``plant.fmu``, or the built-in plant, built on
+    demand and cached by its build options."""
+    if pipeline.plant.fmu is not None:
+        path = Path(pipeline.plant.fmu)
+        if not path.is_file():
+            raise PipelineError(f"plant.fmu: {path} does not exist")
+        return path
+    b = pipeline.plant.builtin
+    return build_fmu(links=b.links, fmi_version=b.fmi_version)
+
+
+def open_plant(pipeline: Pipeline) -> Fmu:
+    """The pipeline's plant FMU, checked: file, Co-Simulation binary, ``plant.variables``
+    and ``plant.parameters`` (:class:`PipelineError` naming the file and the variable)."""
+    try:
+        return Fmu(plant_path(pipeline), pipeline.plant.variables.model_dump(),
+                   dict(pipeline.plant.parameters))
+    except FmuError as exc:
+        raise PipelineError(str(exc)) from None
+
+
+def assemble(pipeline: Pipeline) -> Scenario:
+    """Open and start the plant (refusing bad parameters), then assemble and check every
+    run. Nothing is written; the caller closes the scenario."""
+    plant = open_plant(pipeline)
+    try:
+        plant.start(0.0)
+        scenario = Scenario(pipeline, plant)
+        for name in pipeline.runs:
+            scenario.runs[name] = assemble_run(pipeline, name, plant)
+        return scenario
+    except (PipelineError, FmuError) as exc:
+        plant.close()
+        raise PipelineError(str(exc)) from None
+
+
+def plant_outputs(plant) -> frozenset[str]:
+    """The plant outputs a block may read: q always, qdot and M where the FMU maps them."""
+    return frozenset({"q"} | ({"qdot"} if plant.has_qdot else set())
+                     | ({"M"} if plant.has_M else set()))
+
+
+def assemble_run(pipeline: Pipeline, name: str, plant) -> RunPlan:
+    """One run's blocks, built from its tables and wired. ``plant`` needs ``links``,
+    ``has_qdot``, ``has_M`` and a ``path`` (for messages) only."""
+    run = pipeline.runs[name]
+    links, dt = plant.links, pipeline.simulation.step
+    context = BlockContext(links, dt, name, plant_outputs(plant))
+    check_sizes(run, name, plant)
+    blocks = [BLOCKS[kind](run.block_params(kind), context) for kind in run.blocks]
+    signals, inputs, outputs, plant_input = wire(blocks, context, name, plant)
+    return RunPlan(name, blocks, signals, inputs, outputs, plant_input,
+                   safe_set(pipeline), links, dt, run)
+
+
+def wire(blocks: list[Block], context: BlockContext, run: str, plant
+         ) -> tuple[dict[str, Signal], list[dict[str, str]], list[dict[str, str]], str]:
+    """Resolve every port to a trace key; :class:`PipelineError` on the first problem."""
+    file = getattr(getattr(plant, "path", None), "name", "the plant")
+    where = f"run '{run}'"
+    signals: dict[str, Signal] = dict(PLANT_OUTPUTS)  # NaN where not mapped
+    current = {s: s for s in context.plant_outputs}  # signal -> trace key of its latest value
+    producer = {s: "plant" for s in context.plant_outputs}
+    inputs: list[dict[str, str]] = []
+    outputs: list[dict[str, str]] = []
+    read: set[str] = set()
+    for block in blocks:
+        ins = {}
+        for port in block.inputs:
+            if port not in current:
+                hint = (f"{file} does not map it (plant.variables.{port})" if port in PLANT_OUTPUTS
+                        else _producers_hint(port, blocks))
+                raise PipelineError(f"{where}: the {block.kind} block reads '{port}', which "
+                                    f"nothing before it produces ({hint})")
+            ins[port] = current[port]
+        outs = {}
+        for port, signal in block.outputs.items():
+            if port in current:
+                if port not in block.inputs:
+                    raise PipelineError(
+                        f"{where}: '{port}' is produced twice, by the {producer[port]} and "
+                        f"the {block.kind} block; a block that changes a signal must also "
+                        "read it (a filter)")
+                if producer[port] == "plant":
+                    raise PipelineError(f"{where}: the {block.kind} block writes '{port}', "
+                                        f"a plant output; blocks may only read it")
+                # A filter: the value before it is kept under its producer's name.
+                kept = f"{port}_{producer[port]}"
+                signals[kept] = signals.pop(current[port])
+                for bindings in (*inputs, *outputs, ins):
+                    for p, key in bindings.items():
+                        if key == current[port]:
+                            bindings[p] = kept
+            signals[port] = signal
+            current[port] = port
+            producer[port] = block.kind
+            outs[port] = port
+        read.update(ins.values())
+        inputs.append(ins)
+        outputs.append(outs)
+    for block, ins in zip(blocks, inputs, strict=True):  # delayed: the final value
+        for port in block.delayed:
+            if port not in current:
+                raise PipelineError(f"{where}: the {block.kind} block reads '{port}' of the "
+                                    f"previous step, which no block produces "
+                                    f"({_producers_hint(port, blocks)})")
+            ins[port] = current[port]
+            read.add(current[port])
+    if PLANT_INPUT not in current or producer[PLANT_INPUT] == "plant":
+        raise PipelineError(f"{where}: no block produces '{PLANT_INPUT}', the plant's torque "
+                            f"input (chain: {', '.join(b.kind for b in blocks)})")
+    read.add(current[PLANT_INPUT])
+    for needed in EVALUATION_INPUTS:
+        if needed not in signals:
+            raise PipelineError(f"{where}: the safety evaluation reads '{needed}', which no "
+                                f"block produces ({_producers_hint(needed, blocks)})")
+    entities: dict[str, str] = {}
+    for key, signal in signals.items():
+        owner = producer.get(key, key)
+        if signal.entity is None and key not in read and owner != "plant" \
+                and key not in EVALUATION_INPUTS:
+            raise PipelineError(f"{where}: the {owner} block's output '{key}' is neither read "
+                                "nor recorded (give it an entity, or drop it)")
+        if signal.entity is not None:
+            if signal.entity in entities:
+                raise PipelineError(f"{where}: '{key}' and '{entities[signal.entity]}' are "
+                                    f"both recorded as '{signal.entity}'")
+            entities[signal.entity] = key
+    return signals, inputs, outputs, current[PLANT_INPUT]
+
+
+def _producers_hint(port: str, chain: list[Block]) -> str:
+    """Which registered blocks would produce ``port``, for the message."""
+    context = chain[0].context if chain else None
+    makers = []
+    for kind, cls in BLOCKS.items():
+        try:
+            block = cls(cls.Params(), context)
+        except Exception:  # a block that cannot be built with its defaults here
+            continue
+        if port in block.outputs:
+            makers.append(kind)
+    return (f"produced by: {', '.join(makers)}" if makers
+            else "no registered block produces it")
+
+
+def check_sizes(run, name: str, plant) -> None:
+    """Everything sized per joint must have the plant's n entries, and the run must find
+    the plant outputs it reads; else one :class:`PipelineError` naming the key."""
+    n = plant.links
+    file = getattr(getattr(plant, "path", None), "name", "the plant")
+    joints = f"the plant ({file}) has {n} joint{'s' * (n != 1)}"
+    if "reference" in run.blocks and len(run.reference.offset) != n:
+        raise PipelineError(f"reference.offset has {len(run.reference.offset)} entries (one "
+                            f"per joint, rad); {joints}")
+    sized = {}
+    for kind in run.blocks:
+        params = run.block_params(kind)
+        for key, value in params.model_dump(by_alias=True).items():
+            if isinstance(value, list) and key not in ("offset", "amplitude", "frequency",
+                                                       "phase"):
+                sized[f"{kind}.{key}"] = value
+    for key, value in sized.items():
+        if len(value) != n:
+            raise PipelineError(f"{key} (run '{name}') has {len(value)} entries; {joints}")
+    controller = getattr(run, "controller", None)
+    if "controller" in run.blocks and controller.variant == "baseline" and not plant.has_qdot:
+        raise PipelineError(
+            f"run '{name}': the full-state baseline reads the true joint velocity, but "
+            f"{file} has no qdot mapping (no outputs qdot[1]..qdot[{n}]); map them with "
+            "plant.variables.qdot = [...] or drop the run")
+    inertia = getattr(run, "inertia_model", None)
+    if "inertia_model" in run.blocks and inertia.source == "fmu" and not plant.has_M:
+        raise PipelineError(
+            f"inertia_model.source = \"fmu\" (run '{name}'), but {file} has no M mapping "
+            f"(no outputs M[1,1]..M[{n},{n}]); map them with plant.variables.M = [...] "
+            "(n×n, row-major) or use source = \"nominal\"")
+
+
+def safe_set(pipeline: Pipeline) -> SafeSet:
+    s = pipeline.safety
+    return SafeSet(s.position_bound, s.velocity_bound, s.error_bound, s.error_rate_bound,
+                   s.observer_error_bound, s.z_wo_tilde, s.z_wc_tilde, s.z_vc_tilde)
+
+
+def link_lengths(plant_info: dict, plan: RunPlan) -> np.ndarray:
+    """Link lengths for drawing the arm: the FMU's ``l[i]`` parameters, else the run's
+    nominal model's (1 m each unless given)."""
+    params = plant_info["parameters"]
+    names = [f"l[{i}]" for i in range(1, plan.links + 1)]
+    if all(n in params for n in names):
+        return np.array([params[n] for n in names])
+    inertia = plan.block("inertia_model")
+    return np.array(inertia.nominal_links()["l"] if inertia else [1.0] * plan.links)

@@ -1,0 +1,100 @@
+"""What every block is, and the registry pipelines find blocks in.
+
+A block declares:
+
+- ``kind``: its name in pipelines (``blocks = [...]``) and the name of its table;
+- ``Params``: a :class:`~cosim.config.schema.Section` whose fields, defaults, units and
+  documentation are the block's parameters *and* its pipeline schema (one source);
+- ``inputs``: the signals it reads at row k (``delayed``: only at rows before k, so their
+  producer may come later in the chain: the torque fed back to the observer);
+- ``outputs``: the signals it writes, each a :class:`~cosim.signals.Signal`.
+
+A block that reads and writes the same signal *filters* it: it sees the value produced
+before it, and the value it writes replaces it downstream (the earlier value stays in the
+trace as ``<signal>_<producer kind>``).
+
+Stepping: ``reset(ports)`` binds the trace arrays and sets the initial state;
+``step(k)`` computes row k and returns False if an output is not finite. A block whose
+work is a numba kernel ``kernel(k, args) -> bool`` (``args``: a NamedTuple set by reset)
+gets ``step`` for free, and the master can fuse it with the others into one compiled loop.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import numpy as np
+
+from ..config.schema import Section
+from ..signals import Signal
+
+
+@dataclass(frozen=True)
+class BlockContext:
+    """What a block may know of the scenario when it is built: the joint count, the master
+    step (s), the run's name and the plant outputs available (``q``, ``qdot``, ``M``)."""
+
+    links: int
+    dt: float
+    run: str
+    plant_outputs: frozenset[str]
+
+
+@dataclass
+class Ports:
+    """A block's view of the trace: its inputs and outputs by signal name."""
+
+    inputs: Mapping[str, np.ndarray]
+    outputs: Mapping[str, np.ndarray]
+    trace: Any  # the Trace, for whole-run blocks (the reference writes all rows in reset)
+
+
+class Block:
+    kind: ClassVar[str]
+    Params: ClassVar[type[Section]]
+    kernel: ClassVar[Callable[..., bool] | None] = None
+
+    def __init__(self, params: Section, context: BlockContext):
+        self.params = params
+        self.context = context
+        self.name = self.kind.replace("_", " ")
+        self.inputs: tuple[str, ...] = ()
+        self.delayed: tuple[str, ...] = ()
+        self.outputs: dict[str, Signal] = {}
+        self.args: tuple | None = None  # the kernel's arguments, set by reset
+
+    def __init_subclass__(cls, **kwargs) -> None:
+        super().__init_subclass__(**kwargs)
+        # A numba dispatcher binds like a method; a kernel is a plain function of (k, args).
+        kernel = cls.__dict__.get("kernel")
+        if kernel is not None and not isinstance(kernel, staticmethod):
+            cls.kernel = staticmethod(kernel)
+
+    def reset(self, ports: Ports) -> None:
+        raise NotImplementedError
+
+    def step(self, k: int) -> bool:
+        return True if self.kernel is None else self.kernel(k, self.args)
+
+    def describe(self) -> dict:
+        """What summary.json records of this block beyond its parameters (none by default)."""
+        return {}
+
+
+BLOCKS: dict[str, type[Block]] = {}
+
+
+def register_block(cls: type[Block]) -> type[Block]:
+    """Class decorator: make ``cls`` available to pipelines as ``cls.kind``."""
+    kind = getattr(cls, "kind", None)
+    if not isinstance(kind, str) or not kind.isidentifier():
+        raise TypeError(f"{cls.__name__}.kind must be an identifier (got {kind!r})")
+    if not (isinstance(getattr(cls, "Params", None), type) and issubclass(cls.Params, Section)):
+        raise TypeError(f"{cls.__name__}.Params must be a cosim.config.schema.Section")
+    if kind in BLOCKS and BLOCKS[kind] is not cls:
+        raise ValueError(f"a block of kind {kind!r} is registered already "
+                         f"({BLOCKS[kind].__module__}.{BLOCKS[kind].__name__})")
+    BLOCKS[kind] = cls
+    return cls

@@ -1,0 +1,23 @@
+"""The building bricks of pipeline schemas: a strict section base class and the constrained
+number types every block's parameters use. SI units, radians."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from pydantic import BaseModel, ConfigDict, Field
+
+PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
+NonNegativeFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
+FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+GainVector = PositiveFloat | list[PositiveFloat]  # one value for every joint, or one each
+
+
+class PipelineError(ValueError):
+    """A pipeline that cannot be run; the message names the key or file at fault."""
+
+
+class Section(BaseModel):
+    """A pipeline table: unknown keys are refused, aliases (``lambda``) accepted."""
+
+    model_config = ConfigDict(extra="forbid", populate_by_name=True)

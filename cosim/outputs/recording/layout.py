@@ -1,0 +1,111 @@
+"""What goes where in the recording, and how it looks: pure functions, no Rerun I/O.
+
+Layout (one subtree per run; one timeline, ``sim_time``, in seconds; SI units, radians):
+
+    /<run>/<entity of each declared signal>      e.g. plant/q, observer/qdot_hat, controller/e
+    /<run>/plant/tau                            the torque applied to the plant
+    /<run>/observer/{q_err, qdot_err}           true minus estimate (x̃1, x̃2)
+    /<run>/safety/<check>/{value, upper, lower, violation}
+    /<run>/barrier/{H1, H2, H}
+    /<run>/arm/{links, joints, desired}         the arm, drawn at 50 Hz
+
+Multi-joint signals are one entity with series ``<label>1``, ``<label>2``, … in the same
+colours in every run. Constant bounds are two rows (start and end of the run). ``violation``
+holds the value at the rows where it leaves its bound: its first row, then every 10 ms.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Mapping
+from dataclasses import dataclass
+
+import numpy as np
+
+# One colour per joint, the same in every run (matplotlib's tab10).
+JOINT_COLORS = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (148, 103, 189),
+                (140, 86, 75), (227, 119, 194), (127, 127, 127)]
+BOUND_COLOR = (0, 150, 60)
+VIOLATION_COLOR = (220, 20, 20)
+REFERENCE_COLOR = (120, 120, 120)
+ARM_RATE_HZ = 50.0  # the arm drawing does not need 1 kHz
+VIOLATION_RATE_HZ = 100.0
+
+# Observer errors, true minus estimate (x̃1, x̃2 of the paper): entity -> (true, estimate, stem).
+DERIVED_ENTITIES = {"observer/q_err": ("q", "q_hat", "q_err"),
+                    "observer/qdot_err": ("qdot", "qdot_hat", "qdot_err")}
+
+# The checks the figures show (paper Figs. 2-3), with their axis labels.
+FIGURE_CHECKS = {
+    "position_joint1": "position q1 − q_s1 (rad)",
+    "velocity_estimated_joint1": "velocity x̂2,1 − q̇_s1 (rad/s)",
+    "error_joint1": "position error e1 (rad)",
+    "error_rate_joint1": "velocity error ė1 (rad/s)",
+}
+
+
+@dataclass
+class RunSpec:
+    """What the writer needs to know of one run before its rows arrive."""
+
+    name: str
+    links: int
+    dt: float
+    duration: float
+    entities: dict[str, tuple[str, str, int]]  # entity -> (trace key, series stem, width)
+    bounds: dict[str, tuple[float, float]]  # check -> (lower, upper)
+    link_lengths: np.ndarray
+
+
+def violations(values: Mapping[str, np.ndarray], bounds: Mapping[str, tuple[float, float]],
+               first_row: int, stride: int) -> Iterator[tuple[str, np.ndarray, np.ndarray]]:
+    """(check, row indices within the chunk, values) where a check leaves its bound: the
+    first row of every excursion, then every ``stride``-th row (by global index) of it."""
+    for name, value in values.items():
+        lower, upper = bounds[name]
+        outside = (value > upper) | (value < lower)
+        if not outside.any():
+            continue
+        index = first_row + np.arange(len(outside))
+        starts = outside & ~np.concatenate(([False], outside[:-1]))
+        where = np.flatnonzero(outside & ((index % stride == 0) | starts))
+        yield name, where, value[where]
+
+
+def arm_points(q: np.ndarray, link_lengths: np.ndarray) -> np.ndarray:
+    """Joint positions (rows, n+1, 2) of the planar chain, base at the origin, angles from
+    the horizontal and relative (q_i is link i's angle to link i-1); y drawn up, so negated
+    for Rerun's y-down 2D views."""
+    angles = np.cumsum(q, axis=1)
+    steps = np.stack([np.cos(angles), -np.sin(angles)], axis=2) * link_lengths[None, :, None]
+    out = np.zeros((q.shape[0], q.shape[1] + 1, 2))
+    out[:, 1:] = np.cumsum(steps, axis=1)
+    return out
+
+
+def series_names(stem: str, width: int) -> list[str]:
+    return [stem] if width == 1 else [f"{stem}{j + 1}" for j in range(width)]
+
+
+def blueprint(run_names: list[str]):
+    """Figs. 2-4 of the paper for every run side by side, then barriers, observer error and
+    the arm; time panel on sim_time, paused."""
+    import rerun.blueprint as rrb
+
+    columns = []
+    for run in run_names:
+        views = [rrb.TimeSeriesView(origin=f"/{run}/safety/{check}", name=f"{run}: {label}")
+                 for check, label in FIGURE_CHECKS.items()]
+        views.append(rrb.TimeSeriesView(origin=f"/{run}/plant/tau",
+                                        name=f"{run}: torque τ (N·m)"))
+        views.append(rrb.Horizontal(
+            rrb.TimeSeriesView(origin=f"/{run}/barrier", name=f"{run}: barriers H1, H2, H"),
+            rrb.TimeSeriesView(origin=f"/{run}/observer/qdot_err",
+                               name=f"{run}: observer error q̇ − x̂2 (rad/s)"),
+            rrb.Spatial2DView(origin=f"/{run}/arm", name=f"{run}: arm (m)"),
+        ))
+        columns.append(rrb.Vertical(*views, name=run))
+    return rrb.Blueprint(
+        rrb.Horizontal(*columns),
+        rrb.TimePanel(timeline="sim_time", play_state="paused", expanded=False),
+        collapse_panels=True,
+    )
