@@ -13,9 +13,8 @@ from __future__ import annotations
 import argparse
 import itertools
 
-from cosim.master import Diverged
-from cosim.pipeline import load_pipeline
-
+from cosim.config import load_pipeline
+from cosim.engine import Diverged
 from cosim.runner import run
 
 CHECKS = ("position_joint1", "velocity_estimated_joint1", "velocity_true_joint1",
