@@ -4,54 +4,30 @@ and an independent rigid-body model of the same chain in Pinocchio."""
 from __future__ import annotations
 
 import ctypes
-import shutil
 
 import numpy as np
 import pinocchio as pin
-from fmpy import extract, read_model_description
-from fmpy.fmi2 import (
-    FMU2Model,
-    FMU2Slave,
-    fmi2CallbackAllocateMemoryTYPE,
-    fmi2CallbackFreeMemoryTYPE,
-    fmi2CallbackFunctions,
-    fmi2CallbackLoggerTYPE,
-)
-from fmpy.fmi3 import FMU3Model, FMU3Slave
-from fmpy.logging import addLoggerProxy
+from fmpy import read_model_description
 
-_libc = ctypes.CDLL(None)
-_libc.calloc.restype = ctypes.c_void_p
-_libc.free.argtypes = [ctypes.c_void_p]
+from cosim.plant.lifecycle import open_instance
 
 
 class FmuInstance:
-    """One instantiated FMU (CS or ME, FMI 2 or 3) with its log messages kept in ``messages``."""
+    """One instantiated FMU (CS or ME, FMI 2 or 3) with its log messages kept in ``messages``.
+    Instantiation and freeing go through cosim's FMI life cycle; every other call is FMPy's
+    own, so the plant tests see FMPy's exceptions."""
 
     def __init__(self, path, kind: str = "CoSimulation", parameters: dict | None = None,
                  initialize: bool = True):
         self.md = read_model_description(path)
         self.fmi_version = int(self.md.fmiVersion[0])
         self.vr = {v.name: v.valueReference for v in self.md.modelVariables}
-        self.messages: list[str] = []
-        self._unzip = extract(path)
-        common = dict(guid=self.md.guid, unzipDirectory=self._unzip,
-                      modelIdentifier=self.md.coSimulation.modelIdentifier, instanceName="arm")
         self.kind = kind
+        self._instance = open_instance(path, self.md, kind, "arm")
+        self.fmu = self._instance.fmu
+        self.messages = self._instance.messages
         if self.fmi_version == 2:
-            cls = FMU2Slave if kind == "CoSimulation" else FMU2Model
-            self.fmu = cls(**common)
-            self._callbacks = fmi2CallbackFunctions()
-            self._callbacks.logger = fmi2CallbackLoggerTYPE(self._log2)
-            self._callbacks.allocateMemory = fmi2CallbackAllocateMemoryTYPE(_libc.calloc)
-            self._callbacks.freeMemory = fmi2CallbackFreeMemoryTYPE(_libc.free)
-            addLoggerProxy(ctypes.byref(self._callbacks))
-            self.fmu.instantiate(callbacks=self._callbacks)
             self.fmu.setupExperiment(startTime=0.0)
-        else:
-            cls = FMU3Slave if kind == "CoSimulation" else FMU3Model
-            self.fmu = cls(**common)
-            self.fmu.instantiate(logMessage=self._log3)
         self.n = sum(1 for v in self.md.modelVariables if v.name.startswith("q["))
         self.nx = 2 * self.n
         if initialize:
@@ -61,12 +37,6 @@ class FmuInstance:
             self.fmu.exitInitializationMode()
             if kind == "ModelExchange":
                 self._enter_continuous_time()
-
-    def _log2(self, env, name, status, category, message):
-        self.messages.append(message.decode())
-
-    def _log3(self, env, status, category, message):
-        self.messages.append(message.decode())
 
     def _enter_continuous_time(self):
         if self.fmi_version == 2:
@@ -122,12 +92,7 @@ class FmuInstance:
                                                           list(seed)))
 
     def free(self):
-        try:
-            self.fmu.terminate()
-        except Exception:  # an instance in error state may refuse to terminate
-            pass
-        self.fmu.freeInstance()
-        shutil.rmtree(self._unzip, ignore_errors=True)
+        self._instance.close()
 
 
 def pinocchio_chain(m, length, lc, inertia, g) -> pin.Model:

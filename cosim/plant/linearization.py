@@ -14,7 +14,6 @@ tell.
 
 from __future__ import annotations
 
-import shutil
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,11 +21,11 @@ import control
 import numpy as np
 
 from .inspection import provides_directional_derivatives
+from .lifecycle import open_instance
 from .mapping import (
     FmuError,
     check_binary,
     check_parameters,
-    extract,
     map_variables,
     read_description,
     real_names,
@@ -89,13 +88,11 @@ def linearize_at_start(path: str | Path, inputs: list[str] | None = None,
 
     x_vr, dx_vr = refs(states), refs(derivatives)
     u_vr, y_vr = refs(by_name[n] for n in inputs), refs(by_name[n] for n in outputs)
-    parameters = parameters or {}
-    settings = (refs(by_name[n] for n in parameters), [float(v) for v in parameters.values()])
-    unzip = extract(path)
-    instance = None
+    parameters = {by_name[n].valueReference: float(v) for n, v in (parameters or {}).items()}
+    instance = open_instance(path, md, "ModelExchange", "linearize")
     try:
-        instance = _start_model_exchange(path, md, unzip, *settings)
-        get = instance.getReal if md.fmiVersion.startswith("2") else instance.getFloat64
+        instance.initialize(0.0, parameters)
+        get = instance.get_reals
         x0, xdot0 = np.array(get(x_vr)), np.array(get(dx_vr))
         u0 = np.array(get(u_vr)) if u_vr else np.zeros(0)
 
@@ -104,7 +101,7 @@ def linearize_at_start(path: str | Path, inputs: list[str] | None = None,
             if not unknowns:
                 return out
             for j, known in enumerate(knowns):  # same call in FMPy's FMI 2 and 3 wrappers
-                out[:, j] = instance.getDirectionalDerivative(unknowns, [known], [1.0])
+                out[:, j] = instance.fmu.getDirectionalDerivative(unknowns, [known], [1.0])
             return out
 
         system = control.ss(jacobian(dx_vr, x_vr), jacobian(dx_vr, u_vr),
@@ -113,43 +110,4 @@ def linearize_at_start(path: str | Path, inputs: list[str] | None = None,
                             outputs=list(outputs), name=md.modelName)
         return Linearization(system, x0, xdot0, u0)
     finally:
-        if instance is not None:
-            instance.terminate()
-            instance.freeInstance()
-        shutil.rmtree(unzip, ignore_errors=True)
-
-
-def _start_model_exchange(path: Path, md, unzip: str, vrs: list[int], values: list[float]):
-    """Instantiate, set the parameters ``vrs`` to ``values``, initialise and enter
-    continuous-time mode at t = 0."""
-    common = dict(guid=md.guid, unzipDirectory=unzip, instanceName="linearize",
-                  modelIdentifier=md.modelExchange.modelIdentifier)
-    try:
-        if md.fmiVersion.startswith("2"):
-            from fmpy.fmi2 import FMU2Model
-
-            instance = FMU2Model(**common)
-            instance.instantiate()
-            instance.setupExperiment(startTime=0.0)
-            instance.enterInitializationMode()
-            if vrs:
-                instance.setReal(vrs, values)
-            instance.exitInitializationMode()
-            while instance.newDiscreteStates()[0]:  # event iteration at t = 0
-                pass
-        else:
-            from fmpy.fmi3 import FMU3Model
-
-            instance = FMU3Model(**common)
-            instance.instantiate()
-            instance.enterInitializationMode(startTime=0.0)
-            if vrs:
-                instance.setFloat64(vrs, values)
-            instance.exitInitializationMode()
-            while instance.updateDiscreteStates()[0]:
-                pass
-        instance.enterContinuousTimeMode()
-    except Exception as exc:  # FMICallException, or FMPy's bare Exception from instantiate
-        raise FmuError(f"{path}: Model Exchange start-up failed ({exc})") from None
-    return instance
-
+        instance.close()
