@@ -14,6 +14,9 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 
+from numba import typeof, types
+
+from ..blocks import Block
 from ..plant.mapping import FmuError
 from ..signals import Trace
 from .fused import fused_loop
@@ -48,8 +51,6 @@ class PlantFailed(Diverged):
 
 def _fusable(block) -> bool:
     # A block with a kernel, or one whose step does nothing (the reference, a plant-M model).
-    from ..blocks import Block
-
     return block.kernel is not None or type(block).step is Block.step
 
 
@@ -74,8 +75,19 @@ def simulate(plant, plan, trace: Trace, progress: Callable[[int], None] | None =
     return run(plant, plan, trace, progress, progress_every)
 
 
+def _stepper(block) -> Callable[[int], bool]:
+    """``block.step``, or for a kernel block its compiled overload called directly: numba's
+    type dispatch on a NamedTuple of arrays costs more than the kernel itself."""
+    if block.kernel is None or type(block).step is not Block.step:
+        return block.step
+    signature = (types.int64, typeof(block.args))
+    block.kernel.compile(signature)
+    entry, args = block.kernel.overloads[signature].entry_point, block.args
+    return lambda k: entry(k, args)
+
+
 def _python(plant, plan, trace: Trace, progress, progress_every: int) -> float:
-    blocks = plan.blocks
+    blocks = [(block, _stepper(block)) for block in plan.blocks]
     q, qdot, mass, tau = trace["q"], trace["qdot"], trace["M"], trace[plan.plant_input]
     h, steps = trace.dt, trace.steps
     start = time.perf_counter()
@@ -84,8 +96,8 @@ def _python(plant, plan, trace: Trace, progress, progress_every: int) -> float:
         q[k] = plant.q
         qdot[k] = plant.qdot
         mass[k] = plant.M
-        for block in blocks:
-            if not block.step(k):
+        for block, step in blocks:
+            if not step(k):
                 trace.rows_done = k
                 raise Diverged(f"the {block.name} block", t, "a non-finite value")
         trace.rows_done = k + 1
