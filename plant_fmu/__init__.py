@@ -5,6 +5,6 @@
 """
 
 from .build import BuildError, build_fmu
-from .variables import MAX_LINKS, MODEL_IDENTIFIER, variables
+from .models.planar_arm import MAX_LINKS, MODEL_IDENTIFIER, variables
 
 __all__ = ["BuildError", "MAX_LINKS", "MODEL_IDENTIFIER", "build_fmu", "variables"]

@@ -17,11 +17,14 @@ import zipfile
 from pathlib import Path
 
 from . import description
-from .variables import MAX_LINKS, MODEL_IDENTIFIER
+from .models import planar_arm
 
-C_DIR = Path(__file__).parent / "c"
-MODEL_SOURCES = ["model.c", "fmu_instance.c"]
-HEADERS = ["model.h", "arm_dynamics.h", "fmu_instance.h"]
+# The FMI glue every model plugs into: one file per FMI version, and the instance they share.
+FMI_DIR = Path(__file__).parent / "fmi"
+FMI_SOURCES = ("fmu_instance.c",)
+FMI_HEADERS = ("fmu_instance.h",)
+MODEL = planar_arm  # the built-in model build_fmu builds
+MAX_LINKS, MODEL_IDENTIFIER = MODEL.MAX_LINKS, MODEL.MODEL_IDENTIFIER
 CFLAGS = ["-O2", "-std=c99", "-Wall", "-Wextra", "-fPIC", "-shared"]
 
 
@@ -63,10 +66,17 @@ def _shared_library_suffix() -> str:
 
 def _sources_digest() -> str:
     h = hashlib.sha256()
-    for name in sorted(MODEL_SOURCES + HEADERS + ["fmi2.c", "fmi3.c"]):
-        h.update(name.encode())
-        h.update((C_DIR / name).read_bytes())
+    for path in sorted(_source_files(2) + _source_files(3) + [Path(MODEL.__file__)]):
+        h.update(path.name.encode())
+        h.update(path.read_bytes())
     return h.hexdigest()
+
+
+def _source_files(fmi_version: int) -> list[Path]:
+    """The C files an FMU of ``fmi_version`` is built from: the model's and the glue."""
+    model = [MODEL.SOURCE_DIR / name for name in MODEL.SOURCES + MODEL.HEADERS]
+    glue = [FMI_DIR / name for name in (*FMI_SOURCES, *FMI_HEADERS, f"fmi{fmi_version}.c")]
+    return model + glue
 
 
 def _build_key(links: int, fmi_version: int, cc: str) -> str:
@@ -111,21 +121,20 @@ def build_fmu(links: int = 2, fmi_version: int = 2, output: str | Path | None = 
 
 
 def _build_into(target: Path, links: int, fmi_version: int, cc: str) -> None:
-    token = description.instantiation_token(links, _sources_digest())
-    glue = f"fmi{fmi_version}.c"
+    token = description.instantiation_token(MODEL, links, _sources_digest())
     with tempfile.TemporaryDirectory(prefix="plant_fmu_") as tmpdir:
         root = Path(tmpdir)
         sources = root / "sources"
         sources.mkdir()
-        for name in MODEL_SOURCES + HEADERS + [glue]:
-            shutil.copyfile(C_DIR / name, sources / name)
-        (sources / "variables.h").write_text(description.variables_header(links, token))
-        (sources / "variables.c").write_text(description.variables_source(links))
-        compiled = MODEL_SOURCES + ["variables.c", glue]
+        for path in _source_files(fmi_version):  # flat: fmpy compile builds from here
+            shutil.copyfile(path, sources / path.name)
+        (sources / "variables.h").write_text(description.variables_header(MODEL, links, token))
+        (sources / "variables.c").write_text(description.variables_source(MODEL, links))
+        compiled = [*MODEL.SOURCES, *FMI_SOURCES, "variables.c", f"fmi{fmi_version}.c"]
         (sources / "buildDescription.xml").write_text(
-            description.build_description(fmi_version, compiled))
+            description.build_description(MODEL, fmi_version, compiled))
         (root / "modelDescription.xml").write_text(
-            description.model_description(links, fmi_version, token))
+            description.model_description(MODEL, links, fmi_version, token))
 
         binary_dir = root / "binaries" / _platform_dir(fmi_version)
         binary_dir.mkdir(parents=True)

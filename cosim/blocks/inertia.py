@@ -23,7 +23,7 @@ from typing import Literal, NamedTuple
 import numpy as np
 from numba import njit
 
-from plant_fmu.variables import PAPER_MASSES
+from plant_fmu.models.planar_arm import PAPER_MASSES
 
 from ..config.schema import FiniteFloat, NonNegativeFloat, PositiveFloat, Section
 from ..signals import Signal

@@ -118,209 +118,102 @@ fmi3Status fmi3SetFloat64(fmi3Instance instance, const fmi3ValueReference valueR
     return STATUS(instance_set_float64(INST, valueReferences, nValueReferences, values));
 }
 
-/* Types this FMU has no variables of. Zero references is a valid no-op. */
-#define NO_VARIABLES_OF_TYPE(function, type)                                                  \
-    fmi3Status function(fmi3Instance instance, const fmi3ValueReference valueReferences[],    \
-                        size_t nValueReferences, type values[], size_t nValues)               \
+/* Features this FMU does not have: variables of other types, binaries, clocks, configuration
+ * mode, variable dependencies. FMI fixes each signature, so the parameters after the instance
+ * are spelled out here; by definition they go unused. */
+#if defined(__GNUC__)
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wunused-parameter"
+#endif
+
+/* Refused, with a logged message naming the call. */
+#define UNSUPPORTED(function, ...)                                                            \
+    fmi3Status function(fmi3Instance instance, __VA_ARGS__)                                   \
     {                                                                                         \
-        (void)valueReferences;                                                                \
-        (void)values;                                                                         \
-        (void)nValues;                                                                        \
-        return nValueReferences == 0 ? fmi3OK : STATUS(instance_unsupported(INST, #function)); \
+        return STATUS(instance_unsupported(INST, #function));                                 \
     }
-NO_VARIABLES_OF_TYPE(fmi3GetFloat32, fmi3Float32)
-NO_VARIABLES_OF_TYPE(fmi3GetInt8, fmi3Int8)
-NO_VARIABLES_OF_TYPE(fmi3GetUInt8, fmi3UInt8)
-NO_VARIABLES_OF_TYPE(fmi3GetInt16, fmi3Int16)
-NO_VARIABLES_OF_TYPE(fmi3GetUInt16, fmi3UInt16)
-NO_VARIABLES_OF_TYPE(fmi3GetInt32, fmi3Int32)
-NO_VARIABLES_OF_TYPE(fmi3GetUInt32, fmi3UInt32)
-NO_VARIABLES_OF_TYPE(fmi3GetInt64, fmi3Int64)
-NO_VARIABLES_OF_TYPE(fmi3GetUInt64, fmi3UInt64)
-NO_VARIABLES_OF_TYPE(fmi3GetBoolean, fmi3Boolean)
-NO_VARIABLES_OF_TYPE(fmi3GetString, fmi3String)
-NO_VARIABLES_OF_TYPE(fmi3SetFloat32, const fmi3Float32)
-NO_VARIABLES_OF_TYPE(fmi3SetInt8, const fmi3Int8)
-NO_VARIABLES_OF_TYPE(fmi3SetUInt8, const fmi3UInt8)
-NO_VARIABLES_OF_TYPE(fmi3SetInt16, const fmi3Int16)
-NO_VARIABLES_OF_TYPE(fmi3SetUInt16, const fmi3UInt16)
-NO_VARIABLES_OF_TYPE(fmi3SetInt32, const fmi3Int32)
-NO_VARIABLES_OF_TYPE(fmi3SetUInt32, const fmi3UInt32)
-NO_VARIABLES_OF_TYPE(fmi3SetInt64, const fmi3Int64)
-NO_VARIABLES_OF_TYPE(fmi3SetUInt64, const fmi3UInt64)
-NO_VARIABLES_OF_TYPE(fmi3SetBoolean, const fmi3Boolean)
-NO_VARIABLES_OF_TYPE(fmi3SetString, const fmi3String)
+#define UNSUPPORTED_MODE(function)                                                            \
+    fmi3Status function(fmi3Instance instance)                                                \
+    {                                                                                         \
+        return STATUS(instance_unsupported(INST, #function));                                 \
+    }
+/* Variables of a type this FMU has none of: asking for none is a valid no-op. */
+#define NO_VARIABLES(function, ...)                                                           \
+    fmi3Status function(fmi3Instance instance, const fmi3ValueReference valueReferences[],    \
+                        size_t nValueReferences, __VA_ARGS__)                                 \
+    {                                                                                         \
+        return nValueReferences == 0 ? fmi3OK                                                 \
+                                     : STATUS(instance_unsupported(INST, #function));         \
+    }
 
-fmi3Status fmi3GetBinary(fmi3Instance instance, const fmi3ValueReference valueReferences[],
-                         size_t nValueReferences, size_t valueSizes[], fmi3Binary values[],
-                         size_t nValues)
-{
-    (void)valueReferences;
-    (void)valueSizes;
-    (void)values;
-    (void)nValues;
-    return nValueReferences == 0 ? fmi3OK : STATUS(instance_unsupported(INST, "fmi3GetBinary"));
-}
+NO_VARIABLES(fmi3GetFloat32, fmi3Float32 values[], size_t nValues)
+NO_VARIABLES(fmi3GetInt8, fmi3Int8 values[], size_t nValues)
+NO_VARIABLES(fmi3GetUInt8, fmi3UInt8 values[], size_t nValues)
+NO_VARIABLES(fmi3GetInt16, fmi3Int16 values[], size_t nValues)
+NO_VARIABLES(fmi3GetUInt16, fmi3UInt16 values[], size_t nValues)
+NO_VARIABLES(fmi3GetInt32, fmi3Int32 values[], size_t nValues)
+NO_VARIABLES(fmi3GetUInt32, fmi3UInt32 values[], size_t nValues)
+NO_VARIABLES(fmi3GetInt64, fmi3Int64 values[], size_t nValues)
+NO_VARIABLES(fmi3GetUInt64, fmi3UInt64 values[], size_t nValues)
+NO_VARIABLES(fmi3GetBoolean, fmi3Boolean values[], size_t nValues)
+NO_VARIABLES(fmi3GetString, fmi3String values[], size_t nValues)
+NO_VARIABLES(fmi3GetBinary, size_t valueSizes[], fmi3Binary values[], size_t nValues)
+NO_VARIABLES(fmi3SetFloat32, const fmi3Float32 values[], size_t nValues)
+NO_VARIABLES(fmi3SetInt8, const fmi3Int8 values[], size_t nValues)
+NO_VARIABLES(fmi3SetUInt8, const fmi3UInt8 values[], size_t nValues)
+NO_VARIABLES(fmi3SetInt16, const fmi3Int16 values[], size_t nValues)
+NO_VARIABLES(fmi3SetUInt16, const fmi3UInt16 values[], size_t nValues)
+NO_VARIABLES(fmi3SetInt32, const fmi3Int32 values[], size_t nValues)
+NO_VARIABLES(fmi3SetUInt32, const fmi3UInt32 values[], size_t nValues)
+NO_VARIABLES(fmi3SetInt64, const fmi3Int64 values[], size_t nValues)
+NO_VARIABLES(fmi3SetUInt64, const fmi3UInt64 values[], size_t nValues)
+NO_VARIABLES(fmi3SetBoolean, const fmi3Boolean values[], size_t nValues)
+NO_VARIABLES(fmi3SetString, const fmi3String values[], size_t nValues)
+NO_VARIABLES(fmi3SetBinary, const size_t valueSizes[], const fmi3Binary values[],
+             size_t nValues)
 
-fmi3Status fmi3SetBinary(fmi3Instance instance, const fmi3ValueReference valueReferences[],
-                         size_t nValueReferences, const size_t valueSizes[],
-                         const fmi3Binary values[], size_t nValues)
-{
-    (void)valueReferences;
-    (void)valueSizes;
-    (void)values;
-    (void)nValues;
-    return nValueReferences == 0 ? fmi3OK : STATUS(instance_unsupported(INST, "fmi3SetBinary"));
-}
+UNSUPPORTED(fmi3GetClock, const fmi3ValueReference valueReferences[], size_t nValueReferences,
+            fmi3Clock values[])
+UNSUPPORTED(fmi3SetClock, const fmi3ValueReference valueReferences[], size_t nValueReferences,
+            const fmi3Clock values[])
+UNSUPPORTED(fmi3GetIntervalDecimal, const fmi3ValueReference valueReferences[],
+            size_t nValueReferences, fmi3Float64 intervals[], fmi3IntervalQualifier qualifiers[])
+UNSUPPORTED(fmi3GetIntervalFraction, const fmi3ValueReference valueReferences[],
+            size_t nValueReferences, fmi3UInt64 counters[], fmi3UInt64 resolutions[],
+            fmi3IntervalQualifier qualifiers[])
+UNSUPPORTED(fmi3GetShiftDecimal, const fmi3ValueReference valueReferences[],
+            size_t nValueReferences, fmi3Float64 shifts[])
+UNSUPPORTED(fmi3GetShiftFraction, const fmi3ValueReference valueReferences[],
+            size_t nValueReferences, fmi3UInt64 counters[], fmi3UInt64 resolutions[])
+UNSUPPORTED(fmi3SetIntervalDecimal, const fmi3ValueReference valueReferences[],
+            size_t nValueReferences, const fmi3Float64 intervals[])
+UNSUPPORTED(fmi3SetIntervalFraction, const fmi3ValueReference valueReferences[],
+            size_t nValueReferences, const fmi3UInt64 counters[],
+            const fmi3UInt64 resolutions[])
+UNSUPPORTED(fmi3SetShiftDecimal, const fmi3ValueReference valueReferences[],
+            size_t nValueReferences, const fmi3Float64 shifts[])
+UNSUPPORTED(fmi3SetShiftFraction, const fmi3ValueReference valueReferences[],
+            size_t nValueReferences, const fmi3UInt64 counters[],
+            const fmi3UInt64 resolutions[])
+UNSUPPORTED(fmi3ActivateModelPartition, fmi3ValueReference clockReference,
+            fmi3Float64 activationTime)
+UNSUPPORTED(fmi3GetNumberOfVariableDependencies, fmi3ValueReference valueReference,
+            size_t *nDependencies)
+UNSUPPORTED(fmi3GetVariableDependencies, fmi3ValueReference dependent,
+            size_t elementIndicesOfDependent[], fmi3ValueReference independents[],
+            size_t elementIndicesOfIndependents[], fmi3DependencyKind dependencyKinds[],
+            size_t nDependencies)
+UNSUPPORTED_MODE(fmi3EnterConfigurationMode)
+UNSUPPORTED_MODE(fmi3ExitConfigurationMode)
 
-/* Clocks, intervals and shifts: this FMU has no clocks. */
-fmi3Status fmi3GetClock(fmi3Instance instance, const fmi3ValueReference valueReferences[],
-                        size_t nValueReferences, fmi3Clock values[])
-{
-    (void)valueReferences;
-    (void)nValueReferences;
-    (void)values;
-    return STATUS(instance_unsupported(INST, "fmi3GetClock"));
-}
-
-fmi3Status fmi3SetClock(fmi3Instance instance, const fmi3ValueReference valueReferences[],
-                        size_t nValueReferences, const fmi3Clock values[])
-{
-    (void)valueReferences;
-    (void)nValueReferences;
-    (void)values;
-    return STATUS(instance_unsupported(INST, "fmi3SetClock"));
-}
-
-fmi3Status fmi3GetIntervalDecimal(fmi3Instance instance, const fmi3ValueReference valueReferences[],
-                                  size_t nValueReferences, fmi3Float64 intervals[],
-                                  fmi3IntervalQualifier qualifiers[])
-{
-    (void)valueReferences;
-    (void)nValueReferences;
-    (void)intervals;
-    (void)qualifiers;
-    return STATUS(instance_unsupported(INST, "fmi3GetIntervalDecimal"));
-}
-
-fmi3Status fmi3GetIntervalFraction(fmi3Instance instance, const fmi3ValueReference valueReferences[],
-                                   size_t nValueReferences, fmi3UInt64 counters[],
-                                   fmi3UInt64 resolutions[], fmi3IntervalQualifier qualifiers[])
-{
-    (void)valueReferences;
-    (void)nValueReferences;
-    (void)counters;
-    (void)resolutions;
-    (void)qualifiers;
-    return STATUS(instance_unsupported(INST, "fmi3GetIntervalFraction"));
-}
-
-fmi3Status fmi3GetShiftDecimal(fmi3Instance instance, const fmi3ValueReference valueReferences[],
-                               size_t nValueReferences, fmi3Float64 shifts[])
-{
-    (void)valueReferences;
-    (void)nValueReferences;
-    (void)shifts;
-    return STATUS(instance_unsupported(INST, "fmi3GetShiftDecimal"));
-}
-
-fmi3Status fmi3GetShiftFraction(fmi3Instance instance, const fmi3ValueReference valueReferences[],
-                                size_t nValueReferences, fmi3UInt64 counters[],
-                                fmi3UInt64 resolutions[])
-{
-    (void)valueReferences;
-    (void)nValueReferences;
-    (void)counters;
-    (void)resolutions;
-    return STATUS(instance_unsupported(INST, "fmi3GetShiftFraction"));
-}
-
-fmi3Status fmi3SetIntervalDecimal(fmi3Instance instance, const fmi3ValueReference valueReferences[],
-                                  size_t nValueReferences, const fmi3Float64 intervals[])
-{
-    (void)valueReferences;
-    (void)nValueReferences;
-    (void)intervals;
-    return STATUS(instance_unsupported(INST, "fmi3SetIntervalDecimal"));
-}
-
-fmi3Status fmi3SetIntervalFraction(fmi3Instance instance, const fmi3ValueReference valueReferences[],
-                                   size_t nValueReferences, const fmi3UInt64 counters[],
-                                   const fmi3UInt64 resolutions[])
-{
-    (void)valueReferences;
-    (void)nValueReferences;
-    (void)counters;
-    (void)resolutions;
-    return STATUS(instance_unsupported(INST, "fmi3SetIntervalFraction"));
-}
-
-fmi3Status fmi3SetShiftDecimal(fmi3Instance instance, const fmi3ValueReference valueReferences[],
-                               size_t nValueReferences, const fmi3Float64 shifts[])
-{
-    (void)valueReferences;
-    (void)nValueReferences;
-    (void)shifts;
-    return STATUS(instance_unsupported(INST, "fmi3SetShiftDecimal"));
-}
-
-fmi3Status fmi3SetShiftFraction(fmi3Instance instance, const fmi3ValueReference valueReferences[],
-                                size_t nValueReferences, const fmi3UInt64 counters[],
-                                const fmi3UInt64 resolutions[])
-{
-    (void)valueReferences;
-    (void)nValueReferences;
-    (void)counters;
-    (void)resolutions;
-    return STATUS(instance_unsupported(INST, "fmi3SetShiftFraction"));
-}
-
-fmi3Status fmi3ActivateModelPartition(fmi3Instance instance, fmi3ValueReference clockReference,
-                                      fmi3Float64 activationTime)
-{
-    (void)clockReference;
-    (void)activationTime;
-    return STATUS(instance_unsupported(INST, "fmi3ActivateModelPartition"));
-}
+#if defined(__GNUC__)
+#pragma GCC diagnostic pop
+#endif
 
 fmi3Status fmi3EvaluateDiscreteStates(fmi3Instance instance)
 {
     (void)instance;
     return fmi3OK;
-}
-
-fmi3Status fmi3GetNumberOfVariableDependencies(fmi3Instance instance,
-                                               fmi3ValueReference valueReference,
-                                               size_t *nDependencies)
-{
-    (void)valueReference;
-    (void)nDependencies;
-    return STATUS(instance_unsupported(INST, "fmi3GetNumberOfVariableDependencies"));
-}
-
-fmi3Status fmi3GetVariableDependencies(fmi3Instance instance, fmi3ValueReference dependent,
-                                       size_t elementIndicesOfDependent[],
-                                       fmi3ValueReference independents[],
-                                       size_t elementIndicesOfIndependents[],
-                                       fmi3DependencyKind dependencyKinds[], size_t nDependencies)
-{
-    (void)dependent;
-    (void)elementIndicesOfDependent;
-    (void)independents;
-    (void)elementIndicesOfIndependents;
-    (void)dependencyKinds;
-    (void)nDependencies;
-    return STATUS(instance_unsupported(INST, "fmi3GetVariableDependencies"));
-}
-
-fmi3Status fmi3EnterConfigurationMode(fmi3Instance instance)
-{
-    return STATUS(instance_unsupported(INST, "fmi3EnterConfigurationMode"));
-}
-
-fmi3Status fmi3ExitConfigurationMode(fmi3Instance instance)
-{
-    return STATUS(instance_unsupported(INST, "fmi3ExitConfigurationMode"));
 }
 
 /* FMU state */

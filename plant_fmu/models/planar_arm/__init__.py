@@ -1,4 +1,5 @@
-"""The one table of the plant FMU's variables.
+"""The built-in planar arm: an n-link serial chain (CRBA + RNEA in model.c), and the one table
+of its FMU's variables.
 
 Everything else is generated from :func:`variables`: the FMI 2.0 and 3.0
 ``modelDescription.xml`` and the C header ``variables.h`` that the model code
@@ -13,6 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 MODEL_IDENTIFIER = "PlanarArm"
 MAX_LINKS = 7
@@ -147,3 +149,10 @@ def variables(links: int) -> list[Variable]:
 def first_vr(table: list[Variable], group: str) -> int:
     """Value reference of the first element of a variable group."""
     return next(v.vr for v in table if v.group == group)
+
+
+# The model's C sources (beside this file): the arm's equations. The FMI glue they plug into
+# is shared by every model (plant_fmu/fmi).
+SOURCE_DIR = Path(__file__).parent
+SOURCES = ("model.c",)
+HEADERS = ("model.h", "arm_dynamics.h")
