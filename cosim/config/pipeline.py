@@ -32,7 +32,7 @@ class BuiltinPlant(Section):
     fmi_version: Literal[2, 3] = 2
 
 
-class PlantVariables(Section):
+class VariableMapping(Section):
     """Our interface in the FMU's names, one name per joint (M: n×n, row-major). Unset: our
     FMU's names (``tau[1]``, ``q[1]``, …; ``qdot``/``M`` only where the FMU has them);
     ``[]`` for ``qdot`` or ``M``: not mapped."""
@@ -47,7 +47,7 @@ class Plant(Section):
     builtin: BuiltinPlant | None = None
     fmu: str | None = None  # path relative to the pipeline file
     parameters: dict[str, FiniteFloat] = {}  # FMU parameter and start values, by FMU name
-    variables: PlantVariables = PlantVariables()
+    variables: VariableMapping = VariableMapping()
 
     @model_validator(mode="after")
     def _one_source(self) -> Plant:
