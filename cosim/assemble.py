@@ -133,7 +133,7 @@ def assemble_run(pipeline: Pipeline, name: str, plant) -> RunPlan:
     ``has_qdot``, ``has_M`` and a ``path`` (for messages) only."""
     run = pipeline.runs[name]
     links, dt = plant.links, pipeline.simulation.step
-    context = BlockContext(links, dt, name, plant_outputs(plant))
+    context = BlockContext(links, dt, name, plant_outputs(plant), run, pipeline.safety)
     check_sizes(run, name, plant)
     blocks = [BLOCKS[kind](run.block_params(kind), context) for kind in run.blocks]
     signals, inputs, outputs, plant_input = wire(blocks, context, name, plant)
@@ -243,11 +243,10 @@ def check_sizes(run, name: str, plant) -> None:
                             f"per joint, rad); {joints}")
     sized = {}
     for kind in run.blocks:
-        params = run.block_params(kind)
-        for key, value in params.model_dump(by_alias=True).items():
-            if isinstance(value, list) and key not in ("offset", "amplitude", "frequency",
-                                                       "phase"):
-                sized[f"{kind}.{key}"] = value
+        values = run.block_params(kind).model_dump(by_alias=True)
+        for key in BLOCKS[kind].per_joint:
+            if isinstance(values.get(key), list):
+                sized[f"{kind}.{key}"] = values[key]
     for key, value in sized.items():
         if len(value) != n:
             raise PipelineError(f"{key} (run '{name}') has {len(value)} entries; {joints}")
@@ -268,7 +267,8 @@ def check_sizes(run, name: str, plant) -> None:
 def safe_set(pipeline: Pipeline) -> SafeSet:
     s = pipeline.safety
     return SafeSet(s.position_bound, s.velocity_bound, s.error_bound, s.error_rate_bound,
-                   s.observer_error_bound, s.z_wo_tilde, s.z_wc_tilde, s.z_vc_tilde)
+                   s.observer_error_bound, s.z_wo_tilde, s.z_wc_tilde, s.z_vc_tilde,
+                   s.barrier_alpha)
 
 
 def link_lengths(plant_info: dict, plan: RunPlan) -> np.ndarray:

@@ -108,30 +108,46 @@ def _print_linearization(path: Path, info, parameters: dict[str, float]) -> None
               f"damping {zeta:.3g}, {kind}")
 
 
+def _cell(entry: dict | None) -> str:
+    """worst vs bound, and for a violation when it started and how long it lasted."""
+    if entry is None:
+        return "-"
+    if entry["worst"] is None:  # no qdot to check
+        return "n/a (no qdot)"
+    worst = f"{entry['worst']:.3f} <= {entry['bound']:g}"
+    if entry["satisfied"]:
+        return f"{worst} ok"
+    return (f"{worst} VIOLATED from {entry['first_violation_s']:.2f} s, "
+            f"{entry['time_outside_s']:.2f} s out")
+
+
 def _print_summary(results) -> None:
-    checks = list(next(iter(results.values())).safety)
+    checks = list(dict.fromkeys(c for r in results.values() for c in r.safety))
     names = list(results)
-    width = max(len(c) for c in checks) + 2
-    print(f"{'check':<{width}}" + "".join(f"{n:>26}" for n in names))
+    print("safety checks: worst value (SI units) against its bound; for a violation, the "
+          "time it first happened and the total time outside")
+    rows = [["check", *names]]
     for check in checks:
-        row = f"{check:<{width}}"
-        for name in names:
-            entry = results[name].safety.get(check)
-            if entry is None or entry["worst"] is None:  # not checked / no qdot to check
-                row += f"{'-' if entry is None else 'n/a (no qdot)':>26}"
-                continue
-            mark = "ok" if entry["satisfied"] else "VIOLATED"
-            row += f"{entry['worst']:>9.3f} <= {entry['bound']:<7.3f} {mark:>8}"
-        print(row)
+        rows.append([check, *(_cell(results[n].safety.get(check)) for n in names)])
+    widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
+    for row in rows:
+        print("  ".join(cell.ljust(width) for cell, width in zip(row, widths, strict=True)))
     for name, r in results.items():
         m = r.metrics
         tau = ", ".join(f"{x:.1f}" for x in m["peak_torque"])
         obs = m["observer_velocity_error_rms_after_1s"]
         obs_text = ", ".join(f"{x:.3f}" for x in obs) if obs else "-"
         sps = m["steps_per_second"]
-        print(f"{name}: peak torque [{tau}] N.m, observer velocity RMS error after 1 s "
-              f"[{obs_text}] rad/s, min H {m['min_barrier_H']:.3g}, "
-              f"{m['wall_time_s']:.2f} s wall, {sps or 0:,.0f} steps/s")
+        gain = m.get("feedback_gain")
+        condition = m["barrier_condition"]
+        gain_text = f"{gain['median']:.1f} N.m.s/rad" if gain else "-"
+        failing = condition["fraction_failing"]
+        print(f"{name}: peak torque [{tau}] N.m, effective gain on r_hat (median) "
+              f"{gain_text}, observer velocity RMS error after 1 s [{obs_text}] rad/s, "
+              f"min H {m['min_barrier_H']:.3g} (H1 {m['min_barrier_H1']:.3g}, "
+              f"H2 {m['min_barrier_H2']:.3g}), dH/dt + {condition['alpha']:g} H < 0 in "
+              f"{100 * (failing or 0):.1f} % of steps, {m['wall_time_s']:.2f} s wall, "
+              f"{sps or 0:,.0f} steps/s")
 
 
 def _parser() -> argparse.ArgumentParser:

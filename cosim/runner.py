@@ -94,7 +94,7 @@ def run(pipeline: Pipeline, out_dir: str | Path | None = None, progress: bool = 
             results[name] = result
             if out:
                 write_summary(out, pipeline, results, plant_info)
-                write_trace(out, name, result.trace)
+                write_trace(out, name, result.trace, result.evaluation)
             if not result.complete:
                 failure = result.failure
                 break
@@ -109,7 +109,8 @@ def run(pipeline: Pipeline, out_dir: str | Path | None = None, progress: bool = 
         if out and figures and results:
             write_figures(out, {n: r.trace.time for n, r in results.items()},
                           {n: r.evaluation.checks for n, r in results.items()},
-                          {n: r.trace["tau"] for n, r in results.items()})
+                          {n: r.trace["tau"] for n, r in results.items()},
+                          {n: r.evaluation.barriers for n, r in results.items()})
     if failure is not None:
         raise failure
     return results

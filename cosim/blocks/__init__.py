@@ -7,8 +7,12 @@ controller or filter is one new file plus that decorator, with no change to the 
 """
 
 # The built-in blocks register themselves on import.
-from . import controller, inertia, observer, reference, sensor  # noqa: E402, F401, I001
-from .base import BLOCKS, Block, BlockContext, Ports, register_block
+from . import cbf_filter, controller, inertia, observer, reference, sensor  # noqa: E402, F401, I001
+from ..jit_cache import use_versioned_cache
+
+use_versioned_cache()  # before the kernels below are defined
+
+from .base import BLOCKS, Block, BlockContext, Ports, register_block  # noqa: E402
 
 # The chain a run steps when its pipeline names none: the order data flows in.
 DEFAULT_CHAIN = ("reference", "sensor", "inertia_model", "observer", "controller")

@@ -34,12 +34,16 @@ from ..signals import Signal
 @dataclass(frozen=True)
 class BlockContext:
     """What a block may know of the scenario when it is built: the joint count, the master
-    step (s), the run's name and the plant outputs available (``q``, ``qdot``, ``M``)."""
+    step (s), the run's name, the plant outputs available (``q``, ``qdot``, ``M``), and the
+    run's validated tables and the pipeline's ``[safety]`` (for blocks that need another
+    block's model, like a safety filter the inertia model's chain and the safe set)."""
 
     links: int
     dt: float
     run: str
     plant_outputs: frozenset[str]
+    tables: Any = None
+    safety: Any = None
 
 
 @dataclass
@@ -55,6 +59,8 @@ class Block:
     kind: ClassVar[str]
     Params: ClassVar[type[Section]]
     kernel: ClassVar[Callable[..., bool] | None] = None
+    # Parameters given per joint (a list must have one entry per joint; a scalar serves all).
+    per_joint: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, params: Section, context: BlockContext):
         self.params = params

@@ -11,7 +11,8 @@
 τ = Ŵᵀσ̂(V̂ᵀξ) + Kv r̂ − v, ξ = [1; e; ė; q_d; q̇_d; q̈_d], σ̂ = [1; σ(V̂ᵀξ)] (logistic),
 σ̂' = [0; diag(σ(1 − σ))]. Weights follow (25)–(26) with σ̂' in (26) (as in Lewis; the
 printed σ̂ does not make the dimensions agree), integrated by Euler at the master rate with
-the κ‖r̂‖ decay terms implicit so that they never overshoot. Weights start at zero.
+the κ‖r̂‖ decay terms implicit so that they never overshoot. Ŵ starts at zero; V̂ at zero or,
+as Lewis does, at small seeded random values (``init``), so that hidden units differ.
 """
 
 from __future__ import annotations
@@ -47,11 +48,20 @@ class ControllerParams(Section):
     delta: PositiveFloat = 1.0  # δ
     psi_b: NonNegativeFloat = 20.0  # ψ_B
     hidden: Annotated[int, Field(ge=1, le=200)] = 10
+    # Where ė comes from: "auto" is the true q̇ for the baseline (Lewis's full state) and
+    # the observer's x̂2 for the proposed controller; "finite_difference" is the backward
+    # difference of the measured position, (y_k − y_k−1)/h, which amplifies sensor noise.
+    velocity: Literal["auto", "plant", "observer", "finite_difference"] = "auto"
+    # Initial weights: Ŵ starts at zero; V̂ at zero, or (Lewis) uniform in ±init_scale, seeded.
+    init: Literal["zero", "random"] = "zero"
+    init_scale: NonNegativeFloat = 0.1
+    seed: int = 0
 
 
 class ControllerArgs(NamedTuple):
     dt: float  # master step, s
     proposed: bool
+    finite_difference: bool  # velocity = backward difference of position
     f: float
     g: float
     kappa: float
@@ -78,6 +88,7 @@ class ControllerArgs(NamedTuple):
     v_c: np.ndarray
     W_norm: np.ndarray
     V_norm: np.ndarray
+    feedback_gain: np.ndarray
 
 
 @njit(cache=True)
@@ -89,7 +100,11 @@ def controller_step(k, a):
     V = a.state[(hidden + 1) * n:(hidden + 1) * n + n_in * hidden].reshape((n_in, hidden))
 
     e = a.q_d[k] - a.position[k]
-    edot = a.qdot_d[k] - a.velocity[k]
+    if a.finite_difference:
+        velocity = (a.position[k] - a.position[k - 1]) / a.dt if k > 0 else a.qdot_d[0]
+    else:
+        velocity = a.velocity[k]
+    edot = a.qdot_d[k] - velocity
     r = edot + a.lam * e
     xi = np.empty(n_in)
     xi[0] = 1.0
@@ -116,7 +131,8 @@ def controller_step(k, a):
         v -= (a.kappa * (a.z_w + a.c1 / a.kappa) ** 2 / 4.0 + a.c0) / np.sqrt(a.delta + r_sq) * r
         v -= e
         v -= a.psi_b**2 / (a.delta + r_sq) * r
-    torque = f_hat + a.kv * r - v
+    feedback = a.kv * r - v
+    torque = f_hat + feedback
 
     a.tau[k] = torque
     a.e[k] = e
@@ -126,6 +142,7 @@ def controller_step(k, a):
     a.v_c[k] = v
     a.W_norm[k] = w_norm
     a.V_norm[k] = v_norm
+    a.feedback_gain[k] = np.sqrt(np.sum(feedback**2)) / r_norm if r_norm > 0.0 else 0.0
 
     # (25)-(26) over [t_k, t_k+1)
     dt = a.dt
@@ -143,15 +160,22 @@ def controller_step(k, a):
 class NnController(Block):
     kind = "controller"
     Params = ControllerParams
+    per_joint = ("kv", "lambda")
     kernel = controller_step
 
     def __init__(self, params: ControllerParams, context: BlockContext):
         super().__init__(params, context)
-        baseline = params.variant == "baseline"
-        # The baseline is full state (the plant's true q, q̇); the proposed controller sees
-        # only the sensor and the observer.
-        self.position, self.velocity = ("q", "qdot") if baseline else ("q_meas", "qdot_hat")
-        self.inputs = (self.position, self.velocity, "q_d", "qdot_d", "qddot_d")
+        velocity = params.velocity
+        if velocity == "auto":
+            velocity = "plant" if params.variant == "baseline" else "observer"
+        self.velocity_source = velocity
+        # Full state reads the plant's true q, q̇; output feedback only the sensor (and the
+        # observer, or its own difference quotient).
+        self.position, self.velocity = {"plant": ("q", "qdot"),
+                                        "observer": ("q_meas", "qdot_hat"),
+                                        "finite_difference": ("q_meas", "q_meas")}[velocity]
+        self.inputs = tuple(dict.fromkeys((self.position, self.velocity, "q_d", "qdot_d",
+                                           "qddot_d")))
         self.outputs = {
             "tau": Signal("n", "N·m", "joint torque τ", "controller/tau"),
             "e": Signal("n", "rad", "tracking error e = q_d − q", "controller/e"),
@@ -163,18 +187,26 @@ class NnController(Block):
             "v_c": Signal("n", "N·m", "robust term v (v_c of (27))", "controller/v_c"),
             "W_norm": Signal("1", "-", "output weights ‖Ŵc‖", "controller/W_norm", "‖Ŵc‖"),
             "V_norm": Signal("1", "-", "hidden weights ‖V̂c‖", "controller/V_norm", "‖V̂c‖"),
+            "feedback_gain": Signal("1", "N·m·s/rad", "effective feedback gain on r̂: "
+                                    "‖Kv r̂ − v‖ / ‖r̂‖", "controller/feedback_gain"),
         }
 
     def reset(self, ports: Ports) -> None:
         p, n = self.params, self.context.links
         n_in = 1 + 5 * n
         inp, out = ports.inputs, ports.outputs
+        weights = np.zeros((p.hidden + 1) * n + n_in * p.hidden)
+        if p.init == "random":  # Lewis: V̂(0) small and random, so hidden units differ
+            rng = np.random.default_rng(p.seed)
+            weights[(p.hidden + 1) * n:] = rng.uniform(-p.init_scale, p.init_scale,
+                                                       n_in * p.hidden)
         self.args = ControllerArgs(
-            self.context.dt, p.variant == "proposed", p.f, p.g, p.kappa, p.kz,
+            self.context.dt, p.variant == "proposed", self.velocity_source == "finite_difference",
+            p.f, p.g, p.kappa, p.kz,
             p.z_b if p.variant == "baseline" else p.z_wc, p.c0, p.c1, p.delta, p.psi_b,
             p.hidden, np.broadcast_to(np.asarray(p.lam, float), (n,)).copy(),
             np.broadcast_to(np.asarray(p.kv, float), (n,)).copy(),
-            np.zeros((p.hidden + 1) * n + n_in * p.hidden),  # weights start at zero
+            weights,
             inp[self.position], inp[self.velocity], inp["q_d"], inp["qdot_d"], inp["qddot_d"],
             out["tau"], out["e"], out["edot"], out["r_hat"], out["nn_output"], out["v_c"],
-            out["W_norm"], out["V_norm"])
+            out["W_norm"], out["V_norm"], out["feedback_gain"])

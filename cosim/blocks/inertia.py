@@ -79,6 +79,42 @@ def planar_mass_matrix(q, m, l, lc, inertia, out):  # noqa: E741
             out[j, i] = total
 
 
+@njit(cache=True)
+def planar_bias(q, qdot, m, l, lc, inertia, gravity, out):  # noqa: E741
+    """b(q, q̇) = C(q, q̇) q̇ + G(q) of the same chain into ``out`` (n,): recursive
+    Newton–Euler with q̈ = 0 and the base accelerating upwards at ``gravity`` (m/s²), link 1
+    from the horizontal, gravity along −y."""
+    n = q.shape[0]
+    theta = 0.0
+    omega = 0.0
+    ax, ay = 0.0, gravity  # acceleration of joint i's origin
+    cx = np.empty(n)  # link i's centre-of-mass offset from its joint, and link vector
+    cy = np.empty(n)
+    lx = np.empty(n)
+    ly = np.empty(n)
+    fx = np.empty(n)  # m_i a_ci, the force link i's own motion needs
+    fy = np.empty(n)
+    for i in range(n):
+        theta += q[i]
+        omega += qdot[i]
+        c, s = np.cos(theta), np.sin(theta)
+        cx[i], cy[i] = lc[i] * c, lc[i] * s
+        lx[i], ly[i] = l[i] * c, l[i] * s
+        w2 = omega * omega  # no angular acceleration: q̈ = 0
+        fx[i] = m[i] * (ax - w2 * cx[i])
+        fy[i] = m[i] * (ay - w2 * cy[i])
+        ax -= w2 * lx[i]
+        ay -= w2 * ly[i]
+    force_x, force_y, moment = 0.0, 0.0, 0.0  # what link i+1 exerts, about joint i+1
+    for i in range(n - 1, -1, -1):
+        # moment about joint i: the next link's moment, its force at the link's end, and
+        # this link's own inertial force at its centre of mass (I α = 0)
+        moment += lx[i] * force_y - ly[i] * force_x + cx[i] * fy[i] - cy[i] * fx[i]
+        force_x += fx[i]
+        force_y += fy[i]
+        out[i] = moment
+
+
 class NominalArgs(NamedTuple):
     q_meas: np.ndarray
     m: np.ndarray  # kg
@@ -105,6 +141,7 @@ class InertiaModel(Block):
 
     kind = "inertia_model"
     Params = InertiaModelParams
+    per_joint = ("m", "l", "lc", "I")
 
     def __init__(self, params: InertiaModelParams, context: BlockContext):
         super().__init__(params, context)

@@ -157,6 +157,7 @@ def observer_step(k, a):
 class FlnnObserver(Block):
     kind = "observer"
     Params = ObserverParams
+    per_joint = ("tau_d", "initial_velocity")
     kernel = observer_step
 
     def __init__(self, params: ObserverParams, context: BlockContext):

@@ -67,6 +67,8 @@ class Safety(Section):
     z_wo_tilde: PositiveFloat = 20.0  # bounds of (17)-(18) used in H1, H2
     z_wc_tilde: PositiveFloat = 50.0
     z_vc_tilde: PositiveFloat = 50.0
+    # α of the barrier condition Ḣ + α·H ≥ 0 (class-K, linear), 1/s
+    barrier_alpha: PositiveFloat = 1.0
 
 
 class Run(Section):
@@ -229,6 +231,40 @@ def apply_override(data: dict, assignment: str) -> dict:
     return out
 
 
+def _read_toml(path: Path, chain: tuple[Path, ...] = ()) -> dict:
+    """A pipeline file's tables, with ``extends = "other.toml"`` (relative to it) resolved:
+    the other file's tables first, this file's merged over them key by key (runs by name)."""
+    if not path.is_file():
+        where = f" (extended by {chain[-1]})" if chain else ""
+        raise PipelineError(f"{path}: no such pipeline file{where}")
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise PipelineError(f"{path}: not valid TOML: {exc}") from None
+    except UnicodeDecodeError as exc:
+        raise PipelineError(f"{path}: not a UTF-8 text file ({exc.reason} at byte "
+                            f"{exc.start})") from None
+    parent = data.pop("extends", None)
+    if parent is None:
+        return data
+    if not isinstance(parent, str):
+        raise PipelineError(f"{path}: key 'extends' must be a file name (got {parent!r})")
+    parent_path = (path.parent / parent).resolve()
+    if parent_path in chain or parent_path == path.resolve():
+        raise PipelineError(f"{path}: 'extends' makes a cycle through {parent_path.name}")
+    return _merge(_read_toml(parent_path, (*chain, path.resolve())), data)
+
+
+def _merge(base: dict, over: dict) -> dict:
+    out = dict(base)
+    for key, value in over.items():
+        if isinstance(value, dict) and isinstance(out.get(key), dict):
+            out[key] = _merge(out[key], value)
+        else:
+            out[key] = value
+    return out
+
+
 def load_pipeline(path: str | Path | None, overrides: list[str] | None = None) -> Pipeline:
     """Read, override (``--set`` style) and validate a pipeline file; ``None``: the defaults
     (the paper's scenario) with the overrides."""
@@ -237,12 +273,7 @@ def load_pipeline(path: str | Path | None, overrides: list[str] | None = None) -
         source, base = "--set", Path.cwd()  # plant.fmu relative to where the user is
     else:
         path = Path(path)
-        if not path.is_file():
-            raise PipelineError(f"{path}: no such pipeline file")
-        try:
-            data = tomllib.loads(path.read_text())
-        except tomllib.TOMLDecodeError as exc:
-            raise PipelineError(f"{path}: not valid TOML: {exc}") from None
+        data = _read_toml(path)
         source, base = str(path), path.parent
     for assignment in overrides or []:
         data = apply_override(data, assignment)

@@ -76,9 +76,10 @@ def simulate(plant, plan, trace: Trace, progress: Callable[[int], None] | None =
 
 
 def _stepper(block) -> Callable[[int], bool]:
-    """``block.step``, or for a kernel block its compiled overload called directly: numba's
-    type dispatch on a NamedTuple of arrays costs more than the kernel itself."""
-    if block.kernel is None or type(block).step is not Block.step:
+    """A kernel block's compiled overload, called directly (numba's type dispatch on a
+    NamedTuple of arrays costs more than the kernel itself); else ``block.step``. A block's
+    kernel, when it has one, is its step."""
+    if block.kernel is None:
         return block.step
     signature = (types.int64, typeof(block.args))
     block.kernel.compile(signature)

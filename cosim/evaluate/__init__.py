@@ -17,6 +17,7 @@ from .safety import (
     Check,
     Gains,
     SafeSet,
+    barrier_condition,
     barriers,
     check_references,
     check_signals,
@@ -33,9 +34,12 @@ __all__ = ["BARRIERS", "EVALUATION_INPUTS", "Check", "Evaluation", "Evaluator", 
 
 def gains(run, links: int) -> Gains:
     """The gains the barriers need, from a run's tables (``pipeline.runs[name]``)."""
-    lam = np.broadcast_to(np.asarray(run.controller.lam, float), (links,)).copy()
-    return Gains(lam, run.controller.f, run.controller.g, run.observer.fo,
-                 run.controller.variant == "proposed")
+    controller = run.controller
+    lam = np.broadcast_to(np.asarray(controller.lam, float), (links,)).copy()
+    velocity = controller.velocity
+    if velocity == "auto":
+        velocity = "observer" if controller.variant == "proposed" else "plant"
+    return Gains(lam, controller.f, controller.g, run.observer.fo, velocity == "observer")
 
 
 @dataclass
@@ -68,7 +72,7 @@ class Evaluator:
     def __post_init__(self) -> None:
         self.r_bound = theorem1(self.trace, self.safe, self.gains.Lambda)["R"]
         rows = self.trace.steps + 1
-        self.barrier_values = {name: np.full(rows, np.nan) for name in BARRIERS}
+        self.barrier_values = {name: np.full(rows, np.nan) for name in (*BARRIERS, "condition")}
 
     def update(self, upto: int) -> tuple[int, dict[str, np.ndarray], dict[str, np.ndarray]]:
         """Evaluate rows [previous ``upto``, ``upto``). Returns (first row, check values,
@@ -83,6 +87,9 @@ class Evaluator:
         for name, check in checks.items():
             self.values[name][start:upto] = check.value
         h = barriers(rows, self.safe, self.gains, self.r_bound)
+        previous = self.barrier_values["H"][start - 1] if start else np.nan
+        h["condition"] = barrier_condition(h["H"], previous, self.trace.dt,
+                                           self.safe.barrier_alpha)
         for name, value in h.items():
             self.barrier_values[name][start:upto] = value
         self.upto = upto

@@ -38,6 +38,7 @@ class SafeSet:
     Z_Wo_tilde: float = 20.0  # bounds of (17)-(18) used in H1, H2
     Z_Wc_tilde: float = 50.0
     Z_Vc_tilde: float = 50.0
+    barrier_alpha: float = 1.0  # α of Ḣ + α·H ≥ 0, 1/s
 
 
 @dataclass
@@ -171,6 +172,21 @@ def torque_reversals(tau: np.ndarray, dt: float, fraction: float = 0.01) -> np.n
     return flips.sum(axis=0) / (len(tau) * dt)
 
 
+def excursions(check: Check, dt: float) -> dict[str, float | None]:
+    """When the check is first violated (s; None if never) and for how long in all (s)."""
+    outside = (check.value > check.upper) | (check.value < check.lower)
+    first = np.flatnonzero(outside)
+    return {"first_violation_s": float(first[0] * dt) if len(first) else None,
+            "time_outside_s": float(np.count_nonzero(outside) * dt)}
+
+
+def barrier_condition(h: np.ndarray, previous: float, dt: float, alpha: float) -> np.ndarray:
+    """Ḣ + α·H per row, Ḣ the backward difference (H_k − H_k−1)/h; ``previous`` is the row
+    before the first (NaN at the start of a run: that row has no condition)."""
+    before = np.concatenate(([previous], h[:-1]))
+    return (h - before) / dt + alpha * h
+
+
 def summarise(trace: Trace, checks: Mapping[str, Check], h: Mapping[str, np.ndarray],
               safe: SafeSet, gains: Gains) -> tuple[dict, dict]:
     """(metrics, safety) for summary.json, from the completed rows of the trace and their
@@ -185,7 +201,7 @@ def summarise(trace: Trace, checks: Mapping[str, Check], h: Mapping[str, np.ndar
             continue
         worst = float(np.max(check.magnitude)) if len(check.value) else float("nan")
         entry = {"bound": float(check.upper), "worst": worst,
-                 "satisfied": bool(worst <= check.upper)}
+                 "satisfied": bool(worst <= check.upper), **excursions(check, trace.dt)}
         if check.reference is not None and len(check.reference):
             entry["reference_worst"] = float(np.max(np.abs(check.reference)))
         safety[name] = entry
@@ -213,6 +229,28 @@ def summarise(trace: Trace, checks: Mapping[str, Check], h: Mapping[str, np.ndar
         "min_barrier_H": lowest(h["H"]),
         "min_barrier_H1": lowest(h["H1"]),
         "min_barrier_H2": lowest(h["H2"]),
+        "barrier_condition": _condition_summary(h["condition"], safe.barrier_alpha),
+        "feedback_gain": _gain_summary(trace),
         "theorem1": theorem1(trace, safe, gains.Lambda),
     }
     return metrics, safety
+
+
+def _condition_summary(condition: np.ndarray, alpha: float) -> dict:
+    """The barrier condition Ḣ + α·H ≥ 0 over the rows that have one."""
+    valid = condition[np.isfinite(condition)]
+    return {"alpha": alpha, "worst": float(np.min(valid)) if len(valid) else None,
+            "fraction_failing": float(np.mean(valid < 0)) if len(valid) else None}
+
+
+def _gain_summary(trace: Trace) -> dict | None:
+    """The controller's effective feedback gain on r̂, ‖τ_feedback‖/‖r̂‖ (N·m·s/rad), over
+    the rows where ‖r̂‖ is not negligible: how much of a result is gain."""
+    if "feedback_gain" not in trace:
+        return None
+    r = np.linalg.norm(trace["r_hat"], axis=1)
+    gain = trace["feedback_gain"][r > 1e-6 * max(float(np.max(r, initial=0.0)), 1e-300)]
+    if not len(gain):
+        return None
+    return {"median": float(np.median(gain)), "p95": float(np.percentile(gain, 95)),
+            "max": float(np.max(gain))}

@@ -36,9 +36,11 @@ def _shade(ax, lower: float, upper: float) -> None:
 
 def write_figures(out: Path, time: Mapping[str, np.ndarray],
                   checks: Mapping[str, Mapping[str, Check]],
-                  torques: Mapping[str, np.ndarray]) -> list[Path]:
-    """Write the figures into ``out``; ``time``, ``checks`` (from safety.check_signals) and
-    ``torques`` are per run name. Returns the files written."""
+                  torques: Mapping[str, np.ndarray],
+                  barriers: Mapping[str, Mapping[str, np.ndarray]] | None = None) -> list[Path]:
+    """Write the figures into ``out``; ``time``, ``checks`` (from safety.check_signals),
+    ``torques`` and ``barriers`` (H1, H2, H, condition) are per run name. Returns the files
+    written."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -79,4 +81,36 @@ def write_figures(out: Path, time: Mapping[str, np.ndarray],
     fig.savefig(out / "fig4_torques.png", dpi=110)
     plt.close(fig)
     written.append(out / "fig4_torques.png")
+    if barriers:
+        written.append(_barrier_figure(plt, out, time, barriers))
     return written
+
+
+def _barrier_figure(plt, out: Path, time, barriers) -> Path:
+    """Per run: H1 (28), H2 (29) and H, and the barrier condition Ḣ + αH (must stay ≥ 0),
+    on symmetric-log axes (H1 is ~10⁴ where H2 is ~10²)."""
+    runs = list(barriers)
+    fig, axes = plt.subplots(len(runs), 2, figsize=(12, 2.6 * len(runs)), sharex=True,
+                             constrained_layout=True, squeeze=False)
+    for (left, right), run in zip(axes, runs, strict=True):
+        h = barriers[run]
+        for i, name in enumerate(("H1", "H2", "H")):
+            left.plot(time[run], h[name], lw=0.8, label=name,
+                      color=RUN_COLORS[(i + 1) % len(RUN_COLORS)])
+        left.set_yscale("symlog", linthresh=10.0)
+        left.axhline(0.0, color="darkred", lw=0.8, ls="--")
+        left.set_title(f"{run}: barriers (H ≥ 0 inside)")
+        left.legend(loc="upper right", fontsize=8)
+        condition = h["condition"]
+        right.plot(time[run], condition, lw=0.6, color="tab:purple")
+        right.fill_between(time[run], np.minimum(condition, 0.0), 0.0, color="tab:red",
+                           alpha=0.3, lw=0)
+        right.set_yscale("symlog", linthresh=10.0)
+        right.axhline(0.0, color="darkred", lw=0.8, ls="--")
+        failing = np.mean(condition[np.isfinite(condition)] < 0)
+        right.set_title(f"{run}: Ḣ + αH ≥ 0 fails in {100 * failing:.1f} % of steps")
+    for ax in axes[-1]:
+        ax.set_xlabel("time (s)")
+    fig.savefig(out / "fig5_barriers.png", dpi=110)
+    plt.close(fig)
+    return out / "fig5_barriers.png"

@@ -40,6 +40,12 @@ def write_summary(out: Path, pipeline, results: dict, plant_info: dict) -> None:
     tmp.replace(out / "summary.json")
 
 
-def write_trace(out: Path, name: str, trace) -> None:
-    """trace_<name>.npz: the time column and every signal of the completed rows."""
-    np.savez_compressed(out / f"trace_{name}.npz", time=trace.time, **trace.arrays)
+def write_trace(out: Path, name: str, trace, evaluation=None) -> None:
+    """trace_<name>.npz: the time column and every signal of the completed rows, and their
+    evaluation: ``check_<name>`` (each safety check's value) and ``barrier_<name>`` (H1, H2,
+    H and the condition Ḣ + αH)."""
+    extra = {}
+    if evaluation is not None:
+        extra.update({f"check_{n}": c.value for n, c in evaluation.checks.items()})
+        extra.update({f"barrier_{n}": v for n, v in evaluation.barriers.items()})
+    np.savez_compressed(out / f"trace_{name}.npz", time=trace.time, **trace.arrays, **extra)

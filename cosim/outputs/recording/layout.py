@@ -7,6 +7,8 @@ Layout (one subtree per run; one timeline, ``sim_time``, in seconds; SI units, r
     /<run>/observer/{q_err, qdot_err}           true minus estimate (x̃1, x̃2)
     /<run>/safety/<check>/{value, upper, lower, violation}
     /<run>/barrier/{H1, H2, H}
+    /<run>/barrier_condition                     Ḣ + α·H where it fails (< 0): first row
+                                                of each stretch, then every 10 ms
     /<run>/arm/{links, joints, desired}         the arm, drawn at 50 Hz
 
 Multi-joint signals are one entity with series ``<label>1``, ``<label>2``, … in the same
@@ -99,6 +101,8 @@ def blueprint(run_names: list[str]):
                                         name=f"{run}: torque τ (N·m)"))
         views.append(rrb.Horizontal(
             rrb.TimeSeriesView(origin=f"/{run}/barrier", name=f"{run}: barriers H1, H2, H"),
+            rrb.TimeSeriesView(origin=f"/{run}/barrier_condition",
+                               name=f"{run}: barrier condition Ḣ + αH ≥ 0"),
             rrb.TimeSeriesView(origin=f"/{run}/observer/qdot_err",
                                name=f"{run}: observer error q̇ − x̂2 (rad/s)"),
             rrb.Spatial2DView(origin=f"/{run}/arm", name=f"{run}: arm (m)"),

@@ -37,8 +37,14 @@ from .layout import (
 
 @dataclass
 class _Writer:
+    """``batch_s``: seconds of rows gathered into one chunk per entity (each chunk carries
+    ~1 KB of schema: 5 s instead of 1 s saves ~1.7 MB on the paper's recording); 0 when a
+    viewer watches live, so that it follows every second."""
+
     rec: object
+    batch_s: float = 5.0
     runs: dict[str, RunSpec] = field(default_factory=dict)
+    pending: dict[str, list] = field(default_factory=dict)
 
     def begin(self, spec: RunSpec) -> None:
         """Static styles: series names and joint colours, the checks' bounds, the arm."""
@@ -56,6 +62,9 @@ class _Writer:
         for i, name in enumerate(BARRIERS):
             self.rec.log(f"{root}/barrier/{name}", rr.SeriesLines(
                 names=[name], colors=[JOINT_COLORS[i]]), static=True)
+        self.rec.log(f"{root}/barrier_condition", rr.SeriesPoints(
+            names=["Ḣ + αH < 0"], colors=[VIOLATION_COLOR], markers=["cross"],
+            marker_sizes=[3.0]), static=True)
         ends = rr.TimeColumn("sim_time", duration=[0.0, spec.duration])
         for name, (lower, upper) in spec.bounds.items():
             base = f"{root}/safety/{name}"
@@ -81,6 +90,25 @@ class _Writer:
 
     def rows(self, run: str, start: int, rows: dict[str, np.ndarray],
              checks: dict[str, np.ndarray], barrier_values: dict[str, np.ndarray]) -> None:
+        """Gather a chunk of rows; write once ``batch_s`` seconds of them are here."""
+        pending = self.pending.setdefault(run, [])
+        pending.append((start, rows, checks, barrier_values))
+        if sum(len(p[1]["q"]) for p in pending) * self.runs[run].dt >= self.batch_s:
+            self.flush(run)
+
+    def flush(self, run: str | None = None) -> None:
+        """Write what is gathered (of ``run``, or of every run)."""
+        for name in [run] if run is not None else list(self.pending):
+            pending = self.pending.pop(name, [])
+            if not pending:
+                continue
+            start = pending[0][0]
+            joined = [{key: np.concatenate([p[i][key] for p in pending]) for key in pending[0][i]}
+                      for i in (1, 2, 3)]
+            self._write(name, start, *joined)
+
+    def _write(self, run: str, start: int, rows: dict[str, np.ndarray],
+               checks: dict[str, np.ndarray], barrier_values: dict[str, np.ndarray]) -> None:
         import rerun as rr
 
         spec = self.runs[run]
@@ -92,13 +120,21 @@ class _Writer:
         columns += [(entity, rows[true] - rows[estimate])
                     for entity, (true, estimate, _) in DERIVED_ENTITIES.items()]
         columns += [(f"safety/{name}/value", value) for name, value in checks.items()]
-        columns += [(f"barrier/{name}", value) for name, value in barrier_values.items()]
+        columns += [(f"barrier/{name}", value) for name, value in barrier_values.items()
+                    if name != "condition"]
         for entity, values in columns:
             self.rec.send_columns(f"{root}/{entity}", indexes=index,
                                   columns=rr.Scalars.columns(scalars=values))
         stride = max(1, int(round(1.0 / (VIOLATION_RATE_HZ * spec.dt))))
         for name, where, values in violations(checks, spec.bounds, start, stride):
             self.rec.send_columns(f"{root}/safety/{name}/violation",
+                                  indexes=[rr.TimeColumn("sim_time", duration=times[where])],
+                                  columns=rr.Scalars.columns(scalars=values))
+        # The barrier condition where it fails, like a violation (dense in the trace file).
+        failing = {"condition": barrier_values["condition"]}
+        for _, where, values in violations(failing, {"condition": (0.0, np.inf)}, start,
+                                           stride):
+            self.rec.send_columns(f"{root}/barrier_condition",
                                   indexes=[rr.TimeColumn("sim_time", duration=times[where])],
                                   columns=rr.Scalars.columns(scalars=values))
         self._arm(spec, start, rows, times)
@@ -143,11 +179,13 @@ def _writer_main(inbox: Connection, outbox: Connection) -> None:
         rec.set_sinks(*sinks, default_blueprint=blueprint(header["runs"]))
         rec.send_recording_name(header["name"])
         outbox.send(("ready", ""))
-        writer = _Writer(rec)
+        writer = _Writer(rec, batch_s=0.0 if live.get("spawn") or live.get("connect")
+                         else 5.0)
         while True:
             try:
                 message = inbox.recv()
             except EOFError:
+                writer.flush()
                 break
             kind = message[0]
             if kind == "properties":
@@ -159,11 +197,13 @@ def _writer_main(inbox: Connection, outbox: Connection) -> None:
                 writer.rows(*message[1:])
             elif kind == "end":
                 _, run, summary = message
+                writer.flush(run)
                 rec.send_property(f"run_{run}", rr.AnyValues(
                     complete=summary["complete"], error=summary.get("error"),
                     metrics=json.dumps(summary["metrics"], default=_json_default),
                     safety=json.dumps(summary["safety"], default=_json_default)))
             elif kind == "close":
+                writer.flush()
                 status = message[1]
                 if not status["complete"]:
                     rec.send_recording_name(header["name"] + " (incomplete)")

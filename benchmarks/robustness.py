@@ -1,0 +1,78 @@
+"""Which of the paper's joint-1 sets every controller keeps, under each robustness condition
+of pipelines/robustness.toml: the README's table.
+
+    .venv/bin/python benchmarks/robustness.py [--duration 20]
+
+Cells list the sets left (P position, V velocity, E error, Ė error rate; "all kept" when
+none), and the peak torque (N·m). SI units, radians.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+
+from cosim.config import PipelineError, load_pipeline
+from cosim.engine import Diverged
+from cosim.runner import run
+
+PIPELINE = Path(__file__).resolve().parent.parent / "pipelines" / "robustness.toml"
+CONDITIONS = {
+    "nominal (no noise)": ["sensor.noise_std=0"],
+    "noise 1e-4 rad": [],
+    "noise 1e-3 rad": ["sensor.noise_std=1e-3"],
+    "quantisation 1e-3 rad": ["sensor.noise_std=0", "sensor.resolution=1e-3"],
+    "payload 0.5 kg, nominal M̂": ['plant.parameters."m[2]"=2.8',
+                                  'inertia_model.source="nominal"'],
+    "q̇1(0) = 5 ≠ q̇_d1(0) = 10 rad/s": ['plant.parameters."qdot0[1]"=5.0'],
+    "observer from zero velocity": ['observer.initial_velocity="zero"'],
+}
+SETS = {"position_joint1": "P", "velocity_true_joint1": "V", "error_joint1": "E",
+        "error_rate_joint1": "Ė"}
+
+
+def cell(result) -> str:
+    if not result.complete:
+        return f"diverged at {result.metrics['simulated_time_s']:.2f} s"
+    left = [short for check, short in SETS.items() if not result.safety[check]["satisfied"]]
+    chatter = max(result.metrics["torque_reversals_per_s"])
+    peak = max(result.metrics["peak_torque"])
+    text = "all kept" if not left else "left: " + " ".join(left)
+    return f"{text} ({peak:.0f} N·m{f', {chatter:.0f} rev/s' if chatter >= 2 else ''})"
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--duration", type=float, default=20.0, help="simulated seconds")
+    args = parser.parse_args()
+    header = None
+    for condition, sets in CONDITIONS.items():
+        began = time.perf_counter()
+        try:
+            pipeline = load_pipeline(PIPELINE, [*sets, f"simulation.duration={args.duration}"])
+        except PipelineError as exc:
+            print(f"robustness: {exc}", file=sys.stderr)
+            return 2
+        results = {}
+        for name in list(pipeline.runs):  # one at a time: a diverging run does not stop others
+            single = pipeline.model_copy()
+            single.runs = {name: pipeline.runs[name]}
+            try:
+                results[name] = run(single, None, progress=False)[name]
+            except Diverged as exc:
+                results[name] = exc
+        if header is None:
+            header = list(results)
+            print("| condition | " + " | ".join(header) + " |")
+            print("|---" * (len(header) + 1) + "|")
+        cells = [cell(r) if not isinstance(r, Diverged) else f"stopped: {r}"
+                 for r in results.values()]
+        print(f"| {condition} | " + " | ".join(cells) + " |", flush=True)
+        print(f"  ({time.perf_counter() - began:.1f} s)", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
