@@ -27,7 +27,7 @@ $(VENV)/.installed: pyproject.toml
 	touch $@
 
 demo: venv
-	$(BIN)/cosim run pipelines/paper_two_link.toml --out runs/paper
+	$(BIN)/cosim run pipelines/paper_two_link.toml --out runs/paper --force
 
 test: venv render-deps
 	$(BIN)/ruff check .

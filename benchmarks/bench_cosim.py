@@ -74,7 +74,8 @@ def paper_run(record: bool, out: Path) -> tuple[float, float, float]:
     """(sum of the runs' loop wall times, wall time of the whole call, time the loops spent
     handing rows to the recording writer), in seconds."""
     start = time.perf_counter()
-    results = run(load_pipeline(PIPELINE), out, progress=False, record=record, figures=False)
+    results = run(load_pipeline(PIPELINE), out, progress=False, record=record, figures=False,
+                  force=True)
     total = time.perf_counter() - start
     return (sum(r.metrics["wall_time_s"] for r in results.values()), total,
             sum(r.metrics.get("recording_handoff_s", 0.0) for r in results.values()))

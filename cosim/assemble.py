@@ -109,17 +109,56 @@ def open_plant(pipeline: Pipeline) -> Fmu:
 
 def assemble(pipeline: Pipeline) -> Scenario:
     """Open and start the plant (refusing bad parameters), then assemble and check every
-    run. Nothing is written; the caller closes the scenario."""
+    run, and that their traces fit in memory. Nothing is written; the caller closes the
+    scenario."""
     plant = open_plant(pipeline)
     try:
         plant.start(0.0)
         scenario = Scenario(pipeline, plant)
         for name in pipeline.runs:
             scenario.runs[name] = assemble_run(pipeline, name, plant)
+        check_memory(scenario)
         return scenario
     except (PipelineError, FmuError) as exc:
         plant.close()
         raise PipelineError(str(exc)) from None
+
+
+def trace_bytes(plan: RunPlan, steps: int) -> int:
+    """What one run's trace takes: every declared signal, 8 bytes a value, steps + 1 rows."""
+    return sum(s.width(plan.links) for s in plan.signals.values()) * 8 * (steps + 1)
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available now (Linux: MemAvailable), or None if unknown."""
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    return None
+
+
+def check_memory(scenario: Scenario, share: float = 0.8) -> None:
+    """Every run's trace is kept until the end (summary, figures): refuse before allocating
+    when together they would need more than ``share`` of the memory available."""
+    steps = scenario.steps
+    needed = sum(trace_bytes(plan, steps) for plan in scenario.runs.values())
+    available = available_memory()
+    if available is not None and needed > share * available:
+        sim = scenario.pipeline.simulation
+        raise PipelineError(
+            f"the traces would need {needed / 1e9:.3g} GB ({len(scenario.runs)} run(s) × "
+            f"{steps + 1:,} rows of {simulation_width(scenario)} values × 8 B) but "
+            f"{available / 1e9:.3g} GB of memory is available (at most {share:.0%} is used); "
+            f"shorten simulation.duration ({sim.duration:g} s) or lengthen simulation.step "
+            f"({sim.step:g} s)")
+
+
+def simulation_width(scenario: Scenario) -> int:
+    plan = next(iter(scenario.runs.values()))
+    return sum(s.width(plan.links) for s in plan.signals.values())
 
 
 def plant_outputs(plant) -> frozenset[str]:

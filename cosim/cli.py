@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import os
+import signal
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -17,34 +19,78 @@ class UserError(Exception):
 
 
 def _build_fmu(args: argparse.Namespace) -> None:
-    path = build_fmu(links=args.links, fmi_version=args.fmi_version, output=args.output)
+    output = args.output
+    if output is not None and output.is_dir():  # a folder: the FMU goes into it
+        output = output / f"PlanarArm{args.links}_fmi{args.fmi_version}.fmu"
+    try:
+        path = build_fmu(links=args.links, fmi_version=args.fmi_version, output=output)
+    except OSError as exc:
+        raise UserError(f"--output {args.output}: cannot write the FMU there: "
+                        f"{exc.strerror or exc}") from None
     print(path)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM, handled like Ctrl-C: what was computed is kept and summarised."""
+
+
+def _on_sigterm(signum, frame) -> None:
+    raise Terminated("terminated (SIGTERM)")
+
+
+def _check_viewer(spawn: bool, connect: str | None) -> None:
+    """Before anything runs: a display for --spawn, a reachable viewer for --connect."""
+    if spawn:
+        from .outputs.viewer import has_display
+
+        if not has_display():
+            raise UserError("--spawn needs a display (DISPLAY and WAYLAND_DISPLAY are unset): "
+                            "run without it and open the recording with `cosim view` where "
+                            "there is one, or stream to a viewer with --connect URL; nothing "
+                            "was run")
+    if connect:
+        from .outputs.viewer import check_reachable
+
+        problem = check_reachable(connect)
+        if problem:
+            raise UserError(f"--connect {connect}: {problem}; nothing was run")
 
 
 def _run(args: argparse.Namespace) -> None:
     from .config import load_pipeline
     from .engine import Diverged
     from .outputs.recording import RecordingError
+    from .outputs.run_folder import RunFolderError
     from .runner import run
 
     pipeline = load_pipeline(args.pipeline, args.set)
     out = args.out or Path("runs") / pipeline.name
+    if args.dry_run:
+        from .plan import describe_plan
+
+        print(describe_plan(pipeline, out, record=not args.no_recording))
+        return
+    _check_viewer(args.spawn, args.connect)
     print(f"running {pipeline.name}: {', '.join(pipeline.runs)} "
           f"({pipeline.simulation.duration:g} s at {1 / pipeline.simulation.step:g} Hz) -> {out}",
           file=sys.stderr)
+    previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    kept = f"what was computed is kept in {out}; summary.json says what is incomplete"
     try:
         results = run(pipeline, out, record=not args.no_recording, spawn=args.spawn,
-                      connect=args.connect, figures=not args.no_figures)
+                      connect=args.connect, figures=not args.no_figures, force=args.force)
     except Diverged as exc:
-        raise UserError(f"{exc}; what was computed is kept in {out} (marked incomplete)") \
-            from None
-    except KeyboardInterrupt:
-        raise UserError(f"interrupted; what was computed is kept in {out} "
-                        "(marked incomplete)") from None
-    except RecordingError as exc:
-        kept = (f"summary.json and the traces in {out} are complete"
-                if (out / "summary.json").exists() else "nothing was run")
         raise UserError(f"{exc}; {kept}") from None
+    except KeyboardInterrupt as exc:
+        raise UserError(f"{exc or 'interrupted (Ctrl-C)'}; {kept}") from None
+    except RecordingError as exc:
+        raise UserError(f"{exc}; {kept}") from None
+    except RunFolderError as exc:
+        where = (f"; {kept}" if (Path(out) / "summary.json").exists()
+                 and "--out" not in str(exc) else "")
+        raise UserError(f"{exc}{where}") from None
+    finally:
+        signal.signal(signal.SIGTERM, previous)
     _print_summary(results)
     print(f"run folder: {out}")
     if not args.no_recording:
@@ -56,6 +102,10 @@ def _view(args: argparse.Namespace) -> None:
 
     try:
         if args.screenshot:
+            folder = args.screenshot.resolve().parent
+            if not folder.is_dir() or not os.access(folder, os.W_OK):
+                raise UserError(f"--screenshot {args.screenshot}: cannot write there "
+                                f"({folder} is not a writable folder)")
             print(screenshot(recording_path(args.run_dir), args.screenshot))
             return
         status = view(args.run_dir)
@@ -187,7 +237,12 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--no-recording", action="store_true",
                    help="do not write recording.rrd (summary, traces and figures only)")
     p.add_argument("--no-figures", action="store_true",
-                   help="do not write the PNG figures (Figs. 2-4 of the paper)")
+                   help="do not write the PNG figures (Figs. 2-5)")
+    p.add_argument("--force", action="store_true",
+                   help="replace what --out holds (an existing run folder is refused without)")
+    p.add_argument("--dry-run", action="store_true",
+                   help="check everything (pipeline, plant FMU, wiring, sizes), build the FMU, "
+                   "print the resolved plan and the memory and disk it needs; run nothing")
     p.set_defaults(func=_run)
 
     p = sub.add_parser("view", help="open a run folder's recording in the Rerun viewer",

@@ -16,10 +16,10 @@ from .assemble import RunPlan, Scenario, assemble, link_lengths
 from .config import Pipeline, PipelineError
 from .engine import Diverged, simulate
 from .evaluate import Evaluation
-from .outputs.figures import write_figures
+from .outputs.figures import FIGURE_FILES, write_figures
 from .outputs.recording import Recorder, RunSpec
 from .outputs.recording.layout import DERIVED_ENTITIES
-from .outputs.run_folder import jsonable, write_summary, write_trace
+from .outputs.run_folder import RunFolder, RunFolderError, jsonable
 from .outputs.versions import package_versions
 from .plant.mapping import FmuError
 from .signals import Trace
@@ -67,53 +67,112 @@ def _progress(name: str, total: int):
 
 def run(pipeline: Pipeline, out_dir: str | Path | None = None, progress: bool = True,
         record: bool = True, spawn: bool = False, connect: str | None = None,
-        figures: bool = True, engine: str = "auto") -> dict[str, RunResult]:
+        figures: bool = True, engine: str = "auto", force: bool = False
+        ) -> dict[str, RunResult]:
     """Run every run of ``pipeline``; write the run folder if ``out_dir`` is given: summary,
     traces, ``recording.rrd`` (unless ``record`` is false) and PNG figures.
 
-    ``spawn`` starts a Rerun viewer that follows the runs live; ``connect`` streams to one
-    already running at that URL. ``engine``: "auto" (the fused compiled loop where every
-    block allows it), "fused" or "python". Raises :class:`Diverged` (or
-    ``KeyboardInterrupt``) after writing what was computed, marked incomplete.
+    A folder that holds files is refused unless ``force`` (which clears it first), and one
+    another run is writing is refused. ``spawn`` starts a Rerun viewer that follows the runs
+    live; ``connect`` streams to one already running at that URL. ``engine``: "auto" (the
+    fused compiled loop where every block allows it), "fused" or "python". Raises
+    :class:`Diverged`, ``KeyboardInterrupt`` or :class:`RunFolderError` after writing what
+    was computed, with summary.json saying what is incomplete.
     """
     scenario = assemble(pipeline)
+    plant_info = scenario.plant.describe()
     results: dict[str, RunResult] = {}
-    out = Path(out_dir) if out_dir else None
-    recorder = None
+    folder = recorder = None
     failure: BaseException | None = None
     try:
-        if out:
-            out.mkdir(parents=True, exist_ok=True)
+        folder = RunFolder.create(out_dir, force) if out_dir else None
         # The writer imports Rerun in its own process while the first run loads its blocks.
-        recorder = _open_recorder(out, pipeline, spawn, connect) if out and record else None
-        plant_info = scenario.plant.describe()
-        if recorder is not None:
+        if folder is not None and record:
+            recorder = _open_recorder(folder.path, pipeline, spawn, connect)
             recorder.set_properties(_properties(pipeline, plant_info))
         for name, plan in scenario.runs.items():
             result = _run_one(plan, scenario, plant_info, recorder, progress, engine)
             results[name] = result
-            if out:
-                write_summary(out, pipeline, results, plant_info)
-                write_trace(out, name, result.trace, result.evaluation)
+            if folder is not None:
+                folder.write_trace(name, result.trace, result.evaluation)
+                folder.write_summary(_summary(pipeline, results, plant_info), final=False)
             if not result.complete:
                 failure = result.failure
                 break
     except FmuError as exc:
-        raise PipelineError(str(exc)) from None
+        failure = PipelineError(str(exc))
+    except BaseException as exc:  # Ctrl-C, SIGTERM, an OS error: still close and summarise
+        failure = exc
     finally:
         scenario.close()
-        complete = failure is None and len(results) == len(pipeline.runs)
-        if recorder is not None:
-            reason = next((r.error for r in results.values() if r.error), "")
-            recorder.close(complete, reason)
-        if out and figures and results:
-            write_figures(out, {n: r.trace.time for n, r in results.items()},
-                          {n: r.evaluation.checks for n, r in results.items()},
-                          {n: r.trace["tau"] for n, r in results.items()},
-                          {n: r.evaluation.barriers for n, r in results.items()})
+    if folder is None:
+        if failure is not None:
+            raise failure
+        return results
+    failure = _finish(folder, pipeline, results, plant_info, recorder, figures, failure)
     if failure is not None:
         raise failure
     return results
+
+
+def _finish(folder: RunFolder, pipeline: Pipeline, results: dict, plant_info: dict,
+            recorder: Recorder | None, figures: bool, failure: BaseException | None
+            ) -> BaseException | None:
+    """The closing phases, each kept even if an earlier one failed or was interrupted:
+    recording, figures, the final summary. Returns what to raise (the first failure)."""
+    complete = failure is None and len(results) == len(pipeline.runs)
+    reason = next((r.error for r in results.values() if r.error), "") or \
+        (_describe(failure) if failure is not None else "")
+    if recorder is not None:
+        try:
+            recorder.close(complete, reason)
+            folder.note("recording.rrd", True)
+        except BaseException as exc:  # noqa: BLE001 (a second Ctrl-C, or the writer failed)
+            folder.note("recording.rrd", False, _describe(exc))
+            failure = failure or exc
+    if figures and results:
+        try:
+            write_figures(folder, {n: r.trace.time for n, r in results.items()},
+                          {n: r.evaluation.checks for n, r in results.items()},
+                          {n: r.trace["tau"] for n, r in results.items()},
+                          {n: r.evaluation.barriers for n, r in results.items()})
+        except BaseException as exc:  # noqa: BLE001
+            for name in FIGURE_FILES:
+                if name not in folder.files:
+                    folder.incomplete(name, _describe(exc))
+            failure = failure or exc
+    summary = _summary(pipeline, results, plant_info)
+    summary["complete"] = summary["complete"] and failure is None
+    if failure is not None and not summary.get("error"):
+        summary["error"] = _describe(failure)
+    try:
+        folder.write_summary(summary, final=True)
+    except RunFolderError as exc:
+        failure = exc if failure is None else RunFolderError(
+            f"{_describe(failure)}; and {exc}")
+    finally:
+        folder.release()
+    return failure
+
+
+def _describe(exc: BaseException) -> str:
+    if isinstance(exc, KeyboardInterrupt):
+        return str(exc) or "interrupted (Ctrl-C)"
+    return str(exc) or type(exc).__name__
+
+
+def _summary(pipeline: Pipeline, results: dict[str, RunResult], plant_info: dict) -> dict:
+    complete = all(r.complete for r in results.values()) and len(results) == len(pipeline.runs)
+    return {
+        "complete": complete,
+        "pipeline": pipeline.model_dump(by_alias=True),
+        "plant": {"path": plant_info["file"], "model_name": plant_info["model_name"],
+                  "fmi_version": plant_info["fmi_version"],
+                  "guid": plant_info["instantiation_token"],
+                  "variables": plant_info["variables"],
+                  "parameters": plant_info["parameters"]},
+        "runs": {name: r.summary() for name, r in results.items()},
+    }
 
 
 def _run_one(plan: RunPlan, scenario: Scenario, plant_info: dict, recorder: Recorder | None,

@@ -12,6 +12,8 @@ SI units, radians.
 from __future__ import annotations
 
 import copy
+import re
+import sys
 import tomllib
 from pathlib import Path
 from typing import Annotated, Any, Literal
@@ -25,6 +27,36 @@ from .schema import FiniteFloat, PipelineError, PositiveFloat, Section
 class Simulation(Section):
     duration: PositiveFloat = 20.0  # s
     step: Annotated[float, Field(gt=0, le=0.1)] = 1e-3  # s, master rate
+
+    @model_validator(mode="after")
+    def _whole_steps(self) -> Simulation:
+        steps = self.duration / self.step
+        if steps < 1.0 - 1e-9:
+            raise ValueError(f"simulation.step = {self.step:g} s is longer than "
+                             f"simulation.duration = {self.duration:g} s: the run would have "
+                             "no step")
+        if abs(steps - round(steps)) > 1e-6 * max(1.0, steps):
+            below, above = int(steps) * self.step, (int(steps) + 1) * self.step
+            raise ValueError(f"simulation.duration = {self.duration:g} s is not a whole number "
+                             f"of steps of {self.step:g} s ({steps:.6g}); use {below:g} or "
+                             f"{above:g} s")
+        return self
+
+    @property
+    def steps(self) -> int:
+        return int(round(self.duration / self.step))
+
+
+# A run's or pipeline's name becomes a file and folder name and a recording entity path.
+SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
+
+
+def check_name(name: str, what: str) -> str:
+    if not SAFE_NAME.fullmatch(name) or ".." in name:
+        raise ValueError(f"{what} {name!r}: use up to 64 letters, digits, '_', '-' and '.', "
+                         "starting with a letter or digit (it names files and recording "
+                         "entities)")
+    return name
 
 
 class BuiltinPlant(Section):
@@ -107,9 +139,15 @@ class Pipeline(Section):
         if not isinstance(data, dict):
             return data
         runs = data.get("runs")
-        if not isinstance(runs, dict) or not runs:
+        if runs is not None and not isinstance(runs, dict):
+            raise ValueError(f"runs must be a table of runs ([runs.NAME] ...), got {runs!r}")
+        if not runs:
             data = {**data, "runs": {"default": {}}}
             runs = data["runs"]
+        for name in runs:
+            check_name(name, "run name")
+        if isinstance(data.get("name"), str):
+            check_name(data["name"], "pipeline name")
         merged = {}
         for name, spec in runs.items():
             if not isinstance(spec, dict):
@@ -154,6 +192,8 @@ def _format(error: dict, root: type[BaseModel]) -> str:
         msg = msg.removeprefix("Value error, ")
     got = error.get("input")
     shown = "" if isinstance(got, dict) else f" (got {got!r})"
+    if error["type"] == "value_error" and (not loc or loc == ["simulation"]):
+        return msg  # a check across keys: the message names them
     return f"key '{key}': {msg}{shown}"
 
 
@@ -225,9 +265,33 @@ def apply_override(data: dict, assignment: str) -> dict:
         if not isinstance(child, dict):
             raise PipelineError(f"--set {assignment!r}: '{key}' is a value, not a table")
         node = child
-    node[keys[-1]] = value
+    old = node.get(keys[-1])
+    if isinstance(value, dict) and isinstance(old, dict):  # a table merges key by key
+        node[keys[-1]] = _merge(old, value)
+    else:
+        node[keys[-1]] = value
     if keys[:-1] == ["plant"] and keys[-1] in PLANT_SOURCES:  # swap the plant, not add one
         node.pop(PLANT_SOURCES[keys[-1]], None)
+    return out
+
+
+def shadowed(data: dict, assignment: str) -> list[str]:
+    """The runs whose own table sets the key a top-level ``--set`` names, so that the
+    override does not reach them: one warning each, naming the run."""
+    path = assignment.split("=", 1)[0].strip()
+    keys = _key_path(path)
+    if len(keys) < 2 or keys[0] not in BLOCKS or not isinstance(data.get("runs"), dict):
+        return []
+    out = []
+    for name, run in data["runs"].items():
+        node = run
+        for key in keys:
+            if not isinstance(node, dict) or key not in node:
+                break
+            node = node[key]
+        else:
+            out.append(f"--set {path} does not reach run '{name}', whose own "
+                       f"{'.'.join(keys)} = {node!r} wins; set runs.{name}.{path} to change it")
     return out
 
 
@@ -277,6 +341,8 @@ def load_pipeline(path: str | Path | None, overrides: list[str] | None = None) -
         source, base = str(path), path.parent
     for assignment in overrides or []:
         data = apply_override(data, assignment)
+        for warning in shadowed(data, assignment):
+            print(f"cosim: warning: {warning}", file=sys.stderr)
     pipeline = validate(data, source)
     if pipeline.plant.fmu is not None:
         fmu = Path(pipeline.plant.fmu).expanduser()

@@ -15,6 +15,8 @@ from .recording.layout import FIGURE_CHECKS, JOINT_COLORS
 
 # Run colours: the paper draws the classical controller in orange, then ours.
 RUN_COLORS = ["tab:orange", "tab:blue", "tab:green", "tab:purple", "tab:brown", "tab:olive"]
+FIGURE_FILES = ("fig2_position_velocity.png", "fig3_errors.png", "fig4_torques.png",
+                "fig5_barriers.png")
 FIGURES = {
     "fig2_position_velocity.png": ("position_joint1", "velocity_estimated_joint1"),
     "fig3_errors.png": ("error_joint1", "error_rate_joint1"),
@@ -34,12 +36,13 @@ def _shade(ax, lower: float, upper: float) -> None:
     ax.set_ylim(low, high)
 
 
-def write_figures(out: Path, time: Mapping[str, np.ndarray],
+def write_figures(out, time: Mapping[str, np.ndarray],
                   checks: Mapping[str, Mapping[str, Check]],
                   torques: Mapping[str, np.ndarray],
-                  barriers: Mapping[str, Mapping[str, np.ndarray]] | None = None) -> list[Path]:
-    """Write the figures into ``out``; ``time``, ``checks`` (from safety.check_signals),
-    ``torques`` and ``barriers`` (H1, H2, H, condition) are per run name. Returns the files
+                  barriers: Mapping[str, Mapping[str, np.ndarray]] | None = None) -> list[str]:
+    """Write the figures into ``out``: a folder, or a :class:`~.run_folder.RunFolder`
+    (which writes each to a temporary, verifies and renames it). ``time``, ``checks``,
+    ``torques`` and ``barriers`` (H1, H2, H, condition) are per run name. Returns the names
     written."""
     import matplotlib
 
@@ -63,9 +66,9 @@ def write_figures(out: Path, time: Mapping[str, np.ndarray],
             ax.set_ylabel(FIGURE_CHECKS[check_name])
             ax.set_title(f"joint 1: {FIGURE_CHECKS[check_name].split(' (')[0]}")
             ax.legend(loc="lower right", fontsize=8)
-        fig.savefig(out / filename, dpi=110)
+        _save(out, filename, fig)
         plt.close(fig)
-        written.append(out / filename)
+        written.append(filename)
 
     fig, axes = plt.subplots(len(runs), 1, figsize=(10, 2.6 * len(runs)), sharex=True,
                              constrained_layout=True, squeeze=False)
@@ -78,15 +81,22 @@ def write_figures(out: Path, time: Mapping[str, np.ndarray],
         ax.set_title(f"{run}: joint torques")
         ax.legend(loc="upper right", fontsize=8)
     axes[-1, 0].set_xlabel("time (s)")
-    fig.savefig(out / "fig4_torques.png", dpi=110)
+    _save(out, "fig4_torques.png", fig)
     plt.close(fig)
-    written.append(out / "fig4_torques.png")
+    written.append("fig4_torques.png")
     if barriers:
         written.append(_barrier_figure(plt, out, time, barriers))
     return written
 
 
-def _barrier_figure(plt, out: Path, time, barriers) -> Path:
+def _save(out, name: str, fig) -> None:
+    if isinstance(out, Path | str):
+        fig.savefig(Path(out) / name, dpi=110, format="png")
+    else:
+        out.write(name, lambda tmp: fig.savefig(tmp, dpi=110, format="png"))
+
+
+def _barrier_figure(plt, out, time, barriers) -> str:
     """Per run: H1 (28), H2 (29) and H, and the barrier condition Ḣ + αH (must stay ≥ 0),
     on symmetric-log axes (H1 is ~10⁴ where H2 is ~10²)."""
     runs = list(barriers)
@@ -111,6 +121,6 @@ def _barrier_figure(plt, out: Path, time, barriers) -> Path:
         right.set_title(f"{run}: Ḣ + αH ≥ 0 fails in {100 * failing:.1f} % of steps")
     for ax in axes[-1]:
         ax.set_xlabel("time (s)")
-    fig.savefig(out / "fig5_barriers.png", dpi=110)
+    _save(out, "fig5_barriers.png", fig)
     plt.close(fig)
-    return out / "fig5_barriers.png"
+    return "fig5_barriers.png"

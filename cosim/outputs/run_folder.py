@@ -1,12 +1,40 @@
-"""The run folder's files: summary.json (every run's metrics and safety checks) and
-trace_<run>.npz (every declared signal, SI units)."""
+"""The run folder: summary.json (every run's metrics and safety checks, the files and how
+they ended), trace_<run>.npz (every declared signal and its evaluation, SI units), and
+whatever the other outputs write into it.
+
+A run folder is never reused silently: one that holds files is refused unless ``force``
+(which clears it first); a lock refuses a second writer; every file is written to a
+temporary and renamed; summary.json is written after each run (marked running) and last
+of all, and says complete only when every run is and every file it lists exists and
+verifies.
+"""
 
 from __future__ import annotations
 
+import fcntl
 import json
+import os
+import shutil
+import socket
+import sys
+import zipfile
+from collections.abc import Callable
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
+
+from .versions import package_versions
+
+LOCK = ".cosim.lock"
+# summary.json is created at once, padded to this size, so that a full disk later still
+# leaves room to say what is incomplete (rewritten in place when a fresh write fails).
+SUMMARY_RESERVE = 256 * 1024
+PNG_MAGIC = b"\x89PNG\r\n\x1a\n"
+
+
+class RunFolderError(RuntimeError):
+    """The run folder cannot be used or written; the message names the path and why."""
 
 
 def jsonable(x):
@@ -22,30 +50,200 @@ def jsonable(x):
     return x
 
 
-def write_summary(out: Path, pipeline, results: dict, plant_info: dict) -> None:
-    """summary.json over the runs so far, written to a temporary file and renamed."""
-    complete = all(r.complete for r in results.values()) and len(results) == len(pipeline.runs)
-    summary = {
-        "complete": complete,
-        "pipeline": pipeline.model_dump(by_alias=True),
-        "plant": {"path": plant_info["file"], "model_name": plant_info["model_name"],
-                  "fmi_version": plant_info["fmi_version"],
-                  "guid": plant_info["instantiation_token"],
-                  "variables": plant_info["variables"],
-                  "parameters": plant_info["parameters"]},
-        "runs": {name: r.summary() for name, r in results.items()},
-    }
-    tmp = out / "summary.json.tmp"
-    tmp.write_text(json.dumps(jsonable(summary), indent=2) + "\n")
-    tmp.replace(out / "summary.json")
+def _verify(path: Path) -> str | None:
+    """None if the file is whole, else why not (a quick structural check)."""
+    if not path.is_file():
+        return "missing"
+    if path.stat().st_size == 0:
+        return "empty"
+    if path.suffix == ".npz":
+        try:
+            with zipfile.ZipFile(path) as archive:
+                bad = archive.testzip()
+        except (zipfile.BadZipFile, OSError) as exc:
+            return f"not a readable npz ({exc})"
+        return f"entry {bad} is damaged" if bad else None
+    if path.suffix == ".png":
+        with path.open("rb") as f:
+            return None if f.read(8) == PNG_MAGIC else "not a PNG"
+    return None
 
 
-def write_trace(out: Path, name: str, trace, evaluation=None) -> None:
-    """trace_<name>.npz: the time column and every signal of the completed rows, and their
-    evaluation: ``check_<name>`` (each safety check's value) and ``barrier_<name>`` (H1, H2,
-    H and the condition Ḣ + αH)."""
-    extra = {}
-    if evaluation is not None:
-        extra.update({f"check_{n}": c.value for n, c in evaluation.checks.items()})
-        extra.update({f"barrier_{n}": v for n, v in evaluation.barriers.items()})
-    np.savez_compressed(out / f"trace_{name}.npz", time=trace.time, **trace.arrays, **extra)
+class RunFolder:
+    """A run folder being written; use :meth:`create`."""
+
+    def __init__(self, path: Path, lock_file):
+        self.path = path
+        self._lock = lock_file
+        self.files: dict[str, dict] = {}
+        self.started = datetime.now(UTC).isoformat(timespec="seconds")
+
+    @classmethod
+    def create(cls, path: str | Path, force: bool = False) -> RunFolder:
+        path = Path(path)
+        try:
+            if path.exists() and not path.is_dir():
+                raise RunFolderError(f"--out {path}: is a file, not a folder; choose another "
+                                     "--out")
+            path.mkdir(parents=True, exist_ok=True)
+            lock_file = (path / LOCK).open("a+")
+        except OSError as exc:
+            raise RunFolderError(f"--out {path}: cannot create the run folder there: "
+                                 f"{exc.strerror or exc}") from None
+        try:
+            fcntl.flock(lock_file, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            lock_file.seek(0)
+            owner = lock_file.read().strip() or "unknown"
+            lock_file.close()
+            raise RunFolderError(f"--out {path}: another cosim run is writing this folder "
+                                 f"(pid {owner}); wait for it, or choose another --out") from None
+        folder = cls(path, lock_file)
+        existing = sorted(p.name for p in path.iterdir() if p.name != LOCK)
+        if existing and not force:
+            folder.release()
+            what = _describe_existing(path)
+            raise RunFolderError(f"--out {path}: already holds {len(existing)} file"
+                                 f"{'s' * (len(existing) != 1)} ({what}); pass --force to "
+                                 "replace them, or choose another --out")
+        try:
+            for name in existing:
+                entry = path / name
+                if entry.is_dir() and not entry.is_symlink():
+                    shutil.rmtree(entry)
+                else:
+                    entry.unlink()
+            lock_file.seek(0)
+            lock_file.truncate()
+            lock_file.write(str(os.getpid()))
+            lock_file.flush()
+            placeholder = json.dumps({"complete": False, "status": "starting",
+                                      "provenance": folder._provenance()}, indent=2)
+            folder.write("summary.json",
+                         lambda tmp: tmp.write_text(placeholder.ljust(SUMMARY_RESERVE) + "\n"))
+        except (OSError, RunFolderError) as exc:
+            folder.release()
+            why = exc.strerror if isinstance(exc, OSError) else str(exc)
+            raise RunFolderError(f"--out {path}: cannot prepare it: {why}") from None
+        return folder
+
+    def release(self) -> None:
+        if self._lock is not None:
+            try:
+                (self.path / LOCK).unlink(missing_ok=True)
+            except OSError:
+                pass
+            self._lock.close()
+            self._lock = None
+
+    # Writing ----------------------------------------------------------------------------------
+
+    def write(self, name: str, produce: Callable[[Path], None]) -> None:
+        """``produce(tmp)`` writes the file at a temporary path, which is then verified and
+        renamed to ``name``. An OS error (disk full, permissions) raises
+        :class:`RunFolderError` naming the file; the file is listed as incomplete."""
+        target = self.path / name
+        tmp = self.path / f".{name}.tmp"
+        try:
+            produce(tmp)
+            problem = _verify(tmp)
+            if problem:
+                raise OSError(f"the written file is {problem}")
+            os.replace(tmp, target)
+        except OSError as exc:
+            tmp.unlink(missing_ok=True)
+            reason = exc.strerror or str(exc)
+            self.files[name] = {"complete": False, "reason": reason}
+            raise RunFolderError(f"{target}: could not be written: {reason}") from None
+        self.files[name] = {"complete": True, "bytes": target.stat().st_size}
+
+    def disk_full(self) -> bool:
+        try:
+            return os.statvfs(self.path).f_bavail == 0
+        except OSError:
+            return False
+
+    def note(self, name: str, complete: bool, reason: str = "") -> None:
+        """Record a file another process wrote (the recording) and how it ended."""
+        path = self.path / name
+        problem = _verify(path)
+        if problem is None and self.disk_full():
+            problem = "the disk is full: it was cut short"
+        entry = {"complete": complete and problem is None}
+        if path.is_file():
+            entry["bytes"] = path.stat().st_size
+        if reason or problem:
+            entry["reason"] = reason or problem
+        self.files[name] = entry
+
+    def incomplete(self, name: str, reason: str) -> None:
+        self.files[name] = {"complete": False, "reason": reason}
+
+    def write_trace(self, name: str, trace, evaluation=None) -> None:
+        """trace_<name>.npz: the time column and every signal of the completed rows, and
+        their evaluation: ``check_<name>`` (each safety check's value) and
+        ``barrier_<name>`` (H1, H2, H and the condition Ḣ + αH)."""
+        extra = {}
+        if evaluation is not None:
+            extra.update({f"check_{n}": c.value for n, c in evaluation.checks.items()})
+            extra.update({f"barrier_{n}": v for n, v in evaluation.barriers.items()})
+
+        def produce(tmp: Path) -> None:
+            with tmp.open("wb") as f:
+                np.savez_compressed(f, time=trace.time, **trace.arrays, **extra)
+
+        self.write(f"trace_{name}.npz", produce)
+
+    def write_summary(self, summary: dict, final: bool) -> bool:
+        """summary.json: ``summary`` with the folder's provenance and its files. Final:
+        complete only if the runs are and every listed file is. Returns that."""
+        runs_complete = bool(summary.get("complete"))
+        files_complete = all(f["complete"] for f in self.files.values())
+        document = {
+            "complete": final and runs_complete and files_complete,
+            "status": ("complete" if final and runs_complete and files_complete
+                       else "incomplete" if final else "running"),
+            **{k: v for k, v in summary.items() if k != "complete"},
+            "files": {k: v for k, v in sorted(self.files.items()) if k != "summary.json"},
+            "provenance": self._provenance(),
+        }
+        text = json.dumps(jsonable(document), indent=2) + "\n"
+        try:
+            self.write("summary.json", lambda tmp: tmp.write_text(text))
+        except RunFolderError:
+            self._rewrite_in_place("summary.json", text)
+        return document["complete"]
+
+    def _provenance(self) -> dict:
+        return {"command": list(sys.argv), "started": self.started,
+                "written": datetime.now(UTC).isoformat(timespec="seconds"),
+                "host": socket.gethostname(), "versions": package_versions()}
+
+    def _rewrite_in_place(self, name: str, text: str) -> None:
+        """Overwrite the reserved file's own blocks (no new space needed on a full disk)."""
+        target = self.path / name
+        data = text.encode()
+        try:
+            with target.open("r+b") as f:
+                if len(data) > f.seek(0, os.SEEK_END):
+                    raise OSError("the reserved space is too small")
+                f.seek(0)
+                f.write(data)
+                f.truncate(len(data))
+        except OSError as exc:
+            raise RunFolderError(f"{target}: could not be written: "
+                                 f"{exc.strerror or exc}") from None
+        self.files[name] = {"complete": True, "bytes": len(data)}
+
+
+def _describe_existing(path: Path) -> str:
+    summary = path / "summary.json"
+    try:
+        data = json.loads(summary.read_text())
+        started = data.get("provenance", {}).get("started", "")
+        state = "complete" if data.get("complete") else "incomplete"
+        return f"an {state} run folder of {data.get('pipeline', {}).get('name', '?')}" + \
+            (f" started {started}" if started else "")
+    except (OSError, ValueError, AttributeError):
+        names = sorted(p.name for p in path.iterdir() if p.name != LOCK)
+        return ", ".join(names[:3]) + (", …" if len(names) > 3 else "")

@@ -138,3 +138,24 @@ def screenshot(recording: str | Path, png: str | Path, size: str = "1600x1000",
         wait_for_recording(client, timeout)
         client.save_screenshot(str(png))
     return Path(png)
+
+
+def check_reachable(url: str, timeout: float = 3.0) -> str | None:
+    """None if something listens at the viewer URL (``rerun+http://HOST:PORT/proxy``),
+    else why not, within ``timeout`` seconds."""
+    from urllib.parse import urlparse
+
+    parsed = urlparse(url)
+    if parsed.scheme not in ("rerun+http", "rerun+https", "rerun") or not parsed.hostname:
+        return "not a viewer URL; expected rerun+http://HOST:PORT/proxy"
+    try:
+        port = parsed.port or 9876
+    except ValueError:
+        return "its port is not a number"
+    try:
+        with socket.create_connection((parsed.hostname, port), timeout=timeout):
+            return None
+    except OSError as exc:
+        why = "no answer" if isinstance(exc, TimeoutError) else (exc.strerror or str(exc))
+        return (f"cannot reach a Rerun viewer at {parsed.hostname}:{port} ({why} within "
+                f"{timeout:g} s); start one with `rerun --port {port}`")

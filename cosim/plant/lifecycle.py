@@ -41,9 +41,14 @@ class FmiInstance:
         self.time = 0.0
         kind = md.coSimulation if interface == "CoSimulation" else md.modelExchange
         self._unzip: str | None = extract(self.path)
-        self.fmu = self._fmpy_class()(guid=md.guid, unzipDirectory=self._unzip,
-                                      instanceName=name, modelIdentifier=kind.modelIdentifier)
         try:
+            try:
+                self.fmu = self._fmpy_class()(guid=md.guid, unzipDirectory=self._unzip,
+                                              instanceName=name,
+                                              modelIdentifier=kind.modelIdentifier)
+            except OSError as exc:  # dlopen: a damaged binary, or one for another machine
+                raise FmuError(f"{self.path}: its binary cannot be loaded on this machine "
+                               f"({exc}); rebuild or re-export the FMU") from None
             self.call("Instantiate", self._instantiate)
         except FmuError:
             shutil.rmtree(self._unzip, ignore_errors=True)

@@ -69,7 +69,9 @@ class Recorder:
         self._process = subprocess.Popen(
             [sys.executable, "-m", "cosim.outputs.recording.writer", str(from_parent),
              str(to_parent)],
-            pass_fds=(from_parent, to_parent))
+            # The writer reports its own errors over the pipe; Rerun's log lines (a full
+            # disk repeats one per chunk) would only break the one-line messages.
+            pass_fds=(from_parent, to_parent), stderr=subprocess.DEVNULL)
         os.close(from_parent)
         os.close(to_parent)
         self._outbox = Connection(to_child, readable=False)
