@@ -85,10 +85,9 @@ def _run(args: argparse.Namespace) -> None:
         raise UserError(f"{exc or 'interrupted (Ctrl-C)'}; {kept}") from None
     except RecordingError as exc:
         raise UserError(f"{exc}; {kept}") from None
-    except RunFolderError as exc:
-        where = (f"; {kept}" if (Path(out) / "summary.json").exists()
-                 and "--out" not in str(exc) else "")
-        raise UserError(f"{exc}{where}") from None
+    except RunFolderError as exc:  # "--out …" messages: the folder could not be used at all
+        raise UserError(str(exc) if str(exc).startswith("--out") else f"{exc}; {kept}") \
+            from None
     finally:
         signal.signal(signal.SIGTERM, previous)
     _print_summary(results)

@@ -21,6 +21,7 @@ from .mapping import (
     check_co_simulation,
     map_variables,
     read_description,
+    unsafe_entries,
 )
 
 CAUSALITIES = ("input", "output", "parameter", "calculatedParameter", "local", "independent")
@@ -118,7 +119,46 @@ def inspect_fmu(path: str | Path, mapping: dict[str, list[str] | None] | None = 
         info.problems.append(str(exc).removeprefix(f"{path}: "))
     info.mapping, problems = map_variables(md, mapping)
     info.problems += problems
+    unsafe = unsafe_entries(path)
+    if unsafe:
+        info.problems.append(f"the archive entry {unsafe[0]!r} points outside the FMU's "
+                             "folder: it is not extracted")
+    if not info.problems:  # fits on paper: does the binary load and initialise?
+        problem = load_in_child(path)
+        if problem:
+            info.problems.append(problem)
     return info
+
+
+LOAD_SCRIPT = """
+import sys
+from cosim.plant.fmu import Fmu
+plant = Fmu(sys.argv[1])
+plant.start(0.0)
+plant.step(0.0, 1e-3)
+plant.close()
+"""
+
+
+def load_in_child(path: str | Path, timeout: float = 60.0) -> str | None:
+    """Instantiate, initialise and step the FMU once in a child process, so that a binary
+    that crashes takes only the child with it. None if it worked, else why not."""
+    import signal
+    import subprocess
+    import sys
+
+    try:
+        done = subprocess.run([sys.executable, "-c", LOAD_SCRIPT, str(path)],
+                              capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return f"loading it did not finish within {timeout:g} s"
+    if done.returncode == 0:
+        return None
+    if done.returncode < 0:
+        name = signal.Signals(-done.returncode).name
+        return f"its binary crashed the process that loaded it ({name})"
+    last = (done.stderr.strip().splitlines() or ["no message"])[-1]
+    return f"it fails to load or start: {last.split(': ', 1)[-1]}"
 
 
 def provides_directional_derivatives(path: str | Path, md) -> bool:

@@ -46,9 +46,10 @@ class FmiInstance:
                 self.fmu = self._fmpy_class()(guid=md.guid, unzipDirectory=self._unzip,
                                               instanceName=name,
                                               modelIdentifier=kind.modelIdentifier)
-            except OSError as exc:  # dlopen: a damaged binary, or one for another machine
+            except Exception as exc:  # FMPy's bare Exception when dlopen fails
+                detail = str(exc).rsplit(": ", 1)[-1]
                 raise FmuError(f"{self.path}: its binary cannot be loaded on this machine "
-                               f"({exc}); rebuild or re-export the FMU") from None
+                               f"({detail}); rebuild or re-export the FMU") from None
             self.call("Instantiate", self._instantiate)
         except FmuError:
             shutil.rmtree(self._unzip, ignore_errors=True)

@@ -110,20 +110,28 @@ def check_binary(path: str | Path, md: ModelDescription, model_identifier: str,
                    f"the FMU has binaries for: {', '.join(present) or 'none'}){hint}")
 
 
+def unsafe_entries(path: str | Path) -> list[str]:
+    """Archive entries that would land outside the folder they are extracted to (``../``,
+    absolute paths, drive letters): a real FMU never holds one."""
+    with zipfile.ZipFile(path) as archive:
+        names = archive.namelist()
+    unsafe = []
+    for name in names:
+        pure = PurePosixPath(name.replace("\\", "/"))
+        if pure.is_absolute() or ":" in name or ".." in pure.parts:
+            unsafe.append(name)
+    return unsafe
+
+
 def extract(path: str | Path) -> str:
-    """Unzip into a fresh temporary folder, refusing any entry that would land outside it
-    (``../``, absolute paths, drive letters): a real FMU never holds one."""
+    """Unzip into a fresh temporary folder, refusing an archive with unsafe entries."""
     path = Path(path)
+    unsafe = unsafe_entries(path)
+    if unsafe:
+        raise FmuError(f"{path}: refusing to extract: the archive entry {unsafe[0]!r} "
+                       "points outside the FMU's folder")
     target = Path(tempfile.mkdtemp(prefix="cosim_fmu_")).resolve()
     with zipfile.ZipFile(path) as archive:
-        for name in archive.namelist():
-            pure = PurePosixPath(name.replace("\\", "/"))
-            inside = (target / pure).resolve()
-            if (pure.is_absolute() or ":" in name or ".." in pure.parts
-                    or not inside.is_relative_to(target)):
-                target.rmdir()
-                raise FmuError(f"{path}: refusing to extract: the archive entry {name!r} "
-                               "points outside the FMU's folder")
         archive.extractall(target)
     return str(target)
 

@@ -1,0 +1,267 @@
+"""The catalogue of user mistakes and faults: every case ends with one clear message that
+names the culprit, exit status 2 and no traceback; run folders are never silently reused,
+never claimed complete when they are not, and nothing of a previous complete run is lost."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+import zipfile
+from pathlib import Path
+
+import pytest
+from cli_helpers import PAPER, cosim_cli
+
+from plant_fmu import build_fmu
+
+SHORT = ["--set", "simulation.duration=0.5"]
+
+
+def error_line(result: subprocess.CompletedProcess) -> str:
+    """The one message: exit status 2, no traceback, one 'cosim: error:' line, last."""
+    assert result.returncode == 2, (result.returncode, result.stderr[-2000:])
+    assert "Traceback" not in result.stderr, result.stderr[-2000:]
+    errors = [line for line in result.stderr.splitlines() if line.startswith("cosim: error:")]
+    assert len(errors) == 1, result.stderr[-2000:]
+    assert result.stderr.strip().splitlines()[-1] == errors[0]
+    return errors[0]
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory):
+    """A complete run folder (0.5 s of the paper's scenario)."""
+    out = tmp_path_factory.mktemp("done") / "run"
+    done = cosim_cli("run", PAPER, "--out", str(out), "--no-figures", *SHORT)
+    assert done.returncode == 0, done.stderr
+    return out
+
+
+def snapshot(folder: Path) -> dict[str, tuple[int, int]]:
+    return {p.name: (p.stat().st_size, p.stat().st_mtime_ns) for p in folder.iterdir()}
+
+
+def _write(path: Path, data: bytes) -> Path:
+    path.write_bytes(data)
+    return path
+
+
+# Cases that need nothing but arguments: (id, cosim arguments, fragments of the message).
+CASES = [
+    ("zero steps", [*SHORT, "--set", "simulation.step=0.1", "--set", "simulation.duration=0.05"],
+     ["simulation.step = 0.1 s is longer than simulation.duration = 0.05 s"]),
+    ("duration not whole steps", ["--set", "simulation.duration=1.0005"],
+     ["simulation.duration = 1.0005 s is not a whole number of steps of 0.001 s",
+      "use 1 or 1.001 s"]),
+    ("runs not a table", ["--set", "runs=5"], ["runs must be a table of runs", "got 5"]),
+    ("run name with a slash", [*SHORT, "--set", 'runs."a/b".controller.kv=20'],
+     ["run name 'a/b'"]),
+    ("absolute pipeline name", [*SHORT, "--set", 'name="/abs/path"'],
+     ["pipeline name '/abs/path'"]),
+    ("pipeline name climbing out", [*SHORT, "--set", 'name="../.."'],
+     ["pipeline name '../..'"]),
+    ("memory refused before allocating", ["--set", "simulation.duration=1e7"],
+     ["the traces would need", "GB", "memory is available",
+      "shorten simulation.duration"]),
+    ("unknown key", [*SHORT, "--set", "controller.kvv=1"], ["unknown key 'controller.kvv'"]),
+]
+
+
+@pytest.mark.parametrize("args,fragments", [c[1:] for c in CASES], ids=[c[0] for c in CASES])
+def test_bad_input_is_one_clear_message(args, fragments, tmp_path):
+    out = tmp_path / "out"
+    message = error_line(cosim_cli("run", PAPER, "--out", str(out), *args))
+    for fragment in fragments:
+        assert fragment in message, (fragment, message)
+    assert not out.exists()  # refused before anything was written
+
+
+def test_an_existing_run_folder_is_refused_and_left_as_it_was(finished):
+    before = snapshot(finished)
+    message = error_line(cosim_cli("run", PAPER, "--out", str(finished), *SHORT))
+    assert str(finished) in message and "--force" in message
+    assert "complete run folder of paper_two_link" in message
+    assert snapshot(finished) == before
+
+
+def test_force_replaces_the_folder_without_stale_files(finished, tmp_path):
+    out = tmp_path / "copy"
+    shutil.copytree(finished, out)
+    (out / "trace_old_run.npz").write_bytes(b"stale")
+    done = cosim_cli("run", PAPER, "--out", str(out), "--force", "--no-figures",
+                     "--no-recording", *SHORT)
+    assert done.returncode == 0, done.stderr
+    assert not (out / "trace_old_run.npz").exists() and not (out / "recording.rrd").exists()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["complete"] and set(summary["files"]) == {"trace_baseline.npz",
+                                                            "trace_proposed.npz"}
+    assert summary["provenance"]["command"][-1] == "simulation.duration=0.5"
+    assert {"started", "host", "versions"} <= set(summary["provenance"])
+
+
+def test_a_failing_rerun_does_not_claim_complete(finished, tmp_path):
+    out = tmp_path / "copy"
+    shutil.copytree(finished, out)
+    result = cosim_cli("run", PAPER, "--out", str(out), "--force", "--set",
+                       'observer.basis="lagged"', "--set", "observer.kp=10", "--set",
+                       "observer.kd=10", "--set", "observer.nu=1.0")
+    assert "diverged in the observer block" in error_line(result)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["complete"] is False and summary["status"] == "incomplete"
+    assert list(summary["runs"]) == ["baseline"]
+
+
+def test_a_second_writer_is_refused_while_the_first_runs(tmp_path):
+    out = tmp_path / "busy"
+    first = subprocess.Popen([sys.executable, "-m", "cosim.cli", "run", PAPER, "--out",
+                              str(out), "--no-figures", "--set", "simulation.duration=20"],
+                             stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while not (out / ".cosim.lock").exists() and time.monotonic() < deadline:
+            time.sleep(0.1)
+        second = cosim_cli("run", PAPER, "--out", str(out), "--force", *SHORT)
+        message = error_line(second)
+        assert "another cosim run is writing this folder" in message
+        assert f"pid {first.pid}" in message
+    finally:
+        _, err = first.communicate(timeout=300)
+    assert first.returncode == 0, err[-2000:]
+    assert json.loads((out / "summary.json").read_text())["complete"] is True
+
+
+def test_sigterm_keeps_the_truth(tmp_path):
+    out = tmp_path / "term"
+    process = subprocess.Popen([sys.executable, "-m", "cosim.cli", "run", PAPER, "--out",
+                                str(out), "--no-figures", "--set", "simulation.duration=200"],
+                               stderr=subprocess.PIPE, text=True)
+    for line in process.stderr:
+        if "baseline: 25 %" in line:
+            break
+    process.send_signal(signal.SIGTERM)
+    _, err = process.communicate(timeout=120)
+    assert process.returncode == 2 and "Traceback" not in err
+    assert "terminated (SIGTERM)" in err and str(out) in err
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["complete"] is False and summary["status"] == "incomplete"
+    assert "terminated" in summary["error"]
+    assert summary["files"]["recording.rrd"]["bytes"] > 0
+    done = summary["runs"]["baseline"]["metrics"]["simulated_time_s"]
+    assert 45 < done < 200  # stopped near 25 %
+
+
+@pytest.mark.parametrize("kind", ["a file", "a name too long", "under a file"])
+def test_out_os_errors_name_the_path(kind, tmp_path):
+    blocker = _write(tmp_path / "plain", b"x")
+    out = {"a file": blocker, "a name too long": tmp_path / ("n" * 300),
+           "under a file": blocker / "sub"}[kind]
+    message = error_line(cosim_cli("run", PAPER, "--out", str(out), *SHORT))
+    assert "--out" in message and str(out)[:60] in message
+
+
+@pytest.mark.parametrize("content", [os.urandom(512), "name = 'x'\n".encode("utf-16")],
+                         ids=["binary", "utf-16"])
+def test_pipeline_files_that_are_not_utf8_text(content, tmp_path):
+    path = _write(tmp_path / "bad.toml", content)
+    message = error_line(cosim_cli("run", str(path), "--out", str(tmp_path / "out")))
+    assert str(path) in message and ("UTF-8" in message or "not valid TOML" in message)
+
+
+def test_a_damaged_fmu_binary_is_named_by_run_and_by_inspect(tmp_path):
+    source = build_fmu(2, 2)
+    damaged = tmp_path / "damaged.fmu"
+    with zipfile.ZipFile(source) as src, zipfile.ZipFile(damaged, "w") as dst:
+        for item in src.infolist():
+            data = src.read(item)
+            if item.filename.endswith(".so"):
+                data = data[:64] + os.urandom(len(data) - 64)  # a valid zip, a broken ELF
+            dst.writestr(item, data)
+    message = error_line(cosim_cli("run", PAPER, "--out", str(tmp_path / "out"), "--set",
+                                   f'plant.fmu="{damaged}"', *SHORT))
+    assert "damaged.fmu" in message and "binary cannot be loaded" in message
+    inspected = cosim_cli("inspect", str(damaged))
+    assert inspected.returncode == 1 and "fits the cosim plant interface: no" in inspected.stdout
+    assert "binary cannot be loaded" in inspected.stdout
+
+
+def test_inspect_refuses_an_archive_with_unsafe_entries(tmp_path):
+    path = tmp_path / "escaping.fmu"
+    shutil.copyfile(build_fmu(2, 2), path)
+    with zipfile.ZipFile(path, "a") as archive:
+        archive.writestr("../escaped.txt", "x")
+    inspected = cosim_cli("inspect", str(path))
+    assert inspected.returncode == 1
+    assert "'../escaped.txt' points outside the FMU's folder" in inspected.stdout
+
+
+def test_connect_to_a_dead_address_fails_fast(tmp_path):
+    began = time.monotonic()
+    message = error_line(cosim_cli("run", PAPER, "--out", str(tmp_path / "out"), "--connect",
+                                   "rerun+http://127.0.0.1:9/proxy", *SHORT))
+    assert time.monotonic() - began < 30
+    assert "127.0.0.1:9" in message and "nothing was run" in message
+    assert not (tmp_path / "out").exists()
+
+
+def test_build_fmu_into_a_folder_and_refused_paths(tmp_path):
+    done = cosim_cli("build-fmu", "--output", str(tmp_path))
+    assert done.returncode == 0 and Path(done.stdout.strip()).parent == tmp_path
+    message = error_line(cosim_cli("build-fmu", "--output", str(_write(tmp_path / "f", b"x")
+                                                                  / "x.fmu")))
+    assert "--output" in message
+
+
+def test_view_screenshot_to_a_bad_path(finished, tmp_path):
+    message = error_line(cosim_cli("view", str(finished), "--screenshot",
+                                   str(tmp_path / "missing" / "shot.png")))
+    assert "--screenshot" in message and "missing" in message
+
+
+def test_dry_run_checks_everything_and_writes_nothing(tmp_path):
+    out = tmp_path / "planned"
+    done = cosim_cli("run", "pipelines/paper_safety.toml", "--out", str(out), "--dry-run")
+    assert done.returncode == 0, done.stderr
+    assert "proposed_cbf: reference -> sensor" in done.stdout
+    assert "memory:" in done.stdout and "disk: about" in done.stdout
+    assert "nothing was run" in done.stdout and not out.exists()
+    bad = cosim_cli("run", PAPER, "--dry-run", "--set", "runs.proposed.blocks=[\"sensor\"]")
+    assert "no block produces 'tau'" in error_line(bad)
+
+
+def test_set_on_a_table_merges_and_a_shadowed_set_is_named(tmp_path):
+    done = cosim_cli("run", PAPER, "--dry-run", "--set", "safety={position_bound=21.0}",
+                     "--set", "controller.kz=1")
+    assert done.returncode == 0, done.stderr
+    assert "does not reach run 'baseline', whose own controller.kz = 0.1 wins" in done.stderr
+    from cosim.config import load_pipeline
+
+    merged = load_pipeline(PAPER, ["safety={position_bound=21.0}"]).safety
+    assert merged.position_bound == 21.0 and merged.velocity_bound == 13.5
+
+
+def _mount_tmpfs(path: Path, size: str) -> bool:
+    path.mkdir()
+    return subprocess.run(["mount", "-t", "tmpfs", "-o", f"size={size}", "tmpfs", str(path)],
+                          capture_output=True).returncode == 0
+
+
+def test_a_full_disk_ends_in_seconds_naming_the_path(tmp_path):
+    disk = tmp_path / "disk"
+    if not _mount_tmpfs(disk, "3m"):
+        pytest.skip("mounting a small tmpfs is not allowed here (needs root)")
+    try:
+        out = disk / "run"
+        began = time.monotonic()
+        message = error_line(cosim_cli("run", PAPER, "--out", str(out)))
+        assert time.monotonic() - began < 90
+        assert "No space left on device" in message and str(out) in message
+        summary = json.loads((out / "summary.json").read_text())
+        assert summary["complete"] is False and summary["status"] == "incomplete"
+        incomplete = {n for n, f in summary["files"].items() if not f["complete"]}
+        assert "recording.rrd" in incomplete and "trace_baseline.npz" in incomplete
+    finally:
+        subprocess.run(["umount", str(disk)], capture_output=True)
