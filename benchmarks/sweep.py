@@ -13,7 +13,7 @@ from __future__ import annotations
 import argparse
 import itertools
 
-from cosim.config import load_pipeline
+from cosim.config import PipelineError, load_pipeline
 from cosim.engine import Diverged
 from cosim.runner import run
 
@@ -30,10 +30,22 @@ def main() -> None:
     axes = []
     for item in args.grid:
         key, _, values = item.partition("=")
+        if not key or not values:
+            parser.error(f"--grid {item!r}: expected KEY=V1,V2,..., e.g. controller.kv=20,30")
         axes.append([f"{key}={v}" for v in values.split(",")])
+    try:
+        pipeline = load_pipeline(args.pipeline, [axis[0] for axis in axes])
+    except PipelineError as exc:
+        parser.exit(2, f"sweep: error: {exc}\n")
+    if args.run not in pipeline.runs:
+        parser.exit(2, f"sweep: error: no run {args.run!r} in {args.pipeline} (its runs: "
+                    f"{', '.join(pipeline.runs)})\n")
     print("point | " + " | ".join(CHECKS) + " | peak torque (N·m) | reversals/s")
     for point in itertools.product(*axes):
-        pipeline = load_pipeline(args.pipeline, list(point))
+        try:
+            pipeline = load_pipeline(args.pipeline, list(point))
+        except PipelineError as exc:
+            parser.exit(2, f"sweep: error: {exc}\n")
         pipeline.runs = {args.run: pipeline.runs[args.run]}
         label = " ".join(p.split(".")[-1] for p in point) or "(as is)"
         try:

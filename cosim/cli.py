@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import os
 import signal
+import subprocess
 import sys
 from collections.abc import Sequence
 from pathlib import Path
@@ -274,7 +275,65 @@ def _parser() -> argparse.ArgumentParser:
     return parser
 
 
+SUPERVISED = "COSIM_SUPERVISED"
+
+
+def _supervise(args: list[str]) -> int:
+    """Run ``cosim run`` in a child process and wait: if it dies by a signal (a plant
+    binary that crashes takes the process with it), say so and mark its summary. The child
+    has its own process group, so Ctrl-C and SIGTERM reach it once, through here."""
+    child = subprocess.Popen([sys.executable, "-m", "cosim.cli", *args],
+                             env=dict(os.environ, **{SUPERVISED: "1"}), process_group=0)
+
+    def forward(signum, frame) -> None:
+        child.send_signal(signum)
+
+    for signum in (signal.SIGINT, signal.SIGTERM):
+        signal.signal(signum, forward)
+    status = child.wait()
+    if status >= 0:
+        return status
+    name = signal.Signals(-status).name
+    out, plant = _crashed_run(args)
+    where = f" in {plant}" if plant else ""
+    print(f"cosim: error: the run process was killed by {name}, most likely inside the "
+          f"plant FMU's binary{where}; what was computed is kept in {out} (summary.json "
+          "marked crashed)", file=sys.stderr)
+    _mark_crashed(out, f"the run process was killed by {name}{where}")
+    return 2
+
+
+def _crashed_run(args: list[str]) -> tuple[Path, str]:
+    """The run folder and plant of the run that crashed, from its arguments."""
+    from .config import load_pipeline
+
+    ns = _parser().parse_args(args)
+    try:
+        pipeline = load_pipeline(ns.pipeline, ns.set)
+    except PipelineError:
+        return Path(ns.out or "runs"), ""
+    plant = Path(pipeline.plant.fmu).name if pipeline.plant.fmu else "the built-in plant"
+    return Path(ns.out or Path("runs") / pipeline.name), plant
+
+
+def _mark_crashed(out: Path, reason: str) -> None:
+    import json
+
+    summary = out / "summary.json"
+    try:
+        data = json.loads(summary.read_text())
+        data.update(complete=False, status="crashed", error=reason)
+        tmp = out / ".summary.json.crashed"
+        tmp.write_text(json.dumps(data, indent=2) + "\n")
+        tmp.replace(summary)
+    except (OSError, ValueError):
+        pass
+
+
 def main(argv: Sequence[str] | None = None) -> int:
+    if argv is None and sys.argv[1:2] == ["run"] and not os.environ.get(SUPERVISED) \
+            and not {"-h", "--help", "--dry-run"} & set(sys.argv[2:]):
+        return _supervise(sys.argv[1:])
     args = _parser().parse_args(argv)
     try:
         return args.func(args) or 0  # a command may return its own status (inspect: 1)

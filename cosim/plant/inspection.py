@@ -124,31 +124,35 @@ def inspect_fmu(path: str | Path, mapping: dict[str, list[str] | None] | None = 
         info.problems.append(f"the archive entry {unsafe[0]!r} points outside the FMU's "
                              "folder: it is not extracted")
     if not info.problems:  # fits on paper: does the binary load and initialise?
-        problem = load_in_child(path)
+        problem = load_in_child(path, mapping)
         if problem:
             info.problems.append(problem)
     return info
 
 
 LOAD_SCRIPT = """
-import sys
+import json, sys
 from cosim.plant.fmu import Fmu
-plant = Fmu(sys.argv[1])
+plant = Fmu(sys.argv[1], json.loads(sys.argv[2]))
 plant.start(0.0)
 plant.step(0.0, 1e-3)
 plant.close()
 """
 
 
-def load_in_child(path: str | Path, timeout: float = 60.0) -> str | None:
-    """Instantiate, initialise and step the FMU once in a child process, so that a binary
-    that crashes takes only the child with it. None if it worked, else why not."""
+def load_in_child(path: str | Path, mapping: dict | None = None,
+                  timeout: float = 60.0) -> str | None:
+    """Instantiate, initialise and step the FMU once (under ``mapping``) in a child
+    process, so that a binary that crashes takes only the child with it. None if it worked,
+    else why not."""
+    import json
     import signal
     import subprocess
     import sys
 
     try:
-        done = subprocess.run([sys.executable, "-c", LOAD_SCRIPT, str(path)],
+        done = subprocess.run([sys.executable, "-c", LOAD_SCRIPT, str(path),
+                               json.dumps(mapping or {})],
                               capture_output=True, text=True, timeout=timeout)
     except subprocess.TimeoutExpired:
         return f"loading it did not finish within {timeout:g} s"

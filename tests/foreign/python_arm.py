@@ -4,9 +4,12 @@ A plant from a different exporter for the plant-swapping tests: the same equatio
 built-in FMU (Lewis's arm, SPEC §2, in closed form rather than by CRBA/RNEA), integrated by
 the same fixed-step RK4 (sub-steps of at most ``rk4_step``), but with its own variable
 names and no inertia-matrix outputs. ``fail_at`` makes doStep return an error from that
-time on (seconds), for the error tests. SI units, radians.
+time on (seconds), and ``crash_at`` kill the process that runs it (SIGSEGV, as a broken
+binary would), for the error tests. SI units, radians.
 """
 
+import os
+import signal
 from math import ceil, cos, sin
 
 from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Real
@@ -16,7 +19,7 @@ OUTPUTS = ("shoulder", "elbow", "shoulder_rate", "elbow_rate")
 PARAMETERS = {"upper_mass": 0.8, "fore_mass": 2.3, "upper_length": 1.0, "fore_length": 1.0,
               "gravity": 9.8, "disturbance": 0.01, "shoulder_start": 0.1,
               "elbow_start": 0.1, "shoulder_rate_start": 10.0, "elbow_rate_start": 10.0,
-              "rk4_step": 1e-4, "fail_at": 1e300}
+              "rk4_step": 1e-4, "fail_at": 1e300, "crash_at": 1e300}
 
 
 class PythonArm(Fmi2Slave):
@@ -60,6 +63,8 @@ class PythonArm(Fmi2Slave):
         return (v1, v2, (m22 * b1 - m12 * b2) / det, (m11 * b2 - m12 * b1) / det)
 
     def do_step(self, current_time, step_size):
+        if current_time + step_size > self.crash_at:
+            os.kill(os.getpid(), signal.SIGSEGV)
         if current_time + step_size > self.fail_at:
             self.log(f"the arm refuses to step past fail_at = {self.fail_at} s")
             return False
