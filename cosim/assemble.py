@@ -75,6 +75,7 @@ class Scenario:
     pipeline: Pipeline
     plant: Fmu
     runs: dict[str, RunPlan] = field(default_factory=dict)
+    owns_plant: bool = True  # False: the caller's plant, re-used across scenarios
 
     @property
     def steps(self) -> int:
@@ -82,7 +83,8 @@ class Scenario:
         return int(round(sim.duration / sim.step))
 
     def close(self) -> None:
-        self.plant.close()
+        if self.owns_plant:
+            self.plant.close()
 
 
 def plant_path(pipeline: Pipeline) -> Path:
@@ -107,20 +109,29 @@ def open_plant(pipeline: Pipeline) -> Fmu:
         raise PipelineError(str(exc)) from None
 
 
-def assemble(pipeline: Pipeline) -> Scenario:
+def assemble(pipeline: Pipeline, plant: Fmu | None = None) -> Scenario:
     """Open and start the plant (refusing bad parameters), then assemble and check every
     run, and that their traces fit in memory. Nothing is written; the caller closes the
-    scenario."""
-    plant = open_plant(pipeline)
+    scenario. ``plant``: an open plant of the same FMU and mapping to re-use (a sweep's
+    worker), given this pipeline's parameters; it stays open."""
+    owns = plant is None
+    try:
+        if owns:
+            plant = open_plant(pipeline)
+        else:
+            plant.set_parameters(dict(pipeline.plant.parameters))
+    except FmuError as exc:
+        raise PipelineError(str(exc)) from None
     try:
         plant.start(0.0)
-        scenario = Scenario(pipeline, plant)
+        scenario = Scenario(pipeline, plant, owns_plant=owns)
         for name in pipeline.runs:
             scenario.runs[name] = assemble_run(pipeline, name, plant)
         check_memory(scenario)
         return scenario
     except (PipelineError, FmuError) as exc:
-        plant.close()
+        if owns:
+            plant.close()
         raise PipelineError(str(exc)) from None
 
 

@@ -97,6 +97,16 @@ def _run(args: argparse.Namespace) -> None:
         print(f"review: cosim view {out}   (or: rerun {out / 'recording.rrd'})")
 
 
+def _sweep(args: argparse.Namespace) -> int:
+    from .outputs.run_folder import RunFolderError
+    from .sweep import SweepError, main
+
+    try:
+        return main(args)
+    except (SweepError, RunFolderError) as exc:
+        raise UserError(str(exc)) from None
+
+
 def _view(args: argparse.Namespace) -> None:
     from .outputs.viewer import ViewerError, recording_path, screenshot, view
 
@@ -244,6 +254,38 @@ def _parser() -> argparse.ArgumentParser:
                    help="check everything (pipeline, plant FMU, wiring, sizes), build the FMU, "
                    "print the resolved plan and the memory and disk it needs; run nothing")
     p.set_defaults(func=_run)
+
+    p = sub.add_parser(
+        "sweep", help="run a pipeline over a grid and/or random samples of keys, on Dask",
+        description="Run a pipeline over the Cartesian product of --grid values and/or seeded "
+        "random --sample draws of any key --set accepts, on a Dask cluster (local by default), "
+        "and write one row per (point, run) to OUT/results.parquet and results.csv, with "
+        "sweep.json and a safety-rate table. SI units, radians.")
+    p.add_argument("pipeline", help="pipeline file")
+    p.add_argument("--grid", action="append", default=[], metavar="KEY=V1,V2,...",
+                   help="TOML values, lists too: controller.kv=20,40 or "
+                   "'controller.kv=[20,30],[25,25]' (repeatable: the product)")
+    p.add_argument("--sample", action="append", default=[],
+                   metavar="KEY=uniform(a,b)|normal(m,s)|integers(a,b)",
+                   help="a random draw per sample (repeatable)")
+    p.add_argument("--samples", type=int, default=0, metavar="N",
+                   help="random draws (per grid point, with --sample)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the draws (default 0)")
+    p.add_argument("--runs", nargs="+", default=None, metavar="NAME",
+                   help="the pipeline's runs to sweep (default all)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY.PATH=VALUE",
+                   help="applied to every point")
+    where = p.add_mutually_exclusive_group()
+    where.add_argument("--workers", type=int, default=None, metavar="K",
+                       help="local Dask worker processes (default: one per core)")
+    where.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                       help="an existing Dask scheduler, e.g. tcp://127.0.0.1:8786")
+    p.add_argument("--record", default=None, metavar="best,worst",
+                   help="also write full run folders of the best and/or worst point")
+    p.add_argument("--out", required=True, type=Path, help="sweep folder")
+    p.add_argument("--force", action="store_true", help="replace what --out holds")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=_sweep)
 
     p = sub.add_parser("view", help="open a run folder's recording in the Rerun viewer",
                        description="Open RUN_DIR/recording.rrd in the Rerun viewer, with the "

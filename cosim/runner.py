@@ -67,8 +67,8 @@ def _progress(name: str, total: int):
 
 def run(pipeline: Pipeline, out_dir: str | Path | None = None, progress: bool = True,
         record: bool = True, spawn: bool = False, connect: str | None = None,
-        figures: bool = True, engine: str = "auto", force: bool = False
-        ) -> dict[str, RunResult]:
+        figures: bool = True, engine: str = "auto", force: bool = False,
+        plant=None) -> dict[str, RunResult]:
     """Run every run of ``pipeline``; write the run folder if ``out_dir`` is given: summary,
     traces, ``recording.rrd`` (unless ``record`` is false) and PNG figures.
 
@@ -77,9 +77,10 @@ def run(pipeline: Pipeline, out_dir: str | Path | None = None, progress: bool = 
     live; ``connect`` streams to one already running at that URL. ``engine``: "auto" (the
     fused compiled loop where every block allows it), "fused" or "python". Raises
     :class:`Diverged`, ``KeyboardInterrupt`` or :class:`RunFolderError` after writing what
-    was computed, with summary.json saying what is incomplete.
+    was computed, with summary.json saying what is incomplete. ``plant``: an open
+    :class:`~cosim.plant.fmu.Fmu` to re-use (it stays open).
     """
-    scenario = assemble(pipeline)
+    scenario = assemble(pipeline, plant)
     plant_info = scenario.plant.describe()
     results: dict[str, RunResult] = {}
     folder = recorder = None

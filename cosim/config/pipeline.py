@@ -329,9 +329,15 @@ def _merge(base: dict, over: dict) -> dict:
     return out
 
 
-def load_pipeline(path: str | Path | None, overrides: list[str] | None = None) -> Pipeline:
+def _print_warning(text: str) -> None:
+    print(f"cosim: warning: {text}", file=sys.stderr)
+
+
+def load_pipeline(path: str | Path | None, overrides: list[str] | None = None,
+                  warn=_print_warning) -> Pipeline:
     """Read, override (``--set`` style) and validate a pipeline file; ``None``: the defaults
-    (the paper's scenario) with the overrides."""
+    (the paper's scenario) with the overrides. ``warn(text)`` is told of overrides that a
+    run's own key shadows (None: say nothing)."""
     if path is None:
         data: dict = {}
         source, base = "--set", Path.cwd()  # plant.fmu relative to where the user is
@@ -341,8 +347,8 @@ def load_pipeline(path: str | Path | None, overrides: list[str] | None = None) -
         source, base = str(path), path.parent
     for assignment in overrides or []:
         data = apply_override(data, assignment)
-        for warning in shadowed(data, assignment):
-            print(f"cosim: warning: {warning}", file=sys.stderr)
+        for warning in shadowed(data, assignment) if warn else ():
+            warn(warning)
     pipeline = validate(data, source)
     if pipeline.plant.fmu is not None:
         fmu = Path(pipeline.plant.fmu).expanduser()

@@ -17,7 +17,7 @@ from fmpy.model_description import ModelDescription
 
 from ..engine.fused import FusedIo, function_pointer
 from .lifecycle import STATUS, FmiInstance, open_instance
-from .mapping import FmuError, PlantVariables, open_plant
+from .mapping import FmuError, PlantVariables, check_parameters, open_plant
 
 
 @dataclass
@@ -59,6 +59,14 @@ class Fmu:
         self._flags = np.zeros(4)  # fmi3DoStep's three flags and its last successful time
         self._fmi: FmiInstance | None = None
         self.time = 0.0
+
+    def set_parameters(self, parameters: dict[str, float]) -> None:
+        """Parameter and start values for the next :meth:`start` (checked like the
+        constructor's)."""
+        check_parameters(self.path, self.model_description, parameters)
+        self.parameters = dict(parameters)
+        self._parameters = {self.by_name[n].valueReference: float(v)
+                            for n, v in parameters.items()}
 
     def _refs(self, names: list[str]):
         """Value references of names :func:`open_plant` has checked."""

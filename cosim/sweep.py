@@ -1,0 +1,466 @@
+"""Sweeps and Monte Carlo: one pipeline over a grid of values and/or seeded random samples of
+any key ``--set`` accepts, every point run on Dask, one row per (point, run).
+
+    cosim sweep pipelines/paper_safety.toml --grid controller.kv=20,40 --runs proposed
+    cosim sweep P --sample 'plant.parameters."m[2]"=uniform(2.3,3.3)' --samples 500 --seed 1
+
+Points: the Cartesian product of the grids; with samples, each grid point with ``--samples``
+random draws (``uniform(a,b)``, ``normal(m,s)``, ``integers(a,b)``, seeded). Every point is
+validated before anything runs. Each Dask worker keeps one plant FMU per file and mapping,
+extracted once and ``reset()`` between points, and its compiled kernels stay loaded. A point
+that diverges or whose FMU fails is a row marked failed with its message; the sweep goes on.
+Ctrl-C keeps every finished row. SI units, radians.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+import re
+import sys
+import tomllib
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .config import PipelineError, load_pipeline
+
+# The paper's joint-1 sets: a run is "safe" when it keeps all of them.
+SAFE_SET_CHECKS = ("position_joint1", "velocity_true_joint1", "error_joint1",
+                   "error_rate_joint1")
+DISTRIBUTIONS = {"uniform": 2, "normal": 2, "integers": 2}
+_SAMPLE = re.compile(r"^\s*(\w+)\s*\(\s*([^,]+?)\s*,\s*([^,]+?)\s*\)\s*$")
+
+
+class SweepError(ValueError):
+    """A sweep that cannot run; the message names the option or point at fault."""
+
+
+@dataclass
+class Axis:
+    key: str
+    values: list  # grid values (TOML), or None for a sampled key
+    distribution: tuple[str, float, float] | None = None
+
+
+@dataclass
+class SweepSpec:
+    pipeline: str
+    grid: list[Axis] = field(default_factory=list)
+    samples: list[Axis] = field(default_factory=list)
+    count: int = 0  # random draws per grid point
+    seed: int = 0
+    runs: list[str] | None = None
+    base: list[str] = field(default_factory=list)  # --set applied to every point
+
+    @property
+    def keys(self) -> list[str]:
+        return [a.key for a in self.grid + self.samples]
+
+
+def parse_grid(item: str) -> Axis:
+    """``KEY=V1,V2,...`` with TOML values (lists too: ``kv=[20,30],[25,25]``)."""
+    key, sep, raw = item.partition("=")
+    if not sep or not key.strip() or not raw.strip():
+        raise SweepError(f"--grid {item!r}: expected KEY=V1,V2,..., e.g. controller.kv=20,40")
+    try:
+        values = tomllib.loads(f"values = [{raw}]")["values"]
+    except tomllib.TOMLDecodeError:
+        raise SweepError(f"--grid {item!r}: {raw!r} is not a comma-separated list of TOML "
+                         'values (quote strings: observer.law="paper","error_driven")') from None
+    if not values:
+        raise SweepError(f"--grid {item!r}: no values")
+    return Axis(key.strip(), values)
+
+
+def parse_sample(item: str) -> Axis:
+    """``KEY=uniform(a,b)``, ``normal(mean,std)`` or ``integers(low,high)`` (inclusive)."""
+    key, sep, raw = item.partition("=")
+    match = _SAMPLE.match(raw)
+    if not sep or not key.strip() or not match or match[1] not in DISTRIBUTIONS:
+        raise SweepError(f"--sample {item!r}: expected KEY=uniform(a,b), normal(mean,std) or "
+                         "integers(low,high)")
+    try:
+        a, b = float(match[2]), float(match[3])
+    except ValueError:
+        raise SweepError(f"--sample {item!r}: {match[2]!r} and {match[3]!r} must be "
+                         "numbers") from None
+    if (match[1] == "normal" and b < 0) or (match[1] != "normal" and b < a):
+        raise SweepError(f"--sample {item!r}: the second value must be "
+                         + ("≥ 0" if match[1] == "normal" else "≥ the first"))
+    return Axis(key.strip(), None, (match[1], a, b))
+
+
+def _toml(value) -> str:
+    """A value as TOML for --set (repr keeps every digit of a float)."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, float):
+        return repr(value)
+    if isinstance(value, str):
+        return json.dumps(value)
+    if isinstance(value, list):
+        return "[" + ", ".join(_toml(v) for v in value) + "]"
+    return str(value)
+
+
+def points(spec: SweepSpec) -> list[dict]:
+    """Every point: {key: value}, grid first, in a fixed order (the seed fixes the draws)."""
+    grid = list(itertools.product(*[a.values for a in spec.grid])) or [()]
+    rng = np.random.default_rng(spec.seed)
+    out = []
+    for combination in grid:
+        fixed = dict(zip((a.key for a in spec.grid), combination, strict=True))
+        for _ in range(spec.count if spec.samples else 1):
+            point = dict(fixed)
+            for axis in spec.samples:
+                kind, a, b = axis.distribution
+                point[axis.key] = (float(rng.uniform(a, b)) if kind == "uniform"
+                                   else float(rng.normal(a, b)) if kind == "normal"
+                                   else int(rng.integers(int(a), int(b) + 1)))
+            out.append(point)
+    return out
+
+
+def assignments(spec: SweepSpec, point: dict) -> list[str]:
+    return [*spec.base, *(f"{key}={_toml(value)}" for key, value in point.items())]
+
+
+def validate(spec: SweepSpec, all_points: list[dict]) -> None:
+    """Every point loads (keys, types, ranges), the runs exist, and the first point
+    assembles (plant FMU, wiring, sizes): :class:`SweepError` naming the point."""
+    from .assemble import assemble
+
+    def once(text: str) -> None:  # the first point's warnings, for the swept runs only
+        if not spec.runs or any(f"run '{r}'" in text for r in spec.runs):
+            print(f"cosim: warning: {text}", file=sys.stderr)
+
+    for index, point in enumerate(all_points):
+        try:
+            pipeline = load_pipeline(spec.pipeline, assignments(spec, point),
+                                     warn=once if index == 0 else None)
+        except PipelineError as exc:
+            raise SweepError(f"point {index} ({_label(point)}): {exc}") from None
+        missing = [r for r in spec.runs or [] if r not in pipeline.runs]
+        if missing:
+            raise SweepError(f"--runs {' '.join(missing)}: not a run of {spec.pipeline} (its "
+                             f"runs: {', '.join(pipeline.runs)})")
+        if index == 0:
+            try:
+                assemble(_only(pipeline, spec.runs)).close()
+            except PipelineError as exc:
+                raise SweepError(f"point 0 ({_label(point)}): {exc}") from None
+
+
+def _label(point: dict) -> str:
+    return ", ".join(f"{k}={_toml(v)}" for k, v in point.items()) or "as is"
+
+
+def _only(pipeline, runs: list[str] | None):
+    if runs:
+        pipeline.runs = {name: pipeline.runs[name] for name in runs}
+    return pipeline
+
+
+# Work on a worker ----------------------------------------------------------------------------
+
+_PLANTS: dict[tuple[str, str], object] = {}  # per worker process: one open FMU per file+mapping
+
+
+def _plant_for(pipeline):
+    """This process's open plant for the pipeline's FMU and mapping (created once)."""
+    from .assemble import open_plant, plant_path
+
+    mapping = pipeline.plant.variables.model_dump()
+    key = (str(plant_path(pipeline)), json.dumps(mapping, sort_keys=True))
+    if key not in _PLANTS:
+        _PLANTS[key] = open_plant(pipeline)
+    return _PLANTS[key]
+
+
+def run_point(pipeline_path: str, sets: list[str], runs: list[str] | None, index: int,
+              point: dict) -> list[dict]:
+    """One point, every run on its own (a diverging run does not stop the others): one row
+    per run."""
+    from .engine import Diverged
+    from .runner import run
+
+    rows = []
+    pipeline = load_pipeline(pipeline_path, sets, warn=None)
+    for name in runs or list(pipeline.runs):
+        single = load_pipeline(pipeline_path, sets, warn=None)
+        single.runs = {name: single.runs[name]}
+        row = {"point": index, **{f"set:{k}": _cell(v) for k, v in point.items()}, "run": name}
+        try:
+            result = run(single, None, progress=False, plant=_plant_for(single))[name]
+            row.update(status="ok", error="", **result_columns(result))
+        except (Diverged, PipelineError) as exc:
+            row.update(status="failed", error=str(exc))
+        rows.append(row)
+    return rows
+
+
+def _cell(value):
+    return json.dumps(value) if isinstance(value, list) else value
+
+
+def result_columns(result) -> dict:
+    """A run's checks (worst, satisfied, time outside) and metrics, flat."""
+    out = {}
+    for check, entry in result.safety.items():
+        out[f"{check}.bound"] = entry["bound"]
+        out[f"{check}.worst"] = entry["worst"]
+        out[f"{check}.satisfied"] = entry["satisfied"]
+        out[f"{check}.time_outside_s"] = entry.get("time_outside_s")
+    out["safe"] = all(result.safety[c]["satisfied"] for c in SAFE_SET_CHECKS
+                      if c in result.safety)
+    m = result.metrics
+    for key in ("peak_torque", "rms_error", "torque_reversals_per_s"):
+        for j, value in enumerate(m[key]):
+            out[f"{key}.{j + 1}"] = value
+    gain = m.get("feedback_gain") or {}
+    out["feedback_gain.median"] = gain.get("median")
+    out["barrier_condition.fraction_failing"] = m["barrier_condition"]["fraction_failing"]
+    out["simulated_time_s"] = m["simulated_time_s"]
+    out["wall_time_s"] = m["wall_time_s"]
+    return out
+
+
+# Execution -------------------------------------------------------------------------------------
+
+def execute(spec: SweepSpec, all_points: list[dict], client,
+            on_row: Callable[[int], None] | None = None) -> tuple[list[dict], bool]:
+    """Every point on the Dask ``client``; returns (rows, interrupted). Ctrl-C cancels what
+    has not finished and keeps every finished row."""
+    from dask.distributed import as_completed
+
+    futures = [client.submit(run_point, spec.pipeline, assignments(spec, point), spec.runs,
+                             index, point, pure=False, key=f"cosim-point-{index}")
+               for index, point in enumerate(all_points)]
+    rows: list[dict] = []
+    try:
+        for future in as_completed(futures):
+            try:
+                rows.extend(future.result())
+            except Exception as exc:  # the worker itself failed: one failed row per run
+                index = futures.index(future)
+                rows.append({"point": index, **{f"set:{k}": _cell(v)
+                                                for k, v in all_points[index].items()},
+                             "run": "*", "status": "failed",
+                             "error": f"{type(exc).__name__}: {exc}"})
+            if on_row is not None:
+                on_row(len(futures))
+    except KeyboardInterrupt:
+        client.cancel(futures)
+        return sorted(rows, key=_order), True
+    return sorted(rows, key=_order), False
+
+
+def _order(row: dict) -> tuple:
+    return (row["point"], row["run"])
+
+
+def cluster_client(workers: int | None, scheduler: str | None):
+    """A Dask client: on ``scheduler`` (an existing cluster), or a LocalCluster on
+    127.0.0.1 with one single-threaded process per worker (FMUs are not thread-safe)."""
+    from dask.distributed import Client, LocalCluster
+
+    if scheduler:
+        try:
+            client = Client(scheduler, timeout="10s")
+        except OSError as exc:
+            raise SweepError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+        try:
+            client.wait_for_workers(1, timeout=60)
+        except TimeoutError:
+            client.close()
+            raise SweepError(f"--scheduler {scheduler}: no worker joined within 60 s "
+                             "(start one: dask worker ADDRESS --nthreads 1)") from None
+        return client, None
+    import os
+
+    cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
+                           processes=True, host="127.0.0.1", dashboard_address=None)
+    return Client(cluster), cluster
+
+
+# Summary -----------------------------------------------------------------------------------------
+
+def wilson(successes: int, trials: int, z: float = 1.96) -> tuple[float, float]:
+    """The Wilson score interval (95 % by default) of a proportion."""
+    if trials == 0:
+        return (math.nan, math.nan)
+    p = successes / trials
+    centre = (p + z * z / (2 * trials)) / (1 + z * z / trials)
+    half = z * math.sqrt(p * (1 - p) / trials + z * z / (4 * trials * trials)) / (1 + z * z
+                                                                                 / trials)
+    return (max(0.0, centre - half), min(1.0, centre + half))
+
+
+def safety_table(rows: list[dict]) -> list[dict]:
+    """Per run: points, failed, and the rate at which every joint-1 set and each one is
+    kept, with Wilson 95 % intervals (over the points that completed)."""
+    table = []
+    for run in dict.fromkeys(r["run"] for r in rows):
+        mine = [r for r in rows if r["run"] == run]
+        ok = [r for r in mine if r["status"] == "ok"]
+        entry = {"run": run, "points": len(mine), "failed": len(mine) - len(ok)}
+        for name, key in [("all sets", "safe"),
+                          *[(c.removesuffix("_joint1"), f"{c}.satisfied")
+                            for c in SAFE_SET_CHECKS]]:
+            kept = sum(bool(r.get(key)) for r in ok)
+            low, high = wilson(kept, len(ok))
+            entry[name] = (kept / len(ok) if ok else math.nan, low, high)
+        table.append(entry)
+    return table
+
+
+def format_table(table: list[dict]) -> str:
+    names = ["all sets", *[c.removesuffix("_joint1") for c in SAFE_SET_CHECKS]]
+    lines = ["safety rate per run (joint-1 sets kept; Wilson 95 % interval)",
+             f"{'run':<18}{'points':>7}{'failed':>7}  " + "  ".join(f"{n:<22}" for n in names)]
+    for entry in table:
+        cells = [f"{100 * r:5.1f} % [{100 * lo:5.1f}, {100 * hi:5.1f}]"
+                 if not math.isnan(r) else "-" for r, lo, hi in (entry[n] for n in names)]
+        lines.append(f"{entry['run']:<18}{entry['points']:>7}{entry['failed']:>7}  "
+                     + "  ".join(f"{c:<22}" for c in cells))
+    return "\n".join(lines)
+
+
+def write_results(folder, spec: SweepSpec, rows: list[dict], table: list[dict],
+                  interrupted: bool, total_points: int) -> None:
+    """results.parquet and results.csv (one row per point and run), sweep.json (the spec,
+    the resolved pipeline, the safety table), and sweep_safety.png."""
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+    import pyarrow.parquet as pq
+
+    columns = list(dict.fromkeys(k for r in rows for k in r))
+    arrow = pa.Table.from_pylist([{c: r.get(c) for c in columns} for r in rows])
+    folder.write("results.parquet", lambda tmp: pq.write_table(arrow, tmp))
+    folder.write("results.csv", lambda tmp: pacsv.write_csv(arrow, tmp))
+    resolved = load_pipeline(spec.pipeline, spec.base, warn=None).model_dump(by_alias=True)
+    document = {"pipeline_file": spec.pipeline, "base_sets": spec.base,
+                "grid": {a.key: a.values for a in spec.grid},
+                "samples": {a.key: list(a.distribution) for a in spec.samples},
+                "samples_per_grid_point": spec.count, "seed": spec.seed, "runs": spec.runs,
+                "points": total_points, "rows": len(rows), "interrupted": interrupted,
+                "safety": [{k: (list(v) if isinstance(v, tuple) else v) for k, v in e.items()}
+                           for e in table],
+                "resolved_pipeline": resolved}
+    from .outputs.run_folder import jsonable
+
+    text = json.dumps(jsonable(document), indent=2, default=str) + "\n"
+    folder.write("sweep.json", lambda tmp: tmp.write_text(text))
+    if rows and spec.keys:
+        write_safety_plot(folder, spec, rows)
+
+
+def write_safety_plot(folder, spec: SweepSpec, rows: list[dict]) -> None:
+    """Per varied key: the safety rate of each run against the key's value (binned when
+    sampled) and each row's worst normalised check value, max over the joint-1 sets."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    keys = spec.keys
+    fig, axes = plt.subplots(1, len(keys), figsize=(5.5 * len(keys), 4), squeeze=False,
+                             constrained_layout=True)
+    for ax, key in zip(axes[0], keys, strict=True):
+        for run in dict.fromkeys(r["run"] for r in rows):
+            ok = [r for r in rows if r["run"] == run and r["status"] == "ok"]
+            values = [r[f"set:{key}"] for r in ok]
+            if not ok or not all(isinstance(v, int | float) for v in values):
+                continue
+            x = np.array(values, float)
+            worst = np.array([margin(r) for r in ok])
+            ax.scatter(x, worst, s=8, alpha=0.5, label=f"{run}: worst / bound")
+        ax.axhline(1.0, color="darkred", lw=0.8, ls="--")
+        ax.set_xlabel(key)
+        ax.set_ylabel("max over joint-1 sets of worst / bound (≤ 1 safe)")
+        ax.legend(fontsize=7)
+    folder.write("sweep_safety.png", lambda tmp: fig.savefig(tmp, dpi=100, format="png"))
+    plt.close(fig)
+
+
+def margin(row: dict) -> float:
+    """A row's worst joint-1 check relative to its bound (≤ 1: every set kept)."""
+    return max((row[f"{c}.worst"] / row[f"{c}.bound"] for c in SAFE_SET_CHECKS
+                if row.get(f"{c}.worst") is not None), default=math.nan)
+
+
+def record_points(spec: SweepSpec, rows: list[dict], which: list[str], out: Path) -> list[str]:
+    """Full run folders (recording, figures) of the best and/or worst point by
+    :func:`margin`, re-run here: ``out/best_point<i>``, ``out/worst_point<i>``."""
+    from .runner import run
+
+    ok = [r for r in rows if r["status"] == "ok" and not math.isnan(margin(r))]
+    written = []
+    for kind in which:
+        if not ok:
+            break
+        row = (min if kind == "best" else max)(ok, key=margin)
+        point = {k.removeprefix("set:"): json.loads(v) if isinstance(v, str) and
+                 v.startswith("[") else v for k, v in row.items() if k.startswith("set:")}
+        folder = out / f"{kind}_point{row['point']}"
+        pipeline = _only(load_pipeline(spec.pipeline, assignments(spec, point), warn=None),
+                         [row["run"]])
+        run(pipeline, folder, progress=False, force=True)
+        written.append(str(folder))
+    return written
+
+
+def main(args) -> int:
+    """``cosim sweep`` (parsed arguments): returns the exit status."""
+    from tqdm import tqdm
+
+    from .outputs.run_folder import RunFolder
+
+    spec = SweepSpec(args.pipeline, [parse_grid(g) for g in args.grid],
+                     [parse_sample(s) for s in args.sample], args.samples, args.seed,
+                     args.runs or None, list(args.set))
+    if spec.samples and spec.count < 1:
+        raise SweepError("--sample needs --samples N (N ≥ 1 random draws)")
+    if spec.count and not spec.samples:
+        raise SweepError("--samples needs at least one --sample KEY=distribution(a,b)")
+    record = [w.strip() for w in (args.record or "").split(",") if w.strip()]
+    if set(record) - {"best", "worst"}:
+        raise SweepError(f"--record {args.record!r}: expected best, worst or best,worst")
+    all_points = points(spec)
+    validate(spec, all_points)
+    runs = spec.runs or list(load_pipeline(spec.pipeline, spec.base, warn=None).runs)
+    out = Path(args.out)
+    folder = RunFolder.create(out, args.force)
+    client, cluster = cluster_client(args.workers, args.scheduler)
+    try:
+        where = args.scheduler or f"a local cluster of {len(client.scheduler_info()['workers'])}"
+        print(f"sweeping {len(all_points)} point(s) × {len(runs)} run(s) of "
+              f"{spec.pipeline} on {where} worker(s) -> {out}", file=sys.stderr)
+        bar = tqdm(total=len(all_points), unit="point", file=sys.stderr,
+                   disable=not sys.stderr.isatty() and args.quiet)
+        rows, interrupted = execute(spec, all_points, client, lambda _: bar.update(1))
+        bar.close()
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+    table = safety_table(rows)
+    try:
+        write_results(folder, spec, rows, table, interrupted, len(all_points))
+    finally:
+        folder.release()
+    print(format_table(table))
+    for path in record_points(spec, rows, record, out):
+        print(f"recorded: {path}")
+    failed = sum(r["status"] != "ok" for r in rows)
+    print(f"{len(rows)} row(s) in {out / 'results.parquet'} and results.csv"
+          + (f"; {failed} failed (see their error column)" if failed else ""))
+    if interrupted:
+        print(f"cosim: interrupted; the {len(rows)} finished row(s) are kept in {out}",
+              file=sys.stderr)
+        return 2
+    return 0
