@@ -197,16 +197,21 @@ def _run_one(plan: RunPlan, scenario: Scenario, plant_info: dict, recorder: Reco
         first = evaluator is None
         if first:  # after the blocks' reset: the reference, and so every bound, is known
             evaluator = plan.evaluator(trace)
-        start, checks, barrier_values = evaluator.update(trace.rows_done)
-        if recorder is not None:
-            if first:
-                recorder.begin_run(RunSpec(
-                    name, plan.links, sim.step, sim.duration,
-                    {entity: (key, stem, plan.signals[key].width(plan.links))
-                     for entity, (key, stem) in entities.items()},
-                    evaluator.bounds, link_lengths(plant_info, plan)))
-            recorder.send_rows(name, start, {key: trace[key][start:trace.rows_done]
-                                             for key in recorded}, checks, barrier_values)
+        evaluator.update(trace.rows_done)
+        if recorder is None:
+            return
+        if first:
+            recorder.begin_run(RunSpec(
+                name, plan.links, sim.step, sim.duration,
+                {entity: (key, stem, plan.signals[key].width(plan.links))
+                 for entity, (key, stem) in entities.items()},
+                evaluator.bounds, link_lengths(plant_info, plan)))
+        # Everything evaluated that the recorder has not been given (an interrupt between
+        # the two leaves it for the next call).
+        start, stop = recorder.sent[name], evaluator.upto
+        recorder.send_rows(name, start, {key: trace[key][start:stop] for key in recorded},
+                           {n: v[start:stop] for n, v in evaluator.values.items()},
+                           {n: v[start:stop] for n, v in evaluator.barrier_values.items()})
 
     def on_chunk(k: int) -> None:
         if report:

@@ -7,6 +7,7 @@ from __future__ import annotations
 import contextlib
 import fcntl
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -78,14 +79,23 @@ class Recorder:
         self._inbox = Connection(from_child, writable=False)
         self._send((str(self.path), header, live))
 
-    def _send(self, message: tuple) -> None:
+    def _send(self, message: tuple, then=None) -> None:
+        """Send ``message``, then call ``then()`` (bookkeeping), with Ctrl-C and SIGTERM
+        held until both are done."""
         if self._error is not None:
             return  # the writer is gone; close() reports why
+        # Ctrl-C or SIGTERM in the middle of a message would leave half of it in the pipe:
+        # they are held until it is written.
+        held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
         try:
             self._outbox.send(message)
+            if then is not None:
+                then()
         except OSError:
             kind, text = self._receive(5.0)
             self._error = text if kind == "error" else "the recording writer stopped"
+        finally:
+            signal.pthread_sigmask(signal.SIG_SETMASK, held)
 
     def _receive(self, timeout: float) -> tuple[str, str]:
         """The writer's next message, (kind, text); ("error", why) if none comes in
@@ -128,8 +138,8 @@ class Recorder:
             return
         self.wait_ready()  # the first call waits (the writer imports Rerun meanwhile)
         began = time.perf_counter()
-        self._send(("rows", run, start, dict(rows), dict(checks), dict(barriers)))
-        self.sent[run] = start + len(rows["q"])
+        self._send(("rows", run, start, dict(rows), dict(checks), dict(barriers)),
+                   then=lambda: self.sent.__setitem__(run, start + len(rows["q"])))
         self.handoff_seconds += time.perf_counter() - began
 
     def end_run(self, run: str, summary: dict) -> None:
