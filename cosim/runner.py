@@ -258,8 +258,9 @@ def _open_recorder(out: Path, pipeline: Pipeline, spawn: bool,
     sim = pipeline.simulation
     title = (f"{pipeline.name}: {' vs '.join(pipeline.runs)} "
              f"({sim.duration:g} s at {1 / sim.step:g} Hz)")
+    filtered = [name for name, run in pipeline.runs.items() if "cbf_filter" in run.blocks]
     return Recorder(out / "recording.rrd", title, list(pipeline.runs), spawn=spawn,
-                    connect=connect)
+                    connect=connect, filtered=filtered)
 
 
 def _properties(pipeline: Pipeline, plant_info: dict) -> dict[str, dict]:

@@ -88,9 +88,10 @@ def series_names(stem: str, width: int) -> list[str]:
     return [stem] if width == 1 else [f"{stem}{j + 1}" for j in range(width)]
 
 
-def blueprint(run_names: list[str]):
+def blueprint(run_names: list[str], filtered: frozenset[str] = frozenset()):
     """Figs. 2-4 of the paper for every run side by side, then barriers, observer error and
-    the arm; time panel on sim_time, paused."""
+    the arm, and for the ``filtered`` runs (a CBF safety filter in their chain) its barrier
+    values and how much it corrects the torque; time panel on sim_time, paused."""
     import rerun.blueprint as rrb
 
     columns = []
@@ -107,6 +108,13 @@ def blueprint(run_names: list[str]):
                                name=f"{run}: observer error q̇ − x̂2 (rad/s)"),
             rrb.Spatial2DView(origin=f"/{run}/arm", name=f"{run}: arm (m)"),
         ))
+        if run in filtered:
+            views.append(rrb.Horizontal(
+                rrb.TimeSeriesView(origin=f"/{run}/cbf_filter/h",
+                                   name=f"{run}: CBF barrier values β − |x| (≥ 0 inside)"),
+                rrb.TimeSeriesView(origin=f"/{run}/cbf_filter/correction",
+                                   name=f"{run}: ‖τ − τ_nom‖ (N·m)"),
+            ))
         columns.append(rrb.Vertical(*views, name=run))
     return rrb.Blueprint(
         rrb.Horizontal(*columns),

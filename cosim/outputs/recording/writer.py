@@ -176,7 +176,8 @@ def _writer_main(inbox: Connection, outbox: Connection) -> None:
             sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{live['port']}/proxy"))
         elif live.get("connect"):
             sinks.append(rr.GrpcSink(live["connect"]))
-        rec.set_sinks(*sinks, default_blueprint=blueprint(header["runs"]))
+        layout = blueprint(header["runs"], frozenset(header.get("filtered", ())))
+        rec.set_sinks(*sinks, default_blueprint=layout)
         rec.send_recording_name(header["name"])
         outbox.send(("ready", ""))
         writer = _Writer(rec, batch_s=0.0 if live.get("spawn") or live.get("connect")
