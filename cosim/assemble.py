@@ -79,8 +79,7 @@ class Scenario:
 
     @property
     def steps(self) -> int:
-        sim = self.pipeline.simulation
-        return int(round(sim.duration / sim.step))
+        return self.pipeline.simulation.steps
 
     def close(self) -> None:
         if self.owns_plant:

@@ -49,6 +49,10 @@ from .inertia import default_links, planar_bias
 SETS = ("position", "velocity", "error", "error_rate")
 SetName = Literal["position", "velocity", "error", "error_rate"]
 DEGREE = {"position": 2, "velocity": 1, "error": 2, "error_rate": 1}
+# Per set, in SETS order: relative degree, and the sign of q̈ in x's top derivative
+# (module constants: compiled in, not allocated each step).
+DEGREES = np.array([DEGREE[s] for s in SETS])
+SIGNS = np.array([1.0, 1.0, -1.0, -1.0])
 
 
 class CbfFilterParams(Section):
@@ -127,7 +131,7 @@ def cbf_rows(k, a):
     # deviation x, its rate ẋ (degree 2 only), and x's top derivative = sign·q̈ + offset
     x = np.empty((4, n))
     rate = np.empty((4, n))
-    sign = np.array([1.0, 1.0, -1.0, -1.0])
+    sign = SIGNS
     offset = np.zeros((4, n))
     x[0] = y - a.q_s[k]
     rate[0] = v
@@ -137,7 +141,7 @@ def cbf_rows(k, a):
     offset[2] = a.qddot_d[k]
     x[3] = a.qdot_d[k] - v
     offset[3] = a.qddot_d[k]
-    degree = np.array([2, 1, 2, 1])
+    degree = DEGREES
     acc_row = np.zeros(n)  # one row on q̈: acc_row · q̈ ≤ bound
     count = 0
     for s in range(4):
