@@ -20,6 +20,7 @@ from plant_fmu import build_fmu
 
 from .blocks import BLOCKS, Block, BlockContext, Ports
 from .config import Pipeline, PipelineError
+from .config.declared import Uncertainty
 from .evaluate import EVALUATION_INPUTS, Evaluator, SafeSet, gains
 from .plant import PLANT_INPUT, PLANT_INPUT_ENTITY, PLANT_OUTPUTS
 from .plant.fmu import Fmu, FmuError
@@ -41,15 +42,19 @@ class RunPlan:
     links: int
     dt: float
     params: object  # the run's validated tables (pipeline.runs[name])
+    constants: list[dict] = field(default_factory=list)  # per block: what it requires
+    uncertainty: Uncertainty = field(default_factory=Uncertainty)
 
     def new_trace(self, steps: int) -> Trace:
         return Trace(self.signals, self.links, steps, self.dt)
 
     def reset(self, trace: Trace) -> None:
         """Bind every block to ``trace`` and set its initial state, in chain order."""
-        for block, ins, outs in zip(self.blocks, self.inputs, self.outputs, strict=True):
+        constants = self.constants or [{} for _ in self.blocks]
+        for block, ins, outs, const in zip(self.blocks, self.inputs, self.outputs, constants,
+                                           strict=True):
             block.reset(Ports({port: trace[key] for port, key in ins.items()},
-                              {port: trace[key] for port, key in outs.items()}, trace))
+                              {port: trace[key] for port, key in outs.items()}, trace, const))
 
     def evaluator(self, trace: Trace) -> Evaluator:
         return Evaluator(trace, self.safe, gains(self.params, self.links))
@@ -182,12 +187,37 @@ def assemble_run(pipeline: Pipeline, name: str, plant) -> RunPlan:
     ``has_qdot``, ``has_M`` and a ``path`` (for messages) only."""
     run = pipeline.runs[name]
     links, dt = plant.links, pipeline.simulation.step
-    context = BlockContext(links, dt, name, plant_outputs(plant), run, pipeline.safety)
+    context = BlockContext(links, dt, name, plant_outputs(plant), pipeline.safety,
+                           pipeline.uncertainty)
     check_sizes(run, name, plant)
     blocks = [BLOCKS[kind](run.block_params(kind), context) for kind in run.blocks]
     signals, inputs, outputs, plant_input = wire(blocks, context, name, plant)
+    constants = wire_constants(blocks, name)
     return RunPlan(name, blocks, signals, inputs, outputs, plant_input,
-                   safe_set(pipeline), links, dt, run)
+                   safe_set(pipeline), links, dt, run, constants, pipeline.uncertainty)
+
+
+def wire_constants(blocks: list[Block], run: str) -> list[dict]:
+    """Per block, the constants it ``requires``, each from the nearest block before it that
+    ``publishes`` it; :class:`PipelineError` naming the run, block and constant if none."""
+    published: dict = {}
+    out = []
+    for block in blocks:
+        needed = {}
+        for name in block.requires:
+            if name not in published:
+                makers = [kind for kind, cls in BLOCKS.items() if name in _published_by(cls)]
+                hint = f"published by: {', '.join(makers)}" if makers else "no block publishes it"
+                raise PipelineError(f"run '{run}': the {block.kind} block needs the constant "
+                                    f"'{name}', which no block before it publishes ({hint})")
+            needed[name] = published[name]
+        out.append(needed)
+        published.update(block.publishes)
+    return out
+
+
+def _published_by(cls: type[Block]) -> tuple[str, ...]:
+    return tuple(getattr(cls, "PUBLISHES", ()))
 
 
 def wire(blocks: list[Block], context: BlockContext, run: str, plant
@@ -255,7 +285,7 @@ def wire(blocks: list[Block], context: BlockContext, run: str, plant
     for key, signal in signals.items():
         owner = producer.get(key, key)
         if signal.entity is None and key not in read and owner != "plant" \
-                and key not in EVALUATION_INPUTS:
+                and key not in EVALUATION_INPUTS and not signal.kept:
             raise PipelineError(f"{where}: the {owner} block's output '{key}' is neither read "
                                 "nor recorded (give it an entity, or drop it)")
         if signal.entity is not None:

@@ -16,6 +16,7 @@ from .assemble import RunPlan, Scenario, assemble, link_lengths
 from .config import Pipeline, PipelineError
 from .engine import Diverged, simulate
 from .evaluate import Evaluation
+from .evaluate.guarantee import classify, plant_payload
 from .outputs.figures import FIGURE_FILES, write_figures
 from .outputs.recording import Recorder, RunSpec
 from .outputs.recording.layout import DERIVED_ENTITIES
@@ -35,6 +36,7 @@ class RunResult:
     failure: BaseException | None = field(default=None, repr=False)
     inertia_model: dict = field(default_factory=dict)  # source and link parameters used
     wall_time_s: float = float("nan")
+    blocks: dict = field(default_factory=dict)  # what each block says of itself (describe)
 
     @property
     def metrics(self) -> dict:
@@ -46,7 +48,7 @@ class RunResult:
 
     def summary(self) -> dict:
         out = {"complete": self.complete, "inertia_model": self.inertia_model,
-               "metrics": self.metrics, "safety": self.safety}
+               "blocks": self.blocks, "metrics": self.metrics, "safety": self.safety}
         if self.error:
             out["error"] = self.error
         return out
@@ -232,13 +234,18 @@ def _run_one(plan: RunPlan, scenario: Scenario, plant_info: dict, recorder: Reco
     evaluation = evaluator.result()
     done = trace.completed()
     metrics = evaluation.metrics
+    chain = inertia.publishes.get("nominal_chain") if inertia is not None else None
+    metrics["guarantee"] = classify(done, plan.safe, plan.uncertainty,
+                                    *plant_payload(plant_info["parameters"], chain))
     metrics["wall_time_s"] = wall
     metrics["steps_per_second"] = steps / wall if wall == wall and wall > 0 else None
     metrics["simulated_time_s"] = float(done.time[-1]) if done.rows_done else 0.0
     if recorder is not None:  # the loop's share of writing the recording
         metrics["recording_handoff_s"] = recorder.handoff_seconds - handed_over
     result = RunResult(name, done, evaluation, error is None, error, failure,
-                       inertia.describe() if inertia is not None else {}, wall)
+                       inertia.describe() if inertia is not None else {}, wall,
+                       {block.kind: block.describe() for block in plan.blocks
+                        if block.describe()})
     if recorder is not None:
         recorder.end_run(name, result.summary())
     return result

@@ -25,7 +25,9 @@ class Signal:
 
     ``entity`` is its path under ``/<run>/`` in the recording (``None``: not recorded, with
     the reason in the declaring block); ``label`` the series-name stem there (joint j of a
-    per-joint signal is ``label`` + j).
+    per-joint signal is ``label`` + j). ``kept``: an unrecorded signal that stays in the
+    trace files even when no block reads it (an offer to later blocks, like the observer's
+    error bound), rather than being refused as unused.
     """
 
     shape: str  # one of SHAPES
@@ -33,6 +35,7 @@ class Signal:
     description: str
     entity: str | None = None
     label: str | None = None
+    kept: bool = False
 
     def __post_init__(self) -> None:
         if self.shape not in SHAPES:

@@ -7,7 +7,10 @@ A block declares:
   documentation are the block's parameters *and* its pipeline schema (one source);
 - ``inputs``: the signals it reads at row k (``delayed``: only at rows before k, so their
   producer may come later in the chain: the torque fed back to the observer);
-- ``outputs``: the signals it writes, each a :class:`~cosim.signals.Signal`.
+- ``outputs``: the signals it writes, each a :class:`~cosim.signals.Signal`;
+- ``publishes`` / ``requires``: named constants (a model, a gain) it offers to the blocks
+  after it, and those it needs from the blocks before it. Blocks know each other only
+  through signals and these constants, never through another block's table.
 
 A block that reads and writes the same signal *filters* it: it sees the value produced
 before it, and the value it writes replaces it downstream (the earlier value stays in the
@@ -22,11 +25,12 @@ gets ``step`` for free, and the master can fuse it with the others into one comp
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, ClassVar
 
 import numpy as np
 
+from ..config.declared import Safety, Uncertainty
 from ..config.schema import Section
 from ..signals import Signal
 
@@ -35,15 +39,14 @@ from ..signals import Signal
 class BlockContext:
     """What a block may know of the scenario when it is built: the joint count, the master
     step (s), the run's name, the plant outputs available (``q``, ``qdot``, ``M``), and the
-    run's validated tables and the pipeline's ``[safety]`` (for blocks that need another
-    block's model, like a safety filter the inertia model's chain and the safe set)."""
+    pipeline's declared safe set (``[safety]``) and uncertainty (``[uncertainty]``)."""
 
     links: int
     dt: float
     run: str
     plant_outputs: frozenset[str]
-    tables: Any = None
-    safety: Any = None
+    safety: Safety = field(default_factory=Safety)
+    uncertainty: Uncertainty = field(default_factory=Uncertainty)
 
 
 @dataclass
@@ -53,6 +56,7 @@ class Ports:
     inputs: Mapping[str, np.ndarray]
     outputs: Mapping[str, np.ndarray]
     trace: Any  # the Trace, for whole-run blocks (the reference writes all rows in reset)
+    constants: Mapping[str, Any] = field(default_factory=dict)  # what ``requires`` names
 
 
 class Block:
@@ -61,6 +65,8 @@ class Block:
     kernel: ClassVar[Callable[..., bool] | None] = None
     # Parameters given per joint (a list must have one entry per joint; a scalar serves all).
     per_joint: ClassVar[tuple[str, ...]] = ()
+    # The names of the constants its instances publish (for the wiring's messages).
+    PUBLISHES: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, params: Section, context: BlockContext):
         self.params = params
@@ -69,6 +75,8 @@ class Block:
         self.inputs: tuple[str, ...] = ()
         self.delayed: tuple[str, ...] = ()
         self.outputs: dict[str, Signal] = {}
+        self.publishes: dict[str, Any] = {}  # constants for the blocks after this one
+        self.requires: tuple[str, ...] = ()  # constants from the blocks before this one
         self.args: tuple | None = None  # the kernel's arguments, set by reset
 
     def __init_subclass__(cls, **kwargs) -> None:

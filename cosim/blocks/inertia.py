@@ -41,6 +41,19 @@ class InertiaModelParams(Section):
     l: list[PositiveFloat] | None = None  # m, joint i to joint i+1  # noqa: E741
     lc: list[FiniteFloat] | None = None  # m, joint i to the link's centre of mass
     I: list[NonNegativeFloat] | None = None  # kg·m², about the centre of mass  # noqa: E741
+    gravity: FiniteFloat = 9.8  # m/s², of the nominal chain's bias b̂ = C q̇ + G
+
+
+class Chain(NamedTuple):
+    """The nominal planar chain, as the inertia model publishes it (constant
+    ``nominal_chain``): per link mass (kg), length (m), centre of mass (m), inertia (kg·m²),
+    and gravity (m/s²)."""
+
+    m: np.ndarray
+    l: np.ndarray  # noqa: E741
+    lc: np.ndarray
+    inertia: np.ndarray
+    gravity: float
 
 
 def default_links(links: int) -> dict[str, list[float]]:
@@ -142,6 +155,9 @@ class InertiaModel(Block):
     kind = "inertia_model"
     Params = InertiaModelParams
     per_joint = ("m", "l", "lc", "I")
+    # nominal_chain: Chain; inertia_is_plant: True when M̂ is the plant's own M (so it
+    # includes any payload), False when it is the nominal chain's.
+    PUBLISHES = ("nominal_chain", "inertia_is_plant")
 
     def __init__(self, params: InertiaModelParams, context: BlockContext):
         super().__init__(params, context)
@@ -153,6 +169,11 @@ class InertiaModel(Block):
         self.outputs = {"M_model": M_MODEL}
         if source == "nominal":
             self.kernel = nominal_step
+        links = self.nominal_links()
+        self.publishes = {
+            "nominal_chain": Chain(*(np.asarray(links[key], float)
+                                     for key in ("m", "l", "lc", "I")), params.gravity),
+            "inertia_is_plant": source == "fmu"}
 
     def nominal_links(self) -> dict[str, list[float]]:
         """The nominal chain as used: given values, else the defaults."""

@@ -68,7 +68,10 @@ class ObserverArgs(NamedTuple):
     n_basis: int
     tau_d: np.ndarray  # (n,) N·m
     initial_velocity: np.ndarray  # (n,) x̂2(0)
-    state: np.ndarray  # x̂1, ẑ2, q̂̈, Ŵo (n_basis × n), flat
+    noise_bound: float  # declared |q_meas − q|, rad
+    initial_error: float  # declared |q̇(0) − x̂2(0)|, rad/s
+    residual_rate: float  # declared bound on the rate of the unmodelled acceleration, rad/s³
+    state: np.ndarray  # x̂1, ẑ2, q̂̈, Ŵo (n_basis × n), transient bound (1), flat
     q_meas: np.ndarray
     tau: np.ndarray
     M_model: np.ndarray
@@ -77,6 +80,24 @@ class ObserverArgs(NamedTuple):
     qdot_hat: np.ndarray
     k0: np.ndarray
     W_o_norm: np.ndarray
+    error_bound: np.ndarray  # ε(t) per joint
+    drift: np.ndarray  # dx̂2/dt − M̂⁻¹τ
+
+
+@njit(cache=True)
+def error_envelope(kp, kd, k0):
+    """The frozen-time error dynamics of (12), x̃1' = w, w' = −k0 x̃1 − (kp + kD) w + f̃, with
+    w = x̃1' = x̃2 − kD x̃1: (decay rate of the slowest mode (1/s), peak factor of w's free
+    response to w(0) (≥ 1), L1 norm of the impulse response from f̃' to w (s²))."""
+    sigma = 0.5 * (kp + kd)
+    if k0 > sigma * sigma:  # complex poles −σ ± jω: |w| ≤ w0·√k0/ω·e^{−σt}
+        omega = np.sqrt(k0 - sigma * sigma)
+        ratio = sigma * np.pi / (2.0 * omega)  # ∫|e^{−σt} sin ωt/ω| dt = coth(σπ/2ω)/k0
+        return sigma, np.sqrt(k0) / omega, 1.0 / (np.tanh(ratio) * k0)
+    root = np.sqrt(sigma * sigma - k0)  # real poles −σ ± root: a positive impulse response
+    slow, fast = sigma - root, sigma + root
+    peak = (slow + fast) / max(fast - slow, 1e-12)
+    return slow, max(peak, 1.0), 1.0 / max(k0, 1e-300)
 
 
 @njit(cache=True)
@@ -113,6 +134,7 @@ def observer_step(k, a):
     qdd = s[2 * n:3 * n]
     W = s[3 * n:3 * n + n_basis * n].reshape((n_basis, n))
     sigma = np.empty(n_basis)
+    transient = s[3 * n + n_basis * n:]  # the free-response part of ε(t), rad/s
     if k == 0:  # x̂1(0) = y(0): x̃1(0) = 0; x̂2(0) as configured
         x1[:] = a.q_meas[0]
         z2[:] = a.initial_velocity
@@ -146,10 +168,26 @@ def observer_step(k, a):
     x1_err = y - x1
     x1_err_norm = np.sqrt(np.sum(x1_err**2))
     w_norm = np.sqrt(np.sum(W**2))
+    k0 = _gain(a, x1_err_norm, w_norm, np.sqrt(np.sum((a.q_d[k] - y) ** 2)))
     a.q_hat[k] = x1
     a.qdot_hat[k] = z2 + kp * x1_err
-    a.k0[k] = _gain(a, x1_err_norm, w_norm, np.sqrt(np.sum((a.q_d[k] - y) ** 2)))
+    a.k0[k] = k0
     a.W_o_norm[k] = w_norm
+    # ε(t): x̃2 = kD x̃1 + w, x̃1 measured to within the noise bound, w the free response to
+    # the declared initial error plus the forced response to the residual's rate.
+    decay, peak, l1 = error_envelope(kp, a.kd, k0)
+    if k == 0:
+        transient[0] = peak * a.initial_error
+    else:
+        transient[0] *= np.exp(-decay * a.dt)
+    for i in range(n):
+        a.error_bound[k, i] = (a.kd * (abs(x1_err[i]) + a.noise_bound) + transient[0]
+                               + l1 * a.residual_rate)
+    # dx̂2/dt = Ŵoᵀσo + M̂⁻¹(τ − τ_d) + (k0 − kp kD) x̃1 + kp x̃2: all but M̂⁻¹τ and the
+    # unknown kp x̃2 (|·| ≤ kp ε) is the drift the filter's rows on x̂2 need.
+    _basis(x1, a.qdot_hat[k], qdd, a.basis, sigma)
+    a.drift[k] = (W.T @ sigma - np.linalg.solve(a.M_model[k], a.tau_d)
+                  + (k0 - kp * a.kd) * x1_err)
     return np.isfinite(np.sum(a.qdot_hat[k]) + np.sum(x1) + w_norm)
 
 
@@ -159,6 +197,7 @@ class FlnnObserver(Block):
     Params = ObserverParams
     per_joint = ("tau_d", "initial_velocity")
     kernel = observer_step
+    PUBLISHES = ("tau_d_model",)
 
     def __init__(self, params: ObserverParams, context: BlockContext):
         super().__init__(params, context)
@@ -169,10 +208,19 @@ class FlnnObserver(Block):
             "qdot_hat": Signal("n", "rad/s", "velocity estimate x̂2", "observer/qdot_hat"),
             "k0": Signal("1", "1/s²", "observer gain k0 of (8)", "observer/k0"),
             "W_o_norm": Signal("1", "-", "FLNN weight norm ‖Ŵo‖", "observer/W_norm", "‖Ŵo‖"),
+            # For the safety filter and the evaluation; in the trace files, not recorded
+            # (the recording shows ε(t) as the observer-error check's band).
+            "qdot_hat_bound": Signal("n", "rad/s", "bound ε(t) on |q̇ − x̂2| per joint, from "
+                                     "the declared uncertainty", kept=True),
+            "qdot_hat_drift": Signal("n", "rad/s²", "dx̂2/dt − M̂⁻¹τ (its kp x̃2 term "
+                                     "left out: unknown, |·| ≤ kp ε)", kept=True),
         }
+        self.publishes = {"tau_d_model": np.broadcast_to(
+            np.asarray(params.tau_d, float), (context.links,)).copy()}
 
     def reset(self, ports: Ports) -> None:
         p, n = self.params, self.context.links
+        u = self.context.uncertainty
         n_basis = basis_size(n, p.basis)
         if isinstance(p.initial_velocity, str):
             v0 = (ports.inputs["qdot_d"][0] if p.initial_velocity == "desired"
@@ -184,6 +232,8 @@ class FlnnObserver(Block):
             self.context.dt, p.substeps, LAWS[p.law], BASES[p.basis], p.kp, p.kd, p.nu,
             p.z_wo, p.eps_om + p.zeta_om, p.fo, p.kappa_o, n_basis,
             np.broadcast_to(np.asarray(p.tau_d, float), (n,)).copy(), np.array(v0, float),
-            np.zeros(3 * n + n_basis * n),  # weights start at 0
+            u.noise_bound, u.initial_velocity_error, u.observer_residual_rate,
+            np.zeros(3 * n + n_basis * n + 1),  # weights start at 0
             inp["q_meas"], inp["tau"], inp["M_model"], inp["q_d"],
-            out["q_hat"], out["qdot_hat"], out["k0"], out["W_o_norm"])
+            out["q_hat"], out["qdot_hat"], out["k0"], out["W_o_norm"], out["qdot_hat_bound"],
+            out["qdot_hat_drift"])

@@ -8,7 +8,7 @@ from typing import Literal
 import numpy as np
 from pydantic import model_validator
 
-from ..config.schema import FiniteFloat, NonNegativeFloat, Section
+from ..config.schema import FiniteFloat, NonNegativeFloat, PositiveFloat, Section
 from ..signals import Signal
 from .base import Block, BlockContext, Ports, register_block
 
@@ -21,6 +21,11 @@ class ReferenceParams(Section):
     frequency: list[list[NonNegativeFloat]] = [[0.5], [1.0]]  # rad/s
     phase: list[list[FiniteFloat]] | None = None  # rad, default 0
     safe_case: Literal["tracking", "midpoint"] = "midpoint"  # Remark 1 case i / ii
+    # Case ii's centres: (max + min)/2 of q_d and q̇_d over [0, safe_horizon] (s), whatever
+    # simulation.duration is, so a shorter run is judged against the same sets; or given.
+    safe_horizon: PositiveFloat = 20.0  # s (the paper's scenario)
+    safe_centre: list[FiniteFloat] | None = None  # q_s, rad (instead of the midpoint)
+    safe_velocity_centre: list[FiniteFloat] | None = None  # q̇_s, rad/s
 
     @model_validator(mode="after")
     def _shapes(self) -> ReferenceParams:
@@ -33,6 +38,11 @@ class ReferenceParams(Section):
                 raise ValueError(f"reference.{key} has {len(value)} rows, offset has {n} joints")
             if any(len(row) != len(self.amplitude[i]) for i, row in enumerate(value)):
                 raise ValueError(f"reference.{key} rows must match reference.amplitude's")
+        for key in ("safe_centre", "safe_velocity_centre"):
+            value = getattr(self, key)
+            if value is not None and len(value) != n:
+                raise ValueError(f"reference.{key} has {len(value)} entries, offset has {n} "
+                                 "joints")
         return self
 
 
@@ -73,6 +83,29 @@ class SinusoidReference(Block):
         out["q_d"][:], out["qdot_d"][:], out["qddot_d"][:] = q, qd, qdd
         if self.params.safe_case == "tracking":
             out["q_s"][:], out["qdot_s"][:] = q, qd
-        else:  # (max_t + min_t) / 2 over the run, as in the paper's Sec. IV
-            out["q_s"][:] = (q.max(0) + q.min(0)) / 2
-            out["qdot_s"][:] = (qd.max(0) + qd.min(0)) / 2
+        else:
+            q_s, qdot_s = self.centres()
+            out["q_s"][:], out["qdot_s"][:] = q_s, qdot_s
+
+    def centres(self) -> tuple[np.ndarray, np.ndarray]:
+        """Case ii's constant centres: given, else (max_t + min_t)/2 of q_d and q̇_d over the
+        declared horizon (as in the paper's Sec. IV), sampled every 0.1 ms."""
+        p = self.params
+        t = np.linspace(0.0, p.safe_horizon, int(round(p.safe_horizon / 1e-4)) + 1)
+        q, qd, _ = self.evaluate(t)
+        q_s = (np.array(p.safe_centre, float) if p.safe_centre is not None
+               else (q.max(0) + q.min(0)) / 2)
+        qdot_s = (np.array(p.safe_velocity_centre, float) if p.safe_velocity_centre is not None
+                  else (qd.max(0) + qd.min(0)) / 2)
+        return q_s, qdot_s
+
+    def describe(self) -> dict:
+        p = self.params
+        if p.safe_case == "tracking":
+            return {"safe_centre": "q_d (moves: Remark 1 case i)"}
+        q_s, qdot_s = self.centres()
+        sources = [("given" if given is not None else
+                    f"midpoint of the reference over 0–{p.safe_horizon:g} s")
+                   for given in (p.safe_centre, p.safe_velocity_centre)]
+        return {"q_s": [float(v) for v in q_s], "q_s_source": sources[0],
+                "qdot_s": [float(v) for v in qdot_s], "qdot_s_source": sources[1]}

@@ -21,6 +21,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, Field, ValidationError, create_model, model_validator
 
 from ..blocks import BLOCKS, DEFAULT_CHAIN
+from .declared import Safety, Uncertainty
 from .schema import FiniteFloat, PipelineError, PositiveFloat, Section
 
 
@@ -90,19 +91,6 @@ class Plant(Section):
         return self
 
 
-class Safety(Section):
-    position_bound: PositiveFloat = 20.0  # α_max of ‖x1 − q_s‖, rad
-    velocity_bound: PositiveFloat = 13.5  # α_max of ‖x̂2 − q̇_s‖, rad/s
-    error_bound: PositiveFloat = 1.0  # E1, rad
-    error_rate_bound: PositiveFloat = 5.0  # E2, rad/s
-    observer_error_bound: PositiveFloat = 1.0  # ε_max of (16)
-    z_wo_tilde: PositiveFloat = 20.0  # bounds of (17)-(18) used in H1, H2
-    z_wc_tilde: PositiveFloat = 50.0
-    z_vc_tilde: PositiveFloat = 50.0
-    # α of the barrier condition Ḣ + α·H ≥ 0 (class-K, linear), 1/s
-    barrier_alpha: PositiveFloat = 1.0
-
-
 class Run(Section):
     """One run: its chain of blocks and their tables (merged over the top level's)."""
 
@@ -129,6 +117,7 @@ class Pipeline(Section):
     simulation: Simulation = Simulation()
     plant: Plant = Plant()
     safety: Safety = Safety()
+    uncertainty: Uncertainty = Uncertainty()
     # Then a table per registered block, and last ``runs: dict[str, Run]`` (added by
     # pipeline_model, so that a bad top-level key is reported before the runs inheriting it).
 

@@ -1,0 +1,100 @@
+"""Whether a run is one the safety filter's guarantee speaks for, and whether it held.
+
+The guarantee: a run that starts inside the hard (physical) sets, whose hard QP is
+feasible at every step and whose plant and signals stay within the declared uncertainty
+(``[uncertainty]``) never leaves a hard set. Each run is classified on the true state:
+
+- ``starts_inside``: every joint's position and true velocity inside its set at t = 0
+  (and, apart, ``starts_inside_observer_set``: |q̇(0) − x̂2(0)| ≤ ε_max of Theorem 2);
+- ``feasible``: no step where the filter's hard part was infeasible (None: no filter);
+- ``within_bounds``: the payload, the noise, the initial observer error and the observer
+  bound ε(t) stay as declared (``outside`` names each one that did not);
+- ``hard_kept`` / ``first_exit``: whether, and where first, a hard set was left;
+- ``broken``: left a hard set while all three held — a broken guarantee.
+
+Ground truth is used here, for evaluation only. SI units, radians.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..config.declared import Uncertainty
+from ..signals import Trace
+from .safety import SafeSet
+
+# A tolerance for comparing declared and actual parameter values (rounding in TOML, FMI).
+PARAMETER_TOLERANCE = 1e-9
+
+
+def plant_payload(parameters: dict, chain) -> tuple[float | None, list[str]]:
+    """The payload the plant carries against the nominal chain (m[n] − m_n, kg), and the
+    other link parameters where the plant differs from it. (None, []) when the plant does
+    not expose the chain's parameters (a foreign FMU)."""
+    if chain is None:
+        return None, []
+    n = len(chain.m)
+    names = {"m": chain.m, "l": chain.l, "lc": chain.lc, "I": chain.inertia}
+    if not all(f"{key}[{i}]" in parameters for key in names for i in range(1, n + 1)):
+        return None, []
+    differ = [f"{key}[{i + 1}] = {parameters[f'{key}[{i + 1}]']:g} (nominal {values[i]:g})"
+              for key, values in names.items() for i in range(n)
+              if not (key == "m" and i == n - 1)
+              and abs(parameters[f"{key}[{i + 1}]"] - values[i]) > PARAMETER_TOLERANCE]
+    return float(parameters[f"m[{n}]"] - chain.m[n - 1]), differ
+
+
+def classify(trace: Trace, safe: SafeSet, uncertainty: Uncertainty,
+             payload: float | None, other_parameters: list[str]) -> dict:
+    """The run's class and outcome (module docstring); ``payload``: what the plant carries
+    (None: unknown), ``other_parameters``: plant link parameters off the nominal chain."""
+    if trace.rows_done == 0:
+        return {}
+    position = np.abs(trace["q"] - trace["q_s"])
+    velocity = np.abs(trace["qdot"] - trace["qdot_s"])
+    hard = {"position": (position, safe.position_bound),
+            "velocity_true": (velocity, safe.velocity_bound)}
+    starts_inside = all(bool(np.all(v[0] <= bound)) for v, bound in hard.values())
+    first_exit = None
+    for name, (values, bound) in hard.items():
+        rows, joints = np.nonzero(values > bound)
+        if len(rows) and (first_exit is None or rows[0] * trace.dt < first_exit["t"]):
+            first_exit = {"set": f"{name}_joint{joints[0] + 1}", "t": float(rows[0] * trace.dt),
+                          "value": float(values[rows[0], joints[0]]), "bound": float(bound)}
+    outside = []
+    low, high = uncertainty.payload
+    if payload is None:
+        outside.append("payload unknown (the plant does not expose the nominal chain's "
+                       "parameters)")
+    elif not low - PARAMETER_TOLERANCE <= payload <= high + PARAMETER_TOLERANCE:
+        outside.append(f"payload {payload:g} kg outside [{low:g}, {high:g}]")
+    outside += [f"plant {text}" for text in other_parameters]
+    if "q_meas" in trace:
+        noise = float(np.max(np.abs(trace["q_meas"] - trace["q"])))
+        if noise > uncertainty.noise_bound:
+            outside.append(f"noise {noise:.3g} rad > {uncertainty.noise_bound:g}")
+    out = {"starts_inside": starts_inside}
+    if "qdot_hat" in trace and np.isfinite(trace["qdot_hat"][0]).all():
+        error = np.abs(trace["qdot"] - trace["qdot_hat"])
+        out["starts_inside_observer_set"] = bool(
+            np.linalg.norm(error[0]) <= safe.observer_error_bound)
+        if np.max(error[0]) > uncertainty.initial_velocity_error:
+            outside.append(f"initial observer error {np.max(error[0]):.3g} rad/s > "
+                           f"{uncertainty.initial_velocity_error:g}")
+        if "qdot_hat_bound" in trace:
+            over = error > trace["qdot_hat_bound"]
+            if over.any():
+                rows = np.flatnonzero(over.any(axis=1))
+                outside.append(f"observer error above ε(t) at {len(rows)} steps (first "
+                               f"t = {rows[0] * trace.dt:.4g} s): the declared "
+                               "observer_residual_rate was exceeded")
+    feasible = None
+    if "cbf_infeasible" in trace:
+        steps = int(np.sum(trace["cbf_infeasible"] > 0))
+        feasible = steps == 0
+        out["infeasible_steps"] = steps
+    out.update(feasible=feasible, within_bounds=not outside, outside=outside,
+               hard_kept=first_exit is None, first_exit=first_exit)
+    out["broken"] = bool(starts_inside and feasible is True and not outside
+                         and first_exit is not None)
+    return out
