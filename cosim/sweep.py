@@ -31,6 +31,8 @@ from .config import PipelineError, load_pipeline
 # The paper's joint-1 sets: a run is "safe" when it keeps all of them.
 SAFE_SET_CHECKS = ("position_joint1", "velocity_true_joint1", "error_joint1",
                    "error_rate_joint1")
+# The physical (hard) sets of joint 1: what the robust filter guarantees.
+HARD_JOINT1_CHECKS = ("position_joint1", "velocity_true_joint1")
 DISTRIBUTIONS = {"uniform": 2, "normal": 2, "integers": 2}
 _SAMPLE = re.compile(r"^\s*(\w+)\s*\(\s*([^,]+?)\s*,\s*([^,]+?)\s*\)\s*$")
 
@@ -221,6 +223,16 @@ def result_columns(result) -> dict:
     for key in ("peak_torque", "rms_error", "torque_reversals_per_s"):
         for j, value in enumerate(m[key]):
             out[f"{key}.{j + 1}"] = value
+    out["hard_joint1_kept"] = all(result.safety[c]["satisfied"] for c in HARD_JOINT1_CHECKS
+                                  if c in result.safety)
+    for key, value in (m.get("guarantee") or {}).items():
+        if key == "outside":
+            value = "; ".join(value)
+        elif key == "first_exit":
+            value = value["set"] if value else ""
+        out[f"guarantee.{key}"] = value
+    if "cbf_active" in result.trace:
+        out["filter_active_fraction"] = float(np.mean(result.trace["cbf_active"] > 0))
     gain = m.get("feedback_gain") or {}
     out["feedback_gain.median"] = gain.get("median")
     out["barrier_condition.fraction_failing"] = m["barrier_condition"]["fraction_failing"]
@@ -318,6 +330,55 @@ def safety_table(rows: list[dict]) -> list[dict]:
     return table
 
 
+# The classes of the robust-safety issue: which runs the filter's guarantee speaks for.
+CLASSES = (
+    ("starts inside", lambda r: r.get("guarantee.starts_inside") is True),
+    ("covered", lambda r: r.get("guarantee.starts_inside") is True
+     and r.get("guarantee.feasible") is True and r.get("guarantee.within_bounds") is True),
+    ("infeasible", lambda r: r.get("guarantee.starts_inside") is True
+     and r.get("guarantee.feasible") is False),
+    ("outside bounds", lambda r: r.get("guarantee.starts_inside") is True
+     and r.get("guarantee.within_bounds") is False),
+    ("starts outside", lambda r: r.get("guarantee.starts_inside") is False),
+)
+
+
+def guarantee_table(rows: list[dict]) -> list[dict]:
+    """Per run and class (:data:`CLASSES`; a run may be in several, "covered" is the one the
+    guarantee speaks for): how many, the share keeping joint 1's hard sets (position, true
+    velocity) with its Wilson 95 % interval, and the broken guarantees (left a hard set while
+    covered). Failed points are counted apart, never as unsafe."""
+    table = []
+    for run in dict.fromkeys(r["run"] for r in rows):
+        mine = [r for r in rows if r["run"] == run]
+        ok = [r for r in mine if r["status"] == "ok"]
+        if not any("guarantee.starts_inside" in r for r in ok):
+            continue
+        entry = {"run": run, "points": len(mine), "failed": len(mine) - len(ok),
+                 "broken": sum(bool(r.get("guarantee.broken")) for r in ok)}
+        for name, member in CLASSES:
+            rows_in = [r for r in ok if member(r)]
+            kept = sum(bool(r.get("hard_joint1_kept")) for r in rows_in)
+            low, high = wilson(kept, len(rows_in))
+            entry[name] = (len(rows_in), kept / len(rows_in) if rows_in else math.nan, low,
+                           high)
+        table.append(entry)
+    return table
+
+
+def format_guarantee_table(table: list[dict]) -> str:
+    names = [name for name, _ in CLASSES]
+    lines = ["joint-1 hard sets (position, true velocity) kept, by class (Wilson 95 %); "
+             "covered = starts inside, hard QP feasible throughout, within the declared "
+             "uncertainty",
+             f"{'run':<16}{'broken':>7}  " + "  ".join(f"{n:<25}" for n in names)]
+    for e in table:
+        cells = [f"{count:>4}: {100 * rate:5.1f} % [{100 * lo:5.1f},{100 * hi:6.1f}]"
+                 if count else f"{0:>4}: -" for count, rate, lo, hi in (e[n] for n in names)]
+        lines.append(f"{e['run']:<16}{e['broken']:>7}  " + "  ".join(f"{c:<25}" for c in cells))
+    return "\n".join(lines)
+
+
 def format_table(table: list[dict]) -> str:
     names = ["all sets", *[c.removesuffix("_joint1") for c in SAFE_SET_CHECKS]]
     lines = ["safety rate per run (joint-1 sets kept; Wilson 95 % interval)",
@@ -350,6 +411,8 @@ def write_results(folder, spec: SweepSpec, rows: list[dict], table: list[dict],
                 "points": total_points, "rows": len(rows), "interrupted": interrupted,
                 "safety": [{k: (list(v) if isinstance(v, tuple) else v) for k, v in e.items()}
                            for e in table],
+                "guarantee": [{k: (list(v) if isinstance(v, tuple) else v)
+                               for k, v in e.items()} for e in guarantee_table(rows)],
                 "resolved_pipeline": resolved}
     from .outputs.run_folder import jsonable
 
@@ -454,6 +517,9 @@ def main(args) -> int:
     finally:
         folder.release()
     print(format_table(table))
+    classes = guarantee_table(rows)
+    if classes:
+        print(format_guarantee_table(classes))
     for path in record_points(spec, rows, record, out):
         print(f"recorded: {path}")
     failed = sum(r["status"] != "ok" for r in rows)

@@ -6,12 +6,15 @@ time. ``register_block`` makes it available to pipelines under its ``kind``: a n
 controller or filter is one new file plus that decorator, with no change to the master.
 """
 
-# The built-in blocks register themselves on import.
-from . import cbf_filter, controller, inertia, observer, reference, sensor  # noqa: E402, F401, I001
 from ..jit_cache import use_versioned_cache
 
-use_versioned_cache()  # before the kernels below are defined
+# Before any kernel is defined (the block modules below define theirs on import): numba
+# caches each kernel under a folder keyed by every kernel source, so an edited callee in
+# another file never leaves stale machine code.
+use_versioned_cache()
 
+# The built-in blocks register themselves on import.
+from . import cbf_filter, controller, inertia, observer, reference, sensor  # noqa: E402, F401, I001
 from .base import BLOCKS, Block, BlockContext, Ports, register_block  # noqa: E402
 
 # The chain a run steps when its pipeline names none: the order data flows in.

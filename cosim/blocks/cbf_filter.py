@@ -28,9 +28,10 @@ b̂ = C(y, v) v + G(y) + τ_d. The plant is q̈ = M⁻¹(τ − b − τ_d), and
   lies in the box of its end values, so the worst case is at a box corner: 3G + 1 linear
   rows in τ, never optimistic, exact as G grows. (When M̂ is the plant's own M, only b
   differs: q̈ = u − Δm M̂⁻¹Jᵀγ, the worst case at one end of the range.)
-- b̂'s own error from the velocity error: b's velocity part is a quadratic form vᵀΓ_i v, so
-  |Δb_i| ≤ Σ_jl |Γ_i,jl| (2|v_l| ε_j + ε_j ε_l), Γ from the nominal chain plus the
-  payload's; with a disturbance bound d̄, each row is tightened by Σ_l |(M̂⁻¹)_il|(|Δb_l| + d̄).
+- b̂'s own error from the velocity error: b's velocity part is a quadratic form vᵀΓ_l v, so
+  Δb = B δ + (δᵀΓ_l δ)_l with B_lj = 2 Σ_k Γ_l,jk v_k (Γ of the nominal chain plus the
+  payload's); a row of joint i is tightened by Σ_j |(M̂⁻¹B)_ij| ε_j (its worst end of the
+  payload range) + Σ_l |(M̂⁻¹)_il| (Σ_jk |Γ_l,jk| ε_j ε_k + d̄), d̄ the disturbance bound.
 
 Solved as min ½‖τ − τ_nom‖² + ½ρ_s‖s‖² subject to G_hard τ ≤ h_hard and
 G_soft τ ≤ h_soft + s (and |τ_i| ≤ τ_max, hard), every row scaled to unit norm (N·m). The
@@ -203,39 +204,71 @@ def velocity_forms(q, m, l, lc, inertia):  # noqa: E741
     return gamma
 
 
-@njit(cache=True)
-def bias_error_bound(q, v, eps, a, nominal):
-    """Per joint, a bound on |b(q, q̇) − b(q, v)| for |q̇ − v| ≤ ε: the nominal chain's
-    velocity forms (``nominal``) plus the largest payload's, and the disturbance bound."""
+@njit(cache=True, inline="always")
+def acceleration_error_bound(q, v, eps, minv, a, nominal):
+    """Per joint i, a bound on |(M̂⁻¹(b(q, q̇) − b(q, v)))_i + (M̂⁻¹d)_i| for |q̇_j − v_j| ≤ ε_j
+    and a disturbance |d_l| ≤ d̄. b's velocity part is b_l(v) = vᵀΓ_l v (``nominal``, plus
+    Δm times a unit payload's), so b(v + δ) − b(v) = B δ + (δᵀΓ_l δ)_l with
+    B_lj = 2 Σ_k Γ_l,jk v_k: the linear part through M̂⁻¹B keeps its cancellations (in a
+    stretched arm most of the Coriolis force is radial: no torque), the quadratic part and
+    d̄ are bounded row by row. Affine in Δm, so the worst case is at an end of its range."""
     n = q.shape[0]
     unit = np.zeros(n)
     unit[n - 1] = 1.0
     payload = velocity_forms(q, unit, a.l, a.lc, np.zeros(n))
     size = max(abs(a.payload_low), abs(a.payload_high))
-    out = np.full(n, a.disturbance)
-    for i in range(n):
+    linear = np.zeros((2, n, n))  # B for the nominal chain plus each end of the payload range
+    quadratic = np.full(n, a.disturbance)
+    for l in range(n):  # noqa: E741
         for j in range(n):
             for k in range(n):
-                g = abs(nominal[i, j, k]) + size * abs(payload[i, j, k])
-                out[i] += g * (2.0 * abs(v[k]) * eps[j] + eps[j] * eps[k])
+                for end in range(2):
+                    mass = a.payload_low if end == 0 else a.payload_high
+                    linear[end, l, j] += 2.0 * (nominal[l, j, k] + mass * payload[l, j, k]) * v[k]
+                quadratic[l] += (abs(nominal[l, j, k]) + size * abs(payload[l, j, k])) \
+                    * eps[j] * eps[k]
+    out = np.zeros(n)
+    for i in range(n):
+        for j in range(n):
+            worst = 0.0
+            for end in range(2):
+                value = 0.0
+                for l in range(n):  # noqa: E741
+                    value += minv[i, l] * linear[end, l, j]
+                worst = max(worst, abs(value))
+            out[i] += worst * eps[j]
+        for l in range(n):  # noqa: E741
+            out[i] += abs(minv[i, l]) * quadratic[l]
     return out
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")  # a's many fields are not copied per call
 def _add_row(a, count, row, limit, weight, hard, kind, joint):
-    norm = np.sqrt(np.sum(row**2))
+    _finish_row(a, count, limit, weight, hard, kind, joint, row)
+    return count + 1
+
+
+@njit(cache=True, inline="always")
+def _finish_row(a, count, limit, weight, hard, kind, joint, row):
+    """Row ``count`` of the QP from ``row`` (written into ``a.rows[count]`` scaled to unit
+    norm, N·m), its limit, weight and labels; no allocation (the filter adds ~200 a step)."""
+    n = row.shape[0]
+    norm = 0.0
+    for j in range(n):
+        norm += row[j] * row[j]
+    norm = np.sqrt(norm)
     if norm == 0.0:  # no τ in it: a row that holds or not whatever the filter does
         norm = 1.0
-    a.rows[count] = row / norm
+    for j in range(n):
+        a.rows[count, j] = row[j] / norm
     a.limits[count] = limit / norm
     a.weights[count] = weight
     a.is_hard[count] = 1.0 if hard else 0.0
     a.kinds[count] = kind
     a.joints[count] = joint
-    return count + 1
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _hard_rows(a, count, k, y, v, eps, mass, at_end):
     """The hard rows of row k, with the model (M̂, b̂, the payload's structure, the bias
     error) evaluated at (y, v) and the barriers at row k's state. ``at_end``: the conditions
@@ -250,7 +283,7 @@ def _hard_rows(a, count, k, y, v, eps, mass, at_end):
     bias += a.tau_d
     base = minv @ bias  # u = M̂⁻¹τ − base
     forms = velocity_forms(y, a.m, a.l, a.lc, a.inertia)
-    rows_error = np.abs(minv) @ bias_error_bound(y, v, eps, a, forms)  # |M̂⁻¹(Δb + d̄)|
+    rows_error = acceleration_error_bound(y, v, eps, minv, a, forms)  # |M̂⁻¹(Δb + d)|
     # the payload's structure (see the module docstring)
     robust = a.payload_high != 0.0 or a.payload_low != 0.0
     jac, gamma = com_kinematics(y, v, a.l, a.lc, a.gravity)
@@ -284,6 +317,7 @@ def _hard_rows(a, count, k, y, v, eps, mass, at_end):
     elif robust:
         plant_shift = minv @ (jac.T @ gamma)  # q̈ = u − Δm·this
     y0, v0, dt = a.position[k], a.velocity[k], a.dt
+    row = np.empty(n)
     for s in range(2):
         if not a.hard[s]:
             continue
@@ -305,16 +339,19 @@ def _hard_rows(a, count, k, y, v, eps, mass, at_end):
                     limit -= scale * max(-a.payload_low * side * plant_shift[i],
                                          -a.payload_high * side * plant_shift[i])
                 for corner in range(corners):
-                    row = side * minv[i].copy()
                     offset = side * base[i]
+                    for col in range(n):
+                        row[col] = side * minv[i, col]
                     if corners > 1:
                         for j in range(2):
-                            sj = s_grid[corner_index[corner, j], j]
-                            cj = side * alpha[j, i]
-                            row -= sj * cj * alpha[j]
-                            offset += sj * cj * beta[j]
-                    count = _add_row(a, count, scale * row, limit + scale * offset,
-                                     a.rho_hard, True, s, i)
+                            weight = s_grid[corner_index[corner, j], j] * side * alpha[j, i]
+                            for col in range(n):
+                                row[col] -= weight * alpha[j, col]
+                            offset += weight * beta[j]
+                    for col in range(n):
+                        row[col] *= scale
+                    _finish_row(a, count, limit + scale * offset, a.rho_hard, True, s, i, row)
+                    count += 1
     return count
 
 
