@@ -155,16 +155,20 @@ def test_the_compiled_solver_agrees_with_real_qp_solvers(solver):
     for k in sorted({*range(0, 20000, 500), *acting[::max(1, len(acting) // 150)]}):
         count = cbf_rows(k, a)
         G, h = a.rows[:count].copy(), a.limits[:count].copy()
-        ours, _ = solve_soft_qp(a.tau_nominal[k], G, h, a.rho, 50, 1e-12)
-        n = G.shape[1]
-        P = np.diag(np.concatenate([np.ones(n), np.full(count, a.rho)]))
-        q = np.concatenate([-a.tau_nominal[k], np.zeros(count)])
-        G_full = np.block([[G, -np.eye(count)], [np.zeros((count, n)), -np.eye(count)]])
-        x = qpsolvers.solve_qp(P, q, G_full, np.concatenate([h, np.zeros(count)]),
+        hard = a.is_hard[:count] > 0
+        h[hard] -= a.hard_tolerance
+        ours, _ = solve_soft_qp(a.tau_nominal[k], G, h, a.weights[:count].copy(), 50, 1e-12)
+        # the reference: hard rows as hard constraints, soft rows with an explicit slack
+        n, m = G.shape[1], int((~hard).sum())
+        P = np.diag(np.concatenate([np.ones(n), np.full(m, a.rho_soft)]))
+        q = np.concatenate([-a.tau_nominal[k], np.zeros(m)])
+        G_full = np.block([[G[hard], np.zeros((int(hard.sum()), m))],
+                           [G[~hard], -np.eye(m)], [np.zeros((m, n)), -np.eye(m)]])
+        x = qpsolvers.solve_qp(P, q, G_full, np.concatenate([h[hard], h[~hard], np.zeros(m)]),
                                solver=solver)
         scale = 1.0 + np.abs(a.tau_nominal[k]).max()
         worst = max(worst, np.abs(ours - x[:n]).max() / scale)
-        binding += int((G @ ours > h).any())
+        binding += int((G @ ours > h - 1e-6).any())
     assert binding > 20  # the comparison covers steps where the filter acts
     assert worst < 1e-5, worst
 

@@ -19,7 +19,8 @@ b̂ = C(y, v) v + G(y) + τ_d. The plant is q̈ = M⁻¹(τ − b − τ_d), and
 (``[uncertainty]``) bounds the difference:
 
 - |q − y| ≤ n̄ (noise bound) and |q̇ − v| ≤ ε(t): the hard rows take the worst case of
-  each (p²·n̄, 2p·ε and k·ε);
+  each (p²·n̄, 2p·ε and k·ε), and a velocity row the worst case of the true barrier,
+  max(h − ε, 0) (it is ≥ 0 until the set is first left);
 - a payload Δm ∈ [low, high] at the last link's centre of mass c, Jacobian J (2×n):
   M = M̂ + Δm JᵀJ, b = b̂ + Δm Jᵀγ with γ = J̇q̇ + g ŷ. Then exactly
   q̈ = u − M̂⁻¹Jᵀ S (J u + γ), u = M̂⁻¹(τ − b̂), S = Δm (I + Δm K)⁻¹, K = J M̂⁻¹ Jᵀ;
@@ -331,8 +332,12 @@ def _hard_rows(a, count, k, y, v, eps, mass, at_end):
                     if at_end:
                         limit -= a.k0 * dt * side * v0[i]
                 else:
+                    # The true h is ≥ 0 until the set is first left (by induction) and at
+                    # least h − ε: its worst case is max(h − ε, 0), not h − ε. So an estimate
+                    # that may lie outside asks only "do not approach", not recovery at rate
+                    # k from a state the plant may not be in.
                     h = a.bounds[1] - side * (v0[i] - a.qdot_s[k, i])
-                    limit = a.k_velocity * (h - eps[i])
+                    limit = a.k_velocity * max(h - eps[i], 0.0)
                     scale = 1.0 + a.k_velocity * dt if at_end else 1.0
                 limit -= scale * rows_error[i]
                 if corners == 1:
@@ -492,8 +497,9 @@ def cbf_record(k, a, count, tau):
     for j in range(count):
         if a.is_hard[j] > 0.0 and excess[j] > 0.0:
             infeasible = True
-    if infeasible and a.brake:
-        tau = a.backup.copy()
+    if infeasible:  # the backup; a torque limit is honoured whatever else gives way
+        tau = a.backup.copy() if a.brake else np.minimum(np.maximum(
+            tau, -a.torque_limit), a.torque_limit)
         excess = G @ tau - h
     a.tau[k] = tau
     a.infeasible[k] = 1.0 if infeasible else 0.0

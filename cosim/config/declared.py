@@ -43,7 +43,7 @@ class Uncertainty(Section):
     noise_bound: NonNegativeFloat = 0.0
     initial_velocity_error: NonNegativeFloat = 0.0
     disturbance: NonNegativeFloat = 0.0
-    observer_residual_rate: NonNegativeFloat = 2.0e4
+    observer_residual_rate: NonNegativeFloat = 4.0e4
 
     @model_validator(mode="after")
     def _ordered(self) -> Uncertainty:
