@@ -30,8 +30,12 @@ def problems(plan, trace) -> list[tuple]:
     out = []
     for k in sorted({*range(0, len(trace.time), 100), *acting[:: max(1, len(acting) // 400)]}):
         count = cbf_rows(k, a)
-        out.append((a.tau_nominal[k].copy(), a.rows[:count].copy(), a.limits[:count].copy()))
-    return out, a.rho
+        limits = a.limits[:count].copy()
+        hard = a.is_hard[:count] > 0
+        limits[hard] -= a.hard_tolerance
+        out.append((a.tau_nominal[k].copy(), a.rows[:count].copy(), limits,
+                    a.weights[:count].copy(), hard))
+    return out
 
 
 def main() -> None:
@@ -53,20 +57,23 @@ def main() -> None:
         simulate(scenario.plant, plan, trace)
     finally:
         scenario.close()
-    cases, rho = problems(plan, trace)
+    cases = problems(plan, trace)
     solvers = ["newton", *[s for s in ("daqp", "clarabel", "osqp", "proxqp", "quadprog")
                            if s in qpsolvers.available_solvers]]
 
-    def solve(solver, tau_nominal, G, h):
+    def solve(solver, tau_nominal, G, h, weights, hard):
+        """Hard rows as constraints, soft rows with an explicit slack."""
         if solver == "newton":
-            return solve_soft_qp(tau_nominal, G, h, rho, 50, 1e-12)[0]
-        n, m = G.shape[1], G.shape[0]
-        P = np.diag(np.concatenate([np.ones(n), np.full(m, rho)]))
+            return solve_soft_qp(tau_nominal, G, h, weights, 50, 1e-12)[0]
+        n, m, k = G.shape[1], int((~hard).sum()), int(hard.sum())
+        P = np.diag(np.concatenate([np.ones(n), weights[~hard]]))
         q = np.concatenate([-tau_nominal, np.zeros(m)])
-        G_full = np.block([[G, -np.eye(m)], [np.zeros((m, n)), -np.eye(m)]])
+        G_full = np.block([[G[hard], np.zeros((k, m))], [G[~hard], -np.eye(m)],
+                           [np.zeros((m, n)), -np.eye(m)]])
         kwargs = {"eps_abs": 1e-9, "eps_rel": 1e-9} if solver == "osqp" else {}
-        return qpsolvers.solve_qp(P, q, G_full, np.concatenate([h, np.zeros(m)]),
-                                  solver=solver, **kwargs)[:n]
+        x = qpsolvers.solve_qp(P, q, G_full, np.concatenate([h[hard], h[~hard], np.zeros(m)]),
+                               solver=solver, **kwargs)
+        return np.full(n, np.nan) if x is None else x[:n]
 
     import warnings
 

@@ -174,11 +174,13 @@ def _cell(entry: dict | None) -> str:
         return "-"
     if entry["worst"] is None:  # no qdot to check
         return "n/a (no qdot)"
-    worst = f"{entry['worst']:.3f} <= {entry['bound']:g}"
     if entry["satisfied"]:
-        return f"{worst} ok"
-    return (f"{worst} VIOLATED from {entry['first_violation_s']:.2f} s, "
-            f"{entry['time_outside_s']:.2f} s out")
+        return f"{entry['worst']:.3f} ok (<= {entry['bound']:g})"
+    if entry.get("attainable") is False:  # the reference itself leaves the set
+        return (f"{entry['worst']:.3f} unattainable (reference reaches "
+                f"{entry['reference_worst']:.3f} > {entry['bound']:g})")
+    return (f"{entry['worst']:.3f} VIOLATED (> {entry['bound']:g}) from "
+            f"{entry['first_violation_s']:.2f} s, {entry['time_outside_s']:.2f} s out")
 
 
 def _print_summary(results) -> None:
@@ -194,6 +196,17 @@ def _print_summary(results) -> None:
         print("  ".join(cell.ljust(width) for cell, width in zip(row, widths, strict=True)))
     for name, r in results.items():
         m = r.metrics
+        g = m.get("guarantee") or {}
+        if g.get("feasible") is not None:  # a filtered run: what its guarantee covers
+            covered = g["starts_inside"] and g["feasible"] and g["within_bounds"]
+            exit_text = (f"left {g['first_exit']['set']} at {g['first_exit']['t']:.3f} s"
+                         if g["first_exit"] else "kept every hard set")
+            print(f"{name}: {exit_text}; guarantee "
+                  + ("covers this run" if covered else "does not cover this run: "
+                     + "; ".join([*(["started outside"] if not g["starts_inside"] else []),
+                                  *([f"{g['infeasible_steps']} infeasible step(s)"]
+                                    if not g["feasible"] else []), *g["outside"]]))
+                  + (" — BROKEN" if g["broken"] else ""))
         tau = ", ".join(f"{x:.1f}" for x in m["peak_torque"])
         obs = m["observer_velocity_error_rms_after_1s"]
         obs_text = ", ".join(f"{x:.3f}" for x in obs) if obs else "-"

@@ -290,3 +290,25 @@ def test_a_plant_that_crashes_mid_run_is_named_and_what_was_computed_is_kept(tmp
     assert summary["complete"] is False and summary["status"] == "crashed"
     assert "SIGSEGV" in summary["error"]
     assert (out / "recording.rrd").stat().st_size > 0
+
+
+def test_force_never_deletes_what_cosim_did_not_write(finished, tmp_path):
+    """--force replaces a run folder of ours; a folder holding anything else (a project
+    folder, a run folder with the user's notes added) is refused, naming what is there,
+    and nothing in it changes."""
+    project = tmp_path / "project"
+    (project / "thesis").mkdir(parents=True)
+    (project / "thesis" / "chapter1.tex").write_text("results")
+    (project / "measurements.csv").write_text("t,q\n0,0\n")
+    shutil.copy(PAPER, project / "paper_two_link.toml")
+    ours = tmp_path / "annotated"
+    shutil.copytree(finished, ours)
+    (ours / "notes.txt").write_text("keep me")
+    for folder, named in ((project, "measurements.csv"), (ours, "notes.txt")):
+        before = snapshot(folder)
+        done = cosim_cli("run", PAPER, "--out", str(folder), "--force", *SHORT)
+        message = error_line(done)
+        assert done.returncode == 2, done.stderr
+        assert "--force replaces only what cosim wrote" in message and named in message
+        assert "nothing was deleted" in message
+        assert snapshot(folder) == before

@@ -81,7 +81,9 @@ class CbfFilterParams(Section):
     # A fraction of every bound kept for the sampled-data hold between steps (1 ms).
     bound_margin: Annotated[float, Field(ge=0, lt=1)] = 0.002
     torque_limit: PositiveFloat | None = None  # |τ_i| ≤ this, N·m (hard)
-    tracking_weight: PositiveFloat = 100.0  # ρ_s: cost of 1 N·m of soft violation, ² (vs τ)
+    # ρ_s: the cost of 1 N·m of soft violation, squared, against τ's: high, so that tracking
+    # gives way only where it conflicts with a hard row (ρ_hard is 1e4 times more)
+    tracking_weight: PositiveFloat = 1e6
     hard_weight: PositiveFloat = 1e10  # ρ_hard of the penalty form (then checked exactly)
     hard_tolerance: PositiveFloat = 1e-4  # N·m: the hard limits are lowered by this
     # When the hard part is infeasible: "least_violation", the penalty form's answer (the

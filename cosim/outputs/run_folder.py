@@ -106,6 +106,15 @@ class RunFolder:
             raise RunFolderError(f"--out {path}: already holds {len(existing)} file"
                                  f"{'s' * (len(existing) != 1)} ({what}); pass --force to "
                                  "replace them, or choose another --out")
+        foreign = _not_ours(path, existing)
+        if existing and foreign:
+            folder.release()
+            shown = ", ".join(foreign[:5]) + (", …" if len(foreign) > 5 else "")
+            raise RunFolderError(
+                f"--out {path}: --force replaces only what cosim wrote, and this folder holds "
+                f"{len(foreign)} entr{'ies' if len(foreign) != 1 else 'y'} it did not write "
+                f"({shown}); nothing was deleted: choose another --out, or remove them "
+                "yourself")
         try:
             for name in existing:
                 entry = path / name
@@ -234,6 +243,46 @@ class RunFolder:
             raise RunFolderError(f"{target}: could not be written: "
                                  f"{exc.strerror or exc}") from None
         self.files[name] = {"complete": True, "bytes": len(data)}
+
+
+# What cosim writes into a run or sweep folder (besides what summary.json lists), and the
+# temporaries it may leave behind when killed.
+OUR_NAMES = ("summary.json", "summary.md", "recording.rrd", "results.parquet", "results.csv",
+             "sweep.json", "sweep_safety.png")
+OUR_PATTERNS = ("trace_*.npz", "fig*.png", ".*.tmp")
+
+
+def _ours_summary(path: Path) -> dict | None:
+    """The folder's summary.json when cosim wrote it (else None)."""
+    try:
+        data = json.loads((path / "summary.json").read_text())
+    except (OSError, ValueError):
+        return None
+    if isinstance(data, dict) and "complete" in data and ("provenance" in data
+                                                          or "runs" in data):
+        return data
+    return None
+
+
+def _not_ours(path: Path, names: list[str]) -> list[str]:
+    """The entries of ``path`` that cosim did not write: everything when the folder has no
+    summary.json of ours; else what is neither listed in it, nor one of our outputs, nor a
+    run folder of ours (a sweep's recorded points)."""
+    summary = _ours_summary(path)
+    if summary is None:
+        return names
+    listed = set((summary.get("files") or {}).keys())
+    out = []
+    for name in names:
+        entry = path / name
+        if name in listed or name in OUR_NAMES or any(entry.match(p) for p in OUR_PATTERNS):
+            if not entry.is_dir() or entry.is_symlink():
+                continue
+        if entry.is_dir() and not entry.is_symlink() and _ours_summary(entry) is not None \
+                and not _not_ours(entry, [p.name for p in entry.iterdir() if p.name != LOCK]):
+            continue
+        out.append(name)
+    return out
 
 
 def _describe_existing(path: Path) -> str:
