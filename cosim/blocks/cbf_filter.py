@@ -37,8 +37,10 @@ b̂ = C(y, v) v + G(y) + τ_d. The plant is q̈ = M⁻¹(τ − b − τ_d), and
 Solved as min ½‖τ − τ_nom‖² + ½ρ_s‖s‖² subject to G_hard τ ≤ h_hard and
 G_soft τ ≤ h_soft + s (and |τ_i| ≤ τ_max, hard), every row scaled to unit norm (N·m). The
 compiled semismooth Newton solves the penalty form with the hard rows at weight ρ_hard and
-their limits lowered by ``hard_tolerance``; its answer is then checked against the hard rows
-as given: if one is violated, the hard part is infeasible at that step (``cbf_infeasible`` =
+their limits lowered by ``hard_tolerance``; where a hard row still slips (tracking pulling
+hard against it), it re-solves with the soft weights 1e-3 and 1e-6 times, then without the
+soft rows; only if the hard rows alone are violated (as given) is the hard part infeasible
+at that step (``cbf_infeasible`` =
 1, counted), and the **backup** acts: by default the penalty form's answer itself (the
 torque that violates the hard rows least), or braking, q̈ = −k (v − q̇_s) with the nominal
 model, within the torque limit (``backup = "brake"``). Soft slack is reported apart
@@ -527,13 +529,35 @@ def cbf_record(k, a, count, tau):
 
 
 @njit(cache=True)
+def _hard_violated(G, h, is_hard, tau):
+    """Whether τ violates a hard row as given (h not lowered)."""
+    excess = G @ tau - h
+    for j in range(G.shape[0]):
+        if is_hard[j] > 0.0 and excess[j] > 0.0:
+            return True
+    return False
+
+
+@njit(cache=True)
 def cbf_step(k, a):
     count = cbf_rows(k, a)
-    G, h, weights = a.rows[:count], a.limits[:count].copy(), a.weights[:count]
+    G, given, hard = a.rows[:count], a.limits[:count], a.is_hard[:count]
+    h = given.copy()
     for j in range(count):  # solve with the hard limits lowered: checked as given after
-        if a.is_hard[j] > 0.0:
+        if hard[j] > 0.0:
             h[j] -= a.hard_tolerance
+    weights = a.weights[:count].copy()
     tau, _ = solve_soft_qp(a.tau_nominal[k], G, h, weights, a.iterations, a.tolerance)
+    # A hard row may slip by ~ρ_soft·(soft excess)/ρ_hard where tracking pulls hard against
+    # it: re-solve with tracking weighed less, down to the hard rows alone; only when those
+    # alone cannot be met is the step infeasible (then cbf_record applies the backup).
+    for _ in range(3):
+        if not _hard_violated(G, given, hard, tau):
+            break
+        for j in range(count):
+            if hard[j] == 0.0:
+                weights[j] = weights[j] * 1e-3 if weights[j] > a.rho_soft * 1e-5 else 0.0
+        tau, _ = solve_soft_qp(a.tau_nominal[k], G, h, weights, a.iterations, a.tolerance)
     return cbf_record(k, a, count, tau)
 
 
