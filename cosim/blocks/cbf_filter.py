@@ -68,7 +68,6 @@ from .inertia import planar_bias, planar_mass_matrix
 SETS = ("position", "velocity", "error", "error_rate")
 HardSet = Literal["position", "velocity"]
 SoftSet = Literal["error", "error_rate"]
-DEGREES = np.array([2, 1, 2, 1])  # per set, SETS order: relative degree in q̈
 
 
 class CbfFilterParams(Section):
@@ -274,7 +273,17 @@ def _finish_row(a, count, limit, weight, hard, kind, joint, row):
 
 
 @njit(cache=True, inline="always")
-def _hard_rows(a, count, k, y, v, eps, mass, at_end):
+def _nominal_model(a, y, v, mass):
+    """(M̂⁻¹, b̂ = C(y, v) v + G(y) + τ_d, M̂⁻¹b̂) at (y, v), so that q̈ = M̂⁻¹τ − M̂⁻¹b̂."""
+    minv = np.linalg.inv(mass)
+    bias = np.zeros(y.shape[0])
+    planar_bias(y, v, a.m, a.l, a.lc, a.inertia, a.gravity, bias)
+    bias += a.tau_d
+    return minv, bias, minv @ bias
+
+
+@njit(cache=True, inline="always")
+def _hard_rows(a, count, k, y, v, eps, minv, base, at_end):
     """The hard rows of row k, with the model (M̂, b̂, the payload's structure, the bias
     error) evaluated at (y, v) and the barriers at row k's state. ``at_end``: the conditions
     at the end of the hold instead, at a predicted (y, v): a held τ must keep them there
@@ -282,11 +291,6 @@ def _hard_rows(a, count, k, y, v, eps, mass, at_end):
     q(dt) = q + dt q̇ + ½dt² q̈ and q̇(dt) = q̇ + dt q̈, a condition at the end weighs q̈ by
     1 + k dt (velocity) or 1 + 2p dt + ½p² dt² (position) and the position's by p² dt q̇."""
     n = y.shape[0]
-    minv = np.linalg.inv(mass)
-    bias = np.zeros(n)
-    planar_bias(y, v, a.m, a.l, a.lc, a.inertia, a.gravity, bias)
-    bias += a.tau_d
-    base = minv @ bias  # u = M̂⁻¹τ − base
     forms = velocity_forms(y, a.m, a.l, a.lc, a.inertia)
     rows_error = acceleration_error_bound(y, v, eps, minv, a, forms)  # |M̂⁻¹(Δb + d)|
     # the payload's structure (see the module docstring)
@@ -371,18 +375,14 @@ def cbf_rows(k, a):
     n = a.position.shape[1]
     y, v, eps = a.position[k], a.velocity[k], a.velocity_bound[k]
     mass = a.M_model[k]
-    minv = np.linalg.inv(mass)
-    bias = np.zeros(n)
-    planar_bias(y, v, a.m, a.l, a.lc, a.inertia, a.gravity, bias)
-    bias += a.tau_d
-    base = minv @ bias  # u = M̂⁻¹τ − base
+    minv, bias, base = _nominal_model(a, y, v, mass)  # u = M̂⁻¹τ − base
     # the backup: brake every joint towards q̇_s
     a.backup[:] = mass @ (-a.backup_rate * (v - a.qdot_s[k])) + bias
     if np.isfinite(a.torque_limit):
         a.backup[:] = np.minimum(np.maximum(a.backup, -a.torque_limit), a.torque_limit)
     # how v itself moves: the observer's drift + M̂⁻¹τ, or the model's q̈ for the plant's q̇
     drift = a.drift[k] if np.isfinite(a.drift[k, 0]) else -base
-    count = _hard_rows(a, 0, k, y, v, eps, mass, False)
+    count = _hard_rows(a, 0, k, y, v, eps, minv, base, False)
     # the hold's end, predicted with the torque of the step before (the nominal model's q̈)
     held = a.tau[k - 1] if k > 0 else a.tau_nominal[k]
     acceleration = minv @ held - base
@@ -391,7 +391,8 @@ def cbf_rows(k, a):
     nominal_now, nominal_end = np.empty((n, n)), np.empty((n, n))
     planar_mass_matrix(y, a.m, a.l, a.lc, a.inertia, nominal_now)
     planar_mass_matrix(y_end, a.m, a.l, a.lc, a.inertia, nominal_end)
-    count = _hard_rows(a, count, k, y_end, v_end, eps, mass + nominal_end - nominal_now, True)
+    minv_end, _, base_end = _nominal_model(a, y_end, v_end, mass + nominal_end - nominal_now)
+    count = _hard_rows(a, count, k, y_end, v_end, eps, minv_end, base_end, True)
     x = np.empty((4, n))
     x[0] = y - a.q_s[k]
     x[1] = v - a.qdot_s[k]
@@ -491,20 +492,26 @@ def solve_soft_qp(tau_nominal, G, h, weights, iterations, tolerance):
 
 
 @njit(cache=True)
+def _hard_violated(G, h, is_hard, tau):
+    """Whether τ violates a hard row as given (h not lowered)."""
+    excess = G @ tau - h
+    for j in range(G.shape[0]):
+        if is_hard[j] > 0.0 and excess[j] > 0.0:
+            return True
+    return False
+
+
+@njit(cache=True)
 def cbf_record(k, a, count, tau):
     """Row k's outputs for the torque τ the QP gave: the hard part checked against its
     limits as given (else the backup acts and the step is flagged infeasible), each
     constraint's activity, the largest soft slack."""
     G, h = a.rows[:count], a.limits[:count]
-    excess = G @ tau - h
-    infeasible = False
-    for j in range(count):
-        if a.is_hard[j] > 0.0 and excess[j] > 0.0:
-            infeasible = True
+    infeasible = _hard_violated(G, h, a.is_hard[:count], tau)
     if infeasible:  # the backup; a torque limit is honoured whatever else gives way
         tau = a.backup.copy() if a.brake else np.minimum(np.maximum(
             tau, -a.torque_limit), a.torque_limit)
-        excess = G @ tau - h
+    excess = G @ tau - h
     a.tau[k] = tau
     a.infeasible[k] = 1.0 if infeasible else 0.0
     active = 0
@@ -526,16 +533,6 @@ def cbf_record(k, a, count, tau):
     a.slack[k] = slack
     a.correction[k] = np.sqrt(np.sum((tau - a.tau_nominal[k]) ** 2))
     return np.isfinite(np.sum(tau))
-
-
-@njit(cache=True)
-def _hard_violated(G, h, is_hard, tau):
-    """Whether τ violates a hard row as given (h not lowered)."""
-    excess = G @ tau - h
-    for j in range(G.shape[0]):
-        if is_hard[j] > 0.0 and excess[j] > 0.0:
-            return True
-    return False
 
 
 @njit(cache=True)
