@@ -74,7 +74,14 @@ class CbfFilterParams(Section):
     hard: list[HardSet] = ["position", "velocity"]  # physical sets, per joint, guaranteed
     soft: list[SoftSet] = ["error", "error_rate"]  # tracking sets, per joint, weighted
     soft_norms: list[SoftSet] = ["error", "error_rate"]  # tracking sets as norms, weighted
-    position_rate: PositiveFloat = 10.0  # p of degree-2 conditions (k1 = 2p, k0 = p²), 1/s
+    # p of the hard degree-2 (position) conditions (k1 = 2p, k0 = p²), 1/s. A model error D
+    # (rad/s²) keeps the joint D/p² from its bound and the velocity error ε keeps it 2ε/p:
+    # a fast p costs less tracking where the reference runs along a bound; p·step ≪ 1.
+    position_rate: PositiveFloat = 30.0
+    # p of the soft error rows (degree 2), 1/s. A slow p also caps how fast an error may
+    # shrink (ḧ ≥ −2p ḣ − p² h on the far side of the set), which holds a fast tracking
+    # controller back: the tracking rows are as fast as the controller they watch.
+    tracking_rate: PositiveFloat = 100.0
     # k of degree-1 conditions, 1/s: under a model error D (rad/s²) a velocity set keeps a
     # margin D/k, so a fast rate costs little; k·step ≪ 1 for the 1 ms hold.
     velocity_rate: PositiveFloat = 100.0
@@ -108,6 +115,8 @@ class CbfArgs(NamedTuple):
     bounds: np.ndarray  # (4,) β per set, bound_margin applied
     k1: float  # 2p
     k0: float  # p²
+    tracking_k1: float  # 2p of the soft error rows
+    tracking_k0: float  # p²
     k_velocity: float
     dt: float  # the hold, s
     torque_limit: float  # inf: none
@@ -380,8 +389,6 @@ def cbf_rows(k, a):
     a.backup[:] = mass @ (-a.backup_rate * (v - a.qdot_s[k])) + bias
     if np.isfinite(a.torque_limit):
         a.backup[:] = np.minimum(np.maximum(a.backup, -a.torque_limit), a.torque_limit)
-    # how v itself moves: the observer's drift + M̂⁻¹τ, or the model's q̈ for the plant's q̇
-    drift = a.drift[k] if np.isfinite(a.drift[k, 0]) else -base
     count = _hard_rows(a, 0, k, y, v, eps, minv, base, False)
     # the hold's end, predicted with the torque of the step before (the nominal model's q̈)
     held = a.tau[k - 1] if k > 0 else a.tau_nominal[k]
@@ -393,6 +400,19 @@ def cbf_rows(k, a):
     planar_mass_matrix(y_end, a.m, a.l, a.lc, a.inertia, nominal_end)
     minv_end, _, base_end = _nominal_model(a, y_end, v_end, mass + nominal_end - nominal_now)
     count = _hard_rows(a, count, k, y_end, v_end, eps, minv_end, base_end, True)
+    # The soft rows take the plant's q̈ averaged over the hold (the midpoint rule: at the bound
+    # of a set, q̈'s drift within one 1 ms hold is what would carry the state across), and
+    # how v moves: the observer's drift + M̂⁻¹τ (the observer holds M̂ over the step), or the
+    # plant's q̈ for the plant's q̇.
+    nominal_mid = np.empty((n, n))
+    y_mid = y + 0.5 * a.dt * v + 0.125 * a.dt * a.dt * acceleration
+    planar_mass_matrix(y_mid, a.m, a.l, a.lc, a.inertia, nominal_mid)
+    minv_mid, _, base_mid = _nominal_model(a, y_mid, v + 0.5 * a.dt * acceleration,
+                                           mass + nominal_mid - nominal_now)
+    if np.isfinite(a.drift[k, 0]):
+        rate_minv, drift = minv, a.drift[k]
+    else:
+        rate_minv, drift = minv_mid, -base_mid
     x = np.empty((4, n))
     x[0] = y - a.q_s[k]
     x[1] = v - a.qdot_s[k]
@@ -417,22 +437,30 @@ def cbf_rows(k, a):
                 for side in (1.0, -1.0):
                     h = beta_s - side * x[s, i]
                     if s == 2:  # e = q_d − y: −side·q̈_i ≤ −side q̈_d − 2p side ė + p² h
-                        row = -side * minv[i]
-                        bound = (-side * a.qddot_d[k, i] - a.k1 * side * rate_error[i]
-                                 + a.k0 * h - side * base[i])
+                        row = -side * minv_mid[i]
+                        bound = (-side * a.qddot_d[k, i] - a.tracking_k1 * side * rate_error[i]
+                                 + a.tracking_k0 * h - side * base_mid[i])
                     else:  # ė = q̇_d − v: −side·(M̂⁻¹τ)_i ≤ −side q̈_d + side drift_i + k h
-                        row = -side * minv[i]
+                        row = -side * rate_minv[i]
                         bound = -side * a.qddot_d[k, i] + side * drift[i] + a.k_velocity * h
                     count = _add_row(a, count, row, bound, a.rho_soft, False, s, i)
         if a.soft_norms[s]:
             xs = x[s]
             h = beta_s * beta_s - norm * norm
-            row = -2.0 * (xs @ minv)
             if s == 2:  # ḧ = −2‖ė‖² − 2eᵀ(q̈_d − q̈), ḣ = −2eᵀė
+                row = -2.0 * (xs @ minv_mid)
                 bound = (-2.0 * np.sum(rate_error**2) - 2.0 * (xs @ a.qddot_d[k])
-                         - 2.0 * (xs @ base) - 2.0 * a.k1 * (xs @ rate_error) + a.k0 * h)
+                         - 2.0 * (xs @ base_mid) - 2.0 * a.tracking_k1 * (xs @ rate_error)
+                         + a.tracking_k0 * h)
             else:  # ḣ = −2ėᵀ(q̈_d − dv/dt)
+                row = -2.0 * (xs @ rate_minv)
                 bound = -2.0 * (xs @ a.qddot_d[k]) + 2.0 * (xs @ drift) + a.k_velocity * h
+                # Over a hold h also loses ‖Δx‖² (the set is round, the step straight): a
+                # state sliding along the bound would leave it by that much each step, so the
+                # rate asked for is less by ‖Δx‖²/step, Δx taken from the step before.
+                if k > 0:
+                    change = xs - (a.qdot_d[k - 1] - a.velocity[k - 1])
+                    bound -= np.sum(change**2) / a.dt
             count = _add_row(a, count, row, bound, a.rho_soft, False, 4 + s, -1)
     if np.isfinite(a.torque_limit):
         for i in range(n):
@@ -639,7 +667,8 @@ class CbfFilter(Block):
                  for chosen in (p.hard, p.soft, p.soft_norms)]
         self.args = CbfArgs(
             *flags, bounds,
-            2.0 * p.position_rate, p.position_rate**2, p.velocity_rate, self.context.dt,
+            2.0 * p.position_rate, p.position_rate**2, 2.0 * p.tracking_rate,
+            p.tracking_rate**2, p.velocity_rate, self.context.dt,
             p.torque_limit or np.inf, p.tracking_weight, p.hard_weight, p.hard_tolerance,
             p.backup == "brake", p.backup_rate, p.payload_grid, p.iterations, p.tolerance,
             uncertainty.noise_bound, *map(float, uncertainty.payload), uncertainty.disturbance,
