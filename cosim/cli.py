@@ -76,18 +76,23 @@ def _run(args: argparse.Namespace) -> None:
           f"({pipeline.simulation.duration:g} s at {1 / pipeline.simulation.step:g} Hz) -> {out}",
           file=sys.stderr)
     previous = signal.signal(signal.SIGTERM, _on_sigterm)
-    kept = f"what was computed is kept in {out}; summary.json says what is incomplete"
+
+    def kept() -> str:  # the run folder is made once the plant is open
+        if (out / "summary.json").is_file():
+            return f"what was computed is kept in {out}; summary.json says what is incomplete"
+        return "nothing was written (the run had not started)"
+
     try:
         results = run(pipeline, out, record=not args.no_recording, spawn=args.spawn,
                       connect=args.connect, figures=not args.no_figures, force=args.force)
     except Diverged as exc:
-        raise UserError(f"{exc}; {kept}") from None
+        raise UserError(f"{exc}; {kept()}") from None
     except KeyboardInterrupt as exc:
-        raise UserError(f"{exc or 'interrupted (Ctrl-C)'}; {kept}") from None
+        raise UserError(f"{exc or 'interrupted (Ctrl-C)'}; {kept()}") from None
     except RecordingError as exc:
-        raise UserError(f"{exc}; {kept}") from None
+        raise UserError(f"{exc}; {kept()}") from None
     except RunFolderError as exc:  # "--out …" messages: the folder could not be used at all
-        raise UserError(str(exc) if str(exc).startswith("--out") else f"{exc}; {kept}") \
+        raise UserError(str(exc) if str(exc).startswith("--out") else f"{exc}; {kept()}") \
             from None
     finally:
         signal.signal(signal.SIGTERM, previous)

@@ -431,7 +431,7 @@ def test_linearize_cli_prints_the_poles_and_refuses_a_cs_only_fmu(plant_fmu, for
 
 
 def test_extraction_refuses_entries_outside_its_folder(plant_fmu, tmp_path):
-    from cosim.plant.mapping import extract
+    from cosim.plant.unpack import extract
 
     for name in ("../escaped.txt", "/abs.txt", "a/../../escaped.txt"):
         bad = rewrite(plant_fmu(2, 2), tmp_path / "bad.fmu", add=[(name, b"x")])

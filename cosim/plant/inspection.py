@@ -21,8 +21,8 @@ from .mapping import (
     check_co_simulation,
     map_variables,
     read_description,
-    unsafe_entries,
 )
+from .unpack import size_problem, unsafe_entries
 
 CAUSALITIES = ("input", "output", "parameter", "calculatedParameter", "local", "independent")
 
@@ -123,6 +123,9 @@ def inspect_fmu(path: str | Path, mapping: dict[str, list[str] | None] | None = 
     if unsafe:
         info.problems.append(f"the archive entry {unsafe[0]!r} points outside the FMU's "
                              "folder: it is not extracted")
+    too_large = size_problem(path)
+    if too_large:
+        info.problems.append(f"{too_large}: it is not extracted")
     if not info.problems:  # fits on paper: does the binary load and initialise?
         problem = load_in_child(path, mapping)
         if problem:

@@ -10,7 +10,6 @@ and the FMU's last log message.
 from __future__ import annotations
 
 import ctypes
-import shutil
 from collections import deque
 from pathlib import Path
 from typing import ClassVar
@@ -18,7 +17,8 @@ from typing import ClassVar
 from fmpy.fmi1 import FMICallException
 from fmpy.model_description import ModelDescription
 
-from .mapping import FmuError, extract
+from .mapping import FmuError
+from .unpack import extract, remove
 
 STATUS = {2: "status Discard", 3: "status Error", 4: "status Fatal", 5: "status Pending"}
 INTERFACES = ("CoSimulation", "ModelExchange")
@@ -52,7 +52,7 @@ class FmiInstance:
                                f"({detail}); rebuild or re-export the FMU") from None
             self.call("Instantiate", self._instantiate)
         except FmuError:
-            shutil.rmtree(self._unzip, ignore_errors=True)
+            remove(self._unzip)
             raise
 
     # What differs between versions ---------------------------------------------------------
@@ -111,7 +111,7 @@ class FmiInstance:
             _release_pythonfmu(fmu.dll)
             fmu.freeLibrary()
         if self._unzip:
-            shutil.rmtree(self._unzip, ignore_errors=True)
+            remove(self._unzip)
             self._unzip = None
 
     def call(self, what: str, function, *args, **kwargs):

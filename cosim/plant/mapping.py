@@ -11,13 +11,14 @@ and what would be valid, so a user's FMU is refused before anything runs.
 
 from __future__ import annotations
 
-import tempfile
 import zipfile
 from dataclasses import dataclass
-from pathlib import Path, PurePosixPath
+from pathlib import Path
 
 import fmpy
 from fmpy.model_description import ModelDescription, ValidationError
+
+from .errors import FmuError
 
 REAL_TYPES = ("Real", "Float64")
 # What each interface key must be in the FMU, and what it is called in messages.
@@ -25,9 +26,6 @@ ROLES = {"tau": ("input", "joint torques"), "q": ("output", "joint angles"),
          "qdot": ("output", "joint velocities"), "M": ("output", "inertia matrix")}
 
 
-class FmuError(RuntimeError):
-    """An FMU that cannot be used, or that failed a call; the message names the file, the
-    variable or FMI call, and what would be valid."""
 
 
 @dataclass
@@ -108,32 +106,6 @@ def check_binary(path: str | Path, md: ModelDescription, model_identifier: str,
             else "; export it for this platform")
     raise FmuError(f"{path}: no {interface} binary for this platform ({binary} is missing; "
                    f"the FMU has binaries for: {', '.join(present) or 'none'}){hint}")
-
-
-def unsafe_entries(path: str | Path) -> list[str]:
-    """Archive entries that would land outside the folder they are extracted to (``../``,
-    absolute paths, drive letters): a real FMU never holds one."""
-    with zipfile.ZipFile(path) as archive:
-        names = archive.namelist()
-    unsafe = []
-    for name in names:
-        pure = PurePosixPath(name.replace("\\", "/"))
-        if pure.is_absolute() or ":" in name or ".." in pure.parts:
-            unsafe.append(name)
-    return unsafe
-
-
-def extract(path: str | Path) -> str:
-    """Unzip into a fresh temporary folder, refusing an archive with unsafe entries."""
-    path = Path(path)
-    unsafe = unsafe_entries(path)
-    if unsafe:
-        raise FmuError(f"{path}: refusing to extract: the archive entry {unsafe[0]!r} "
-                       "points outside the FMU's folder")
-    target = Path(tempfile.mkdtemp(prefix="cosim_fmu_")).resolve()
-    with zipfile.ZipFile(path) as archive:
-        archive.extractall(target)
-    return str(target)
 
 
 def map_variables(md: ModelDescription, requested: dict[str, list[str] | None] | None = None
