@@ -7,7 +7,10 @@ The observer is integrated in its z form (7)/(9), which needs only the measured 
 with x̃1 = y − x̂1. When ν is small k0 exceeds 10⁴ and the output injection is stiff, so each
 sub-step treats the linear part (x̂1, ẑ2) by backward Euler, which is L-stable for every k0
 (it cannot blow up, it only damps), and the NN and torque terms explicitly. y is interpolated
-linearly between the two samples that bound the master step.
+linearly between the two samples that bound the master step; a sub-step's σo, k0 and the
+error-driven weight law are evaluated with the old x̂1 and the sub-step's *end* measurement
+y_{j+1} (consistent first order; tests/test_references.py checks the scheme as written and
+its convergence to the continuous law).
 
 Basis choices for the printed σo = [q̂; q̂̇; q̂̈; |q̂|; |q̂̇|], whose q̂̈ closes an algebraic
 loop: "lagged" uses q̂̈ from the previous sub-step; "no_acceleration" drops it.

@@ -58,8 +58,8 @@ def theorem1(trace: Signals, safe: SafeSet, lam: np.ndarray) -> dict[str, float]
     dq = np.linalg.norm(trace["q_s"] - trace["q_d"], axis=1).max()
     dv = np.linalg.norm(trace["qdot_s"] - trace["qdot_d"], axis=1).max()
     lmin, lmax = float(np.min(lam)), float(np.max(lam))
-    m_big = lmin * safe.error_bound
-    r_bound = min(m_big, safe.error_rate_bound * lmin / (lmin + lmax))
+    m_big = min(lmax * safe.error_bound, safe.error_rate_bound)  # M_R of (15), as printed
+    r_bound = min(lmin * safe.error_bound, safe.error_rate_bound * lmin / (lmin + lmax))
     return {"E1_formula": abs(safe.position_bound - dq),
             "E2_formula": abs(safe.velocity_bound - dv), "E1": safe.error_bound,
             "E2": safe.error_rate_bound, "M_R": m_big,
