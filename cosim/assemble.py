@@ -96,6 +96,9 @@ def plant_path(pipeline: Pipeline) -> Path:
     demand and cached by its build options."""
     if pipeline.plant.fmu is not None:
         path = Path(pipeline.plant.fmu)
+        if path.is_dir():
+            raise PipelineError(f"plant.fmu: {path} is a folder, not an FMU file (an "
+                                "unpacked FMU cannot be used: give its .fmu archive)")
         if not path.is_file():
             raise PipelineError(f"plant.fmu: {path} does not exist")
         return path

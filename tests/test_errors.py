@@ -69,6 +69,13 @@ CASES = [
      ["the traces would need", "GB", "memory is available",
       "shorten simulation.duration"]),
     ("unknown key", [*SHORT, "--set", "controller.kvv=1"], ["unknown key 'controller.kvv'"]),
+    ("negative sensor seed", [*SHORT, "--set", "sensor.seed=-1"],
+     ["key 'sensor.seed'", "greater than or equal to 0", "got -1"]),
+    ("negative controller seed", [*SHORT, "--set", "runs.proposed.controller.seed=-3"],
+     ["key 'runs.proposed.controller.seed'", "greater than or equal to 0"]),
+    ("plant sub-steps beyond the cap", [*SHORT, "--set", "plant.parameters.rk4_step=1e-10"],
+     ["plant.parameters.rk4_step = 1e-10 s makes 10,000,000 RK4 sub-steps per step",
+      "simulation.max_plant_substeps = 1000", "use rk4_step ≥ 1e-06 s"]),
 ]
 
 
@@ -312,3 +319,56 @@ def test_force_never_deletes_what_cosim_did_not_write(finished, tmp_path):
         assert "--force replaces only what cosim wrote" in message and named in message
         assert "nothing was deleted" in message
         assert snapshot(folder) == before
+
+
+def test_a_plant_path_that_is_a_folder_is_named_as_such(tmp_path):
+    message = error_line(cosim_cli("run", PAPER, "--out", str(tmp_path / "out"), *SHORT,
+                                   "--set", f'plant.fmu="{tmp_path}"'))
+    assert f"plant.fmu: {tmp_path} is a folder, not an FMU file" in message
+    assert not (tmp_path / "out").exists()
+
+
+def test_paths_in_an_extended_file_are_relative_to_that_file(tmp_path):
+    """base/base.toml names arm.fmu beside it; other/child.toml extends it and holds a decoy
+    arm.fmu of its own, which must not be used. A child that names a plant replaces the
+    parent's (the paper's pipeline names the built-in plant)."""
+    from cosim.config import load_pipeline
+
+    (tmp_path / "base").mkdir()
+    (tmp_path / "other").mkdir()
+    arm = tmp_path / "base" / "arm.fmu"
+    shutil.copy(build_fmu(links=2, fmi_version=2), arm)
+    (tmp_path / "other" / "arm.fmu").write_text("a decoy, not an FMU")
+    (tmp_path / "base" / "base.toml").write_text(
+        f'extends = "{Path(PAPER).resolve()}"\n[plant]\nfmu = "arm.fmu"\n')
+    child = tmp_path / "other" / "child.toml"
+    child.write_text('extends = "../base/base.toml"\nname = "child"\n')
+    pipeline = load_pipeline(child)
+    assert Path(pipeline.plant.fmu) == arm.resolve() and pipeline.plant.builtin is None
+    done = cosim_cli("run", str(child), "--out", str(tmp_path / "out"), "--no-recording",
+                     "--no-figures", "--set", "simulation.duration=0.05")
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert json.loads((tmp_path / "out" / "summary.json").read_text())["complete"]
+
+
+def test_an_extends_symlink_loop_and_a_very_deep_chain_are_one_message(tmp_path):
+    (tmp_path / "a.toml").symlink_to(tmp_path / "b.toml")
+    (tmp_path / "b.toml").symlink_to(tmp_path / "a.toml")
+    message = error_line(cosim_cli("run", str(tmp_path / "a.toml"), "--dry-run"))
+    assert "a.toml" in message and "loop of symbolic links" in message
+    for i in range(40):
+        (tmp_path / f"level{i}.toml").write_text(f'extends = "level{i + 1}.toml"\n')
+    (tmp_path / "level40.toml").write_text('name = "deep"\n')
+    message = error_line(cosim_cli("run", str(tmp_path / "level0.toml"), "--dry-run"))
+    assert "the 'extends' chain is more than 32 files deep" in message
+
+
+def test_view_screenshot_of_a_corrupt_recording_says_so_at_once(finished, tmp_path):
+    truncated = tmp_path / "cut.rrd"
+    truncated.write_bytes((finished / "recording.rrd").read_bytes()[:50_000])
+    garbage = _write(tmp_path / "garbage.rrd", os.urandom(50_000))
+    for bad, fragment in ((truncated, "Missing RRD footer"), (garbage, "Not an RRD file")):
+        message = error_line(cosim_cli("view", str(bad), "--screenshot",
+                                       str(tmp_path / "shot.png")))
+        assert f"{bad}: not a readable Rerun recording" in message and fragment in message
+    assert not (tmp_path / "shot.png").exists()

@@ -23,7 +23,7 @@ import numpy as np
 from numba import njit
 from pydantic import Field
 
-from ..config.schema import GainVector, NonNegativeFloat, PositiveFloat, Section
+from ..config.schema import GainVector, NonNegativeFloat, PositiveFloat, Section, Seed
 from ..signals import Signal
 from .base import Block, BlockContext, Ports, register_block
 
@@ -55,7 +55,7 @@ class ControllerParams(Section):
     # Initial weights: Ŵ starts at zero; V̂ at zero, or (Lewis) uniform in ±init_scale, seeded.
     init: Literal["zero", "random"] = "zero"
     init_scale: NonNegativeFloat = 0.1
-    seed: int = 0
+    seed: Seed = 0
 
 
 class ControllerArgs(NamedTuple):

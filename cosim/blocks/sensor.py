@@ -8,7 +8,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from ..config.schema import NonNegativeFloat, Section
+from ..config.schema import NonNegativeFloat, Section, Seed
 from ..signals import Signal
 from .base import Block, BlockContext, Ports, register_block
 
@@ -16,7 +16,7 @@ from .base import Block, BlockContext, Ports, register_block
 class SensorParams(Section):
     noise_std: NonNegativeFloat = 0.0  # rad, white Gaussian per sample
     resolution: NonNegativeFloat = 0.0  # rad, quantisation step (0: none)
-    seed: int = 0
+    seed: Seed = 0
 
 
 class SensorArgs(NamedTuple):

@@ -28,6 +28,10 @@ from .schema import FiniteFloat, PipelineError, PositiveFloat, Section
 class Simulation(Section):
     duration: PositiveFloat = 20.0  # s
     step: Annotated[float, Field(gt=0, le=0.1)] = 1e-3  # s, master rate
+    # The built-in plant integrates each step in RK4 sub-steps of at most its rk4_step
+    # parameter (1e-4 s: 10 a step). One FMU call cannot be interrupted, so the sub-steps a
+    # step may take are capped: a tiny rk4_step would otherwise run for hours unstoppably.
+    max_plant_substeps: Annotated[int, Field(ge=1)] = 1000
 
     @model_validator(mode="after")
     def _whole_steps(self) -> Simulation:
@@ -120,6 +124,20 @@ class Pipeline(Section):
     uncertainty: Uncertainty = Uncertainty()
     # Then a table per registered block, and last ``runs: dict[str, Run]`` (added by
     # pipeline_model, so that a bad top-level key is reported before the runs inheriting it).
+
+    @model_validator(mode="after")
+    def _bounded_plant_work(self) -> Pipeline:
+        internal = self.plant.parameters.get("rk4_step")
+        if self.plant.builtin is not None and internal is not None and internal > 0:
+            substeps = self.simulation.step / internal
+            if substeps > self.simulation.max_plant_substeps:
+                raise ValueError(
+                    f"plant.parameters.rk4_step = {internal:g} s makes {substeps:,.0f} RK4 "
+                    f"sub-steps per step of {self.simulation.step:g} s, more than "
+                    f"simulation.max_plant_substeps = {self.simulation.max_plant_substeps}: "
+                    f"use rk4_step ≥ {self.simulation.step / self.simulation.max_plant_substeps:g}"
+                    " s, or raise max_plant_substeps if the run is meant to take that long")
+        return self
 
     @model_validator(mode="before")
     @classmethod
@@ -284,11 +302,27 @@ def shadowed(data: dict, assignment: str) -> list[str]:
     return out
 
 
+MAX_EXTENDS = 32  # files in an `extends` chain: far more than any real layering needs
+
+
 def _read_toml(path: Path, chain: tuple[Path, ...] = ()) -> dict:
     """A pipeline file's tables, with ``extends = "other.toml"`` (relative to it) resolved:
-    the other file's tables first, this file's merged over them key by key (runs by name)."""
-    if not path.is_file():
-        where = f" (extended by {chain[-1]})" if chain else ""
+    the other file's tables first, this file's merged over them key by key (runs by name).
+    Paths in a file (``plant.fmu``) are relative to the file that declares them; a file that
+    names a plant (``plant.fmu`` or ``plant.builtin``) replaces the one it extends."""
+    where = f" (extended by {chain[-1]})" if chain else ""
+    if len(chain) >= MAX_EXTENDS:
+        raise PipelineError(f"{path}: the 'extends' chain is more than {MAX_EXTENDS} files "
+                            f"deep (from {chain[0]}); flatten it")
+    try:
+        resolved = path.resolve(strict=False)
+        exists = path.is_file()
+    except (OSError, RuntimeError):  # a symbolic link loop
+        raise PipelineError(f"{path}: cannot be read: a loop of symbolic links{where}") \
+            from None
+    if not exists:
+        if path.is_dir():
+            raise PipelineError(f"{path}: is a folder, not a pipeline file{where}")
         raise PipelineError(f"{path}: no such pipeline file{where}")
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
@@ -297,15 +331,28 @@ def _read_toml(path: Path, chain: tuple[Path, ...] = ()) -> dict:
     except UnicodeDecodeError as exc:
         raise PipelineError(f"{path}: not a UTF-8 text file ({exc.reason} at byte "
                             f"{exc.start})") from None
+    plant = data.get("plant")
+    if isinstance(plant, dict) and isinstance(plant.get("fmu"), str):
+        fmu = Path(plant["fmu"]).expanduser()
+        plant["fmu"] = str(fmu if fmu.is_absolute() else (path.parent / fmu).resolve())
     parent = data.pop("extends", None)
     if parent is None:
         return data
     if not isinstance(parent, str):
         raise PipelineError(f"{path}: key 'extends' must be a file name (got {parent!r})")
-    parent_path = (path.parent / parent).resolve()
-    if parent_path in chain or parent_path == path.resolve():
+    parent_path = path.parent / parent
+    try:
+        parent_resolved = parent_path.resolve(strict=False)
+    except (OSError, RuntimeError):
+        raise PipelineError(f"{path}: extends {parent!r}, a loop of symbolic links") from None
+    if parent_resolved in chain or parent_resolved == resolved:
         raise PipelineError(f"{path}: 'extends' makes a cycle through {parent_path.name}")
-    return _merge(_read_toml(parent_path, (*chain, path.resolve())), data)
+    merged = _merge(_read_toml(parent_resolved, (*chain, resolved)), data)
+    if isinstance(plant, dict) and isinstance(merged.get("plant"), dict):
+        for key, other in PLANT_SOURCES.items():  # this file's plant, not the parent's too
+            if key in plant and other not in plant:
+                merged["plant"].pop(other, None)
+    return merged
 
 
 def _merge(base: dict, over: dict) -> dict:

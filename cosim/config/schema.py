@@ -10,6 +10,7 @@ from pydantic import BaseModel, ConfigDict, Field
 PositiveFloat = Annotated[float, Field(gt=0, allow_inf_nan=False)]
 NonNegativeFloat = Annotated[float, Field(ge=0, allow_inf_nan=False)]
 FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+Seed = Annotated[int, Field(ge=0)]  # numpy's generators take non-negative seeds only
 GainVector = PositiveFloat | list[PositiveFloat]  # one value for every joint, or one each
 
 

@@ -4,6 +4,7 @@ screenshot (tests and reports)."""
 from __future__ import annotations
 
 import os
+import re
 import socket
 import subprocess
 import sys
@@ -42,6 +43,26 @@ def recording_path(run_dir: str | Path) -> Path:
     return path
 
 
+def verify_recording(path: Path, timeout: float = 120.0) -> None:
+    """``rerun rrd verify``: a truncated or foreign file is named at once, rather than after
+    the viewer has waited for a recording that never loads."""
+    try:
+        done = subprocess.run([str(viewer_binary()), "rrd", "verify", str(path)],
+                              capture_output=True, text=True, timeout=timeout,
+                              env=dict(os.environ, RERUN_ANALYTICS="0"))
+    except subprocess.TimeoutExpired:
+        raise ViewerError(f"{path}: not verified within {timeout:g} s") from None
+    if done.returncode != 0:
+        lines = [re.sub(r"\x1b\[[0-9;]*m", "", line).strip()
+                 for line in done.stderr.splitlines() if line.strip()]
+        reasons = [line.removeprefix("Error: ").split(" -- ")[-1] for line in lines
+                   if line.startswith(("Error:", '"')) and "Verification failed" not in line]
+        detail = (reasons or lines or ["rrd verify failed"])[0]
+        raise ViewerError(f"{path}: not a readable Rerun recording ({detail[:200]}); "
+                          "it may be truncated (an interrupted run's writer is given 5 s) or "
+                          "not a recording at all")
+
+
 def has_display() -> bool:
     if sys.platform in ("darwin", "win32"):
         return True
@@ -60,6 +81,7 @@ def view(run_dir: str | Path) -> int:
     path = recording_path(run_dir)
     if not has_display():
         raise ViewerError(no_display_help(path))
+    verify_recording(path)
     return subprocess.call([str(viewer_binary()), str(path)])
 
 
@@ -134,6 +156,7 @@ def screenshot(recording: str | Path, png: str | Path, size: str = "1600x1000",
                timeout: float = 60.0) -> Path:
     """Render ``recording`` in the real viewer, headless, and save a screenshot of its
     default blueprint to ``png``."""
+    verify_recording(Path(recording))
     with headless_viewer(recording, size, timeout) as (client, _):
         wait_for_recording(client, timeout)
         client.save_screenshot(str(png))
