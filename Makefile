@@ -4,7 +4,7 @@ PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV := .venv
 BIN := $(VENV)/bin
 
-.PHONY: demo test lint venv render-deps
+.PHONY: demo test lint venv render-deps mutants
 venv: $(VENV)/.installed
 
 # Software Vulkan (Debian's mesa-vulkan-drivers) so the tests can render the recording in the
@@ -35,3 +35,7 @@ test: venv render-deps
 
 lint: venv
 	$(BIN)/ruff check .
+
+# The curated mutation run (outside CI's budget: ~1 min per mutant): score and survivors.
+mutants: venv
+	$(BIN)/python benchmarks/mutants.py

@@ -1,0 +1,191 @@
+"""A curated mutation run (`make mutants`): plausible one-line bugs in the core modules — the
+paper's laws, the filter, the evaluation, the run folder, the sweep's statistics, the limits —
+each applied to a fresh copy of the repository and run against the tests that cover its
+module. Prints the score and every survivor. Outside CI's budget (most mutants touch numba
+kernels and recompile: ~1 min each on 2 cores).
+
+    .venv/bin/python benchmarks/mutants.py             # all
+    .venv/bin/python benchmarks/mutants.py --only obs  # the ids containing "obs"
+
+A mutant is killed when its tests fail (or time out); it survives when they pass. The copy is
+`git archive HEAD` (commit your work first), imported ahead of the editable install through
+PYTHONPATH; the working tree is never touched.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+LAWS = ["tests/test_references.py", "tests/test_blocks.py"]
+FILTER = ["tests/test_robust_safety.py", "tests/test_safety.py"]
+EVALUATION = ["tests/test_references.py", "tests/test_cosim.py", "tests/test_robust_safety.py"]
+FOLDER = ["tests/test_errors.py", "tests/test_recording.py"]
+SWEEP = ["tests/test_references.py", "tests/test_sweep.py"]
+LIMITS = ["tests/test_errors.py", "tests/test_resources.py"]
+
+# (id, file, text, replacement, tests): the text must occur exactly once in the file.
+MUTANTS = [
+    # the paper's laws
+    ("inertia-centripetal", "cosim/blocks/inertia.py",
+     "fx[i] = m[i] * (ax - w2 * cx[i])", "fx[i] = m[i] * (ax + w2 * cx[i])", LAWS),
+    ("inertia-link-vs-com", "cosim/blocks/inertia.py",
+     "        ax -= w2 * lx[i]\n", "        ax -= w2 * cx[i]\n", LAWS),
+    ("obs-gain-sqrt", "cosim/blocks/observer.py",
+     "den = 2.0 * np.sqrt(a.kp * a.kd) * (x1_err_norm * x1_err_norm + a.nu)",
+     "den = 2.0 * (a.kp * a.kd) * (x1_err_norm * x1_err_norm + a.nu)", LAWS),
+    ("obs-input-one-substep-off", "cosim/blocks/observer.py",
+     "y = y0 + dy * ((j + 1) / a.substeps)", "y = y0 + dy * (j / a.substeps)", LAWS),
+    ("obs-kd-dropped", "cosim/blocks/observer.py",
+     "denom = 1.0 + h * c + h * h * k0", "denom = 1.0 + h * kp + h * h * k0", LAWS),
+    ("obs-drift-injection", "cosim/blocks/observer.py",
+     "+ (k0 - kp * a.kd) * x1_err)", "+ k0 * x1_err)", LAWS + ["tests/test_robust_safety.py"]),
+    ("obs-envelope-peak", "cosim/blocks/observer.py",
+     "transient[0] = peak * a.initial_error", "transient[0] = a.initial_error", LAWS + FILTER),
+    ("ctrl-robust-term-e", "cosim/blocks/controller.py", "        v -= e\n", "", LAWS),
+    ("ctrl-psi-square", "cosim/blocks/controller.py",
+     "v -= a.psi_b**2 / (a.delta + r_sq) * r", "v -= a.psi_b / (a.delta + r_sq) * r", LAWS),
+    ("ctrl-c0", "cosim/blocks/controller.py",
+     "** 2 / 4.0 + a.c0)", "** 2 / 4.0)", LAWS),
+    ("ctrl-w-update-sprime", "cosim/blocks/controller.py",
+     "np.outer(sig_hat - s_prime_a, r)", "np.outer(sig_hat, r)", LAWS),
+    ("ctrl-lambda", "cosim/blocks/controller.py", "r = edot + a.lam * e", "r = edot + e", LAWS),
+    # the filter's margins
+    ("cbf-noise-margin", "cosim/blocks/cbf_filter.py",
+     "limit = a.k0 * (h - a.noise_bound) - a.k1 * (side * v0[i] + eps[i])",
+     "limit = a.k0 * h - a.k1 * (side * v0[i] + eps[i])", FILTER),
+    ("cbf-eps-position", "cosim/blocks/cbf_filter.py",
+     "limit = a.k0 * (h - a.noise_bound) - a.k1 * (side * v0[i] + eps[i])",
+     "limit = a.k0 * (h - a.noise_bound) - a.k1 * (side * v0[i])", FILTER),
+    ("cbf-velocity-eps", "cosim/blocks/cbf_filter.py",
+     "limit = a.k_velocity * max(h - eps[i], 0.0)", "limit = a.k_velocity * h", FILTER),
+    ("cbf-bias-error-dropped", "cosim/blocks/cbf_filter.py",
+     "                limit -= scale * rows_error[i]\n", "", FILTER),
+    ("cbf-payload-corners", "cosim/blocks/cbf_filter.py",
+     "corner_index[corners + 1, 0], corner_index[corners + 1, 1] = g + 1, g",
+     "corner_index[corners + 1, 0], corner_index[corners + 1, 1] = g, g", FILTER),
+    ("cbf-hold-end-dropped", "cosim/blocks/cbf_filter.py",
+     "    count = _hard_rows(a, count, k, y_end, v_end, eps, minv_end, base_end, True)\n", "",
+     FILTER),
+    ("cbf-infeasible-flag", "cosim/blocks/cbf_filter.py",
+     "a.infeasible[k] = 1.0 if infeasible else 0.0", "a.infeasible[k] = 0.0", FILTER),
+    # the evaluation
+    ("eval-position-centre", "cosim/evaluate/safety.py",
+     '"q": trace["q"] - trace["q_s"],', '"q": trace["q"],', EVALUATION),
+    ("eval-theorem1-r", "cosim/evaluate/safety.py",
+     "safe.error_rate_bound * lmin / (lmin + lmax))", "safe.error_rate_bound * lmin / lmax)",
+     EVALUATION),
+    ("eval-h1-k0", "cosim/evaluate/safety.py",
+     "h1 = 0.5 * ((k0 * eps**2 - k0 * x1_err)", "h1 = 0.5 * ((eps**2 - k0 * x1_err)",
+     EVALUATION),
+    ("eval-h2-sigma", "cosim/evaluate/safety.py",
+     "+ (sigma_max * r_bound**2 - r_m_r)", "+ (r_bound**2 - r_m_r)", EVALUATION),
+    ("eval-satisfied-strict", "cosim/evaluate/safety.py",
+     '"satisfied": bool(worst <= check.upper)', '"satisfied": bool(worst <= 1.01 * check.upper)',
+     EVALUATION),
+    ("eval-attainable", "cosim/evaluate/safety.py",
+     'entry["attainable"] = bool(entry["reference_worst"] <= check.upper)',
+     'entry["attainable"] = True', EVALUATION),
+    ("eval-guarantee-broken", "cosim/evaluate/guarantee.py",
+     'out["broken"] = bool(starts_inside and feasible is True and not outside',
+     'out["broken"] = bool(feasible is True and not outside', EVALUATION),
+    # the run folder
+    ("folder-complete-ignores-files", "cosim/outputs/run_folder.py",
+     'files_complete = all(f["complete"] for f in self.files.values())',
+     "files_complete = True", FOLDER),
+    ("folder-no-verification", "cosim/outputs/run_folder.py",
+     "            if problem:\n                raise OSError(f\"the written file is {problem}\")\n",
+     "", FOLDER),
+    # the sweep's statistics
+    ("sweep-wilson-variance", "cosim/sweep.py",
+     "math.sqrt(p * (1 - p) / trials", "math.sqrt(p * (1 - p) / (trials + 1)", SWEEP),
+    ("sweep-failed-counted", "cosim/sweep.py",
+     'low, high = wilson(kept, len(ok))', 'low, high = wilson(kept, len(mine))', SWEEP),
+    # the limits
+    ("limit-substeps", "cosim/config/pipeline.py",
+     "if substeps > self.simulation.max_plant_substeps:", "if False:", LIMITS),
+    ("limit-unpack-size", "cosim/plant/unpack.py",
+     "if total > MAX_MEGABYTES * 1e6:", "if False:", LIMITS),
+    ("limit-seed", "cosim/config/schema.py",
+     "Seed = Annotated[int, Field(ge=0)]", "Seed = int", LIMITS),
+]
+
+
+def copy_of_head() -> Path:
+    folder = Path(tempfile.mkdtemp(prefix="cosim_mutants_"))
+    archive = subprocess.run(["git", "archive", "HEAD"], cwd=ROOT, capture_output=True,
+                             check=True).stdout
+    subprocess.run(["tar", "-x", "-C", str(folder)], input=archive, check=True)
+    return folder
+
+
+def run_tests(copy: Path, tests: list[str], timeout: float) -> bool:
+    """True if the tests pass (the mutant survives)."""
+    # Kernels compile into the copy's own cache: the user's is never filled with mutants.
+    env = {**os.environ, "PYTHONPATH": str(copy), "NUMBA_CACHE_DIR": str(copy / ".numba")}
+    try:
+        done = subprocess.run([sys.executable, "-m", "pytest", "-x", "-q", "-p",
+                               "no:cacheprovider", *tests], cwd=copy, env=env,
+                              capture_output=True, text=True, timeout=timeout)
+    except subprocess.TimeoutExpired:
+        return False
+    return done.returncode == 0
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--only", default="", help="run the mutants whose id contains this")
+    parser.add_argument("--timeout", type=float, default=900.0, help="per mutant, s")
+    args = parser.parse_args()
+    chosen = [m for m in MUTANTS if args.only in m[0]]
+    copy = copy_of_head()
+    print(f"{len(chosen)} mutants on a copy of HEAD in {copy}", flush=True)
+    survivors, killed = [], 0
+    try:
+        imported = subprocess.run(
+            [sys.executable, "-c", "import cosim, plant_fmu; print(cosim.__file__)"],
+            env={**os.environ, "PYTHONPATH": str(copy)}, capture_output=True, text=True)
+        if not imported.stdout.startswith(str(copy)):
+            raise SystemExit(f"the copy is not what Python imports: {imported.stdout.strip()}")
+        every = sorted({t for m in chosen for t in m[4]})
+        if not run_tests(copy, every, 4 * args.timeout):  # a mutant is killed by a failure
+            raise SystemExit("the tests fail on the unmutated copy: fix them first")
+        print("  unmutated: the tests pass", flush=True)
+        for ident, name, text, replacement, tests in chosen:
+            path = copy / name
+            original = path.read_text()
+            if original.count(text) != 1:
+                print(f"  {ident}: its text occurs {original.count(text)} times in {name}; "
+                      "update the mutant", flush=True)
+                survivors.append((ident, "stale mutant"))
+                continue
+            path.write_text(original.replace(text, replacement))
+            start = time.monotonic()
+            try:
+                survived = run_tests(copy, tests, args.timeout)
+            finally:
+                path.write_text(original)
+            verdict = "SURVIVED" if survived else "killed"
+            print(f"  {ident:32s} {verdict:8s} ({time.monotonic() - start:.0f} s)", flush=True)
+            if survived:
+                survivors.append((ident, f"{name}: {text.strip()!r} -> {replacement.strip()!r}"))
+            else:
+                killed += 1
+    finally:
+        subprocess.run(["rm", "-rf", str(copy)], check=False)
+    total = killed + len(survivors)
+    print(f"\nmutation score: {killed}/{total} = {100 * killed / max(total, 1):.1f} % killed")
+    for ident, what in survivors:
+        print(f"  survivor {ident}: {what}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
