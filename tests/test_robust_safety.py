@@ -254,14 +254,20 @@ def test_monte_carlo_no_broken_guarantee_and_the_hard_sets_kept(monte_carlo):
 
 
 def test_monte_carlo_tracking_against_the_unfiltered_controller(monte_carlo):
-    """What holds on the tracking sets: the filtered run keeps joint 1's error set at least
-    as often as the unfiltered proposed controller. (It leaves the error-rate sets and the
-    error norm in *more* samples, briefly, at start-up — ė̂ 54.7 % against 67.9 % kept on
-    N = 1000: README, "Monte Carlo"; that figure of the issue is not reached, so it is not
-    asserted here.)"""
+    """What holds on the tracking sets: the filtered run keeps joint 1's error set and the
+    error norm at least as often as the unfiltered proposed controller, at no more RMS error
+    (+10 %). (The error-rate sets are left for a few ms at start-up: on N = 1000 the true
+    ė ≤ 5 is kept more often with the filter, 87.6 % against 81.2 %, but on these 40 samples
+    of 10 s less, 77.5 % against 87.5 %; ‖ė̂‖ 20.9 % against 35.3 % on N = 1000, README
+    "Monte Carlo". That part of the issue's figure is not reached, so it is not asserted.)"""
     rows, _, _ = monte_carlo
 
     def kept(name: str, check: str) -> float:
         return float(np.mean([r[f"{check}.satisfied"] for r in rows if r["run"] == name]))
 
-    assert kept("proposed_cbf", "error_joint1") >= kept("proposed", "error_joint1")
+    def rms(name: str) -> float:
+        return float(np.mean([r["rms_error.1"] for r in rows if r["run"] == name]))
+
+    for check in ("error_joint1", "error_norm"):
+        assert kept("proposed_cbf", check) >= kept("proposed", check), check
+    assert rms("proposed_cbf") <= 1.1 * rms("proposed")
