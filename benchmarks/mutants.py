@@ -118,21 +118,36 @@ MUTANTS = [
 ]
 
 
+# The editable install's import hook would still find the working tree's packages ahead of
+# PYTHONPATH; a sitecustomize (run after the .pth files, in every process the tests start,
+# Dask workers included) removes it, so the copy is what every process imports.
+SITECUSTOMIZE = """import sys
+sys.meta_path[:] = [f for f in sys.meta_path if "editable" not in repr(f).lower()]
+"""
+
+
 def copy_of_head() -> Path:
     folder = Path(tempfile.mkdtemp(prefix="cosim_mutants_"))
     archive = subprocess.run(["git", "archive", "HEAD"], cwd=ROOT, capture_output=True,
                              check=True).stdout
     subprocess.run(["tar", "-x", "-C", str(folder)], input=archive, check=True)
+    (folder / ".site").mkdir()
+    (folder / ".site" / "sitecustomize.py").write_text(SITECUSTOMIZE)
     return folder
+
+
+def environment(copy: Path) -> dict[str, str]:
+    """Imports from the copy; kernels compile into the copy's own cache (the user's is never
+    filled with mutants)."""
+    return {**os.environ, "PYTHONPATH": f"{copy / '.site'}{os.pathsep}{copy}",
+            "NUMBA_CACHE_DIR": str(copy / ".numba")}
 
 
 def run_tests(copy: Path, tests: list[str], timeout: float) -> bool:
     """True if the tests pass (the mutant survives)."""
-    # Kernels compile into the copy's own cache: the user's is never filled with mutants.
-    env = {**os.environ, "PYTHONPATH": str(copy), "NUMBA_CACHE_DIR": str(copy / ".numba")}
     try:
         done = subprocess.run([sys.executable, "-m", "pytest", "-x", "-q", "-p",
-                               "no:cacheprovider", *tests], cwd=copy, env=env,
+                               "no:cacheprovider", *tests], cwd=copy, env=environment(copy),
                               capture_output=True, text=True, timeout=timeout)
     except subprocess.TimeoutExpired:
         return False
@@ -151,7 +166,7 @@ def main() -> int:
     try:
         imported = subprocess.run(
             [sys.executable, "-c", "import cosim, plant_fmu; print(cosim.__file__)"],
-            env={**os.environ, "PYTHONPATH": str(copy)}, capture_output=True, text=True)
+            env=environment(copy), capture_output=True, text=True)
         if not imported.stdout.startswith(str(copy)):
             raise SystemExit(f"the copy is not what Python imports: {imported.stdout.strip()}")
         every = sorted({t for m in chosen for t in m[4]})
