@@ -166,7 +166,7 @@ def main() -> int:
     try:
         imported = subprocess.run(
             [sys.executable, "-c", "import cosim, plant_fmu; print(cosim.__file__)"],
-            env=environment(copy), capture_output=True, text=True)
+            cwd=copy, env=environment(copy), capture_output=True, text=True)
         if not imported.stdout.startswith(str(copy)):
             raise SystemExit(f"the copy is not what Python imports: {imported.stdout.strip()}")
         every = sorted({t for m in chosen for t in m[4]})
