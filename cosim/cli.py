@@ -28,6 +28,9 @@ def _build_fmu(args: argparse.Namespace) -> None:
     except OSError as exc:
         raise UserError(f"--output {args.output}: cannot write the FMU there: "
                         f"{exc.strerror or exc}") from None
+    except KeyboardInterrupt:  # the build writes to a temporary and renames: nothing half-made
+        raise UserError("interrupted (Ctrl-C) while building the FMU; nothing was written") \
+            from None
     print(path)
 
 
@@ -117,6 +120,13 @@ def _view(args: argparse.Namespace) -> None:
 
     try:
         if args.screenshot:
+            if args.screenshot.is_dir():
+                raise UserError(f"--screenshot {args.screenshot}: is a folder; give the PNG "
+                                f"file to write, e.g. {args.screenshot / 'recording.png'}")
+            if args.screenshot.suffix.lower() != ".png":
+                raise UserError(f"--screenshot {args.screenshot}: the screenshot is a PNG; "
+                                f"give a name ending in .png, e.g. "
+                                f"{args.screenshot.with_suffix('.png')}")
             folder = args.screenshot.resolve().parent
             if not folder.is_dir() or not os.access(folder, os.W_OK):
                 raise UserError(f"--screenshot {args.screenshot}: cannot write there "

@@ -114,10 +114,19 @@ def build_fmu(links: int = 2, fmi_version: int = 2, output: str | Path | None = 
         return cached
     output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
-    tmp = output.with_name(f".{output.name}.{os.getpid()}.tmp")
-    shutil.copyfile(cached, tmp)
-    os.replace(tmp, output)
+    _write_atomically(output, lambda tmp: shutil.copyfile(cached, tmp))
     return output
+
+
+def _write_atomically(target: Path, produce) -> None:
+    """``produce(tmp)`` then rename: an interrupted or failed write leaves nothing behind."""
+    tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
+    try:
+        produce(tmp)
+        os.replace(tmp, target)
+    except BaseException:  # Ctrl-C, SIGTERM, a full disk
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 def _build_into(target: Path, links: int, fmi_version: int, cc: str) -> None:
@@ -146,9 +155,10 @@ def _build_into(target: Path, links: int, fmi_version: int, cc: str) -> None:
             raise BuildError(f"compiling the {links}-link FMI {fmi_version} plant failed "
                              f"({' '.join(command)}):\n{result.stderr}")
 
-        tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
-        with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as archive:
-            for path in sorted(root.rglob("*")):
-                if path.is_file():
-                    archive.write(path, path.relative_to(root).as_posix())
-        os.replace(tmp, target)
+        def pack(tmp: Path) -> None:
+            with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as archive:
+                for path in sorted(root.rglob("*")):
+                    if path.is_file():
+                        archive.write(path, path.relative_to(root).as_posix())
+
+        _write_atomically(target, pack)

@@ -372,3 +372,38 @@ def test_view_screenshot_of_a_corrupt_recording_says_so_at_once(finished, tmp_pa
                                        str(tmp_path / "shot.png")))
         assert f"{bad}: not a readable Rerun recording" in message and fragment in message
     assert not (tmp_path / "shot.png").exists()
+
+
+def test_view_screenshot_to_a_folder_or_not_a_png(finished, tmp_path):
+    for target, fragment in ((tmp_path, "is a folder; give the PNG file to write"),
+                             (tmp_path / "shot.jpg", "give a name ending in .png")):
+        message = error_line(cosim_cli("view", str(finished), "--screenshot", str(target)))
+        assert f"--screenshot {target}" in message and fragment in message
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_ctrl_c_during_build_fmu_is_one_line_and_leaves_nothing(tmp_path):
+    """SIGINT while the compiler runs (an empty cache forces a build): one message, no
+    temporary left in the cache or beside the output."""
+    cache, tmp = tmp_path / "cache", tmp_path / "tmp"
+    tmp.mkdir()
+    out = tmp_path / "out" / "arm.fmu"
+    child = subprocess.Popen(
+        [sys.executable, "-m", "cosim.cli", "build-fmu", "--links", "7", "--output", str(out)],
+        env={**os.environ, "COSIM_CACHE": str(cache), "TMPDIR": str(tmp)},
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 60
+        while not list(tmp.glob("plant_fmu_*")) and time.monotonic() < deadline:
+            time.sleep(0.005)
+        child.send_signal(signal.SIGINT)
+        _, err = child.communicate(timeout=60)
+    finally:
+        child.kill()
+        child.wait()
+    if child.returncode == 0:
+        pytest.skip("the build finished before the signal arrived")
+    result = subprocess.CompletedProcess(child.args, child.returncode, "", err)
+    assert "interrupted (Ctrl-C) while building the FMU; nothing was written" in error_line(
+        result)
+    assert not out.exists() and not list(cache.glob(".*tmp")) and list(tmp.iterdir()) == []
