@@ -309,10 +309,13 @@ def _parser() -> argparse.ArgumentParser:
     where.add_argument("--scheduler", default=None, metavar="ADDRESS",
                        help="an existing Dask scheduler, e.g. tcp://127.0.0.1:8786")
     p.add_argument("--record", default=None, metavar="best,worst",
-                   help="also write full run folders of the best and/or worst point")
+                   help="also write full run folders of each run's best and/or worst point")
     p.add_argument("--out", required=True, type=Path, help="sweep folder")
     p.add_argument("--force", action="store_true", help="replace what --out holds")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--max-points", type=int, default=100_000, metavar="N",
+                   help="refuse a sweep of more points than this before any work "
+                   "(default 100000)")
     p.set_defaults(func=_sweep)
 
     p = sub.add_parser("view", help="open a run folder's recording in the Rerun viewer",

@@ -109,6 +109,57 @@ def _toml(value) -> str:
     return str(value)
 
 
+# A sweep's rows are held in memory and its points validated one by one (~1 ms each): past
+# 100,000 points a typo (a 1000-value grid on three keys is 10⁹) would exhaust the machine
+# before saying a word. --max-points raises the limit for a sweep meant to be that large.
+MAX_POINTS = 100_000
+MAX_WORKERS = 64  # and at most 4 per core: each worker is a process holding an FMU
+
+
+def count_points(spec: SweepSpec) -> int:
+    """How many points the spec makes, without making them."""
+    total = math.prod(len(a.values) for a in spec.grid)
+    return total * (spec.count if spec.samples else 1)
+
+
+def check_spec(spec: SweepSpec, max_points: int, workers: int | None,
+               scheduler: str | None = None) -> int:
+    """Refuse what would be wrong or unbounded before any work: repeated or conflicting keys
+    and runs, a negative seed, a worker count outside 1..cap, a scheduler that is not an
+    address, too many points. Returns the number of points."""
+    seen: dict[str, str] = {}
+    for option, keys in (("--set", [a.split("=", 1)[0].strip() for a in spec.base]),
+                         ("--grid", [a.key for a in spec.grid]),
+                         ("--sample", [a.key for a in spec.samples])):
+        for key in keys:
+            if key in seen and not (option == "--set" and seen[key] == "--set"):
+                raise SweepError(f"{option} {key}: the key is already given by {seen[key]}; "
+                                 "give each swept key once (one --grid with every value, or "
+                                 "one --sample)")
+            seen.setdefault(key, option)
+    if spec.runs and len(set(spec.runs)) != len(spec.runs):
+        twice = sorted({r for r in spec.runs if spec.runs.count(r) > 1})
+        raise SweepError(f"--runs: {', '.join(twice)} given more than once")
+    if scheduler is not None and not _ADDRESS.match(scheduler):
+        raise SweepError(f"--scheduler {scheduler!r}: not a scheduler address; expected "
+                         "tcp://HOST:PORT (e.g. tcp://127.0.0.1:8786)")
+    if spec.seed < 0:
+        raise SweepError(f"--seed {spec.seed}: a seed is a non-negative integer")
+    if workers is not None:
+        import os
+
+        cap = min(MAX_WORKERS, 4 * (os.cpu_count() or 1))
+        if not 1 <= workers <= cap:
+            raise SweepError(f"--workers {workers}: give 1 to {cap} local worker processes "
+                             f"(this machine has {os.cpu_count()} cores)")
+    total = count_points(spec)
+    if total > max_points:
+        raise SweepError(f"the sweep makes {total:,} points, more than --max-points "
+                         f"{max_points:,}; narrow the grid or the samples, or raise "
+                         "--max-points if it is meant to be that large")
+    return total
+
+
 def points(spec: SweepSpec) -> list[dict]:
     """Every point: {key: value}, grid first, in a fixed order (the seed fixes the draws)."""
     grid = list(itertools.product(*[a.values for a in spec.grid])) or [()]
@@ -249,6 +300,7 @@ def execute(spec: SweepSpec, all_points: list[dict], client,
     has not finished and keeps every finished row."""
     from dask.distributed import as_completed
 
+    runs = spec.runs or list(load_pipeline(spec.pipeline, spec.base, warn=None).runs)
     futures = [client.submit(run_point, spec.pipeline, assignments(spec, point), spec.runs,
                              index, point, pure=False, key=f"cosim-point-{index}")
                for index, point in enumerate(all_points)]
@@ -259,10 +311,11 @@ def execute(spec: SweepSpec, all_points: list[dict], client,
                 rows.extend(future.result())
             except Exception as exc:  # the worker itself failed: one failed row per run
                 index = futures.index(future)
-                rows.append({"point": index, **{f"set:{k}": _cell(v)
-                                                for k, v in all_points[index].items()},
-                             "run": "*", "status": "failed",
-                             "error": f"{type(exc).__name__}: {exc}"})
+                for run in runs:
+                    rows.append({"point": index, **{f"set:{k}": _cell(v)
+                                                    for k, v in all_points[index].items()},
+                                 "run": run, "status": "failed",
+                                 "error": f"{type(exc).__name__}: {exc}"})
             if on_row is not None:
                 on_row(len(futures))
     except KeyboardInterrupt:
@@ -275,16 +328,49 @@ def _order(row: dict) -> tuple:
     return (row["point"], row["run"])
 
 
+_ADDRESS = re.compile(r"^((tcp|tls|ws|wss)://)?[A-Za-z0-9_.\-\[\]:]+:\d{1,5}$")
+CONNECT_TIMEOUT = 15.0  # s, the whole connection and handshake
+
+
+def _connect(scheduler: str):
+    """A client of the scheduler at ``scheduler``, or :class:`SweepError` within
+    CONNECT_TIMEOUT: Client's own timeout covers the TCP connection, not the handshake, so a
+    port that accepts and then says nothing (a web server) or something else (a banner, read
+    as a message length of exabytes) would hang or exhaust memory. The attempt runs in a
+    daemon thread that is abandoned if it does not finish."""
+    import threading
+
+    from dask.distributed import Client
+
+    outcome: dict = {}
+
+    def attempt() -> None:
+        try:
+            outcome["client"] = Client(scheduler, timeout=f"{CONNECT_TIMEOUT:g}s")
+        except BaseException as exc:  # OSError, a garbled handshake, MemoryError
+            outcome["error"] = exc
+
+    thread = threading.Thread(target=attempt, daemon=True, name="cosim-connect")
+    thread.start()
+    thread.join(CONNECT_TIMEOUT + 5.0)
+    if "client" in outcome:
+        return outcome["client"]
+    if "error" in outcome:
+        exc = outcome["error"]
+        detail = f"{type(exc).__name__}: {exc}"[:200]
+        raise SweepError(f"--scheduler {scheduler}: no Dask scheduler answered there "
+                         f"({detail})")
+    raise SweepError(f"--scheduler {scheduler}: something answers there but not as a Dask "
+                     f"scheduler (no handshake within {CONNECT_TIMEOUT + 5:g} s)")
+
+
 def cluster_client(workers: int | None, scheduler: str | None):
     """A Dask client: on ``scheduler`` (an existing cluster), or a LocalCluster on
     127.0.0.1 with one single-threaded process per worker (FMUs are not thread-safe)."""
     from dask.distributed import Client, LocalCluster
 
     if scheduler:
-        try:
-            client = Client(scheduler, timeout="10s")
-        except OSError as exc:
-            raise SweepError(f"--scheduler {scheduler}: cannot connect ({exc})") from None
+        client = _connect(scheduler)
         try:
             client.wait_for_workers(1, timeout=60)
         except TimeoutError:
@@ -292,10 +378,13 @@ def cluster_client(workers: int | None, scheduler: str | None):
             raise SweepError(f"--scheduler {scheduler}: no worker joined within 60 s "
                              "(start one: dask worker ADDRESS --nthreads 1)") from None
         return client, None
+    import logging
     import os
 
+    # Quiet workers: a cancelled point (Ctrl-C) is not a warning the user needs to read.
     cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
-                           processes=True, host="127.0.0.1", dashboard_address=None)
+                           processes=True, host="127.0.0.1", dashboard_address=None,
+                           silence_logs=logging.ERROR)
     return Client(cluster), cluster
 
 
@@ -309,7 +398,11 @@ def wilson(successes: int, trials: int, z: float = 1.96) -> tuple[float, float]:
     centre = (p + z * z / (2 * trials)) / (1 + z * z / trials)
     half = z * math.sqrt(p * (1 - p) / trials + z * z / (4 * trials * trials)) / (1 + z * z
                                                                                  / trials)
-    return (max(0.0, centre - half), min(1.0, centre + half))
+    # At k = 0 (k = n) the lower (upper) end is exactly 0 (1): centre ∓ half analytically,
+    # which round-off would leave an ulp off the observed proportion.
+    low = 0.0 if successes == 0 else max(0.0, centre - half)
+    high = 1.0 if successes == trials else min(1.0, centre + half)
+    return (low, high)
 
 
 def safety_table(rows: list[dict]) -> list[dict]:
@@ -457,28 +550,44 @@ def margin(row: dict) -> float:
 
 
 def record_points(spec: SweepSpec, rows: list[dict], which: list[str], out: Path) -> list[str]:
-    """Full run folders (recording, figures) of the best and/or worst point by
-    :func:`margin`, re-run here: ``out/best_point<i>``, ``out/worst_point<i>``."""
+    """Full run folders (recording, figures) of each run's best and/or worst point by
+    :func:`margin`, re-run here: ``out/best_<run>_point<i>``, ``out/worst_<run>_point<i>``.
+    A run with no completed row has nothing to record."""
     from .runner import run
 
     ok = [r for r in rows if r["status"] == "ok" and not math.isnan(margin(r))]
     written = []
     for kind in which:
-        if not ok:
-            break
-        row = (min if kind == "best" else max)(ok, key=margin)
-        point = {k.removeprefix("set:"): json.loads(v) if isinstance(v, str) and
-                 v.startswith("[") else v for k, v in row.items() if k.startswith("set:")}
-        folder = out / f"{kind}_point{row['point']}"
-        pipeline = _only(load_pipeline(spec.pipeline, assignments(spec, point), warn=None),
-                         [row["run"]])
-        run(pipeline, folder, progress=False, force=True)
-        written.append(str(folder))
+        for name in dict.fromkeys(r["run"] for r in ok):
+            mine = [r for r in ok if r["run"] == name]
+            row = (min if kind == "best" else max)(mine, key=margin)
+            point = {k.removeprefix("set:"): json.loads(v) if isinstance(v, str) and
+                     v.startswith("[") else v for k, v in row.items() if k.startswith("set:")}
+            folder = out / f"{kind}_{name}_point{row['point']}"
+            pipeline = _only(load_pipeline(spec.pipeline, assignments(spec, point), warn=None),
+                             [name])
+            run(pipeline, folder, progress=False, force=True)
+            written.append(str(folder))
     return written
 
 
+def _on_sigterm(signum, frame) -> None:
+    raise KeyboardInterrupt("terminated (SIGTERM)")
+
+
 def main(args) -> int:
-    """``cosim sweep`` (parsed arguments): returns the exit status."""
+    """``cosim sweep`` (parsed arguments): returns the exit status. SIGTERM is handled like
+    Ctrl-C in every phase: finished rows are written, the cluster ended, the lock released."""
+    import signal
+
+    previous = signal.signal(signal.SIGTERM, _on_sigterm)
+    try:
+        return _main(args)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _main(args) -> int:
     from tqdm import tqdm
 
     from .outputs.run_folder import RunFolder
@@ -493,40 +602,71 @@ def main(args) -> int:
     record = [w.strip() for w in (args.record or "").split(",") if w.strip()]
     if set(record) - {"best", "worst"}:
         raise SweepError(f"--record {args.record!r}: expected best, worst or best,worst")
-    all_points = points(spec)
-    validate(spec, all_points)
-    runs = spec.runs or list(load_pipeline(spec.pipeline, spec.base, warn=None).runs)
+    check_spec(spec, args.max_points, args.workers, args.scheduler)
     out = Path(args.out)
-    folder = RunFolder.create(out, args.force)
-    client, cluster = cluster_client(args.workers, args.scheduler)
     try:
-        where = args.scheduler or f"a local cluster of {len(client.scheduler_info()['workers'])}"
-        print(f"sweeping {len(all_points)} point(s) × {len(runs)} run(s) of "
-              f"{spec.pipeline} on {where} worker(s) -> {out}", file=sys.stderr)
-        bar = tqdm(total=len(all_points), unit="point", file=sys.stderr,
-                   disable=not sys.stderr.isatty() and args.quiet)
-        rows, interrupted = execute(spec, all_points, client, lambda _: bar.update(1))
-        bar.close()
-    finally:
-        client.close()
-        if cluster is not None:
-            cluster.close()
+        all_points = points(spec)
+        validate(spec, all_points)
+    except KeyboardInterrupt as exc:
+        raise SweepError(f"{exc or 'interrupted (Ctrl-C)'} while checking the points; "
+                         "nothing was run") from None
+    runs = spec.runs or list(load_pipeline(spec.pipeline, spec.base, warn=None).runs)
+    folder = RunFolder.create(out, args.force)
+    rows: list[dict] = []
+    interrupted = False
+    try:
+        client, cluster = cluster_client(args.workers, args.scheduler)
+        try:
+            where = (args.scheduler
+                     or f"a local cluster of {len(client.scheduler_info()['workers'])}")
+            print(f"sweeping {len(all_points)} point(s) × {len(runs)} run(s) of "
+                  f"{spec.pipeline} on {where} worker(s) -> {out}", file=sys.stderr)
+            bar = tqdm(total=len(all_points), unit="point", file=sys.stderr,
+                       disable=args.quiet or not sys.stderr.isatty())
+            rows, interrupted = execute(spec, all_points, client, lambda _: bar.update(1))
+            bar.close()
+        finally:
+            client.close()
+            if cluster is not None:
+                cluster.close()
+    except KeyboardInterrupt:  # while the cluster started or closed: what finished is kept
+        interrupted = True
+    except BaseException as exc:  # the cluster could not start: say so in the folder too
+        try:
+            folder.write_summary({"complete": False, "kind": "sweep", "error": str(exc)},
+                                 final=True)
+        finally:
+            folder.release()
+        raise
     table = safety_table(rows)
+    failed = sum(r["status"] != "ok" for r in rows)
     try:
         write_results(folder, spec, rows, table, interrupted, len(all_points))
+        folder.write_summary({"complete": not interrupted, "kind": "sweep",
+                              "status_detail": "interrupted" if interrupted else "finished",
+                              "points": len(all_points), "runs": runs, "rows": len(rows),
+                              "failed_rows": failed}, final=True)
     finally:
         folder.release()
     print(format_table(table))
     classes = guarantee_table(rows)
     if classes:
         print(format_guarantee_table(classes))
-    for path in record_points(spec, rows, record, out):
-        print(f"recorded: {path}")
-    failed = sum(r["status"] != "ok" for r in rows)
     print(f"{len(rows)} row(s) in {out / 'results.parquet'} and results.csv"
           + (f"; {failed} failed (see their error column)" if failed else ""))
     if interrupted:
         print(f"cosim: interrupted; the {len(rows)} finished row(s) are kept in {out}",
               file=sys.stderr)
         return 2
+    if record:
+        if not any(r["status"] == "ok" and not math.isnan(margin(r)) for r in rows):
+            raise SweepError(f"--record {args.record}: no row completed, so there is no "
+                             f"point to record; the {len(rows)} row(s) and their errors are "
+                             f"in {out / 'results.csv'}")
+        try:
+            for path in record_points(spec, rows, record, out):
+                print(f"recorded: {path}")
+        except KeyboardInterrupt as exc:
+            raise SweepError(f"{exc or 'interrupted (Ctrl-C)'} while recording; the sweep's "
+                             f"results are complete in {out}") from None
     return 0

@@ -9,6 +9,7 @@ import os
 import re
 import shutil
 import signal
+import socket
 import subprocess
 import sys
 import time
@@ -407,3 +408,176 @@ def test_ctrl_c_during_build_fmu_is_one_line_and_leaves_nothing(tmp_path):
     assert "interrupted (Ctrl-C) while building the FMU; nothing was written" in error_line(
         result)
     assert not out.exists() and not list(cache.glob(".*tmp")) and list(tmp.iterdir()) == []
+
+
+# Sweeps ------------------------------------------------------------------------------------
+
+V1000 = ",".join(str(i) for i in range(1000))
+SWEEP_CASES = [
+    ("zero workers", ["--workers", "0"], ["--workers 0: give 1 to"]),
+    ("a huge worker count", ["--workers", "100000"], ["--workers 100000: give 1 to"]),
+    ("negative seed", ["--seed", "-1"], ["--seed -1: a seed is a non-negative integer"]),
+    ("not a scheduler address", ["--scheduler", "not a url"],
+     ["--scheduler 'not a url': not a scheduler address; expected tcp://HOST:PORT"]),
+    ("a key in two grids", ["--grid", "controller.kv=10,20", "--grid", "controller.kv=30"],
+     ["--grid controller.kv: the key is already given by --grid"]),
+    ("a key in a grid and a sample", ["--grid", "controller.kv=10,20", "--sample",
+                                      "controller.kv=uniform(1,2)", "--samples", "2"],
+     ["--sample controller.kv: the key is already given by --grid"]),
+    ("a key set and swept", ["--set", "controller.kv=5", "--grid", "controller.kv=10,20"],
+     ["--grid controller.kv: the key is already given by --set"]),
+    ("a run named twice", ["--runs", "proposed", "proposed"],
+     ["--runs: proposed given more than once"]),
+    ("10⁹ points", ["--grid", f"controller.kv={V1000}", "--grid", f"controller.f={V1000}",
+                    "--grid", f"controller.g={V1000}"],
+     ["the sweep makes 1,000,000,000 points, more than --max-points 100,000"]),
+]
+
+
+@pytest.mark.parametrize("args,fragments", [c[1:] for c in SWEEP_CASES],
+                         ids=[c[0] for c in SWEEP_CASES])
+def test_bad_sweep_arguments_are_one_message_before_any_work(args, fragments, tmp_path):
+    began = time.monotonic()
+    message = error_line(cosim_cli("sweep", PAPER, "--out", str(tmp_path / "out"), *args))
+    for fragment in fragments:
+        assert fragment in message, (fragment, message)
+    assert time.monotonic() - began < 60  # no grid is built, no cluster started
+    assert not (tmp_path / "out").exists()
+
+
+def _server(banner: bytes | None):
+    """A local TCP server that is not a Dask scheduler: silent (like a web server waiting
+    for a request) or sending a banner at once (like SSH). Returns (port, stop)."""
+    import threading
+
+    listener = socket.create_server(("127.0.0.1", 0))
+    listener.settimeout(0.2)
+    stop = threading.Event()
+    held = []
+
+    def serve() -> None:
+        while not stop.is_set():
+            try:
+                conn, _ = listener.accept()
+            except TimeoutError:
+                continue
+            held.append(conn)
+            if banner:
+                conn.sendall(banner)
+        for conn in held:
+            conn.close()
+        listener.close()
+
+    threading.Thread(target=serve, daemon=True).start()
+    return listener.getsockname()[1], stop.set
+
+
+@pytest.mark.parametrize("banner", [None, b"SSH-2.0-OpenSSH_9.2p1 Debian-2\r\n" * 4],
+                         ids=["silent", "banner"])
+def test_a_scheduler_address_that_is_not_dask_fails_in_bounded_time(banner, tmp_path):
+    port, stop = _server(banner)
+    try:
+        began = time.monotonic()
+        message = error_line(cosim_cli("sweep", PAPER, "--out", str(tmp_path / "out"),
+                                       "--scheduler", f"tcp://127.0.0.1:{port}", *SHORT))
+        assert time.monotonic() - began < 120
+    finally:
+        stop()
+    assert f"--scheduler tcp://127.0.0.1:{port}:" in message
+    assert ("not as a Dask scheduler" in message) if banner is None else (
+        "no Dask scheduler answered there" in message)
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["complete"] is False and "--scheduler" in summary["error"]
+    assert not (tmp_path / "out" / ".cosim.lock").exists()
+
+
+def test_a_finished_sweeps_summary_says_complete(tmp_path):
+    out = tmp_path / "sweep"
+    done = cosim_cli("sweep", PAPER, "--out", str(out), "--quiet", "--grid",
+                     "controller.kv=10,20", "--workers", "1", *SHORT)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "it/s" not in done.stderr and "point/s" not in done.stderr  # --quiet: no bar
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["complete"] is True and summary["status"] == "complete"
+    assert (summary["points"], summary["rows"], summary["failed_rows"]) == (2, 4, 0)
+    assert {"results.parquet", "results.csv", "sweep.json"} <= set(summary["files"])
+
+
+def test_sigterm_mid_sweep_keeps_the_finished_rows_and_ends_every_worker(tmp_path):
+    import pyarrow.parquet as pq
+
+    out = tmp_path / "sweep"
+    child = subprocess.Popen(
+        [sys.executable, "-m", "cosim.cli", "sweep", PAPER, "--out", str(out), "--quiet",
+         "--grid", f"controller.kv={','.join(str(10 + i) for i in range(300))}",
+         "--workers", "2", *SHORT], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        process_group=0)
+    try:
+        line = child.stderr.readline()
+        while line and not line.startswith("sweeping"):
+            line = child.stderr.readline()
+        time.sleep(8.0)  # some points finish (~0.1 s each once the kernels are loaded)
+        child.send_signal(signal.SIGTERM)
+        _, err = child.communicate(timeout=120)
+    finally:
+        if child.poll() is None:
+            os.killpg(child.pid, signal.SIGKILL)
+        child.wait()
+    assert child.returncode == 2, err[-2000:]
+    assert "Traceback" not in err and "finished row(s) are kept in" in err
+    rows = pq.read_table(out / "results.parquet").to_pylist()
+    assert 0 < len(rows) < 600 and all(r["status"] == "ok" for r in rows)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["complete"] is False and summary["status"] == "incomplete"
+    assert summary["rows"] == len(rows)
+    assert not (out / ".cosim.lock").exists()
+    deadline = time.monotonic() + 30  # no worker of its process group survives
+    while time.monotonic() < deadline:
+        try:
+            os.killpg(child.pid, 0)
+        except ProcessLookupError:
+            break
+        time.sleep(0.2)
+    else:
+        left = subprocess.run(["ps", "-o", "pid,cmd", "-g", str(child.pid)],
+                              capture_output=True, text=True).stdout
+        os.killpg(child.pid, signal.SIGKILL)
+        pytest.fail(f"processes of the sweep outlived it:\n{left}")
+
+
+def test_record_when_every_row_failed_says_so(tmp_path):
+    from cli_helpers import LOW_GAIN_LAGGED
+
+    out = tmp_path / "sweep"
+    message = error_line(cosim_cli("sweep", PAPER, "--out", str(out), "--quiet", "--runs",
+                                   "proposed", "--grid", "controller.kv=10,20", "--workers",
+                                   "1", "--record", "best,worst", *SHORT, *LOW_GAIN_LAGGED))
+    assert "--record best,worst: no row completed, so there is no point to record" in message
+    rows = pq_rows(out)
+    assert len(rows) == 2 and all(r["status"] == "failed" for r in rows)
+    assert not [p for p in out.iterdir() if p.name.startswith(("best_", "worst_"))]
+
+
+def pq_rows(out: Path) -> list[dict]:
+    import pyarrow.parquet as pq
+
+    return pq.read_table(out / "results.parquet").to_pylist()
+
+
+def test_a_worker_killed_by_its_plant_leaves_failed_rows_named_by_run(tmp_path):
+    from test_plant_swapping import FOREIGN_ARM, build_pythonfmu
+
+    fmu = build_pythonfmu(FOREIGN_ARM, tmp_path / "fmu")
+    sets = [f'plant.fmu="{fmu}"', 'plant.variables.tau=["shoulder_torque", "elbow_torque"]',
+            'plant.variables.q=["shoulder", "elbow"]',
+            'plant.variables.qdot=["shoulder_rate", "elbow_rate"]',
+            "plant.parameters.crash_at=0.2", "runs.baseline.controller.kv=20.0",
+            "simulation.duration=0.5"]
+    args = ["sweep", PAPER, "--out", str(tmp_path / "sweep"), "--quiet", "--workers", "1"]
+    for item in sets:
+        args += ["--set", item]
+    done = cosim_cli(*args)
+    assert "Traceback" not in done.stderr
+    rows = pq_rows(tmp_path / "sweep")
+    assert {r["run"] for r in rows} == {"baseline", "proposed"}
+    assert all(r["status"] == "failed" for r in rows)

@@ -889,11 +889,6 @@ def test_wilson_interval_equals_scipys():
     assert all(math.isnan(x) for x in wilson(0, 0))
 
 
-@pytest.mark.xfail(strict=True, reason=(
-    "cosim/sweep.py wilson computes k = 0's lower and k = n's upper end as centre ∓ half, "
-    "which round-off leaves an ulp off: wilson(0, 11)[0] = 2.8e-17 > 0 and wilson(6, 6)[1] "
-    "= 1 − 1.1e-16 < 1 (104 of the (k, n) with n < 300), so the interval excludes the "
-    "observed proportion; SciPy returns exactly 0 and 1 there."))
 def test_wilson_interval_contains_the_observed_proportion():
     """For k = 0 the Wilson interval starts at exactly 0 and for k = n it ends at exactly 1
     (centre = half analytically; SciPy sets them so), and every interval contains k/n:
