@@ -2,7 +2,7 @@
 of the plant, its margins against brute force, the observer's error bound and drift, the
 classification of runs, the safe set's centre, infeasibility, and the Monte Carlo's figures
 on a small sample. Real FMU; the independent model is the paper's closed-form two-link arm
-(SPEC §2), written here apart from the code under test."""
+(SPEC §2), written in tests/test_references.py apart from the code under test."""
 
 from __future__ import annotations
 
@@ -12,6 +12,7 @@ import numpy as np
 import pyarrow.parquet as pq
 import pytest
 from cli_helpers import cosim_cli
+from test_references import two_link_closed_form
 
 from cosim.assemble import assemble
 from cosim.blocks.cbf_filter import acceleration_error_bound, velocity_forms
@@ -27,16 +28,20 @@ M1, M2, GRAVITY = 0.8, 2.3, 9.8
 
 def closed_form(q, qdot, m2):
     """The paper's arm (SPEC §2): M(q) and Vm(q, q̇)q̇ + G(q), point masses at the tips."""
-    c2, s2 = np.cos(q[1]), np.sin(q[1])
-    m11 = (M1 + m2) * A1**2 + m2 * A2**2 + 2 * m2 * A1 * A2 * c2
-    m12 = m2 * A2**2 + m2 * A1 * A2 * c2
-    mass = np.array([[m11, m12], [m12, m2 * A2**2]])
-    coriolis = np.array([-m2 * A1 * A2 * (2 * qdot[0] * qdot[1] + qdot[1] ** 2) * s2,
-                         m2 * A1 * A2 * qdot[0] ** 2 * s2])
-    gravity = np.array([(M1 + m2) * GRAVITY * A1 * np.cos(q[0])
-                        + m2 * GRAVITY * A2 * np.cos(q[0] + q[1]),
-                        m2 * GRAVITY * A2 * np.cos(q[0] + q[1])])
-    return mass, coriolis, gravity
+    return two_link_closed_form(q, qdot, A1, A2, M1, m2, GRAVITY)
+
+
+def worst_condition(qddot, x, qdot, v, p, k_v, alpha_q, alpha_v) -> float:
+    """The least of both hard sets' continuous-time conditions, both sides, per joint:
+    position ḧ + 2p ḣ + p² h and velocity ḣ + k·max(h, 0) (past the bound, within the hold's
+    margin, "do not move further out": README, "How the margins follow"); x = q − q_s,
+    v = q̇ − q̇_s."""
+    worst = np.inf
+    for side in (1.0, -1.0):
+        velocity = -side * qddot + k_v * np.maximum(alpha_v - side * v, 0.0)
+        position = -side * qddot - 2 * p * side * qdot + p * p * (alpha_q - side * x)
+        worst = min(worst, velocity.min(), position.min())
+    return worst
 
 
 def simulated(sets: list[str], name: str, duration: float = 3.0):
@@ -75,15 +80,9 @@ def test_the_hard_rows_hold_for_every_payload_in_the_declared_range():
         q, qdot, tau = trace["q"][k], trace["qdot"][k], trace["tau"][k]
         x, v = q - trace["q_s"][k], qdot - trace["qdot_s"][k]
         for payload in np.linspace(0.0, 1.0, 41):
-            mass, coriolis, gravity = closed_form(q, qdot, M2 + payload)
-            qddot = np.linalg.solve(mass, tau - coriolis - gravity - 0.01)
-            for side in (1.0, -1.0):
-                # k·max(h, 0): past the bound (within the hold's margin) the condition is
-                # "do not move further out" (README, "How the margins follow")
-                velocity = -side * qddot + k_v * np.maximum(alpha_v - side * v, 0.0)
-                position = (-side * qddot - 2 * p * side * qdot
-                            + p * p * (alpha_q - side * x))
-                worst = min(worst, velocity.min(), position.min())
+            mass, bias = closed_form(q, qdot, M2 + payload)
+            qddot = np.linalg.solve(mass, tau - bias - 0.01)
+            worst = min(worst, worst_condition(qddot, x, qdot, v, p, k_v, alpha_q, alpha_v))
     assert worst > -1e-6, worst
 
 
@@ -114,15 +113,11 @@ def test_the_hard_rows_hold_for_every_state_the_estimate_allows():
             for dq in signs * noise:
                 for dv in signs * eps:
                     qdot = v + dv
-                    mass, coriolis, gravity = closed_form(y, qdot, M2 + payload)
-                    qddot = np.linalg.solve(mass, tau - coriolis - gravity - 0.01)
-                    x = y + dq - trace["q_s"][k]
-                    w = qdot - trace["qdot_s"][k]
-                    for side in (1.0, -1.0):
-                        velocity = -side * qddot + k_v * np.maximum(alpha_v - side * w, 0.0)
-                        position = (-side * qddot - 2 * p * side * qdot
-                                    + p * p * (alpha_q - side * x))
-                        worst = min(worst, velocity.min(), position.min())
+                    mass, bias = closed_form(y, qdot, M2 + payload)
+                    qddot = np.linalg.solve(mass, tau - bias - 0.01)
+                    worst = min(worst, worst_condition(
+                        qddot, y + dq - trace["q_s"][k], qdot, qdot - trace["qdot_s"][k], p,
+                        k_v, alpha_q, alpha_v))
     assert worst > -1e-6, worst
 
 
@@ -137,16 +132,16 @@ def test_the_bias_error_bound_holds_against_brute_force():
         q = rng.uniform(-3, 3, 2)
         v = rng.uniform(-15, 15, 2)
         eps = rng.uniform(0, 3, 2)
-        mass, _, _ = closed_form(q, v, M2)
+        mass, _ = closed_form(q, v, M2)
         minv = np.linalg.inv(mass)
         bound = acceleration_error_bound(q, v, eps, minv, a,
                                          velocity_forms(q, a.m, a.l, a.lc, a.inertia))
         signs = np.array([[1, 1], [1, -1], [-1, 1], [-1, -1]])
         deltas = np.vstack([signs * eps, rng.uniform(-1, 1, (20, 2)) * eps])
         for payload in (0.0, 1.0):
-            _, base, _ = closed_form(q, v, M2 + payload)
+            _, base = closed_form(q, v, M2 + payload)
             for delta in deltas:
-                _, moved, _ = closed_form(q, v + delta, M2 + payload)
+                _, moved = closed_form(q, v + delta, M2 + payload)
                 error = np.abs(minv @ (moved - base))
                 assert np.all(error <= bound * (1 + 1e-9) + 1e-9), (q, v, eps, delta)
                 tightest = min(tightest, float(np.min(bound - error)))
