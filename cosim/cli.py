@@ -403,10 +403,28 @@ def _mark_crashed(out: Path, reason: str) -> None:
         pass
 
 
+def _end_with_the_supervisor() -> None:
+    """In the supervised run process: if the supervisor dies (SIGKILL, a closed terminal),
+    end as on SIGTERM — what was computed is kept and summarised — rather than run on as an
+    orphan. A daemon thread polls the parent once a second."""
+    import threading
+
+    parent = os.getppid()
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            threading.Event().wait(1.0)
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    threading.Thread(target=watch, daemon=True, name="cosim-supervisor-watch").start()
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     if argv is None and sys.argv[1:2] == ["run"] and not os.environ.get(SUPERVISED) \
             and not {"-h", "--help", "--dry-run"} & set(sys.argv[2:]):
         return _supervise(sys.argv[1:])
+    if argv is None and os.environ.get(SUPERVISED):
+        _end_with_the_supervisor()
     args = _parser().parse_args(argv)
     try:
         return args.func(args) or 0  # a command may return its own status (inspect: 1)

@@ -581,3 +581,43 @@ def test_a_worker_killed_by_its_plant_leaves_failed_rows_named_by_run(tmp_path):
     rows = pq_rows(tmp_path / "sweep")
     assert {r["run"] for r in rows} == {"baseline", "proposed"}
     assert all(r["status"] == "failed" for r in rows)
+
+
+def test_the_run_process_ends_when_its_supervisor_is_killed(tmp_path):
+    """SIGKILL to `cosim run` (the thin supervisor) must not orphan the process that runs:
+    it notices within a second, ends as on SIGTERM and leaves a true summary."""
+    out = tmp_path / "run"
+    supervisor = subprocess.Popen(
+        [sys.executable, "-m", "cosim.cli", "run", PAPER, "--out", str(out), "--no-figures",
+         "--set", "simulation.duration=600"], stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL)
+    child = None
+    try:
+        deadline = time.monotonic() + 120
+        while time.monotonic() < deadline:
+            found = subprocess.run(["ps", "-o", "pid=", "--ppid", str(supervisor.pid)],
+                                   capture_output=True, text=True).stdout.split()
+            if found and (out / "summary.json").exists():
+                child = int(found[0])
+                break
+            time.sleep(0.1)
+        assert child is not None
+        time.sleep(3.0)  # into the loop
+        supervisor.kill()
+        supervisor.wait()
+        deadline = time.monotonic() + 60
+        while time.monotonic() < deadline:
+            try:
+                os.kill(child, 0)
+            except ProcessLookupError:
+                break
+            time.sleep(0.2)
+        else:
+            os.kill(child, signal.SIGKILL)
+            pytest.fail("the run process outlived its supervisor by 60 s")
+    finally:
+        supervisor.kill()
+        supervisor.wait()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["complete"] is False and summary["status"] == "incomplete"
+    assert not (out / ".cosim.lock").exists()
