@@ -28,9 +28,9 @@ def _build_fmu(args: argparse.Namespace) -> None:
     except OSError as exc:
         raise UserError(f"--output {args.output}: cannot write the FMU there: "
                         f"{exc.strerror or exc}") from None
-    except KeyboardInterrupt:  # the build writes to a temporary and renames: nothing half-made
-        raise UserError("interrupted (Ctrl-C) while building the FMU; nothing was written") \
-            from None
+    except KeyboardInterrupt as exc:  # written to a temporary and renamed: nothing half-made
+        raise UserError(f"{str(exc) or 'interrupted (Ctrl-C)'} while building the FMU; nothing "
+                        "was written") from None
     print(path)
 
 
@@ -91,7 +91,7 @@ def _run(args: argparse.Namespace) -> None:
     except Diverged as exc:
         raise UserError(f"{exc}; {kept()}") from None
     except KeyboardInterrupt as exc:
-        raise UserError(f"{exc or 'interrupted (Ctrl-C)'}; {kept()}") from None
+        raise UserError(f"{str(exc) or 'interrupted (Ctrl-C)'}; {kept()}") from None
     except RecordingError as exc:
         raise UserError(f"{exc}; {kept()}") from None
     except RunFolderError as exc:  # "--out …" messages: the folder could not be used at all
@@ -426,11 +426,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     if argv is None and os.environ.get(SUPERVISED):
         _end_with_the_supervisor()
     args = _parser().parse_args(argv)
+    # Every command ends on SIGTERM as on Ctrl-C (run and sweep keep what they computed).
+    previous = signal.signal(signal.SIGTERM, _on_sigterm) if argv is None else None
     try:
         return args.func(args) or 0  # a command may return its own status (inspect: 1)
     except (UserError, BuildError, PipelineError) as exc:
         print(f"cosim: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt as exc:  # inspect, view: nothing of theirs to keep
+        print(f"cosim: error: {str(exc) or 'interrupted (Ctrl-C)'}", file=sys.stderr)
+        return 2
+    finally:
+        if previous is not None:
+            signal.signal(signal.SIGTERM, previous)
 
 
 if __name__ == "__main__":

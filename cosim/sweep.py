@@ -608,7 +608,7 @@ def _main(args) -> int:
         all_points = points(spec)
         validate(spec, all_points)
     except KeyboardInterrupt as exc:
-        raise SweepError(f"{exc or 'interrupted (Ctrl-C)'} while checking the points; "
+        raise SweepError(f"{str(exc) or 'interrupted (Ctrl-C)'} while checking the points; "
                          "nothing was run") from None
     runs = spec.runs or list(load_pipeline(spec.pipeline, spec.base, warn=None).runs)
     folder = RunFolder.create(out, args.force)
@@ -667,6 +667,6 @@ def _main(args) -> int:
             for path in record_points(spec, rows, record, out):
                 print(f"recorded: {path}")
         except KeyboardInterrupt as exc:
-            raise SweepError(f"{exc or 'interrupted (Ctrl-C)'} while recording; the sweep's "
+            raise SweepError(f"{str(exc) or 'interrupted (Ctrl-C)'} while recording; the sweep's "
                              f"results are complete in {out}") from None
     return 0

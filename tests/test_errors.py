@@ -383,8 +383,9 @@ def test_view_screenshot_to_a_folder_or_not_a_png(finished, tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_ctrl_c_during_build_fmu_is_one_line_and_leaves_nothing(tmp_path):
-    """SIGINT while the compiler runs (an empty cache forces a build): one message, no
+@pytest.mark.parametrize("signal_name", ["SIGINT", "SIGTERM"])
+def test_ctrl_c_during_build_fmu_is_one_line_and_leaves_nothing(tmp_path, signal_name):
+    """A signal while the compiler runs (an empty cache forces a build): one message, no
     temporary left in the cache or beside the output."""
     cache, tmp = tmp_path / "cache", tmp_path / "tmp"
     tmp.mkdir()
@@ -397,7 +398,7 @@ def test_ctrl_c_during_build_fmu_is_one_line_and_leaves_nothing(tmp_path):
         deadline = time.monotonic() + 60
         while not list(tmp.glob("plant_fmu_*")) and time.monotonic() < deadline:
             time.sleep(0.005)
-        child.send_signal(signal.SIGINT)
+        child.send_signal(getattr(signal, signal_name))
         _, err = child.communicate(timeout=60)
     finally:
         child.kill()
@@ -405,8 +406,8 @@ def test_ctrl_c_during_build_fmu_is_one_line_and_leaves_nothing(tmp_path):
     if child.returncode == 0:
         pytest.skip("the build finished before the signal arrived")
     result = subprocess.CompletedProcess(child.args, child.returncode, "", err)
-    assert "interrupted (Ctrl-C) while building the FMU; nothing was written" in error_line(
-        result)
+    reason = "terminated (SIGTERM)" if signal_name == "SIGTERM" else "interrupted (Ctrl-C)"
+    assert f"{reason} while building the FMU; nothing was written" in error_line(result)
     assert not out.exists() and not list(cache.glob(".*tmp")) and list(tmp.iterdir()) == []
 
 
