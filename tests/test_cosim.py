@@ -89,7 +89,9 @@ def test_position_set_has_no_margin_for_the_papers_reference(paper_run):
 def test_error_driven_observer_converges(paper_run):
     results, _ = paper_run
     rms = results["proposed"].metrics["observer_velocity_error_rms_after_1s"]
-    assert max(rms) < 0.2, rms
+    # measured [0.043, 0.068] rad/s: at most 1.5× that (the input sampled one sub-step off
+    # gives 0.081-0.106, a degradation this must catch)
+    assert max(rms) < 0.1, rms
     trace = results["proposed"].trace
     assert np.all(np.isfinite(trace["k0"])) and np.nanmax(trace["k0"]) > 1e4  # stiff, stable
 
