@@ -121,6 +121,72 @@ def test_the_hard_rows_hold_for_every_state_the_estimate_allows():
     assert worst > -1e-6, worst
 
 
+def test_each_hard_constraint_is_sound_at_arbitrary_states_with_wide_margins():
+    """Away from any trajectory, where every margin is large and so each one matters: at
+    random states inside the sets (non-zero centres), a velocity uncertainty ε up to 2 rad/s
+    per joint and a noise bound n̄ widened to 0.02 rad, the torque that pushes each hard
+    constraint (set, joint, side: its payload corners together) as far out as they allow —
+    a linear programme — keeps that set's continuous-time condition, on that side, for every
+    true state the filter cannot rule out (position y ± n̄, velocity x̂2 ± ε, corners; payload
+    on a grid of the declared range), with the closed-form arm's acceleration. Dropping any
+    one margin (n̄, ε in either set, the bias error) lets some such torque through."""
+    from scipy.optimize import linprog
+
+    from cosim.blocks.cbf_filter import cbf_rows
+
+    pipeline, plan, _ = simulated([], "proposed_cbf", duration=0.01)
+    f = pipeline.runs["proposed_cbf"].cbf_filter
+    p, k_v = f.position_rate, f.velocity_rate
+    alpha_q = pipeline.safety.position_bound * (1 - f.bound_margin)
+    alpha_v = pipeline.safety.velocity_bound * (1 - f.bound_margin)
+    noise = 0.02
+    a = plan.block("cbf_filter").args._replace(noise_bound=noise)
+    low, high = pipeline.uncertainty.payload
+    corners = 3 * a.payload_grid + 1  # rows per (set, joint, side): the payload's boxes
+    signs = np.array([[1, 1], [1, -1], [-1, 1], [-1, -1]], float)
+    rng = np.random.default_rng(11)
+    centre_q, centre_v = np.array([0.4, -0.3]), np.array([1.5, -2.0])
+    worst, tightest = np.inf, np.inf
+    for _ in range(60):
+        eps = rng.uniform(0.2, 2.0, 2)
+        y = centre_q + rng.uniform(-0.9, 0.9, 2) * (alpha_q - noise)
+        v = centre_v + rng.uniform(-0.9, 0.9, 2) * (alpha_v - eps)
+        a.position[0], a.velocity[0], a.velocity_bound[0] = y, v, eps
+        a.q_s[0], a.qdot_s[0] = centre_q, centre_v
+        a.M_model[0] = closed_form(y, v, M2)[0]  # M̂: the nominal arm at y
+        cbf_rows(0, a)
+        minv = np.linalg.inv(a.M_model[0])
+        for group in range(8):  # (set, joint, side) in the filter's order
+            s, i, side = group // 4, group // 2 % 2, 1.0 - 2.0 * (group % 2)
+            rows = slice(group * corners, (group + 1) * corners)
+            assert np.all(a.is_hard[rows] == 1) and np.all(a.kinds[rows] == s)
+            assert np.all(a.joints[rows] == i)
+            # the most outward torque the constraint allows: max side·(M̂⁻¹τ)_i
+            lp = linprog(-side * minv[i], A_ub=a.rows[rows], b_ub=a.limits[rows],
+                         bounds=[(-1e5, 1e5)] * 2, method="highs")
+            assert lp.status == 0, lp.message
+            tau = lp.x
+            for payload in np.linspace(low, high, 11):
+                for dv in signs * eps:
+                    qdot = v + dv
+                    mass, bias = closed_form(y, qdot, M2 + payload)
+                    qddot = np.linalg.solve(mass, tau - bias - 0.01)[i]  # τ_d = 0.01 (SPEC §2)
+                    if s == 0:
+                        for dq in (noise, -noise):
+                            x = y[i] + dq - centre_q[i]
+                            condition = (-side * qddot - 2 * p * side * qdot[i]
+                                         + p * p * (alpha_q - side * x))
+                            worst = min(worst, condition)
+                            tightest = min(tightest, abs(condition))
+                    else:
+                        condition = -side * qddot + k_v * max(
+                            alpha_v - side * (qdot[i] - centre_v[i]), 0.0)
+                        worst = min(worst, condition)
+                        tightest = min(tightest, abs(condition))
+    assert worst > -1e-6, worst
+    assert tightest < 1.0  # not vacuous: some true state sits on the condition's edge
+
+
 def test_the_bias_error_bound_holds_against_brute_force():
     """|M̂⁻¹(b(q, v + δ) − b(q, v))| ≤ the filter's bound for every |δ_j| ≤ ε_j and payload in
     the declared range, b from the closed form: at random states, corners and random δ."""
