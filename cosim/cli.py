@@ -140,6 +140,28 @@ def _view(args: argparse.Namespace) -> None:
         raise UserError(f"the Rerun viewer exited with status {status}")
 
 
+def _export(args: argparse.Namespace) -> None:
+    from .outputs.export import ExportError, export
+
+    try:
+        paths = export(args.run_dir, args.format, args.runs, args.out, args.force)
+    except ExportError as exc:
+        raise UserError(str(exc)) from None
+    for path in paths:
+        print(path)
+
+
+def _compare(args: argparse.Namespace) -> int:
+    from .outputs.compare import CompareError, compare
+
+    try:
+        result = compare(args.a, args.b, args.runs)
+    except CompareError as exc:
+        raise UserError(str(exc)) from None
+    print("\n".join(result.lines))
+    return 1 if result.regressions else 0  # 1, not 2: the command worked; B regressed
+
+
 def _inspect(args: argparse.Namespace) -> int:
     from .config import load_pipeline
     from .plant.inspection import inspect_fmu
@@ -327,6 +349,38 @@ def _parser() -> argparse.ArgumentParser:
                    help="instead of opening a window, render the layout headless (software "
                    "Vulkan: Debian's mesa-vulkan-drivers) and save it as PNG")
     p.set_defaults(func=_view)
+
+    p = sub.add_parser("export", help="write a run folder's traces as Parquet, CSV or MAT, "
+                       "with units", description="Write every signal of each run (and each "
+                       "check's and barrier's value per row) to export_<run>.parquet, .csv or "
+                       ".mat, with its unit and meaning: Parquet field metadata (unit, "
+                       "description), a CSV header 'name (unit)' per column, a MAT struct of "
+                       "arrays with 'units' and 'descriptions'. Per-joint signals are q[1], "
+                       "q[2], ...; n×n ones M[1,1], M[1,2], ... (1-based). SI units, radians. "
+                       "Prints the files written.")
+    p.add_argument("run_dir", metavar="RUN_DIR", type=Path, help="a run folder")
+    p.add_argument("--format", default="parquet", choices=("parquet", "csv", "mat"),
+                   help="file format (default parquet)")
+    p.add_argument("--run", action="append", default=None, metavar="NAME", dest="runs",
+                   help="a run to export (repeatable; default: all)")
+    p.add_argument("--out", type=Path, default=None,
+                   help="folder for the files (default: RUN_DIR itself, where earlier exports "
+                   "are replaced)")
+    p.add_argument("--force", action="store_true",
+                   help="replace files of the same name in --out")
+    p.set_defaults(func=_export)
+
+    p = sub.add_parser("compare", help="compare two run folders' checks and metrics; exit 1 "
+                       "if a check that held in A fails in B", description="Print each run's "
+                       "safety checks (worst value and verdict) and numeric metrics from two run "
+                       "folders side by side with the difference B - A. Exit status 0 when "
+                       "every check that held in A holds in B, 1 when one does not (each named: "
+                       "a gate for a controller change), 2 on an error. SI units, radians.")
+    p.add_argument("a", metavar="A", type=Path, help="the run folder to compare against")
+    p.add_argument("b", metavar="B", type=Path, help="the run folder being checked")
+    p.add_argument("--run", action="append", default=None, metavar="NAME", dest="runs",
+                   help="compare only this run (repeatable; default: every run of either)")
+    p.set_defaults(func=_compare)
 
     p = sub.add_parser("inspect", help="show what an FMU offers and whether it fits the plant "
                        "interface", description="Print an FMU's FMI version, interfaces "

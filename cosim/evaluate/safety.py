@@ -84,6 +84,22 @@ class Check:
         return np.abs(self.value)
 
 
+def check_unit(name: str) -> str:
+    """The SI unit of a check's value, from its name (positions and errors in rad, velocities,
+    error rates, r̂ and the observer's velocity error in rad/s)."""
+    if name.startswith(("velocity", "error_rate", "filtered_error", "observer_error")):
+        return "rad/s"
+    return "rad"  # position_*, error_*
+
+
+# What each barrier series in a trace file is; the paper's barriers mix units (k0·ε², ‖Ŵ‖²/F,
+# rᵀMr), so they carry none.
+BARRIER_MEANINGS = {"H1": "H1 of (28): the observer's barrier (mixed units)",
+                    "H2": "H2 of (29): the controller's barrier (mixed units)",
+                    "H": "H = H1 + H2 (mixed units)",
+                    "condition": "dH/dt + α·H per row, ≥ 0 where the condition holds (1/s × H)"}
+
+
 def _deviations(trace: Signals, safe: SafeSet, gains: Gains
                 ) -> list[tuple[str, np.ndarray | None, float, np.ndarray | None]]:
     """(check stem, signal per row and joint, bound, the reference's own signal) of the

@@ -191,11 +191,23 @@ class RunFolder:
     def write_trace(self, name: str, trace, evaluation=None) -> None:
         """trace_<name>.npz: the time column and every signal of the completed rows, and
         their evaluation: ``check_<name>`` (each safety check's value) and
-        ``barrier_<name>`` (H1, H2, H and the condition Ḣ + αH)."""
+        ``barrier_<name>`` (H1, H2, H and the condition Ḣ + αH). ``units`` (a JSON string)
+        gives each array's unit and meaning, so the file describes itself."""
+        from ..evaluate.safety import BARRIER_MEANINGS, check_unit
+
         extra = {}
+        units = {"time": {"unit": "s", "description": "time t_k = k·step"}}
+        units.update({n: {"unit": s.unit, "description": s.description}
+                      for n, s in trace.signals.items()})
         if evaluation is not None:
             extra.update({f"check_{n}": c.value for n, c in evaluation.checks.items()})
             extra.update({f"barrier_{n}": v for n, v in evaluation.barriers.items()})
+            units.update({f"check_{n}": {"unit": check_unit(n), "description":
+                                         f"the value the {n} check bounds by {c.upper:g}"}
+                          for n, c in evaluation.checks.items()})
+            units.update({f"barrier_{n}": {"unit": "", "description": BARRIER_MEANINGS.get(n, n)}
+                          for n in evaluation.barriers})
+        extra[UNITS_KEY] = np.array(json.dumps(units, ensure_ascii=False))
 
         def produce(tmp: Path) -> None:
             with tmp.open("wb") as f:
@@ -245,11 +257,14 @@ class RunFolder:
         self.files[name] = {"complete": True, "bytes": len(data)}
 
 
+UNITS_KEY = "_units"  # the trace file's array of units and meanings (a JSON string)
+
 # What cosim writes into a run or sweep folder (besides what summary.json lists), and the
 # temporaries it may leave behind when killed.
 OUR_NAMES = ("summary.json", "summary.md", "recording.rrd", "results.parquet", "results.csv",
              "sweep.json", "sweep_safety.png")
-OUR_PATTERNS = ("trace_*.npz", "fig*.png", ".*.tmp")
+OUR_PATTERNS = ("trace_*.npz", "fig*.png", ".*.tmp", "export_*.parquet", "export_*.csv",
+                "export_*.mat")
 
 
 def _ours_summary(path: Path) -> dict | None:

@@ -1,0 +1,172 @@
+"""Take a run folder's traces elsewhere (`cosim export`): every signal of a run, with its unit
+and meaning, as Parquet (field metadata), CSV (the unit in each header) or MATLAB's MAT.
+
+The source is the run folder's ``trace_<run>.npz``, which carries its own units (the
+``_units`` entry, written since traces became self-describing). A per-joint signal becomes
+one column per joint (``q[1]``, ``q[2]``), an n×n one one per entry (``M[1,2]``), 1-based
+like the FMU's variable names; the MAT file keeps the arrays' own shapes.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .run_folder import UNITS_KEY, _ours_summary
+
+FORMATS = ("parquet", "csv", "mat")
+SUFFIX = {"parquet": ".parquet", "csv": ".csv", "mat": ".mat"}
+
+
+class ExportError(Exception):
+    """A folder, run or target that cannot be exported: one line naming it."""
+
+
+@dataclass(frozen=True)
+class Column:
+    name: str
+    values: np.ndarray  # (rows,)
+    unit: str
+    description: str
+
+
+def trace_runs(folder: Path) -> list[str]:
+    """The runs of a run folder that have a trace file, in summary.json's order."""
+    summary = _ours_summary(folder) if folder.is_dir() else None
+    if summary is None:
+        raise ExportError(f"{folder}: not a cosim run folder (no summary.json of ours); give "
+                          "the folder `cosim run --out` wrote")
+    runs = [r for r in summary.get("runs") or {} if (folder / f"trace_{r}.npz").is_file()]
+    if not runs:
+        raise ExportError(f"{folder}: holds no trace_<run>.npz (a sweep folder's rows are "
+                          "already in results.parquet and results.csv)")
+    return runs
+
+
+def read_trace(folder: Path, run: str) -> tuple[dict[str, np.ndarray], dict[str, dict]]:
+    """A run's arrays and their units and meanings, ``{name: {"unit", "description"}}``."""
+    path = folder / f"trace_{run}.npz"
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            arrays = {key: data[key] for key in data.files}
+    except (OSError, ValueError) as exc:
+        raise ExportError(f"{path}: cannot be read ({exc})") from None
+    if UNITS_KEY not in arrays:
+        raise ExportError(f"{path}: written by a cosim without units in its traces; run the "
+                          "pipeline again to export it")
+    units = json.loads(str(arrays.pop(UNITS_KEY)))
+    return arrays, units
+
+
+def columns(arrays: dict[str, np.ndarray], units: dict[str, dict]) -> list[Column]:
+    """Every array as flat columns, ``time`` first."""
+    out = []
+    for name in ["time", *(k for k in arrays if k != "time")]:
+        values, meaning = arrays[name], units.get(name, {"unit": "", "description": ""})
+        flat = values.reshape(len(values), -1)
+        if values.ndim == 1:
+            labels = [name]
+        elif values.ndim == 2:
+            labels = [f"{name}[{i + 1}]" for i in range(flat.shape[1])]
+        else:
+            n = values.shape[1]
+            labels = [f"{name}[{i + 1},{j + 1}]" for i in range(n) for j in range(n)]
+        out.extend(Column(label, flat[:, c], meaning["unit"], meaning["description"])
+                   for c, label in enumerate(labels))
+    return out
+
+
+def _parquet(path: Path, cols: list[Column], about: dict[str, str]) -> None:
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    fields = [pa.field(c.name, pa.float64(), metadata={"unit": c.unit,
+                                                      "description": c.description})
+              for c in cols]
+    schema = pa.schema(fields, metadata={f"cosim.{k}": v for k, v in about.items()})
+    table = pa.Table.from_arrays([pa.array(c.values, pa.float64()) for c in cols],
+                                 schema=schema)
+    pq.write_table(table, path)
+
+
+def csv_header(column: Column) -> str:
+    """``name (unit)``, or the name alone for a quantity without one."""
+    return f"{column.name} ({column.unit})" if column.unit else column.name
+
+
+def _csv(path: Path, cols: list[Column], about: dict[str, str]) -> None:
+    data = np.column_stack([c.values for c in cols])
+    with path.open("w", encoding="utf-8", newline="") as f:
+        csv.writer(f).writerow(csv_header(c) for c in cols)  # quotes "M[1,2] (kg·m²)"
+        np.savetxt(f, data, delimiter=",", fmt="%.17g")  # 17 digits: floats round-trip
+
+
+def _mat(path: Path, arrays: dict[str, np.ndarray], units: dict[str, dict],
+         about: dict[str, str]) -> None:
+    from scipy.io import savemat
+
+    reserved = {"units", "descriptions", "cosim"}
+    clash = reserved & set(arrays)
+    if clash:
+        raise ExportError(f"signal {sorted(clash)[0]!r} has a name the MAT file reserves")
+    content = dict(arrays)
+    content["units"] = {k: units.get(k, {}).get("unit", "") for k in arrays}
+    content["descriptions"] = {k: units.get(k, {}).get("description", "") for k in arrays}
+    content["cosim"] = about
+    savemat(path, content, long_field_names=True, do_compression=True, oned_as="column")
+
+
+def export(folder: str | Path, fmt: str = "parquet", runs: list[str] | None = None,
+           out: str | Path | None = None, force: bool = False) -> list[Path]:
+    """Write ``export_<run>.<ext>`` for each run (default: every run with a trace) into
+    ``out`` (default: the run folder itself, where these files are cosim's own and are
+    replaced). Elsewhere an existing file is refused unless ``force``. Returns the paths."""
+    folder = Path(folder)
+    if fmt not in FORMATS:
+        raise ExportError(f"--format {fmt}: must be one of {', '.join(FORMATS)}")
+    available = trace_runs(folder)
+    chosen = runs or available
+    unknown = [r for r in chosen if r not in available]
+    if unknown:
+        raise ExportError(f"--run {unknown[0]}: {folder} has no trace of it; its runs are "
+                          f"{', '.join(available)}")
+    target = Path(out) if out is not None else folder
+    if target.exists() and not target.is_dir():
+        raise ExportError(f"--out {target}: is a file; give a folder")
+    inside = target.resolve() == folder.resolve()
+    paths = [target / f"export_{run}{SUFFIX[fmt]}" for run in chosen]
+    if not inside and not force:
+        taken = [p for p in paths if p.exists()]
+        if taken:
+            raise ExportError(f"{taken[0]}: already exists; pass --force to replace it")
+    try:
+        target.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise ExportError(f"--out {target}: cannot be made ({exc.strerror or exc})") from None
+    summary = _ours_summary(folder) or {}
+    for run, path in zip(chosen, paths, strict=True):
+        arrays, units = read_trace(folder, run)
+        about = {"run": run, "source": str(folder.resolve() / f"trace_{run}.npz"),
+                 "pipeline": str((summary.get("pipeline") or {}).get("name", "")),
+                 "units": "SI, angles in radians"}
+        tmp = path.with_name(f".{path.name}.tmp")
+        try:
+            if fmt == "parquet":
+                _parquet(tmp, columns(arrays, units), about)
+            elif fmt == "csv":
+                _csv(tmp, columns(arrays, units), about)
+            else:
+                _mat(tmp, arrays, units, about)
+            tmp.replace(path)
+        except OSError as exc:
+            tmp.unlink(missing_ok=True)
+            raise ExportError(f"{path}: could not be written ({exc.strerror or exc})") from None
+        except BaseException:
+            tmp.unlink(missing_ok=True)
+            raise
+    return paths
+

@@ -1,0 +1,183 @@
+"""Results taken elsewhere and compared: `cosim export` round-trips every array of a run's
+trace with its unit (Parquet, CSV, MAT, each read back by its own reader: pyarrow, the csv
+module and NumPy, SciPy's loadmat), and `cosim compare` gates a change by its exit status.
+Real runs of the paper's pipeline through the CLI."""
+
+from __future__ import annotations
+
+import csv
+import json
+import re
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+from cli_helpers import PAPER, cosim_cli
+from scipy.io import loadmat
+
+from cosim.assemble import assemble
+from cosim.config import load_pipeline
+
+SHORT = ["--set", "simulation.duration=2", "--no-recording", "--no-figures"]
+# Units a reader of the paper expects, written here rather than taken from the code.
+KNOWN_UNITS = {"time": "s", "q": "rad", "qdot": "rad/s", "qdot_hat": "rad/s", "tau": "N·m",
+               "M": "kg·m²", "check_position_joint1": "rad",
+               "check_velocity_true_joint1": "rad/s", "check_error_norm": "rad",
+               "check_error_rate_joint1": "rad/s", "check_filtered_error_norm": "rad/s"}
+
+
+@pytest.fixture(scope="module")
+def folders(tmp_path_factory):
+    """A: the paper's pipeline for 2 s; B: the same with a velocity bound just below what the
+    proposed run reaches in A, so a check that held in A fails in B."""
+    base = tmp_path_factory.mktemp("export")
+    a, b = base / "a", base / "b"
+    done = cosim_cli("run", PAPER, "--out", str(a), *SHORT)
+    assert done.returncode == 0, done.stderr[-2000:]
+    held = json.loads((a / "summary.json").read_text())["runs"]["proposed"]["safety"]
+    assert held["velocity_true_joint1"]["satisfied"]
+    lower = held["velocity_true_joint1"]["worst"] - 0.1
+    done = cosim_cli("run", PAPER, "--out", str(b), *SHORT, "--set",
+                     f"safety.velocity_bound={lower}")
+    assert done.returncode == 0, done.stderr[-2000:]
+    return a, b
+
+
+def trace_arrays(folder, run):
+    with np.load(folder / f"trace_{run}.npz") as data:
+        return {k: data[k] for k in data.files if k != "_units"}
+
+
+def declared_units(run: str) -> dict[str, str]:
+    """What the assembled blocks declare, for every signal of the run."""
+    pipeline = load_pipeline(PAPER, ["simulation.duration=0.01"])
+    scenario = assemble(pipeline)
+    try:
+        return {name: s.unit for name, s in scenario.runs[run].signals.items()}
+    finally:
+        scenario.close()
+
+
+def flat(name: str, values: np.ndarray) -> dict[str, np.ndarray]:
+    """The columns an array should become: name, name[i] or name[i,j], 1-based."""
+    if values.ndim == 1:
+        return {name: values}
+    if values.ndim == 2:
+        return {f"{name}[{i + 1}]": values[:, i] for i in range(values.shape[1])}
+    n = values.shape[1]
+    return {f"{name}[{i + 1},{j + 1}]": values[:, i, j] for i in range(n) for j in range(n)}
+
+
+def test_export_parquet_round_trips_every_array_with_its_unit(folders):
+    a, _ = folders
+    done = cosim_cli("export", str(a), "--format", "parquet")
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.split() == [str(a / "export_baseline.parquet"),
+                                   str(a / "export_proposed.parquet")]
+    arrays = trace_arrays(a, "proposed")
+    table = pq.read_table(a / "export_proposed.parquet")
+    units = {f.name: f.metadata[b"unit"].decode() for f in table.schema}
+    expected = {}
+    for name, values in arrays.items():
+        expected.update(flat(name, values))
+    assert table.column_names[0] == "time" and set(table.column_names) == set(expected)
+    for column, values in expected.items():
+        np.testing.assert_array_equal(table.column(column).to_numpy(), values, err_msg=column)
+    declared = declared_units("proposed")
+    for column, unit in units.items():
+        base = column.split("[")[0]
+        if base in declared:
+            assert unit == declared[base], column
+        if base in KNOWN_UNITS:
+            assert unit == KNOWN_UNITS[base], column
+    assert all(base in {c.split("[")[0] for c in units} for base in KNOWN_UNITS)
+    about = table.schema.metadata
+    assert about[b"cosim.run"] == b"proposed" and about[b"cosim.pipeline"] == b"paper_two_link"
+
+
+def test_export_csv_round_trips_exactly_with_units_in_the_header(folders, tmp_path):
+    a, _ = folders
+    done = cosim_cli("export", str(a), "--format", "csv", "--run", "baseline", "--out",
+                     str(tmp_path))
+    assert done.returncode == 0, done.stderr
+    path = tmp_path / "export_baseline.csv"
+    with path.open(encoding="utf-8") as f:
+        header = next(csv.reader(f))
+    data = np.loadtxt(path, delimiter=",", skiprows=1)
+    expected = {}
+    for name, values in trace_arrays(a, "baseline").items():
+        expected.update(flat(name, values))
+    parsed = [re.fullmatch(r"(\S+?)(?: \((.+)\))?", cell).groups() for cell in header]
+    assert [p[0] for p in parsed] == list(expected)
+    for c, (name, unit) in enumerate(parsed):
+        np.testing.assert_array_equal(data[:, c], expected[name], err_msg=name)
+        base = name.split("[")[0]
+        if base in KNOWN_UNITS:
+            assert unit == KNOWN_UNITS[base], name
+    assert not (a / "export_baseline.csv").exists()  # --out: nothing in the run folder
+
+
+def test_export_mat_keeps_shapes_and_units(folders, tmp_path):
+    a, _ = folders
+    done = cosim_cli("export", str(a), "--format", "mat", "--out", str(tmp_path))
+    assert done.returncode == 0, done.stderr
+    mat = loadmat(tmp_path / "export_proposed.mat", squeeze_me=False)
+    arrays = trace_arrays(a, "proposed")
+    for name, values in arrays.items():
+        got = mat[name]
+        np.testing.assert_array_equal(got.reshape(values.shape), values, err_msg=name)
+        if values.ndim > 1:
+            assert got.shape == values.shape, name
+    units = mat["units"][0, 0]
+    for name, unit in KNOWN_UNITS.items():
+        assert str(units[name][0]) == unit, name
+
+
+def test_export_refuses_what_it_cannot_or_must_not_do(folders, tmp_path):
+    a, _ = folders
+    taken = tmp_path / "export_proposed.parquet"
+    taken.write_bytes(b"the user's own file")
+    done = cosim_cli("export", str(a), "--out", str(tmp_path))
+    assert done.returncode == 2
+    assert done.stderr.strip() == (f"cosim: error: {taken}: already exists; pass --force to "
+                                   "replace it")
+    assert taken.read_bytes() == b"the user's own file"
+    assert not (tmp_path / "export_baseline.parquet").exists()  # refused before any write
+    done = cosim_cli("export", str(a), "--run", "nope")
+    assert done.returncode == 2 and "--run nope: " in done.stderr
+    assert "its runs are baseline, proposed" in done.stderr
+    done = cosim_cli("export", str(tmp_path))
+    assert done.returncode == 2 and "not a cosim run folder" in done.stderr
+    assert "Traceback" not in done.stderr
+
+
+def test_exports_in_a_run_folder_are_cosims_own(folders, tmp_path):
+    """An export written into the run folder does not make it foreign: --force replaces it."""
+    a, _ = folders
+    target = tmp_path / "run"
+    assert cosim_cli("run", PAPER, "--out", str(target), *SHORT[:2], "--no-recording",
+                     "--no-figures", "--set", "simulation.duration=0.2").returncode == 0
+    assert cosim_cli("export", str(target), "--format", "csv").returncode == 0
+    done = cosim_cli("run", PAPER, "--out", str(target), "--no-recording", "--no-figures",
+                     "--set", "simulation.duration=0.2", "--force")
+    assert done.returncode == 0, done.stderr
+    assert not (target / "export_proposed.csv").exists()
+
+
+def test_compare_gates_a_regression_by_its_exit_status(folders):
+    a, b = folders
+    same = cosim_cli("compare", str(a), str(a))
+    assert same.returncode == 0, same.stderr
+    assert "no regression: every check that held in A holds in B" in same.stdout
+    worse = cosim_cli("compare", str(a), str(b))
+    assert worse.returncode == 1, worse.stderr
+    regressions = worse.stdout.split("regression(s):")[1].split("\n")
+    named = [line.strip() for line in regressions if line.strip()]
+    assert named and all(line.startswith("proposed/velocity_") for line in named)
+    assert any(line.startswith("proposed/velocity_true_joint1: held in A") for line in named)
+    assert "REGRESSED" in worse.stdout
+    better = cosim_cli("compare", str(b), str(a))
+    assert better.returncode == 0 and "now holds" in better.stdout
+    assert max(len(line) for line in worse.stdout.splitlines()) <= 100
+    missing = cosim_cli("compare", str(a), str(a.parent))
+    assert missing.returncode == 2 and "not a cosim run folder" in missing.stderr
