@@ -1,8 +1,8 @@
 """A curated mutation run (`make mutants`): plausible one-line bugs in the core modules — the
-paper's laws, the filter, the evaluation, the run folder, the sweep's statistics, the limits —
-each applied to a fresh copy of the repository and run against the tests that cover its
-module. Prints the score and every survivor. Outside CI's budget (most mutants touch numba
-kernels and recompile: ~1 min each on 2 cores).
+paper's laws, the filter, the evaluation, the run folder, the sweep's statistics, export and
+compare, the limits — each applied to a fresh copy of the repository and run against the
+tests that cover its module. Prints the score and every survivor. Outside CI's budget (most
+mutants touch numba kernels and recompile: ~1 min each on 2 cores).
 
     .venv/bin/python benchmarks/mutants.py             # all
     .venv/bin/python benchmarks/mutants.py --only obs  # the ids containing "obs"
@@ -30,6 +30,7 @@ EVALUATION = ["tests/test_references.py", "tests/test_cosim.py", "tests/test_rob
 FOLDER = ["tests/test_errors.py", "tests/test_recording.py"]
 SWEEP = ["tests/test_references.py", "tests/test_sweep.py"]
 LIMITS = ["tests/test_errors.py", "tests/test_resources.py"]
+RESULTS = ["tests/test_export.py"]
 
 # (id, file, text, replacement, tests): the text must occur exactly once in the file.
 MUTANTS = [
@@ -108,6 +109,10 @@ MUTANTS = [
      "math.sqrt(p * (1 - p) / trials", "math.sqrt(p * (1 - p) / (trials + 1)", SWEEP),
     ("sweep-failed-counted", "cosim/sweep.py",
      'low, high = wilson(kept, len(ok))', 'low, high = wilson(kept, len(mine))', SWEEP),
+    # export and compare (the gate a user's CI relies on)
+    ("compare-regression", "cosim/outputs/compare.py",
+     "if held_a and not held_b:", "if held_a and not held_b and False:", RESULTS),
+    ("export-csv-digits", "cosim/outputs/export.py", 'fmt="%.17g"', 'fmt="%.9g"', RESULTS),
     # the limits
     ("limit-substeps", "cosim/config/pipeline.py",
      "if substeps > self.simulation.max_plant_substeps:", "if False:", LIMITS),
