@@ -20,9 +20,18 @@ class UserError(Exception):
 
 
 def _build_fmu(args: argparse.Namespace) -> None:
-    output = args.output
-    if output is not None and output.is_dir():  # a folder: the FMU goes into it
+    output = Path(args.output) if args.output is not None else None
+    if output is not None and (output.is_dir() or args.output.endswith(os.sep)):
+        try:  # a folder (one ending in / is made): the FMU goes into it
+            output.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise UserError(f"--output {args.output}: cannot make the folder: "
+                            f"{exc.strerror or exc}") from None
         output = output / f"PlanarArm{args.links}_fmi{args.fmi_version}.fmu"
+    elif output is not None and output.suffix.lower() != ".fmu":
+        raise UserError(f"--output {args.output}: an FMU's file name ends in .fmu (e.g. "
+                        f"{output.with_suffix('.fmu')}); for a folder, end it with "
+                        f"{os.sep} and the FMU is written into it; nothing was written")
     try:
         path = build_fmu(links=args.links, fmi_version=args.fmi_version, output=output)
     except OSError as exc:
@@ -68,6 +77,12 @@ def _run(args: argparse.Namespace) -> None:
     from .runner import run
 
     pipeline = load_pipeline(args.pipeline, args.set)
+    if args.runs:
+        unknown = [name for name in args.runs if name not in pipeline.runs]
+        if unknown:
+            raise UserError(f"--run {unknown[0]}: {args.pipeline} has no such run; its runs "
+                            f"are {', '.join(pipeline.runs)}; nothing was run")
+        pipeline.runs = {name: pipeline.runs[name] for name in dict.fromkeys(args.runs)}
     out = args.out or Path("runs") / pipeline.name
     if args.dry_run:
         from .plan import describe_plan
@@ -274,8 +289,9 @@ def _parser() -> argparse.ArgumentParser:
                    metavar="N", help=f"number of links, 1 to {MAX_LINKS} (default 2)")
     p.add_argument("--fmi-version", type=int, default=2, choices=(2, 3),
                    help="FMI version (default 2)")
-    p.add_argument("--output", type=Path, default=None,
-                   help="where to write the FMU (default: the build cache)")
+    p.add_argument("--output", default=None, metavar="FILE.fmu|FOLDER/",
+                   help="where to write the FMU: a .fmu file, or a folder (an existing one, "
+                   "or a name ending in /, made if missing) (default: the build cache)")
     p.set_defaults(func=_build_fmu)
 
     p = sub.add_parser("run", help="run a pipeline (TOML) and write its run folder",
@@ -288,6 +304,8 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--set", action="append", default=[], metavar="KEY.PATH=VALUE",
                    help="override a pipeline key with a TOML value, e.g. controller.kv=25 or "
                    "'plant.fmu=\"arm.fmu\"' (repeatable)")
+    p.add_argument("--run", action="append", default=None, metavar="NAME", dest="runs",
+                   help="run only this run of the pipeline (repeatable; default: all)")
     live = p.add_mutually_exclusive_group()
     live.add_argument("--spawn", action="store_true",
                       help="start a Rerun viewer that follows the runs live (needs a display)")

@@ -77,6 +77,9 @@ CASES = [
     ("plant sub-steps beyond the cap", [*SHORT, "--set", "plant.parameters.rk4_step=1e-10"],
      ["plant.parameters.rk4_step = 1e-10 s makes 10,000,000 RK4 sub-steps per step",
       "simulation.max_plant_substeps = 1000", "use rk4_step ≥ 1e-06 s"]),
+    ("a run the pipeline does not have", [*SHORT, "--run", "proposed", "--run", "nope"],
+     [f"--run nope: {PAPER} has no such run; its runs are baseline, proposed; nothing was "
+      "run"]),
 ]
 
 
@@ -222,6 +225,17 @@ def test_build_fmu_into_a_folder_and_refused_paths(tmp_path):
     message = error_line(cosim_cli("build-fmu", "--output", str(_write(tmp_path / "f", b"x")
                                                                   / "x.fmu")))
     assert "--output" in message
+    # a folder not yet there, named with a trailing slash, is made (not a zip named "new")
+    done = cosim_cli("build-fmu", "--output", f"{tmp_path / 'new'}/")
+    assert done.returncode == 0, done.stderr
+    assert Path(done.stdout.strip()) == tmp_path / "new" / "PlanarArm2_fmi2.fmu"
+    assert (tmp_path / "new" / "PlanarArm2_fmi2.fmu").is_file()
+    # without the slash, a name that is not .fmu is refused, and nothing is written
+    message = error_line(cosim_cli("build-fmu", "--output", str(tmp_path / "newer")))
+    assert message == (f"cosim: error: --output {tmp_path / 'newer'}: an FMU's file name ends "
+                       f"in .fmu (e.g. {tmp_path / 'newer.fmu'}); for a folder, end it with / "
+                       "and the FMU is written into it; nothing was written")
+    assert not (tmp_path / "newer").exists()
 
 
 def test_view_screenshot_to_a_bad_path(finished, tmp_path):

@@ -151,13 +151,16 @@ def test_export_refuses_what_it_cannot_or_must_not_do(folders, tmp_path):
     assert "Traceback" not in done.stderr
 
 
-def test_exports_in_a_run_folder_are_cosims_own(folders, tmp_path):
-    """An export written into the run folder does not make it foreign: --force replaces it."""
-    a, _ = folders
+def test_exports_in_a_run_folder_are_cosims_own(tmp_path):
+    """An export written into the run folder does not make it foreign: --force replaces it.
+    (`cosim run --run NAME` runs only that run.)"""
     target = tmp_path / "run"
-    assert cosim_cli("run", PAPER, "--out", str(target), *SHORT[:2], "--no-recording",
+    assert cosim_cli("run", PAPER, "--out", str(target), "--run", "proposed", "--no-recording",
                      "--no-figures", "--set", "simulation.duration=0.2").returncode == 0
+    assert list(json.loads((target / "summary.json").read_text())["runs"]) == ["proposed"]
     assert cosim_cli("export", str(target), "--format", "csv").returncode == 0
+    assert sorted(p.name for p in target.iterdir()) == ["export_proposed.csv", "summary.json",
+                                                        "trace_proposed.npz"]
     done = cosim_cli("run", PAPER, "--out", str(target), "--no-recording", "--no-figures",
                      "--set", "simulation.duration=0.2", "--force")
     assert done.returncode == 0, done.stderr
