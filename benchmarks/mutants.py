@@ -69,9 +69,11 @@ MUTANTS = [
      "limit = a.k_velocity * max(h - eps[i], 0.0)", "limit = a.k_velocity * h", FILTER),
     ("cbf-bias-error-dropped", "cosim/blocks/cbf_filter.py",
      "                limit -= scale * rows_error[i]\n", "", FILTER),
+    # (Dropping the box corner (g+1, g) instead is an equivalent mutant: s2 = s1/(1 + (λ2 −
+    # λ1)s1) is concave in s1 with λ1 ≤ λ2, so the curve never leaves the other three.)
     ("cbf-payload-corners", "cosim/blocks/cbf_filter.py",
-     "corner_index[corners + 1, 0], corner_index[corners + 1, 1] = g + 1, g",
-     "corner_index[corners + 1, 0], corner_index[corners + 1, 1] = g, g", FILTER),
+     "corner_index[corners, 0], corner_index[corners, 1] = g, g + 1",
+     "corner_index[corners, 0], corner_index[corners, 1] = g + 1, g", FILTER),
     ("cbf-hold-end-dropped", "cosim/blocks/cbf_filter.py",
      "    count = _hard_rows(a, count, k, y_end, v_end, eps, minv_end, base_end, True)\n", "",
      FILTER),

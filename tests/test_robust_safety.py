@@ -187,6 +187,70 @@ def test_each_hard_constraint_is_sound_at_arbitrary_states_with_wide_margins():
     assert tightest < 1.0  # not vacuous: some true state sits on the condition's edge
 
 
+def polygon_vertices(rows: np.ndarray, limits: np.ndarray, box: float) -> np.ndarray:
+    """The vertices of {τ ∈ R²: rows·τ ≤ limits, |τ_j| ≤ box}: every pair of edges
+    intersected, the points that satisfy every constraint kept."""
+    edges = np.vstack([rows, np.eye(2), -np.eye(2)])
+    bounds = np.concatenate([limits, np.full(4, box)])
+    out = []
+    for i in range(len(edges)):
+        for j in range(i + 1, len(edges)):
+            pair = edges[[i, j]]
+            if abs(np.linalg.det(pair)) < 1e-12:
+                continue
+            tau = np.linalg.solve(pair, bounds[[i, j]])
+            if np.all(edges @ tau <= bounds + 1e-9 * (1 + np.abs(bounds))):
+                out.append(tau)
+    return np.array(out)
+
+
+def test_the_payload_rows_hold_between_their_corners():
+    """The payload's worst case as the filter builds it (the corners of boxes over the curve
+    s(Δm)), without noise or velocity error so that nothing else gives margin: at random
+    states, every vertex of the torque polygon a hard constraint allows (set, joint, side)
+    keeps its condition for every payload on a fine grid of the declared range (101 values,
+    most between the filter's grid points), with the closed-form arm's acceleration. The
+    polygon's vertices are where the constraint is tightest, so this checks all of it."""
+    from cosim.blocks.cbf_filter import cbf_rows
+
+    pipeline, plan, _ = simulated(["sensor.noise_std=0"], "proposed_cbf", duration=0.01)
+    f = pipeline.runs["proposed_cbf"].cbf_filter
+    p, k_v = f.position_rate, f.velocity_rate
+    alpha_q = pipeline.safety.position_bound * (1 - f.bound_margin)
+    alpha_v = pipeline.safety.velocity_bound * (1 - f.bound_margin)
+    a = plan.block("cbf_filter").args._replace(noise_bound=0.0)
+    low, high = pipeline.uncertainty.payload
+    corners = 3 * a.payload_grid + 1
+    rng = np.random.default_rng(5)
+    centre_q, centre_v = np.array([-0.2, 0.5]), np.array([0.5, 1.0])
+    worst, vertices = np.inf, 0
+    for _ in range(25):
+        y = centre_q + rng.uniform(-0.9, 0.9, 2) * alpha_q
+        y[1] = rng.choice([rng.uniform(-0.3, 0.3), rng.uniform(-3, 3)])  # stretched, or not
+        v = centre_v + rng.uniform(-0.9, 0.9, 2) * alpha_v
+        a.position[0], a.velocity[0], a.velocity_bound[0] = y, v, 0.0
+        a.q_s[0], a.qdot_s[0] = centre_q, centre_v
+        a.M_model[0] = closed_form(y, v, M2)[0]
+        cbf_rows(0, a)
+        models = [closed_form(y, v, M2 + payload) for payload in np.linspace(low, high, 101)]
+        for group in range(8):
+            s, i, side = group // 4, group // 2 % 2, 1.0 - 2.0 * (group % 2)
+            rows = slice(group * corners, (group + 1) * corners)
+            for tau in polygon_vertices(a.rows[rows], a.limits[rows], 2e4):
+                vertices += 1
+                for mass, bias in models:
+                    qddot = np.linalg.solve(mass, tau - bias - 0.01)[i]
+                    if s == 0:
+                        condition = (-side * qddot - 2 * p * side * v[i]
+                                     + p * p * (alpha_q - side * (y[i] - centre_q[i])))
+                    else:
+                        condition = -side * qddot + k_v * max(
+                            alpha_v - side * (v[i] - centre_v[i]), 0.0)
+                    worst = min(worst, condition / (1.0 + abs(qddot)))
+    assert vertices > 8 * 25 * 3
+    assert worst > -1e-9, worst
+
+
 def test_the_bias_error_bound_holds_against_brute_force():
     """|M̂⁻¹(b(q, v + δ) − b(q, v))| ≤ the filter's bound for every |δ_j| ≤ ε_j and payload in
     the declared range, b from the closed form: at random states, corners and random δ."""
