@@ -63,6 +63,13 @@ def test_the_filter_acts_where_the_nominal_controller_would_leave_the_set(compar
     # ... and stays out of the way elsewhere: the proposed run needs no correction most of
     # the time.
     assert np.median(proposed["cbf_correction"]) < 1.0
+    for name in ("proposed_cbf", "baseline_cbf"):
+        trace = compared[name].trace
+        # the torque is changed exactly where some constraint binds (not merely somewhere)
+        correction = trace["cbf_correction"]
+        idle = trace["cbf_active"] == 0
+        assert idle.mean() > 0.5 and correction[idle].max() < 1e-6, name
+        assert correction[~idle].max() > 1.0, name
 
 
 def test_the_barrier_condition_fails_for_the_baseline_and_is_a_finite_difference(compared):
