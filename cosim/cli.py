@@ -220,32 +220,13 @@ def _print_linearization(path: Path, info, parameters: dict[str, float]) -> None
               f"damping {zeta:.3g}, {kind}")
 
 
-def _cell(entry: dict | None) -> str:
-    """worst vs bound, and for a violation when it started and how long it lasted."""
-    if entry is None:
-        return "-"
-    if entry["worst"] is None:  # no qdot to check
-        return "n/a (no qdot)"
-    if entry["satisfied"]:
-        return f"{entry['worst']:.3f} ok (<= {entry['bound']:g})"
-    if entry.get("attainable") is False:  # the reference itself leaves the set
-        return (f"{entry['worst']:.3f} unattainable (reference reaches "
-                f"{entry['reference_worst']:.3f} > {entry['bound']:g})")
-    return (f"{entry['worst']:.3f} VIOLATED (> {entry['bound']:g}) from "
-            f"{entry['first_violation_s']:.2f} s, {entry['time_outside_s']:.2f} s out")
-
-
 def _print_summary(results) -> None:
-    checks = list(dict.fromkeys(c for r in results.values() for c in r.safety))
-    names = list(results)
-    print("safety checks: worst value (SI units) against its bound; for a violation, the "
-          "time it first happened and the total time outside")
-    rows = [["check", *names]]
-    for check in checks:
-        rows.append([check, *(_cell(results[n].safety.get(check)) for n in names)])
-    widths = [max(len(row[i]) for row in rows) for i in range(len(rows[0]))]
-    for row in rows:
-        print("  ".join(cell.ljust(width) for cell, width in zip(row, widths, strict=True)))
+    import shutil
+
+    from .outputs.table import text_table
+
+    width = max(60, min(100, shutil.get_terminal_size((100, 24)).columns))
+    print(text_table({name: r.summary() for name, r in results.items()}, width))
     for name, r in results.items():
         m = r.metrics
         g = m.get("guarantee") or {}

@@ -21,6 +21,7 @@ from .outputs.figures import FIGURE_FILES, write_figures
 from .outputs.recording import Recorder, RunSpec
 from .outputs.recording.layout import DERIVED_ENTITIES
 from .outputs.run_folder import RunFolder, RunFolderError, jsonable
+from .outputs.table import markdown_table
 from .outputs.versions import package_versions
 from .plant.mapping import FmuError
 from .signals import Trace
@@ -146,6 +147,12 @@ def _finish(folder: RunFolder, pipeline: Pipeline, results: dict, plant_info: di
             failure = failure or exc
     summary = _summary(pipeline, results, plant_info)
     summary["complete"] = summary["complete"] and failure is None
+    if results:
+        text = markdown_table(summary["runs"], f"{pipeline.name}: safety at a glance")
+        try:
+            folder.write("summary.md", lambda tmp: tmp.write_text(text, encoding="utf-8"))
+        except RunFolderError as exc:
+            failure = failure or exc
     if failure is not None and not summary.get("error"):
         summary["error"] = _describe(failure)
     try:

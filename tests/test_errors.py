@@ -110,7 +110,8 @@ def test_force_replaces_the_folder_without_stale_files(finished, tmp_path):
     assert not (out / "trace_old_run.npz").exists() and not (out / "recording.rrd").exists()
     summary = json.loads((out / "summary.json").read_text())
     assert summary["complete"] and set(summary["files"]) == {"trace_baseline.npz",
-                                                            "trace_proposed.npz"}
+                                                            "trace_proposed.npz", "summary.md"}
+    assert "- **proposed**: safe: kept every attainable set" in (out / "summary.md").read_text()
     assert summary["provenance"]["command"][-1] == "simulation.duration=0.5"
     assert {"started", "host", "versions"} <= set(summary["provenance"])
 

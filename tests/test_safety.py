@@ -43,6 +43,34 @@ def test_the_filter_keeps_every_joint1_set_of_the_paper_strictly(compared):
         assert not compared["baseline"].safety[check]["satisfied"], check
 
 
+def test_the_safety_table_reads_at_a_glance(compared):
+    """Five runs: the text fits 100 columns (runs paged into column groups), each check's
+    bound is stated once, each cell's mark is its entry's verdict, and one verdict line per
+    run names the first set left (Theorem 1's sufficient condition and the sets the
+    reference leaves are not counted). Expectations from README's comparison table."""
+    from cosim.outputs.table import markdown_table, text_table
+
+    summaries = {name: r.summary() for name, r in compared.items()}
+    text = text_table(summaries, 100)
+    assert max(len(line) for line in text.splitlines()) <= 100
+    verdicts = dict(line.split(None, 1) for line in text.split("verdict:\n")[1].splitlines())
+    assert verdicts == {
+        "baseline": "UNSAFE: left error_rate_norm at 0.03 s (7.09 s out), +6 more",
+        "proposed": "UNSAFE: left position_joint1 at 3.01 s (0.56 s out)",
+        "baseline_matched": "UNSAFE: left position_joint1 at 3.01 s (0.52 s out)",
+        "proposed_cbf": "safe: kept every attainable set",
+        "baseline_cbf": "safe: kept every attainable set"}
+    rows = [line for line in text.splitlines() if line.startswith("position_joint1 ≤ 20 rad ")]
+    assert len(rows) == 2  # two column groups, the bound in the label, once each
+    assert rows[0].split()[4:] == ["21.392", "✗", "20.081", "✗", "20.082", "✗", "19.890",
+                                   "✓"]
+    assert "position_norm ≤ 20 rad" in text and "20.165 ~" in text  # unattainable
+    markdown = markdown_table(summaries, "paper_safety")
+    assert "| velocity_true_joint1 ≤ 13.5 rad/s | 18.782 ✗ from 0.19 s, 1.77 s out |" \
+        in markdown
+    assert "- **proposed_cbf**: safe: kept every attainable set" in markdown
+
+
 def test_the_filter_acts_where_the_nominal_controller_would_leave_the_set(compared):
     """Filtered runs: in the half second before the unfiltered controller first leaves a
     set, the filter's constraints are active and the torque is corrected; the proposed

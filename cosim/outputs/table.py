@@ -1,0 +1,133 @@
+"""The safety table people read at a glance: one verdict per run, one row per check with its
+bound stated once, marks instead of sentences in the cells, as text that fits the terminal
+(runs paged into column groups) and as Markdown for the run folder's summary.md.
+
+It reads the runs' summaries (``summary.json``'s ``runs``), so a finished folder can be
+shown again the same way.
+"""
+
+from __future__ import annotations
+
+from ..evaluate.safety import check_unit
+
+KEPT, LEFT, UNATTAINABLE = "✓", "✗", "~"
+LEGEND = (f"{KEPT} kept, {LEFT} left, {UNATTAINABLE} unattainable (the reference itself leaves "
+          "the set: no controller can keep it)")
+# Theorem 1's bound on ‖r̂‖ is a sufficient condition for the error sets, not a safe set: a
+# run may exceed it and keep them all. Shown, never part of the verdict.
+SUFFICIENT = {"filtered_error_norm": "Theorem 1's sufficient condition"}
+
+
+def _mark(entry: dict) -> str:
+    if entry["satisfied"]:
+        return KEPT
+    return UNATTAINABLE if entry.get("attainable") is False else LEFT
+
+
+def violations(safety: dict) -> list[tuple[str, dict]]:
+    """The attainable safe sets a run left (not Theorem 1's condition), earliest first."""
+    left = [(name, e) for name, e in safety.items()
+            if e.get("worst") is not None and not e["satisfied"]
+            and e.get("attainable") is not False and name not in SUFFICIENT]
+    return sorted(left, key=lambda item: item[1].get("first_violation_s") or 0.0)
+
+
+def verdict(summary: dict) -> str:
+    """One short line: safe, or which set it left first, when, for how long, and how many
+    more; unattainable sets and Theorem 1's condition are the table's to show."""
+    left = violations(summary.get("safety", {}))
+    tail = "" if summary.get("complete", True) else " (the run did not finish)"
+    if not left:
+        return f"safe: kept every attainable set{tail}"
+    name, entry = left[0]
+    more = f", +{len(left) - 1} more" if len(left) > 1 else ""
+    return (f"UNSAFE: left {name} at {entry['first_violation_s']:.2f} s "
+            f"({entry['time_outside_s']:.2f} s out){more}{tail}")
+
+
+def _bounds(runs: dict[str, dict], check: str) -> list[float]:
+    return sorted({e["bound"] for r in runs.values()
+                   if (e := r.get("safety", {}).get(check)) is not None})
+
+
+def _rows(runs: dict[str, dict]) -> tuple[list[str], list[list[str]]]:
+    """(check labels with their bound, cells per check and run)."""
+    checks = list(dict.fromkeys(c for r in runs.values() for c in r.get("safety", {})))
+    labels, cells = [], []
+    for check in checks:
+        bounds = _bounds(runs, check)
+        shared = len(bounds) == 1
+        unit = check_unit(check)
+        label = f"{check} ≤ {bounds[0]:g} {unit}".rstrip() if shared else check
+        labels.append(f"{label} (*)" if check in SUFFICIENT else label)
+        row = []
+        for summary in runs.values():
+            entry = summary.get("safety", {}).get(check)
+            if entry is None:
+                row.append("-")
+            elif entry.get("worst") is None:
+                row.append("n/a")
+            else:
+                own = "" if shared else f" (≤ {entry['bound']:g})"
+                row.append(f"{entry['worst']:.3f} {_mark(entry)}{own}")
+        cells.append(row)
+    return labels, cells
+
+
+def text_table(runs: dict[str, dict], width: int = 100) -> str:
+    """The table as text no wider than ``width``: the runs in as many column groups as
+    needed, then one verdict line per run."""
+    labels, cells = _rows(runs)
+    names = list(runs)
+    first = max([len("check (bound, SI units)"), *map(len, labels)])
+    widths = [max([len(n), *(len(row[i]) for row in cells)]) for i, n in enumerate(names)]
+    groups, current, used = [], [], first
+    for i, w in enumerate(widths):
+        if current and used + 2 + w > width:
+            groups.append(current)
+            current, used = [], first
+        current.append(i)
+        used += 2 + w
+    groups.append(current)
+    lines = ["safety: each check's worst value against its bound",
+             f"  {LEGEND}", f"  (*) {_footnote()}"]
+    for group in groups:
+        lines.append("  ".join(["check (bound, SI units)".ljust(first),
+                                *(names[i].ljust(widths[i]) for i in group)]).rstrip())
+        for label, row in zip(labels, cells, strict=True):
+            lines.append("  ".join([label.ljust(first),
+                                    *(row[i].ljust(widths[i]) for i in group)]).rstrip())
+    lines.append("verdict:")
+    pad = max(map(len, names))
+    lines.extend(f"  {name.ljust(pad)}  {verdict(runs[name])}" for name in names)
+    return "\n".join(lines)
+
+
+def markdown_table(runs: dict[str, dict], title: str) -> str:
+    """summary.md: the verdicts, then the checks with the first exit and time outside."""
+    names = list(runs)
+    lines = [f"# {title}", "", "## Verdict", ""]
+    lines.extend(f"- **{name}**: {verdict(runs[name])}" for name in names)
+    lines += ["", "## Safety checks", "", f"Worst value against its bound: {LEGEND}. "
+              f"(*) {_footnote()}.", "",
+              "| check | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]
+    labels, cells = _rows(runs)
+    checks = list(dict.fromkeys(c for r in runs.values() for c in r.get("safety", {})))
+    for check, label, row in zip(checks, labels, cells, strict=True):
+        out = []
+        for name, cell in zip(names, row, strict=True):
+            entry = runs[name].get("safety", {}).get(check)
+            if entry and entry.get("worst") is not None and _mark(entry) == LEFT:
+                cell += (f" from {entry['first_violation_s']:.2f} s, "
+                         f"{entry['time_outside_s']:.2f} s out")
+            elif entry and _mark(entry) == UNATTAINABLE:
+                cell += f" (reference reaches {entry['reference_worst']:.3f})"
+            out.append(cell)
+        lines.append(f"| {label} | " + " | ".join(out) + " |")
+    lines.append("")
+    return "\n".join(lines)
+
+
+def _footnote() -> str:
+    return ("Theorem 1's bound on ‖r̂‖: sufficient for the error sets, not a safe set; "
+            "not in the verdict")
