@@ -85,9 +85,13 @@ def _run(args: argparse.Namespace) -> None:
         pipeline.runs = {name: pipeline.runs[name] for name in dict.fromkeys(args.runs)}
     out = args.out or Path("runs") / pipeline.name
     if args.dry_run:
+        from .outputs.run_folder import would_refuse
         from .plan import describe_plan
 
         print(describe_plan(pipeline, out, record=not args.no_recording))
+        refusal = would_refuse(out, args.force)
+        if refusal:  # the run itself would stop there: say so now
+            raise UserError(f"{refusal} (--dry-run: the run would be refused here)")
         return
     _check_viewer(args.spawn, args.connect)
     print(f"running {pipeline.name}: {', '.join(pipeline.runs)} "

@@ -256,6 +256,24 @@ def test_dry_run_checks_everything_and_writes_nothing(tmp_path):
     assert "no block produces 'tau'" in error_line(bad)
 
 
+def test_dry_run_says_when_the_run_itself_would_be_refused(finished, tmp_path):
+    """A --dry-run into a finished run folder (the README's second command after `make
+    demo`) gives the run's own refusal, not an all-clear; with --force, the all-clear."""
+    before = snapshot(finished)
+    message = error_line(cosim_cli("run", PAPER, "--out", str(finished), "--dry-run"))
+    assert message.startswith(f"cosim: error: --out {finished}: already holds ")
+    assert "(a complete run folder of paper_two_link started " in message
+    assert message.endswith("pass --force to replace them, or choose another --out (--dry-run: "
+                            "the run would be refused here)")
+    done = cosim_cli("run", PAPER, "--out", str(finished), "--dry-run", "--force")
+    assert done.returncode == 0 and "nothing was run (--dry-run)" in done.stdout
+    (tmp_path / "thesis.tex").write_text("mine")
+    message = error_line(cosim_cli("run", PAPER, "--out", str(tmp_path), "--dry-run",
+                                   "--force"))
+    assert "--force replaces only what cosim wrote" in message and "thesis.tex" in message
+    assert snapshot(finished) == before and (tmp_path / "thesis.tex").read_text() == "mine"
+
+
 def test_set_on_a_table_merges_and_a_shadowed_set_is_named(tmp_path):
     done = cosim_cli("run", PAPER, "--dry-run", "--set", "safety={position_bound=21.0}",
                      "--set", "controller.kz=1")

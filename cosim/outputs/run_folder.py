@@ -100,21 +100,10 @@ class RunFolder:
                                  f"(pid {owner}); wait for it, or choose another --out") from None
         folder = cls(path, lock_file)
         existing = sorted(p.name for p in path.iterdir() if p.name != LOCK)
-        if existing and not force:
+        refusal = _refusal(path, existing, force)
+        if refusal:
             folder.release()
-            what = _describe_existing(path)
-            raise RunFolderError(f"--out {path}: already holds {len(existing)} file"
-                                 f"{'s' * (len(existing) != 1)} ({what}); pass --force to "
-                                 "replace them, or choose another --out")
-        foreign = _not_ours(path, existing)
-        if existing and foreign:
-            folder.release()
-            shown = ", ".join(foreign[:5]) + (", …" if len(foreign) > 5 else "")
-            raise RunFolderError(
-                f"--out {path}: --force replaces only what cosim wrote, and this folder holds "
-                f"{len(foreign)} entr{'ies' if len(foreign) != 1 else 'y'} it did not write "
-                f"({shown}); nothing was deleted: choose another --out, or remove them "
-                "yourself")
+            raise RunFolderError(refusal)
         try:
             for name in existing:
                 entry = path / name
@@ -300,14 +289,42 @@ def _not_ours(path: Path, names: list[str]) -> list[str]:
     return out
 
 
+def _refusal(path: Path, existing: list[str], force: bool) -> str | None:
+    """Why a folder holding ``existing`` cannot be the run folder (None: it can)."""
+    if existing and not force:
+        what = _describe_existing(path)
+        return (f"--out {path}: already holds {len(existing)} file"
+                f"{'s' * (len(existing) != 1)} ({what}); pass --force to replace them, or "
+                "choose another --out")
+    foreign = _not_ours(path, existing)
+    if existing and foreign:
+        shown = ", ".join(foreign[:5]) + (", …" if len(foreign) > 5 else "")
+        return (f"--out {path}: --force replaces only what cosim wrote, and this folder holds "
+                f"{len(foreign)} entr{'ies' if len(foreign) != 1 else 'y'} it did not write "
+                f"({shown}); nothing was deleted: choose another --out, or remove them "
+                "yourself")
+    return None
+
+
+def would_refuse(path: str | Path, force: bool = False) -> str | None:
+    """What :meth:`RunFolder.create` would refuse ``path`` for, without touching it (for
+    --dry-run); None if it would be used."""
+    path = Path(path)
+    if path.exists() and not path.is_dir():
+        return f"--out {path}: is a file, not a folder; choose another --out"
+    if not path.is_dir():
+        return None
+    return _refusal(path, sorted(p.name for p in path.iterdir() if p.name != LOCK), force)
+
+
 def _describe_existing(path: Path) -> str:
     summary = path / "summary.json"
     try:
         data = json.loads(summary.read_text())
         started = data.get("provenance", {}).get("started", "")
-        state = "complete" if data.get("complete") else "incomplete"
-        return f"an {state} run folder of {data.get('pipeline', {}).get('name', '?')}" + \
-            (f" started {started}" if started else "")
+        state = "a complete" if data.get("complete") else "an incomplete"
+        name = data.get("pipeline", {}).get("name", "?")
+        return f"{state} run folder of {name}" + (f" started {started}" if started else "")
     except (OSError, ValueError, AttributeError):
         names = sorted(p.name for p in path.iterdir() if p.name != LOCK)
         return ", ".join(names[:3]) + (", …" if len(names) > 3 else "")
