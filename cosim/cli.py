@@ -83,7 +83,17 @@ def _run(args: argparse.Namespace) -> None:
             raise UserError(f"--run {unknown[0]}: {args.pipeline} has no such run; its runs "
                             f"are {', '.join(pipeline.runs)}; nothing was run")
         pipeline.runs = {name: pipeline.runs[name] for name in dict.fromkeys(args.runs)}
-    out = args.out or Path("runs") / pipeline.name
+    if args.out is not None:
+        out = args.out
+    else:  # a new folder per run, runs/NAME/TIME, and runs/NAME/latest pointing to it
+        from .outputs.run_folder import new_run_folder, point_latest
+
+        try:
+            out = new_run_folder(Path("runs") / pipeline.name, create=not args.dry_run)
+        except RunFolderError as exc:
+            raise UserError(str(exc)) from None
+        if not args.dry_run:
+            point_latest(out)
     if args.dry_run:
         from .outputs.run_folder import would_refuse
         from .plan import describe_plan
@@ -285,7 +295,8 @@ def _parser() -> argparse.ArgumentParser:
                        "recording.rrd (Rerun) and PNG figures. SI units, radians.")
     p.add_argument("pipeline", help="pipeline file, e.g. pipelines/paper_two_link.toml")
     p.add_argument("--out", type=Path, default=None,
-                   help="run folder (default: runs/<pipeline name>)")
+                   help="run folder (default: a new runs/<pipeline name>/<YYYYmmdd-HHMMSS>, "
+                   "with runs/<pipeline name>/latest pointing to it)")
     p.add_argument("--set", action="append", default=[], metavar="KEY.PATH=VALUE",
                    help="override a pipeline key with a TOML value, e.g. controller.kv=25 or "
                    "'plant.fmu=\"arm.fmu\"' (repeatable)")
@@ -443,7 +454,8 @@ def _crashed_run(args: list[str]) -> tuple[Path, str]:
     except PipelineError:
         return Path(ns.out or "runs"), ""
     plant = Path(pipeline.plant.fmu).name if pipeline.plant.fmu else "the built-in plant"
-    return Path(ns.out or Path("runs") / pipeline.name), plant
+    # without --out, the run made runs/NAME/TIME and pointed runs/NAME/latest at it
+    return Path(ns.out or (Path("runs") / pipeline.name / "latest").resolve()), plant
 
 
 def _mark_crashed(out: Path, reason: str) -> None:

@@ -655,3 +655,33 @@ def test_the_run_process_ends_when_its_supervisor_is_killed(tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["complete"] is False and summary["status"] == "incomplete"
     assert not (out / ".cosim.lock").exists()
+
+
+def test_without_out_every_run_gets_a_new_folder_and_latest_points_to_it(tmp_path):
+    """Run folders never collide: without --out, runs/NAME/YYYYmmdd-HHMMSS (made at once,
+    -2 within the same second), runs/NAME/latest → the newest; --dry-run names one and
+    makes nothing; a `latest` that is the user's own file is left alone."""
+    pipeline = str(Path(PAPER).resolve())
+    args = [sys.executable, "-m", "cosim.cli", "run", pipeline, "--no-recording",
+            "--no-figures", "--set", "simulation.duration=0.1"]
+    made = []
+    for _ in range(2):
+        done = subprocess.run(args, cwd=tmp_path, capture_output=True, text=True, timeout=600)
+        assert done.returncode == 0, done.stderr[-2000:]
+        made.append(done.stdout.split("run folder: ")[1].split()[0])
+    base = tmp_path / "runs" / "paper_two_link"
+    assert made[0] != made[1] and all(Path(m).parent == Path("runs/paper_two_link")
+                                      for m in made)
+    assert all(re.fullmatch(r"\d{8}-\d{6}(-\d+)?", Path(m).name) for m in made)
+    assert all(json.loads((tmp_path / m / "summary.json").read_text())["complete"]
+               for m in made)
+    assert (base / "latest").resolve() == (tmp_path / made[1]).resolve()
+    dry = subprocess.run([*args, "--dry-run"], cwd=tmp_path, capture_output=True, text=True,
+                         timeout=600)
+    assert dry.returncode == 0 and "runs/paper_two_link/" in dry.stdout
+    assert sorted(p.name for p in base.iterdir()) == sorted([*(Path(m).name for m in made),
+                                                             "latest"])
+    (base / "latest").unlink()
+    (base / "latest").write_text("the user's own")
+    done = subprocess.run(args, cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0 and (base / "latest").read_text() == "the user's own"

@@ -306,6 +306,47 @@ def _refusal(path: Path, existing: list[str], force: bool) -> str | None:
     return None
 
 
+def new_run_folder(base: str | Path, create: bool = True) -> Path:
+    """A run folder that never collides: ``base/YYYYmmdd-HHMMSS`` (``-2``, ``-3``, … for
+    runs started within the same second), made at once so that two runs cannot pick the
+    same one (``create=False``: only named, for --dry-run)."""
+    base = Path(base)
+    stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
+    for attempt in range(1, 1000):
+        path = base / (stamp if attempt == 1 else f"{stamp}-{attempt}")
+        if not create:
+            if not path.exists():
+                return path
+            continue
+        try:
+            path.mkdir(parents=True)
+            return path
+        except FileExistsError:
+            continue
+        except OSError as exc:
+            raise RunFolderError(f"cannot create a run folder in {base}: "
+                                 f"{exc.strerror or exc}; give --out") from None
+    raise RunFolderError(f"{base}: 999 run folders started in one second; give --out")
+
+
+LATEST = "latest"
+
+
+def point_latest(out: Path) -> None:
+    """``out``'s parent/latest → ``out`` (a relative link, replaced atomically). A ``latest``
+    that is not a link is the user's: left alone."""
+    link = out.parent / LATEST
+    if link.exists() and not link.is_symlink():
+        return
+    tmp = out.parent / f".{LATEST}.{os.getpid()}.tmp"
+    try:
+        tmp.unlink(missing_ok=True)
+        tmp.symlink_to(out.name, target_is_directory=True)
+        os.replace(tmp, link)
+    except OSError:  # a file system without links: the folder itself is what matters
+        tmp.unlink(missing_ok=True)
+
+
 def would_refuse(path: str | Path, force: bool = False) -> str | None:
     """What :meth:`RunFolder.create` would refuse ``path`` for, without touching it (for
     --dry-run); None if it would be used."""
