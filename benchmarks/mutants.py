@@ -150,15 +150,15 @@ def environment(copy: Path) -> dict[str, str]:
             "NUMBA_CACHE_DIR": str(copy / ".numba")}
 
 
-def run_tests(copy: Path, tests: list[str], timeout: float) -> bool:
-    """True if the tests pass (the mutant survives)."""
+def run_tests(copy: Path, tests: list[str], timeout: float) -> tuple[bool, str]:
+    """(True if the tests pass: the mutant survives; the end of pytest's report)."""
     try:
         done = subprocess.run([sys.executable, "-m", "pytest", "-x", "-q", "-p",
                                "no:cacheprovider", *tests], cwd=copy, env=environment(copy),
                               capture_output=True, text=True, timeout=timeout)
     except subprocess.TimeoutExpired:
-        return False
-    return done.returncode == 0
+        return False, f"timed out after {timeout:g} s"
+    return done.returncode == 0, "\n".join(done.stdout.splitlines()[-40:])
 
 
 def main() -> int:
@@ -177,8 +177,9 @@ def main() -> int:
         if not imported.stdout.startswith(str(copy)):
             raise SystemExit(f"the copy is not what Python imports: {imported.stdout.strip()}")
         every = sorted({t for m in chosen for t in m[4]})
-        if not run_tests(copy, every, 4 * args.timeout):  # a mutant is killed by a failure
-            raise SystemExit("the tests fail on the unmutated copy: fix them first")
+        passed, report = run_tests(copy, every, 4 * args.timeout)
+        if not passed:  # a mutant is killed by a failure, so the unmutated copy must pass
+            raise SystemExit(f"the tests fail on the unmutated copy: fix them first\n{report}")
         print("  unmutated: the tests pass", flush=True)
         for ident, name, text, replacement, tests in chosen:
             path = copy / name
@@ -191,7 +192,7 @@ def main() -> int:
             path.write_text(original.replace(text, replacement))
             start = time.monotonic()
             try:
-                survived = run_tests(copy, tests, args.timeout)
+                survived, _ = run_tests(copy, tests, args.timeout)
             finally:
                 path.write_text(original)
             verdict = "SURVIVED" if survived else "killed"
