@@ -104,6 +104,11 @@ def _run(args: argparse.Namespace) -> None:
             raise UserError(f"{refusal} (--dry-run: the run would be refused here)")
         return
     _check_viewer(args.spawn, args.connect)
+    from .jit_cache import cache_is_cold
+
+    if cache_is_cold():  # otherwise the terminal would sit silent while numba compiles
+        print("compiling the numba kernels for this machine (the first run after installing "
+              "or updating cosim: ~30 s on 2 cores; cached for later runs)", file=sys.stderr)
     print(f"running {pipeline.name}: {', '.join(pipeline.runs)} "
           f"({pipeline.simulation.duration:g} s at {1 / pipeline.simulation.step:g} Hz) -> {out}",
           file=sys.stderr)

@@ -34,3 +34,13 @@ def use_versioned_cache() -> Path:
     folder = Path(base) / sources_digest()
     numba.config.CACHE_DIR = str(folder)
     return folder
+
+
+def cache_is_cold() -> bool:
+    """True when numba's cache for these sources holds no compiled kernel yet: the first run
+    after installing or updating cosim, which compiles every kernel it steps (~30 s on 2
+    cores) before the loop starts."""
+    import numba
+
+    folder = Path(numba.config.CACHE_DIR)
+    return not (folder.is_dir() and any(folder.rglob("*.nbi")))

@@ -685,3 +685,23 @@ def test_without_out_every_run_gets_a_new_folder_and_latest_points_to_it(tmp_pat
     (base / "latest").write_text("the user's own")
     done = subprocess.run(args, cwd=tmp_path, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0 and (base / "latest").read_text() == "the user's own"
+
+
+def test_a_cold_kernel_cache_is_announced_not_silent(tmp_path):
+    """The first run on a machine compiles every kernel (~30 s): cosim says so before the
+    terminal goes quiet. Cold: an empty numba cache for these sources; warm once a kernel
+    is compiled there (a real one: the inertia model's, in a fresh process)."""
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
+    probe = ("import sys, numpy as np, cosim.blocks, cosim.jit_cache as j; "
+             "print(j.cache_is_cold());"
+             "from cosim.blocks.inertia import planar_mass_matrix as f;"
+             "out = np.empty((2, 2)); f(np.zeros(2), np.ones(2), np.ones(2), np.ones(2),"
+             " np.zeros(2), out) if 'compile' in sys.argv else None")
+    cold = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True,
+                          text=True, timeout=300)
+    assert cold.stdout.split() == ["True"], cold.stderr[-2000:]
+    subprocess.run([sys.executable, "-c", probe, "compile"], env=env, check=True,
+                   capture_output=True, timeout=300)
+    warm = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True,
+                          text=True, timeout=300)
+    assert warm.stdout.split() == ["False"], warm.stderr[-2000:]
