@@ -196,6 +196,17 @@ def _compare(args: argparse.Namespace) -> int:
     return 1 if result.regressions else 0  # 1, not 2: the command worked; B regressed
 
 
+def _params(args: argparse.Namespace) -> None:
+    from .config import load_pipeline
+    from .config.params import describe
+
+    pipeline = load_pipeline(args.pipeline, args.set) if args.pipeline or args.set else None
+    text = describe(pipeline, args.grep)
+    if not text:
+        raise UserError(f"--grep {args.grep}: no key, value or meaning contains it")
+    print(text)
+
+
 def _inspect(args: argparse.Namespace) -> int:
     from .config import load_pipeline
     from .plant.inspection import inspect_fmu
@@ -400,6 +411,19 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--run", action="append", default=None, metavar="NAME", dest="runs",
                    help="compare only this run (repeatable; default: every run of either)")
     p.set_defaults(func=_compare)
+
+    p = sub.add_parser("params", help="list every pipeline key: default, allowed values, "
+                       "meaning", description="List every key a pipeline (and --set) accepts, "
+                       "generated from the schema it is validated with: its default, the values "
+                       "it takes, and its meaning with units (SI, radians). With PIPELINE, its "
+                       "values instead, '*' marking those that differ from the defaults. "
+                       "Block tables are also keys of each run (runs.NAME.controller.kv).")
+    p.add_argument("pipeline", nargs="?", default=None, help="a pipeline file (optional)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY.PATH=VALUE",
+                   help="override a key first, as `cosim run --set` (repeatable)")
+    p.add_argument("--grep", default="", metavar="TEXT",
+                   help="only the keys whose line contains TEXT, e.g. --grep observer")
+    p.set_defaults(func=_params)
 
     p = sub.add_parser("inspect", help="show what an FMU offers and whether it fits the plant "
                        "interface", description="Print an FMU's FMI version, interfaces "

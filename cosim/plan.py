@@ -7,6 +7,7 @@ from pathlib import Path
 
 from .assemble import assemble, available_memory, trace_bytes
 from .config import Pipeline
+from .config.params import changed
 
 # Measured on the paper pipeline: recording.rrd ≈ 0.98 MB per run per simulated second at
 # 1 kHz (39.2 MB for 2 × 20 s), trace_NAME.npz ≈ 0.45 of the trace's raw bytes.
@@ -37,6 +38,9 @@ def describe_plan(pipeline: Pipeline, out: str | Path, record: bool = True) -> s
                      + (f" ({available / 1e9:.1f} GB available)" if available else ""))
         lines.append(f"disk: about {disk / 1e6:.0f} MB in {out} (traces"
                      + (", recording" if record else "") + ", figures, summary)")
+        differing = changed(pipeline)
+        lines.append("values that differ from the defaults (`cosim params` lists them all):")
+        lines.extend(f"  {line}" for line in differing)
         lines.append("nothing was run (--dry-run)")
         return "\n".join(lines)
     finally:

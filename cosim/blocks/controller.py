@@ -34,7 +34,7 @@ class ControllerParams(Section):
     """Kv [N·m·s/rad], Λ [1/s], F, G (scalars × I), κ, Kz, Z_B or Z_Wc, C0, C1, δ, ψ_B,
     hidden width. Vectors may be given per joint or as one scalar."""
 
-    variant: Literal["baseline", "proposed"] = "proposed"
+    variant: Literal["baseline", "proposed"] = "proposed"  # the paper's, or Lewis's baseline
     kv: GainVector = 20.0  # Kv
     lam: GainVector = Field(5.0, alias="lambda")  # Λ
     f: PositiveFloat = 10.0  # F
@@ -47,15 +47,15 @@ class ControllerParams(Section):
     c1: NonNegativeFloat = 0.1  # C1
     delta: PositiveFloat = 1.0  # δ
     psi_b: NonNegativeFloat = 20.0  # ψ_B
-    hidden: Annotated[int, Field(ge=1, le=200)] = 10
+    hidden: Annotated[int, Field(ge=1, le=200)] = 10  # NN hidden-layer width
     # Where ė comes from: "auto" is the true q̇ for the baseline (Lewis's full state) and
     # the observer's x̂2 for the proposed controller; "finite_difference" is the backward
     # difference of the measured position, (y_k − y_k−1)/h, which amplifies sensor noise.
     velocity: Literal["auto", "plant", "observer", "finite_difference"] = "auto"
     # Initial weights: Ŵ starts at zero; V̂ at zero, or (Lewis) uniform in ±init_scale, seeded.
     init: Literal["zero", "random"] = "zero"
-    init_scale: NonNegativeFloat = 0.1
-    seed: Seed = 0
+    init_scale: NonNegativeFloat = 0.1  # half-width of V̂'s random initial weights
+    seed: Seed = 0  # of the random initial weights
 
 
 class ControllerArgs(NamedTuple):

@@ -36,6 +36,7 @@ class InertiaModelParams(Section):
     when mapped, else nominal). Per link; unset: the paper's arm (m = 0.8, 2.3 kg, l = lc =
     1 m, I = 0), further links 1 kg, 1 m, like the built-in plant's defaults."""
 
+    # where M̂(q) comes from: the FMU's M outputs, the nominal chain (m, l, lc, I), or auto
     source: Literal["auto", "fmu", "nominal"] = "auto"
     m: list[PositiveFloat] | None = None  # kg
     l: list[PositiveFloat] | None = None  # m, joint i to joint i+1  # noqa: E741

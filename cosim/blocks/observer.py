@@ -45,7 +45,9 @@ class ObserverParams(Section):
     zeta_om: NonNegativeFloat = 1.0  # ζ_oM
     fo: PositiveFloat = 1.0  # Fo (scalar × I)
     kappa_o: NonNegativeFloat = 6.0  # κo
+    # the weight law: (24) as printed, or Kim & Lewis's error-driven one
     law: Literal["paper", "error_driven"] = "error_driven"
+    # σo's q̂̈: from the previous sub-step ("lagged"), or dropped
     basis: Literal["lagged", "no_acceleration"] = "no_acceleration"
     substeps: Annotated[int, Field(ge=1, le=1000)] = 10  # per master step
     tau_d: FiniteFloat | list[FiniteFloat] = 0.01  # N·m, the disturbance (7) assumes known

@@ -16,7 +16,7 @@ from .base import Block, BlockContext, Ports, register_block
 class SensorParams(Section):
     noise_std: NonNegativeFloat = 0.0  # rad, white Gaussian per sample
     resolution: NonNegativeFloat = 0.0  # rad, quantisation step (0: none)
-    seed: Seed = 0
+    seed: Seed = 0  # of the noise
 
 
 class SensorArgs(NamedTuple):

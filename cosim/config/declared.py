@@ -17,9 +17,9 @@ class Safety(Section):
     error_bound: PositiveFloat = 1.0  # E1, rad
     error_rate_bound: PositiveFloat = 5.0  # E2, rad/s
     observer_error_bound: PositiveFloat = 1.0  # ε_max of (16)
-    z_wo_tilde: PositiveFloat = 20.0  # bounds of (17)-(18) used in H1, H2
-    z_wc_tilde: PositiveFloat = 50.0
-    z_vc_tilde: PositiveFloat = 50.0
+    z_wo_tilde: PositiveFloat = 20.0  # Z̃_Wo, bound of (17) used in H1
+    z_wc_tilde: PositiveFloat = 50.0  # Z̃_Wc, bound of (18) used in H2
+    z_vc_tilde: PositiveFloat = 50.0  # Z̃_Vc, bound of (18) used in H2
     # α of the barrier condition Ḣ + α·H ≥ 0 (class-K, linear), 1/s
     barrier_alpha: PositiveFloat = 1.0
 

@@ -65,8 +65,8 @@ def check_name(name: str, what: str) -> str:
 
 
 class BuiltinPlant(Section):
-    links: Annotated[int, Field(ge=1, le=7)] = 2
-    fmi_version: Literal[2, 3] = 2
+    links: Annotated[int, Field(ge=1, le=7)] = 2  # joints of the built-in planar arm
+    fmi_version: Literal[2, 3] = 2  # the FMI version it is built for
 
 
 class VariableMapping(Section):
@@ -116,8 +116,8 @@ class Pipeline(Section):
     """The fixed tables; the block tables are added from the registry by
     :func:`pipeline_model`."""
 
-    name: str = "pipeline"
-    description: str = ""
+    name: str = "pipeline"  # names the run folder (runs/NAME) and the recording
+    description: str = ""  # free text, kept in summary.json
     simulation: Simulation = Simulation()
     plant: Plant = Plant()
     safety: Safety = Safety()

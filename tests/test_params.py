@@ -1,0 +1,78 @@
+"""`cosim params`: every key the schema accepts is listed, with a value `--set` takes back,
+what it accepts and what it means; with a pipeline, its own values marked where they differ
+from the defaults (and `--dry-run` lists those). The reference is pydantic's own dump of a
+validated pipeline, not the listing's walk of the schema."""
+
+from __future__ import annotations
+
+import re
+
+from cli_helpers import cosim_cli
+
+from cosim.config import load_pipeline
+
+LINE = re.compile(r"^([ *]) (\S+?)(?: = (.*?))?\s{2,}\[(.*)\](?:  # (.*))?$")
+
+
+def flatten(data: dict, prefix: str = "") -> dict[str, object]:
+    out = {}
+    for key, value in data.items():
+        if key == "runs":
+            continue
+        if isinstance(value, dict) and value and all(isinstance(k, str) for k in value) \
+                and key != "parameters":
+            out.update(flatten(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
+
+
+def listing(*args: str) -> dict[str, tuple[str, str, str, str]]:
+    done = cosim_cli("params", *args)
+    assert done.returncode == 0, done.stderr
+    rows = {}
+    for line in done.stdout.splitlines():
+        match = LINE.match(line)
+        assert match, line
+        mark, key, value, allowed, meaning = match.groups()
+        rows[key] = (mark, value, allowed, meaning or "")
+    return rows
+
+
+def test_every_key_is_listed_with_a_value_set_takes_back_and_a_meaning():
+    rows = listing()
+    defaults = flatten(load_pipeline(None).model_dump(by_alias=True))
+    defaults.pop("plant.builtin", None)
+    missing = [key for key in defaults if key not in rows]
+    assert not missing, missing
+    for key, (_, value, allowed, _) in rows.items():
+        assert allowed, key
+        if value in (None, "(unset)") or key in ("name", "plant.builtin"):
+            continue
+        # the printed value is TOML that --set accepts, and it is the default
+        pipeline = load_pipeline(None, [f"{key}={value}"])
+        assert flatten(pipeline.model_dump(by_alias=True)).get(key) == defaults[key], key
+    described = [key for key, row in rows.items() if row[3]]
+    assert len(described) == len(rows), sorted(set(rows) - set(described))
+    assert rows["simulation.duration"][3] == "s" and "rad" in rows["sensor.noise_std"][3]
+    assert rows["controller.kv"][2] == "number > 0 or list of number > 0"
+    assert rows["cbf_filter.backup"][2] == 'one of "least_violation", "brake"'
+    assert rows["simulation.step"][2] == "number > 0, ≤ 0.1"
+
+
+def test_a_pipelines_values_are_marked_where_they_differ_and_dry_run_lists_them():
+    path = "pipelines/monte_carlo.toml"
+    rows = listing(path)
+    defaults = flatten(load_pipeline(None).model_dump(by_alias=True))
+    mine = flatten(load_pipeline(path).model_dump(by_alias=True))
+    differing = {key for key in rows if key in mine and mine[key] != defaults.get(key)}
+    assert {key for key, row in rows.items() if row[0] == "*"} == differing
+    assert {"uncertainty.payload", "inertia_model.source", "sensor.noise_std"} <= differing
+    plan = cosim_cli("run", path, "--dry-run", "--out", "/nonexistent/never")
+    assert plan.returncode == 0, plan.stderr
+    assert '  inertia_model.source = "nominal" (default "auto")' in plan.stdout
+    assert "  runs.baseline_cbf.cbf_filter.velocity = \"plant\"" in plan.stdout
+    only = listing(path, "--grep", "uncertainty.")
+    assert set(only) == {k for k in rows if k.startswith("uncertainty.")}
+    none = cosim_cli("params", "--grep", "no such key anywhere")
+    assert none.returncode == 2 and "--grep no such key anywhere: no key" in none.stderr
