@@ -160,7 +160,7 @@ def test_exports_in_a_run_folder_are_cosims_own(tmp_path):
     assert list(json.loads((target / "summary.json").read_text())["runs"]) == ["proposed"]
     assert cosim_cli("export", str(target), "--format", "csv").returncode == 0
     assert sorted(p.name for p in target.iterdir()) == ["export_proposed.csv", "summary.json",
-                                                        "trace_proposed.npz"]
+                                                        "summary.md", "trace_proposed.npz"]
     done = cosim_cli("run", PAPER, "--out", str(target), "--no-recording", "--no-figures",
                      "--set", "simulation.duration=0.2", "--force")
     assert done.returncode == 0, done.stderr
