@@ -17,7 +17,7 @@ import zipfile
 from pathlib import Path
 
 import pytest
-from cli_helpers import PAPER, cosim_cli
+from cli_helpers import PAPER, cosim_cli, signal_when
 
 from plant_fmu import build_fmu
 
@@ -427,15 +427,7 @@ def test_ctrl_c_during_build_fmu_is_one_line_and_leaves_nothing(tmp_path, signal
         [sys.executable, "-m", "cosim.cli", "build-fmu", "--links", "7", "--output", str(out)],
         env={**os.environ, "COSIM_CACHE": str(cache), "TMPDIR": str(tmp)},
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    try:
-        deadline = time.monotonic() + 60
-        while not list(tmp.glob("plant_fmu_*")) and time.monotonic() < deadline:
-            time.sleep(0.005)
-        child.send_signal(getattr(signal, signal_name))
-        _, err = child.communicate(timeout=60)
-    finally:
-        child.kill()
-        child.wait()
+    err = signal_when(child, lambda: bool(list(tmp.glob("plant_fmu_*"))), signal_name, 60)
     if child.returncode == 0:
         pytest.skip("the build finished before the signal arrived")
     result = subprocess.CompletedProcess(child.args, child.returncode, "", err)

@@ -5,7 +5,10 @@ validated pipeline, not the listing's walk of the schema."""
 
 from __future__ import annotations
 
+import json
 import re
+import subprocess
+import sys
 
 from cli_helpers import cosim_cli
 
@@ -27,6 +30,17 @@ def flatten(data: dict, prefix: str = "") -> dict[str, object]:
     return out
 
 
+def dumped(path: str | None = None) -> dict[str, object]:
+    """pydantic's dump of the validated pipeline, in a fresh process (as the CLI sees the
+    block registry: a test elsewhere may register a block in this one)."""
+    code = ("import json, sys; from cosim.config import load_pipeline; "
+            "print(json.dumps(load_pipeline(sys.argv[1] if len(sys.argv) > 1 else None)"
+            ".model_dump(by_alias=True)))")
+    done = subprocess.run([sys.executable, "-c", code, *([path] if path else [])],
+                          capture_output=True, text=True, check=True, timeout=300)
+    return flatten(json.loads(done.stdout))
+
+
 def listing(*args: str) -> dict[str, tuple[str, str, str, str]]:
     done = cosim_cli("params", *args)
     assert done.returncode == 0, done.stderr
@@ -41,7 +55,7 @@ def listing(*args: str) -> dict[str, tuple[str, str, str, str]]:
 
 def test_every_key_is_listed_with_a_value_set_takes_back_and_a_meaning():
     rows = listing()
-    defaults = flatten(load_pipeline(None).model_dump(by_alias=True))
+    defaults = dumped()
     defaults.pop("plant.builtin", None)
     missing = [key for key in defaults if key not in rows]
     assert not missing, missing
@@ -51,7 +65,8 @@ def test_every_key_is_listed_with_a_value_set_takes_back_and_a_meaning():
             continue
         # the printed value is TOML that --set accepts, and it is the default
         pipeline = load_pipeline(None, [f"{key}={value}"])
-        assert flatten(pipeline.model_dump(by_alias=True)).get(key) == defaults[key], key
+        assert json.loads(json.dumps(flatten(pipeline.model_dump(by_alias=True)).get(key))) \
+            == defaults[key], key
     described = [key for key, row in rows.items() if row[3]]
     assert len(described) == len(rows), sorted(set(rows) - set(described))
     assert rows["simulation.duration"][3] == "s" and "rad" in rows["sensor.noise_std"][3]
@@ -63,8 +78,7 @@ def test_every_key_is_listed_with_a_value_set_takes_back_and_a_meaning():
 def test_a_pipelines_values_are_marked_where_they_differ_and_dry_run_lists_them():
     path = "pipelines/monte_carlo.toml"
     rows = listing(path)
-    defaults = flatten(load_pipeline(None).model_dump(by_alias=True))
-    mine = flatten(load_pipeline(path).model_dump(by_alias=True))
+    defaults, mine = dumped(), dumped(path)
     differing = {key for key in rows if key in mine and mine[key] != defaults.get(key)}
     assert {key for key, row in rows.items() if row[0] == "*"} == differing
     assert {"uncertainty.payload", "inertia_model.source", "sensor.noise_std"} <= differing

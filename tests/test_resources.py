@@ -12,6 +12,7 @@ import zipfile
 from pathlib import Path
 
 import pytest
+from cli_helpers import signal_when
 
 from cosim.plant.unpack import PREFIX, extract, remove
 
@@ -105,9 +106,6 @@ def test_an_interrupted_run_leaves_no_unpacked_fmu(plant_fmu, tmp_path, signal_n
     """A signal while a large FMU is being unzipped (or, if the unzip wins the race, while
     the run steps): nothing unpacked is left, and the message names no run folder that does
     not exist."""
-    import signal
-    import time
-
     tmp = tmp_path / "tmp"
     tmp.mkdir()
     big = padded(plant_fmu(2, 2), tmp_path / "big.fmu", 800)
@@ -117,15 +115,7 @@ def test_an_interrupted_run_leaves_no_unpacked_fmu(plant_fmu, tmp_path, signal_n
          "--out", str(out), "--no-recording"],
         env={**os.environ, "TMPDIR": str(tmp)}, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
         text=True)
-    try:
-        deadline = time.monotonic() + 120
-        while not unpacked(tmp) and time.monotonic() < deadline:
-            time.sleep(0.005)
-        child.send_signal(getattr(signal, signal_name))
-        _, err = child.communicate(timeout=120)
-    finally:
-        child.kill()
-        child.wait()
+    err = signal_when(child, lambda: bool(unpacked(tmp)), signal_name, 120)
     assert child.returncode == 2, err
     assert "Traceback" not in err
     assert unpacked(tmp) == []
