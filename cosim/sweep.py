@@ -423,6 +423,21 @@ def safety_table(rows: list[dict]) -> list[dict]:
     return table
 
 
+def safety_by_value(rows: list[dict], spec: SweepSpec) -> dict[str, list[dict]]:
+    """Per grid key of two or more values: :func:`safety_table` for each of its values (the
+    other keys pooled), so a table says which value kept the sets, not only how often all
+    points did. Sampled keys are continuous: their rates are in sweep_safety.png."""
+    out = {}
+    for axis in spec.grid:
+        column = f"set:{axis.key}"
+        values = list(dict.fromkeys(r.get(column) for r in rows))
+        if len(values) < 2:
+            continue
+        out[axis.key] = [{"value": value, **entry} for value in values
+                         for entry in safety_table([r for r in rows if r.get(column) == value])]
+    return out
+
+
 # The classes of the robust-safety issue: which runs the filter's guarantee speaks for.
 CLASSES = (
     ("starts inside", lambda r: r.get("guarantee.starts_inside") is True),
@@ -472,14 +487,21 @@ def format_guarantee_table(table: list[dict]) -> str:
     return "\n".join(lines)
 
 
-def format_table(table: list[dict]) -> str:
+def format_table(table: list[dict], key: str | None = None) -> str:
+    """The safety-rate table; ``key``: a per-value table of that grid key (a first column
+    holds the value)."""
     names = ["all sets", *[c.removesuffix("_joint1") for c in SAFE_SET_CHECKS]]
-    lines = ["safety rate per run (joint-1 sets kept; Wilson 95 % interval)",
-             f"{'run':<18}{'points':>7}{'failed':>7}  " + "  ".join(f"{n:<22}" for n in names)]
+    title = "safety rate per run (joint-1 sets kept; Wilson 95 % interval)"
+    width = max([len(key or ""), *(len(_toml(e["value"])) for e in table if "value" in e)])
+    first = f"{key:<{width}}  " if key else ""
+    lines = [f"{title[:-1]}; by {key})" if key else title,
+             f"{first}{'run':<18}{'points':>7}{'failed':>7}  "
+             + "  ".join(f"{n:<22}" for n in names)]
     for entry in table:
         cells = [f"{100 * r:5.1f} % [{100 * lo:5.1f}, {100 * hi:5.1f}]"
                  if not math.isnan(r) else "-" for r, lo, hi in (entry[n] for n in names)]
-        lines.append(f"{entry['run']:<18}{entry['points']:>7}{entry['failed']:>7}  "
+        value = f"{_toml(entry['value']):<{width}}  " if key else ""
+        lines.append(f"{value}{entry['run']:<18}{entry['points']:>7}{entry['failed']:>7}  "
                      + "  ".join(f"{c:<22}" for c in cells))
     return "\n".join(lines)
 
@@ -506,6 +528,9 @@ def write_results(folder, spec: SweepSpec, rows: list[dict], table: list[dict],
                            for e in table],
                 "guarantee": [{k: (list(v) if isinstance(v, tuple) else v)
                                for k, v in e.items()} for e in guarantee_table(rows)],
+                "safety_by_value": {key: [{k: (list(v) if isinstance(v, tuple) else v)
+                                           for k, v in e.items()} for e in entries]
+                                    for key, entries in safety_by_value(rows, spec).items()},
                 "resolved_pipeline": resolved}
     from .outputs.run_folder import jsonable
 
@@ -649,6 +674,8 @@ def _main(args) -> int:
     finally:
         folder.release()
     print(format_table(table))
+    for key, entries in safety_by_value(rows, spec).items():
+        print(format_table(entries, key))
     classes = guarantee_table(rows)
     if classes:
         print(format_guarantee_table(classes))

@@ -55,6 +55,16 @@ def test_grid_and_monte_carlo_equal_single_runs_bit_for_bit(tmp_path):
         assert row["peak_torque.1"] == expected.metrics["peak_torque"][0]
     summary = json.loads((tmp_path / "mc" / "sweep.json").read_text())
     assert summary["seed"] == 3 and summary["rows"] == 4
+    assert summary["safety_by_value"] == {}  # a sampled key: its rates are in the plot
+    # a grid key's table per value: each value's rate from its own rows only
+    by_value = json.loads((tmp_path / "grid" / "sweep.json").read_text())["safety_by_value"]
+    entries = by_value["runs.proposed.controller.kv"]
+    assert [(e["value"], e["run"], e["points"], e["failed"]) for e in entries] == [
+        (20.0, "proposed", 1, 0), (30.0, "proposed", 1, 0)]
+    for entry in entries:
+        mine = [r for r in grid if r["set:runs.proposed.controller.kv"] == entry["value"]]
+        assert entry["all sets"][0] == float(mine[0]["safe"])
+        assert entry["position"][0] == float(mine[0]["position_joint1.satisfied"])
     assert (tmp_path / "mc" / "results.csv").read_text().count("\n") == 5
     assert (tmp_path / "mc" / "sweep_safety.png").stat().st_size > 0
 
