@@ -143,6 +143,14 @@ def _sweep(args: argparse.Namespace) -> int:
     from .outputs.run_folder import RunFolderError
     from .sweep import SweepError, main
 
+    if args.pipeline is None:
+        swallowed = [r for r in args.runs or [] if r.endswith(".toml") or Path(r).is_file()]
+        if swallowed:
+            raise UserError(f"--runs took the pipeline {swallowed[0]} as a run name: give the "
+                            "pipeline first (cosim sweep PIPELINE … --runs NAME …), or end the "
+                            "run names with --")
+        raise UserError("give the pipeline file, e.g. cosim sweep "
+                        "pipelines/paper_two_link.toml --grid … --out …")
     try:
         return main(args)
     except (SweepError, RunFolderError) as exc:
@@ -341,7 +349,8 @@ def _parser() -> argparse.ArgumentParser:
         "random --sample draws of any key --set accepts, on a Dask cluster (local by default), "
         "and write one row per (point, run) to OUT/results.parquet and results.csv, with "
         "sweep.json and a safety-rate table. SI units, radians.")
-    p.add_argument("pipeline", help="pipeline file")
+    # optional to argparse only so that a pipeline swallowed by --runs gets its own message
+    p.add_argument("pipeline", nargs="?", default=None, help="pipeline file")
     p.add_argument("--grid", action="append", default=[], metavar="KEY=V1,V2,...",
                    help="TOML values, lists too: controller.kv=20,40 or "
                    "'controller.kv=[20,30],[25,25]' (repeatable: the product)")

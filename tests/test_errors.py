@@ -697,3 +697,14 @@ def test_a_cold_kernel_cache_is_announced_not_silent(tmp_path):
     warm = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True,
                           text=True, timeout=300)
     assert warm.stdout.split() == ["False"], warm.stderr[-2000:]
+
+
+def test_a_pipeline_swallowed_by_sweep_runs_is_named(tmp_path):
+    """`cosim sweep --runs proposed PIPELINE …`: --runs takes every name after it, the
+    pipeline too; one message says so (argparse said only "required: pipeline")."""
+    message = error_line(cosim_cli("sweep", "--runs", "proposed", PAPER, "--out",
+                                   str(tmp_path / "out")))
+    assert message == (f"cosim: error: --runs took the pipeline {PAPER} as a run name: give "
+                       "the pipeline first (cosim sweep PIPELINE … --runs NAME …), or end the "
+                       "run names with --")
+    assert not (tmp_path / "out").exists()
