@@ -14,6 +14,12 @@ from plant_fmu import MAX_LINKS, BuildError, build_fmu
 
 from .config.schema import PipelineError
 
+# A sweep's rows are held in memory and its points validated one by one (~1 ms each): past
+# 100,000 points a typo (a 1000-value grid on three keys is 10⁹) would exhaust the machine
+# before saying a word. --max-points raises the limit for a sweep meant to be that large.
+# (Here, not in cosim.sweep: importing that loads numba, 0.3 s on every `cosim --help`.)
+MAX_SWEEP_POINTS = 100_000
+
 
 class UserError(Exception):
     """A mistake in what the user asked for: printed as one line, no traceback."""
@@ -374,9 +380,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, type=Path, help="sweep folder")
     p.add_argument("--force", action="store_true", help="replace what --out holds")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.add_argument("--max-points", type=int, default=100_000, metavar="N",
+    p.add_argument("--max-points", type=int, default=MAX_SWEEP_POINTS, metavar="N",
                    help="refuse a sweep of more points than this before any work "
-                   "(default 100000)")
+                   f"(default {MAX_SWEEP_POINTS:,})")
     p.set_defaults(func=_sweep)
 
     p = sub.add_parser("view", help="open a run folder's recording in the Rerun viewer",

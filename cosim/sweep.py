@@ -108,11 +108,6 @@ def _toml(value) -> str:
         return "[" + ", ".join(_toml(v) for v in value) + "]"
     return str(value)
 
-
-# A sweep's rows are held in memory and its points validated one by one (~1 ms each): past
-# 100,000 points a typo (a 1000-value grid on three keys is 10⁹) would exhaust the machine
-# before saying a word. --max-points raises the limit for a sweep meant to be that large.
-MAX_POINTS = 100_000
 MAX_WORKERS = 64  # and at most 4 per core: each worker is a process holding an FMU
 
 

@@ -7,7 +7,6 @@ import json
 import signal
 import subprocess
 import sys
-import time
 
 import numpy as np
 import pytest
@@ -243,10 +242,11 @@ def test_interrupted_run_leaves_a_readable_recording_marked_incomplete(tmp_path)
     process = subprocess.Popen(
         [sys.executable, "-m", "cosim.cli", "run", PAPER, "--out", str(out), "--no-figures",
          "--set", "simulation.duration=200"], stderr=subprocess.PIPE, text=True)
-    for line in process.stderr:  # progress lines: interrupt once the loop is under way
+    # Progress lines: interrupt at once when the loop is under way. No pause before the
+    # signal: the compiled loop simulates these 350 s in about a second.
+    for line in process.stderr:
         if "baseline: 25 %" in line:
             break
-    time.sleep(0.5)
     process.send_signal(signal.SIGINT)
     _, err = process.communicate(timeout=120)
     assert process.returncode == 2
@@ -256,7 +256,7 @@ def test_interrupted_run_leaves_a_readable_recording_marked_incomplete(tmp_path)
     summary = json.loads((out / "summary.json").read_text())
     assert summary["complete"] is False
     done = summary["runs"]["baseline"]["metrics"]["simulated_time_s"]
-    assert 50 < done < 200
+    assert 50 <= done < 200
     store = read_store(out / "recording.rrd")
     props = properties(store)
     assert props["status:complete"] is False
