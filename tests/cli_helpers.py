@@ -3,6 +3,7 @@ real `cosim` command, and overrides that make a run diverge."""
 
 from __future__ import annotations
 
+import re
 import signal
 import subprocess
 import sys
@@ -36,3 +37,22 @@ def signal_when(child: subprocess.Popen, ready: Callable[[], bool], signal_name:
         child.kill()
         child.wait()
     return err
+
+
+def error_line(result: subprocess.CompletedProcess) -> str:
+    """The one message: exit status 2, no traceback, one 'cosim: error:' line, last."""
+    assert result.returncode == 2, (result.returncode, result.stderr[-2000:])
+    assert "Traceback" not in result.stderr, result.stderr[-2000:]
+    errors = [line for line in result.stderr.splitlines() if line.startswith("cosim: error:")]
+    assert len(errors) == 1, result.stderr[-2000:]
+    assert result.stderr.strip().splitlines()[-1] == errors[0]
+    return errors[0]
+
+
+def assert_message(message: str, expected: str | re.Pattern) -> None:
+    """The whole message, exactly (or matching the whole pattern)."""
+    body = message.removeprefix("cosim: error: ")
+    if isinstance(expected, str):
+        assert body == expected
+    else:
+        assert expected.fullmatch(body), body

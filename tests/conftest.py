@@ -6,6 +6,9 @@ import pytest
 
 from plant_fmu import build_fmu
 
+# The shared helpers assert too (a whole error message): pytest shows their values.
+pytest.register_assert_rewrite("cli_helpers")
+
 
 @pytest.fixture(scope="session")
 def fmu_cache(tmp_path_factory):

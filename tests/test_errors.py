@@ -17,21 +17,11 @@ import zipfile
 from pathlib import Path
 
 import pytest
-from cli_helpers import PAPER, cosim_cli, signal_when
+from cli_helpers import PAPER, assert_message, cosim_cli, error_line, signal_when
 
 from plant_fmu import build_fmu
 
 SHORT = ["--set", "simulation.duration=0.5"]
-
-
-def error_line(result: subprocess.CompletedProcess) -> str:
-    """The one message: exit status 2, no traceback, one 'cosim: error:' line, last."""
-    assert result.returncode == 2, (result.returncode, result.stderr[-2000:])
-    assert "Traceback" not in result.stderr, result.stderr[-2000:]
-    errors = [line for line in result.stderr.splitlines() if line.startswith("cosim: error:")]
-    assert len(errors) == 1, result.stderr[-2000:]
-    assert result.stderr.strip().splitlines()[-1] == errors[0]
-    return errors[0]
 
 
 @pytest.fixture(scope="module")
@@ -92,15 +82,6 @@ CASES = [
     ("a run the pipeline does not have", [*SHORT, "--run", "proposed", "--run", "nope"],
      f"--run nope: {PAPER} has no such run; its runs are baseline, proposed; nothing was run"),
 ]
-
-
-def assert_message(message: str, expected: str | re.Pattern) -> None:
-    """The whole message, exactly (or matching the whole pattern)."""
-    body = message.removeprefix("cosim: error: ")
-    if isinstance(expected, str):
-        assert body == expected
-    else:
-        assert expected.fullmatch(body), body
 
 
 @pytest.mark.parametrize("args,expected", [c[1:] for c in CASES], ids=[c[0] for c in CASES])

@@ -21,6 +21,7 @@ from typing import Annotated, Any, Literal
 from pydantic import BaseModel, Field, ValidationError, create_model, model_validator
 
 from ..blocks import BLOCKS, DEFAULT_CHAIN
+from ..blocks.plugins import load_entry_points, load_plugins
 from .declared import Safety, Uncertainty
 from .schema import FiniteFloat, PipelineError, PositiveFloat, Section
 
@@ -118,6 +119,9 @@ class Pipeline(Section):
 
     name: str = "pipeline"  # names the run folder (runs/NAME) and the recording
     description: str = ""  # free text, kept in summary.json
+    # Modules of the user's own blocks, imported before the pipeline is validated: a .py file
+    # (relative to the pipeline file naming it) or an importable module name.
+    plugins: list[str] = []
     simulation: Simulation = Simulation()
     plant: Plant = Plant()
     safety: Safety = Safety()
@@ -175,6 +179,7 @@ _MODELS: dict[tuple, tuple[type[Pipeline], type[Run]]] = {}
 def pipeline_model() -> tuple[type[Pipeline], type[Run]]:
     """The Pipeline and Run models for the blocks registered now (built once per registry
     state): every block's ``Params`` as a table, with its defaults."""
+    load_entry_points()  # installed packages' blocks, before the first model is built
     key = tuple((kind, cls) for kind, cls in BLOCKS.items())
     if key not in _MODELS:
         tables = {kind: (cls.Params, cls.Params()) for kind, cls in BLOCKS.items()}
@@ -331,6 +336,10 @@ def _read_toml(path: Path, chain: tuple[Path, ...] = ()) -> dict:
     except UnicodeDecodeError as exc:
         raise PipelineError(f"{path}: not a UTF-8 text file ({exc.reason} at byte "
                             f"{exc.start})") from None
+    plugins = data.get("plugins")
+    if isinstance(plugins, list):  # a .py file relative to this file; a module name as is
+        data["plugins"] = [_relative_to(p, path.parent) if isinstance(p, str) else p
+                           for p in plugins]
     plant = data.get("plant")
     if isinstance(plant, dict) and isinstance(plant.get("fmu"), str):
         fmu = Path(plant["fmu"]).expanduser()
@@ -347,12 +356,24 @@ def _read_toml(path: Path, chain: tuple[Path, ...] = ()) -> dict:
         raise PipelineError(f"{path}: extends {parent!r}, a loop of symbolic links") from None
     if parent_resolved in chain or parent_resolved == resolved:
         raise PipelineError(f"{path}: 'extends' makes a cycle through {parent_path.name}")
-    merged = _merge(_read_toml(parent_resolved, (*chain, resolved)), data)
+    inherited = _read_toml(parent_resolved, (*chain, resolved))
+    merged = _merge(inherited, data)
+    if isinstance(inherited.get("plugins"), list) and isinstance(plugins, list):
+        # both files' plugins, the parent's first
+        merged["plugins"] = list(dict.fromkeys([*inherited["plugins"], *data["plugins"]]))
     if isinstance(plant, dict) and isinstance(merged.get("plant"), dict):
         for key, other in PLANT_SOURCES.items():  # this file's plant, not the parent's too
             if key in plant and other not in plant:
                 merged["plant"].pop(other, None)
     return merged
+
+
+def _relative_to(name: str, folder: Path) -> str:
+    """A plugin ``.py`` file's path made absolute from ``folder``; a module name as is."""
+    if not name.endswith(".py"):
+        return name
+    path = Path(name).expanduser()
+    return str(path if path.is_absolute() else (folder / path).resolve())
 
 
 def _merge(base: dict, over: dict) -> dict:
@@ -385,6 +406,11 @@ def load_pipeline(path: str | Path | None, overrides: list[str] | None = None,
         data = apply_override(data, assignment)
         for warning in shadowed(data, assignment) if warn else ():
             warn(warning)
+    plugins = data.get("plugins")
+    if isinstance(plugins, list):  # before validating: they add block tables to the schema
+        data["plugins"] = [_relative_to(p, Path.cwd()) if isinstance(p, str) else p
+                           for p in plugins]  # from --set: relative to where the user is
+        load_plugins(data["plugins"])
     pipeline = validate(data, source)
     if pipeline.plant.fmu is not None:
         fmu = Path(pipeline.plant.fmu).expanduser()

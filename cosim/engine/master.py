@@ -17,6 +17,7 @@ from collections.abc import Callable
 from numba import typeof, types
 
 from ..blocks import Block
+from ..blocks.plugins import describe_exception
 from ..plant.mapping import FmuError
 from ..signals import Trace
 from .fused import fused_loop
@@ -49,6 +50,18 @@ class PlantFailed(Diverged):
         return f"{where} stopped the run at t = {t:.6g} s: {detail}"
 
 
+class BlockFailed(Diverged):
+    """A block's own code raised (a user's block with a bug): the exception and the line of
+    the block's code it came from, as a run that cannot go on, so the rows done are kept."""
+
+    def __init__(self, where: str, t: float, exc: BaseException):
+        super().__init__(where, t, describe_exception(exc))
+
+    @staticmethod
+    def describe(where: str, t: float, detail: str) -> str:
+        return f"{where} raised at t = {t:.6g} s: {detail}"
+
+
 def _fusable(block) -> bool:
     # A block with a kernel, or one whose step does nothing (the reference, a plant-M model).
     return block.kernel is not None or type(block).step is Block.step
@@ -68,7 +81,11 @@ def simulate(plant, plan, trace: Trace, progress: Callable[[int], None] | None =
     if engine not in ENGINES:
         raise ValueError(f"engine {engine!r}: one of {ENGINES}")
     plant.start(0.0)
-    plan.reset(trace)
+    try:
+        plan.reset(trace)
+    except Exception as exc:  # a user's block: any exception is possible
+        trace.rows_done = 0
+        raise BlockFailed("a block's reset", 0.0, exc) from exc
     fused = engine == "fused" or (engine == "auto" and all(_fusable(b) for b in plan.blocks)
                                   and hasattr(plant, "fused_io"))
     run = _fused if fused else _python
@@ -98,7 +115,12 @@ def _python(plant, plan, trace: Trace, progress, progress_every: int) -> float:
         qdot[k] = plant.qdot
         mass[k] = plant.M
         for block, step in blocks:
-            if not step(k):
+            try:
+                finite = step(k)
+            except Exception as exc:  # a user's block: any exception is possible
+                trace.rows_done = k
+                raise BlockFailed(f"the {block.name} block", t, exc) from exc
+            if not finite:
                 trace.rows_done = k
                 raise Diverged(f"the {block.name} block", t, "a non-finite value")
         trace.rows_done = k + 1

@@ -215,13 +215,17 @@ def summarise(trace: Trace, checks: Mapping[str, Check], h: Mapping[str, np.ndar
     checks and barriers."""
     safety = {}
     for name, check in checks.items():
-        if len(check.value) and np.isnan(check.value).all():
+        if not len(check.value):  # the run stopped at its first row: nothing is known
+            safety[name] = {"bound": float(check.upper), "worst": None, "satisfied": None,
+                            "unavailable": "the run completed no row"}
+            continue
+        if np.isnan(check.value).all():
             # Only the ground-truth velocity can be missing: a plant without a qdot mapping.
             safety[name] = {"bound": float(check.upper), "worst": None, "satisfied": None,
                             "unavailable": "needs the true joint velocity: the plant maps "
                             "no qdot"}
             continue
-        worst = float(np.max(check.magnitude)) if len(check.value) else float("nan")
+        worst = float(np.max(check.magnitude))
         entry = {"bound": float(check.upper), "worst": worst,
                  "satisfied": bool(worst <= check.upper), **excursions(check, trace.dt)}
         if check.reference is not None and len(check.reference):
@@ -231,6 +235,8 @@ def summarise(trace: Trace, checks: Mapping[str, Check], h: Mapping[str, np.ndar
         safety[name] = entry
 
     t = trace.time
+    if not len(t):  # a run stopped at its first row (a block raised there): nothing to sum up
+        return {}, safety
     after_1s = t >= 1.0
     obs_err = trace["qdot"] - trace["qdot_hat"]
 

@@ -117,8 +117,9 @@ def _barrier_figure(plt, out, time, barriers) -> str:
                            alpha=0.3, lw=0)
         right.set_yscale("symlog", linthresh=10.0)
         right.axhline(0.0, color="darkred", lw=0.8, ls="--")
-        failing = np.mean(condition[np.isfinite(condition)] < 0)
-        right.set_title(f"{run}: Ḣ + αH ≥ 0 fails in {100 * failing:.1f} % of steps")
+        finite = condition[np.isfinite(condition)]
+        failing = f"{100 * np.mean(finite < 0):.1f} %" if len(finite) else "none (no rows)"
+        right.set_title(f"{run}: Ḣ + αH ≥ 0 fails in {failing} of steps")
     for ax in axes[-1]:
         ax.set_xlabel("time (s)")
     _save(out, "fig5_barriers.png", fig)

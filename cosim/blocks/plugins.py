@@ -1,0 +1,110 @@
+"""Blocks from outside the package: a pipeline's ``plugins`` and the ``cosim.blocks`` entry
+point group.
+
+A plugin is a module whose import registers blocks (``@register_block``), like the
+built-in ones. A pipeline names its own with ``plugins = ["my_blocks.py", "mypkg.blocks"]``:
+a ``.py`` file (relative to the pipeline file that names it) or an importable module. An
+installed package offers its blocks to every pipeline with an entry point::
+
+    [project.entry-points."cosim.blocks"]
+    my_blocks = "mypkg.blocks"
+
+Each is imported once per process (a sweep's Dask workers import them as they load the
+pipeline). A plugin that fails to import is one error naming it and the cause.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import importlib.util
+import sys
+import sysconfig
+import traceback
+from importlib.metadata import entry_points
+from pathlib import Path
+from types import ModuleType
+
+from ..config.schema import PipelineError
+
+ENTRY_POINT_GROUP = "cosim.blocks"
+
+_LOADED: dict[str, ModuleType] = {}  # plugin (resolved file or module name) -> module
+_entry_points_loaded = False
+
+
+def load_plugins(plugins: list[str]) -> list[ModuleType]:
+    """Import each plugin (a ``.py`` file path, absolute by now, or a module name) once."""
+    return [_load(plugin) for plugin in plugins]
+
+
+def load_entry_points() -> None:
+    """Import every installed package's ``cosim.blocks`` entry point (once per process)."""
+    global _entry_points_loaded
+    if _entry_points_loaded:
+        return
+    _entry_points_loaded = True  # a broken one is reported once, not at every pipeline
+    for point in entry_points(group=ENTRY_POINT_GROUP):
+        where = f"entry point {point.name!r} = {point.value!r} (group {ENTRY_POINT_GROUP})"
+        _guarded(where, point.load)
+
+
+def _load(plugin: str) -> ModuleType:
+    if not isinstance(plugin, str) or not plugin:
+        raise PipelineError(f"plugins: {plugin!r} is neither a .py file nor a module name")
+    if plugin.endswith(".py"):
+        path = Path(plugin)
+        if not path.is_file():
+            raise PipelineError(f"plugins: {plugin}: no such file (a .py file is relative "
+                                "to the pipeline file that names it)")
+        key = str(path.resolve())
+    else:
+        key = plugin
+    if key not in _LOADED:
+        _LOADED[key] = _guarded(f"plugins: {plugin}", lambda: _import(key))
+    return _LOADED[key]
+
+
+def _import(key: str) -> ModuleType:
+    if not key.endswith(".py"):
+        return importlib.import_module(key)
+    # A module name of its own per file (two users' "blocks.py" do not collide), kept in
+    # sys.modules so that pickling a block's class finds it.
+    path = Path(key)
+    name = f"cosim_plugin_{path.stem}_{hashlib.sha1(key.encode()).hexdigest()[:8]}"
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module
+    try:
+        spec.loader.exec_module(module)
+    except BaseException:
+        del sys.modules[name]
+        raise
+    return module
+
+
+def _guarded(where: str, load):
+    """``load()``, with any failure of the user's code turned into one PipelineError that
+    names the plugin, the exception and the plugin's own line where it was raised."""
+    try:
+        return load()
+    except PipelineError:
+        raise
+    except Exception as exc:  # the user's code: any exception is possible
+        raise PipelineError(f"{where}: failed to import: {describe_exception(exc)}") from None
+
+
+# Frames that are not the user's: cosim's own and the standard library's (importlib's).
+_NOT_THEIRS = (str(Path(__file__).resolve().parents[1]), sysconfig.get_paths()["stdlib"],
+               "<frozen")
+
+
+def describe_exception(exc: BaseException) -> str:
+    """``"NameError: name 'np' is not defined (my_blocks.py, line 26, in step)"``: the
+    exception and the last line outside cosim and the standard library (the user's own
+    code) on its way up; none when the user's code was never reached."""
+    frames = [f for f in traceback.extract_tb(exc.__traceback__)
+              if not f.filename.startswith(_NOT_THEIRS)]
+    where = f" ({frames[-1].filename}, line {frames[-1].lineno}, in {frames[-1].name})" \
+        if frames else ""
+    return f"{type(exc).__name__}: {exc}{where}"
