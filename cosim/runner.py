@@ -24,6 +24,7 @@ from .outputs.run_folder import RunFolder, RunFolderError, jsonable
 from .outputs.table import markdown_table
 from .outputs.versions import package_versions
 from .plant.mapping import FmuError
+from .progress import percent, phase
 from .signals import Trace
 
 
@@ -53,19 +54,6 @@ class RunResult:
         if self.error:
             out["error"] = self.error
         return out
-
-
-def _progress(name: str, total: int):
-    tty = sys.stderr.isatty()
-    marks = {int(total * f) for f in (0.25, 0.5, 0.75)}
-
-    def report(k: int) -> None:
-        if tty:
-            print(f"\r  {name}: {100 * k / total:5.1f} %", end="", file=sys.stderr, flush=True)
-        elif any(abs(k - m) < 1000 and k <= m for m in marks):
-            print(f"  {name}: {100 * k / total:.0f} %", file=sys.stderr, flush=True)
-
-    return report
 
 
 def run(pipeline: Pipeline, out_dir: str | Path | None = None, progress: bool = True,
@@ -113,15 +101,16 @@ def run(pipeline: Pipeline, out_dir: str | Path | None = None, progress: bool = 
         if failure is not None:
             raise failure
         return results
-    failure = _finish(folder, pipeline, results, plant_info, recorder, figures, failure)
+    failure = _finish(folder, pipeline, results, plant_info, recorder, figures, failure,
+                      progress)
     if failure is not None:
         raise failure
     return results
 
 
 def _finish(folder: RunFolder, pipeline: Pipeline, results: dict, plant_info: dict,
-            recorder: Recorder | None, figures: bool, failure: BaseException | None
-            ) -> BaseException | None:
+            recorder: Recorder | None, figures: bool, failure: BaseException | None,
+            progress: bool = False) -> BaseException | None:
     """The closing phases, each kept even if an earlier one failed or was interrupted:
     recording, figures, the final summary. Returns what to raise (the first failure)."""
     complete = failure is None and len(results) == len(pipeline.runs)
@@ -129,17 +118,19 @@ def _finish(folder: RunFolder, pipeline: Pipeline, results: dict, plant_info: di
         (_describe(failure) if failure is not None else "")
     if recorder is not None:
         try:
-            recorder.close(complete, reason)
+            with phase("closing the recording", progress):
+                recorder.close(complete, reason)
             folder.note("recording.rrd", True)
         except BaseException as exc:  # noqa: BLE001 (a second Ctrl-C, or the writer failed)
             folder.note("recording.rrd", False, _describe(exc))
             failure = failure or exc
     if figures and results:
         try:
-            write_figures(folder, {n: r.trace.time for n, r in results.items()},
-                          {n: r.evaluation.checks for n, r in results.items()},
-                          {n: r.trace["tau"] for n, r in results.items()},
-                          {n: r.evaluation.barriers for n, r in results.items()})
+            with phase(f"drawing the figures ({len(FIGURE_FILES)} PNG)", progress):
+                write_figures(folder, {n: r.trace.time for n, r in results.items()},
+                              {n: r.evaluation.checks for n, r in results.items()},
+                              {n: r.trace["tau"] for n, r in results.items()},
+                              {n: r.evaluation.barriers for n, r in results.items()})
         except BaseException as exc:  # noqa: BLE001
             for name in FIGURE_FILES:
                 if name not in folder.files:
@@ -195,7 +186,7 @@ def _run_one(plan: RunPlan, scenario: Scenario, plant_info: dict, recorder: Reco
     if progress and inertia is not None:
         print(f"  {name}: inertia model {describe_inertia(inertia, plant)}", file=sys.stderr)
     trace = plan.new_trace(steps)
-    report = _progress(name, steps) if progress else None
+    report = percent(name, steps) if progress else None
     entities = plan.entities()
     recorded = sorted({key for key, _ in entities.values()} | {"q", "q_d"}
                       | {s for true, est, _ in DERIVED_ENTITIES.values() for s in (true, est)})

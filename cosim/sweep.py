@@ -17,6 +17,7 @@ from __future__ import annotations
 import itertools
 import json
 import math
+import os
 import re
 import sys
 import tomllib
@@ -27,6 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from .config import PipelineError, load_pipeline
+from .progress import phase
 
 # The paper's joint-1 sets: a run is "safe" when it keeps all of them.
 SAFE_SET_CHECKS = ("position_joint1", "velocity_true_joint1", "error_joint1",
@@ -374,7 +376,6 @@ def cluster_client(workers: int | None, scheduler: str | None):
                              "(start one: dask worker ADDRESS --nthreads 1)") from None
         return client, None
     import logging
-    import os
 
     # Quiet workers: a cancelled point (Ctrl-C) is not a warning the user needs to read.
     cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
@@ -536,31 +537,69 @@ def write_results(folder, spec: SweepSpec, rows: list[dict], table: list[dict],
 
 
 def write_safety_plot(folder, spec: SweepSpec, rows: list[dict]) -> None:
-    """Per varied key: the safety rate of each run against the key's value (binned when
-    sampled) and each row's worst normalised check value, max over the joint-1 sets."""
+    """One row of panels per run (each with its own scale), one column per varied key: each
+    point's worst joint-1 check relative to its bound (≤ 1: every set kept), and on the
+    right axis the share of points keeping every joint-1 set, per value of a grid key or
+    per bin of a sampled one (about 20 points a bin). Failed points are left out."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
+    runs = list(dict.fromkeys(r["run"] for r in rows))
     keys = spec.keys
-    fig, axes = plt.subplots(1, len(keys), figsize=(5.5 * len(keys), 4), squeeze=False,
-                             constrained_layout=True)
-    for ax, key in zip(axes[0], keys, strict=True):
-        for run in dict.fromkeys(r["run"] for r in rows):
-            ok = [r for r in rows if r["run"] == run and r["status"] == "ok"]
-            values = [r[f"set:{key}"] for r in ok]
-            if not ok or not all(isinstance(v, int | float) for v in values):
-                continue
-            x = np.array(values, float)
-            worst = np.array([margin(r) for r in ok])
-            ax.scatter(x, worst, s=8, alpha=0.5, label=f"{run}: worst / bound")
-        ax.axhline(1.0, color="darkred", lw=0.8, ls="--")
-        ax.set_xlabel(key)
-        ax.set_ylabel("max over joint-1 sets of worst / bound (≤ 1 safe)")
-        ax.legend(fontsize=7)
+    fig, axes = plt.subplots(len(runs), len(keys), figsize=(5.5 * len(keys), 3.2 * len(runs)),
+                             squeeze=False, constrained_layout=True)
+    for panels, run in zip(axes, runs, strict=True):
+        mine = [r for r in rows if r["run"] == run]
+        ok = [r for r in mine if r["status"] == "ok"]
+        for ax, key in zip(panels, keys, strict=True):
+            _safety_panel(ax, key, ok, sampled=key not in {a.key for a in spec.grid})
+            ax.set_title(f"{run}: {len(ok)} point(s) completed"
+                         + (f", {len(mine) - len(ok)} failed (not drawn)"
+                            if len(mine) > len(ok) else ""), fontsize=9)
     folder.write("sweep_safety.png", lambda tmp: fig.savefig(tmp, dpi=100, format="png"))
     plt.close(fig)
+
+
+def _safety_panel(ax, key: str, ok: list[dict], sampled: bool) -> None:
+    values = [r[f"set:{key}"] for r in ok]
+    numeric = all(isinstance(v, int | float) and not isinstance(v, bool) for v in values)
+    if numeric:
+        x = np.array(values, float)
+    else:  # strings, booleans, lists: one position per distinct value, labelled
+        labels = list(dict.fromkeys(str(v) for v in values))
+        x = np.array([labels.index(str(v)) for v in values], float)
+        ax.set_xticks(range(len(labels)), labels, rotation=20, fontsize=7)
+    worst = np.array([margin(r) for r in ok])
+    kept = np.array([bool(r.get("safe")) for r in ok])
+    ax.scatter(x, worst, s=8, alpha=0.5, label="worst / bound (left)")
+    ax.axhline(1.0, color="darkred", lw=0.8, ls="--")
+    ax.set_xlabel(key)
+    ax.set_ylabel("max over joint-1 sets of\nworst / bound (≤ 1 safe)", fontsize=8)
+    if not len(x):
+        return
+    centres, rates = kept_share(x, kept, binned=sampled and numeric)
+    rate_ax = ax.twinx()
+    rate_ax.plot(centres, rates, "o-" if numeric else "o", color="tab:green", ms=3, lw=1,
+                 label="every joint-1 set kept (right)")
+    rate_ax.set_ylim(-5, 105)
+    rate_ax.set_ylabel("points keeping every set (%)", fontsize=8, color="tab:green")
+    handles = ax.get_legend_handles_labels()[0] + rate_ax.get_legend_handles_labels()[0]
+    ax.legend(handles=handles, fontsize=7, loc="best")
+
+
+def kept_share(x: np.ndarray, kept: np.ndarray, binned: bool
+               ) -> tuple[list[float], list[float]]:
+    """(positions, % kept): per distinct value of ``x``, or, ``binned``, per group of about
+    20 consecutive points in x's order (at the group's mean x)."""
+    if binned:
+        groups = [g for g in np.array_split(np.argsort(x, kind="stable"),
+                                            max(1, len(x) // 20)) if len(g)]
+        return [float(x[g].mean()) for g in groups], [100 * float(kept[g].mean())
+                                                      for g in groups]
+    centres = sorted(set(x.tolist()))
+    return centres, [100 * float(kept[x == c].mean()) for c in centres]
 
 
 def margin(row: dict) -> float:
@@ -569,7 +608,8 @@ def margin(row: dict) -> float:
                 if row.get(f"{c}.worst") is not None), default=math.nan)
 
 
-def record_points(spec: SweepSpec, rows: list[dict], which: list[str], out: Path) -> list[str]:
+def record_points(spec: SweepSpec, rows: list[dict], which: list[str], out: Path,
+                  progress: bool = False) -> list[str]:
     """Full run folders (recording, figures) of each run's best and/or worst point by
     :func:`margin`, re-run here: ``out/best_<run>_point<i>``, ``out/worst_<run>_point<i>``.
     A run with no completed row has nothing to record."""
@@ -586,7 +626,9 @@ def record_points(spec: SweepSpec, rows: list[dict], which: list[str], out: Path
             folder = out / f"{kind}_{name}_point{row['point']}"
             pipeline = _only(load_pipeline(spec.pipeline, assignments(spec, point), warn=None),
                              [name])
-            run(pipeline, folder, progress=False, force=True)
+            with phase(f"re-running {name}'s {kind} point ({row['point']}) with its "
+                       "recording and figures", progress):
+                run(pipeline, folder, progress=False, force=True)
             written.append(str(folder))
     return written
 
@@ -625,8 +667,9 @@ def _main(args) -> int:
     check_spec(spec, args.max_points, args.workers, args.scheduler)
     out = Path(args.out)
     try:
-        all_points = points(spec)
-        validate(spec, all_points)
+        with phase("checking every point against the pipeline's schema", not args.quiet):
+            all_points = points(spec)
+            validate(spec, all_points)
     except KeyboardInterrupt as exc:
         raise SweepError(f"{str(exc) or 'interrupted (Ctrl-C)'} while checking the points; "
                          "nothing was run") from None
@@ -635,7 +678,10 @@ def _main(args) -> int:
     rows: list[dict] = []
     interrupted = False
     try:
-        client, cluster = cluster_client(args.workers, args.scheduler)
+        starting = (f"connecting to {args.scheduler}" if args.scheduler else
+                    f"starting {args.workers or os.cpu_count() or 1} Dask worker process(es)")
+        with phase(starting, not args.quiet):
+            client, cluster = cluster_client(args.workers, args.scheduler)
         try:
             where = (args.scheduler
                      or f"a local cluster of {len(client.scheduler_info()['workers'])}")
@@ -686,7 +732,7 @@ def _main(args) -> int:
                              f"point to record; the {len(rows)} row(s) and their errors are "
                              f"in {out / 'results.csv'}")
         try:
-            for path in record_points(spec, rows, record, out):
+            for path in record_points(spec, rows, record, out, not args.quiet):
                 print(f"recorded: {path}")
         except KeyboardInterrupt as exc:
             raise SweepError(f"{str(exc) or 'interrupted (Ctrl-C)'} while recording; the sweep's "

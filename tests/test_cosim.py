@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 import pytest
@@ -199,6 +200,9 @@ def test_diverging_run_names_the_block_and_keeps_what_was_computed(tmp_path):
     assert result.returncode == 2
     assert "diverged in the observer block at t = 0.0" in result.stderr
     assert "Traceback" not in result.stderr
+    # the closing phases (seconds each after a long run) are announced, then timed
+    assert re.search(r"^  closing the recording … \d+\.\d s$", result.stderr, re.M)
+    assert re.search(r"^  drawing the figures \(4 PNG\) … \d+\.\d s$", result.stderr, re.M)
     summary = json.loads((out / "summary.json").read_text())
     assert summary["complete"] is False
     baseline = summary["runs"]["baseline"]

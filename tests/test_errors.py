@@ -526,6 +526,7 @@ def test_a_finished_sweeps_summary_says_complete(tmp_path):
                      "controller.kv=10,20", "--workers", "1", *SHORT)
     assert done.returncode == 0, done.stderr[-2000:]
     assert "it/s" not in done.stderr and "point/s" not in done.stderr  # --quiet: no bar
+    assert " … " not in done.stderr  # and no phases announced
     summary = json.loads((out / "summary.json").read_text())
     assert summary["complete"] is True and summary["status"] == "complete"
     assert (summary["points"], summary["rows"], summary["failed_rows"]) == (2, 4, 0)

@@ -5,18 +5,21 @@ refused before anything runs."""
 from __future__ import annotations
 
 import json
+import re
 import socket
 import subprocess
 import sys
 import time
 from pathlib import Path
 
+import numpy as np
 import pyarrow.parquet as pq
 import pytest
 from cli_helpers import PAPER, cosim_cli
 
 from cosim.config import load_pipeline
 from cosim.runner import run
+from cosim.sweep import SweepSpec
 
 DURATION = ["--set", "simulation.duration=1"]
 CHECKS = ("position_joint1", "velocity_true_joint1", "error_joint1", "error_rate_joint1")
@@ -66,7 +69,52 @@ def test_grid_and_monte_carlo_equal_single_runs_bit_for_bit(tmp_path):
         assert entry["all sets"][0] == float(mine[0]["safe"])
         assert entry["position"][0] == float(mine[0]["position_joint1.satisfied"])
     assert (tmp_path / "mc" / "results.csv").read_text().count("\n") == 5
-    assert (tmp_path / "mc" / "sweep_safety.png").stat().st_size > 0
+    # one row of panels per run (proposed, baseline), one column per varied key: 5.5 × 6.4 in
+    assert png_size(tmp_path / "mc" / "sweep_safety.png") == (550, 640)
+
+
+def png_size(path: Path) -> tuple[int, int]:
+    """(width, height) in pixels, from the PNG's IHDR chunk."""
+    header = path.read_bytes()[:24]
+    assert header[:8] == b"\x89PNG\r\n\x1a\n" and header[12:16] == b"IHDR"
+    return int.from_bytes(header[16:20], "big"), int.from_bytes(header[20:24], "big")
+
+
+def test_sweep_safety_plot_has_a_panel_per_run_and_key_and_the_kept_share(tmp_path):
+    """Rows as a sweep writes them (two runs, a grid of strings and a sampled key, one failed
+    point): the figure's layout; and the shares it draws (kept_share) against counts by
+    hand."""
+    from cosim.outputs.run_folder import RunFolder
+    from cosim.sweep import kept_share, parse_grid, parse_sample, write_safety_plot
+
+    rng = np.random.default_rng(0)
+    rows = []
+    for point in range(40):
+        for run_name in ("proposed", "baseline"):
+            gain = float(rng.uniform(5, 50))
+            worst = 25.0 - gain / 5  # position_joint1 kept (≤ 20) from a gain of 25 up
+            rows.append({"point": point, "run": run_name, "status": "ok", "safe": worst <= 20,
+                         "set:observer.basis": ["lagged", "no_acceleration"][point % 2],
+                         "set:controller.kv": gain, "position_joint1.worst": worst,
+                         "position_joint1.bound": 20.0})
+    rows.append({"point": 40, "run": "proposed", "status": "failed", "error": "diverged",
+                 "set:observer.basis": "lagged", "set:controller.kv": 1.0})
+    spec = SweepSpec(PAPER, [parse_grid('observer.basis="lagged","no_acceleration"')],
+                     [parse_sample("controller.kv=uniform(5,50)")], 40)
+    folder = RunFolder.create(tmp_path / "plot", False)
+    write_safety_plot(folder, spec, rows)
+    folder.release()
+    assert png_size(tmp_path / "plot" / "sweep_safety.png") == (1100, 640)  # 2 keys × 2 runs
+
+    gains = np.array([5.0, 30.0, 10.0, 40.0, 20.0, 50.0])
+    kept = gains >= 25
+    # a grid key: per value
+    assert kept_share(np.array([0.0, 1, 0, 1, 0, 1]), kept, binned=False) == \
+        ([0.0, 1.0], [0.0, 100.0])
+    # a sampled key: 45 points in 2 groups of consecutive values (23 and 22 points)
+    x = np.arange(45.0)
+    centres, rates = kept_share(x[::-1].copy(), x[::-1] >= 30, binned=True)
+    assert centres == [11.0, 33.5] and rates == pytest.approx([0.0, 100 * 15 / 22], rel=1e-12)
 
 
 def _free_port() -> int:
@@ -130,3 +178,39 @@ def test_wilson_interval(count):
     low, high = wilson(count // 2, count)
     assert low < 0.5 < high and high - low == pytest.approx(0.4, abs=0.03)
     assert wilson(0, 10)[0] == 0.0 and wilson(10, 10)[1] == 1.0
+
+
+def test_record_best_and_worst_per_run_re_runs_those_points_with_a_recording(tmp_path):
+    """--record best,worst: for each run, the point whose worst joint-1 check is furthest
+    inside (outside) its bound, picked here from the rows, re-run as a full run folder of
+    that run alone that reproduces the row; each phase is announced (no --quiet)."""
+    out = tmp_path / "rec"
+    done = cosim_cli("sweep", PAPER, "--out", str(out), *DURATION, "--grid",
+                     "controller.kv=5,60", "--workers", "1", "--record", "best,worst")
+    assert done.returncode == 0, done.stderr[-3000:]
+    for phase in ("checking every point against the pipeline's schema",
+                  r"starting 1 Dask worker process\(es\)",
+                  *[f"re-running {run_name}'s {kind} point \\(\\d\\) with its recording and "
+                    "figures" for kind in ("best", "worst") for run_name in ("baseline",
+                                                                             "proposed")]):
+        assert re.search(f"^  {phase} … \\d+\\.\\d s$", done.stderr, re.M), phase
+    rows = pq.read_table(out / "results.parquet").to_pylist()
+    made = set()
+    for run_name in ("baseline", "proposed"):
+        mine = [r for r in rows if r["run"] == run_name]
+        ratio = {r["point"]: max(r[f"{c}.worst"] / r[f"{c}.bound"] for c in CHECKS)
+                 for r in mine}
+        assert len(set(ratio.values())) == 2  # the two gains differ: best ≠ worst
+        for kind, pick in (("best", min), ("worst", max)):
+            point = pick(ratio, key=ratio.get)
+            folder = out / f"{kind}_{run_name}_point{point}"
+            made.add(folder.name)
+            summary = json.loads((folder / "summary.json").read_text())
+            assert summary["complete"] is True and list(summary["runs"]) == [run_name]
+            assert (folder / "recording.rrd").stat().st_size > 0
+            row = next(r for r in mine if r["point"] == point)
+            for check in CHECKS:
+                assert summary["runs"][run_name]["safety"][check]["worst"] == \
+                    row[f"{check}.worst"]
+            assert f"recorded: {folder}" in done.stdout
+    assert made == {p.name for p in out.iterdir() if p.is_dir()}
