@@ -18,6 +18,7 @@ from numba import typeof, types
 
 from ..blocks import Block
 from ..blocks.plugins import describe_exception
+from ..config.schema import PipelineError
 from ..plant.mapping import FmuError
 from ..signals import Trace
 from .fused import fused_loop
@@ -83,6 +84,8 @@ def simulate(plant, plan, trace: Trace, progress: Callable[[int], None] | None =
     plant.start(0.0)
     try:
         plan.reset(trace)
+    except (PipelineError, FmuError):
+        raise  # a block's own refusal (e.g. the filter's moving centre): already one message
     except Exception as exc:  # a user's block: any exception is possible
         trace.rows_done = 0
         raise BlockFailed("a block's reset", 0.0, exc) from exc
