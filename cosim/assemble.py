@@ -69,6 +69,15 @@ class RunPlan:
         out[PLANT_INPUT_ENTITY] = (self.plant_input, PLANT_INPUT)
         return out
 
+    def torque_before_filter(self) -> tuple[str, str] | None:
+        """(trace key of the plant's torque as the last block that changed it read it, that
+        block's kind): what a filter corrected. None when one block alone produced it."""
+        for block, ins, outs in zip(reversed(self.blocks), reversed(self.inputs),
+                                    reversed(self.outputs), strict=True):
+            if PLANT_INPUT in outs:
+                return (ins[PLANT_INPUT], block.kind) if PLANT_INPUT in ins else None
+        return None
+
     def block(self, kind: str) -> Block | None:
         return next((b for b in self.blocks if b.kind == kind), None)
 

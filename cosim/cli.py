@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -167,7 +168,11 @@ def _view(args: argparse.Namespace) -> None:
     from .outputs.viewer import ViewerError, recording_path, screenshot, view
 
     try:
+        if args.size is not None and not args.screenshot:
+            raise UserError(f"--size {args.size}: sizes the --screenshot PNG; a window opened "
+                            "by `cosim view` is resized by hand")
         if args.screenshot:
+            size = _window_size(args.size or "1600x1000")
             if args.screenshot.is_dir():
                 raise UserError(f"--screenshot {args.screenshot}: is a folder; give the PNG "
                                 f"file to write, e.g. {args.screenshot / 'recording.png'}")
@@ -179,13 +184,22 @@ def _view(args: argparse.Namespace) -> None:
             if not folder.is_dir() or not os.access(folder, os.W_OK):
                 raise UserError(f"--screenshot {args.screenshot}: cannot write there "
                                 f"({folder} is not a writable folder)")
-            print(screenshot(recording_path(args.run_dir), args.screenshot))
+            print(screenshot(recording_path(args.run_dir), args.screenshot, size))
             return
         status = view(args.run_dir)
     except ViewerError as exc:
         raise UserError(str(exc)) from None
     if status:
         raise UserError(f"the Rerun viewer exited with status {status}")
+
+
+def _window_size(size: str) -> str:
+    """``WIDTHxHEIGHT`` in pixels, each 200 to 8000, or one message saying so."""
+    match = re.fullmatch(r"(\d+)x(\d+)", size.strip())
+    if not match or not all(200 <= int(v) <= 8000 for v in match.groups()):
+        raise UserError(f"--size {size!r}: expected WIDTHxHEIGHT in pixels, each from 200 to "
+                        "8000, e.g. 1600x1000")
+    return f"{int(match[1])}x{int(match[2])}"
 
 
 def _export(args: argparse.Namespace) -> None:
@@ -393,6 +407,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--screenshot", metavar="PNG", type=Path, default=None,
                    help="instead of opening a window, render the layout headless (software "
                    "Vulkan: Debian's mesa-vulkan-drivers) and save it as PNG")
+    p.add_argument("--size", metavar="WxH", default=None,
+                   help="the screenshot's size in pixels (default 1600x1000); with more "
+                   "than two runs each run has a tab of its own")
     p.set_defaults(func=_view)
 
     p = sub.add_parser("export", help="write a run folder's traces as Parquet, CSV or MAT, "

@@ -39,6 +39,7 @@ class RunResult:
     inertia_model: dict = field(default_factory=dict)  # source and link parameters used
     wall_time_s: float = float("nan")
     blocks: dict = field(default_factory=dict)  # what each block says of itself (describe)
+    torque_asked: tuple[str, str] | None = None  # (trace key, filter kind): see RunPlan
 
     @property
     def metrics(self) -> dict:
@@ -130,7 +131,9 @@ def _finish(folder: RunFolder, pipeline: Pipeline, results: dict, plant_info: di
                 write_figures(folder, {n: r.trace.time for n, r in results.items()},
                               {n: r.evaluation.checks for n, r in results.items()},
                               {n: r.trace["tau"] for n, r in results.items()},
-                              {n: r.evaluation.barriers for n, r in results.items()})
+                              {n: r.evaluation.barriers for n, r in results.items()},
+                              {n: (r.trace[r.torque_asked[0]], r.torque_asked[1])
+                               for n, r in results.items() if r.torque_asked})
         except BaseException as exc:  # noqa: BLE001
             for name in FIGURE_FILES:
                 if name not in folder.files:
@@ -243,7 +246,7 @@ def _run_one(plan: RunPlan, scenario: Scenario, plant_info: dict, recorder: Reco
     result = RunResult(name, done, evaluation, error is None, error, failure,
                        inertia.describe() if inertia is not None else {}, wall,
                        {block.kind: block.describe() for block in plan.blocks
-                        if block.describe()})
+                        if block.describe()}, plan.torque_before_filter())
     if recorder is not None:
         recorder.end_run(name, result.summary())
     return result

@@ -412,6 +412,15 @@ def test_view_screenshot_to_a_folder_or_not_a_png(finished, tmp_path):
                              (tmp_path / "shot.jpg", "give a name ending in .png")):
         message = error_line(cosim_cli("view", str(finished), "--screenshot", str(target)))
         assert f"--screenshot {target}" in message and fragment in message
+    shot = str(tmp_path / "shot.png")
+    for size in ("10x10", "big", "1600x9000"):
+        assert_message(error_line(cosim_cli("view", str(finished), "--screenshot", shot,
+                                            "--size", size)),
+                       f"--size {size!r}: expected WIDTHxHEIGHT in pixels, each from 200 to "
+                       "8000, e.g. 1600x1000")
+    assert_message(error_line(cosim_cli("view", str(finished), "--size", "800x600")),
+                   "--size 800x600: sizes the --screenshot PNG; a window opened by `cosim "
+                   "view` is resized by hand")
     assert list(tmp_path.iterdir()) == []
 
 

@@ -218,6 +218,61 @@ def test_figures_are_written(paper):
         assert image[..., :3].std() > 0.05, f"{name} looks blank"
 
 
+def test_a_filtered_runs_torque_before_the_filter_is_found_from_the_wiring():
+    """fig4 draws what a filter was asked for beside what it applied: the torque key the
+    last block changing 'tau' read, from the chain's wiring (none for an unfiltered run)."""
+    safety = load_pipeline("pipelines/paper_safety.toml")
+    filtered = assemble_run(safety, "proposed_cbf", _TwoLinkArm())
+    assert filtered.torque_before_filter() == ("tau_controller", "cbf_filter")
+    assert filtered.plant_input == "tau" and "tau_controller" in filtered.signals
+    assert assemble_run(safety, "proposed", _TwoLinkArm()).torque_before_filter() is None
+
+
+def test_the_layout_puts_two_runs_side_by_side_and_gives_more_a_tab_each():
+    import rerun.blueprint as rrb
+
+    from cosim.outputs.recording.layout import blueprint
+
+    pair = blueprint(["baseline", "proposed"]).root_container
+    assert isinstance(pair, rrb.Horizontal)
+    assert [c.name for c in pair.contents] == ["baseline", "proposed"]
+    five = ["baseline", "proposed", "baseline_matched", "proposed_cbf", "baseline_cbf"]
+    tabs = blueprint(five, frozenset({"proposed_cbf", "baseline_cbf"})).root_container
+    assert isinstance(tabs, rrb.Tabs) and [c.name for c in tabs.contents] == five
+    # a filtered run's tab adds the filter's row (barrier values, correction)
+    assert len(tabs.contents[3].contents) == len(tabs.contents[0].contents) + 1
+
+
+def test_the_figures_zoom_is_the_second_around_the_worst_value_of_any_run():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from cosim.evaluate import Check
+    from cosim.outputs.figures import _zoom
+
+    t = np.arange(0, 10.001, 0.001)
+    near = Check(value=19.5 * np.sin(t), upper=20.0, lower=-20.0)
+    # the worst value of any run: a dip to -21 at t = 3π/2, outside the lower bound
+    dip = 3 * np.pi / 2
+    out = Check(value=18 * np.sin(t) - 3.0 * np.exp(-((t - dip) / 0.05) ** 2), upper=20.0,
+                lower=-20.0)
+    k = int(np.argmax(np.abs(out.value)))
+    assert abs(t[k] - dip) < 1e-3 and out.value[k] == pytest.approx(-21.0, abs=1e-3)
+    fig, ax = plt.subplots()
+    _zoom(ax, {"near": t, "out": t}, {"near": near, "out": out})
+    assert ax.get_xlim() == pytest.approx((t[k] - 1.0, t[k] + 1.0))
+    window = np.abs(t - t[k]) <= 1.0
+    values = np.concatenate([near.value[window], out.value[window]])
+    low, high = min(values.min(), -20.0), max(values.max(), -20.0)
+    pad = 0.08 * (high - low)
+    assert ax.get_ylim() == pytest.approx((low - pad, high + pad))
+    assert ax.get_title() == (f"zoom: ±1 s around the worst value (out, {out.value[k]:.4g} at "
+                              f"t = {t[k]:.3g} s; bound -20)")
+    plt.close(fig)
+
+
 def test_diverged_run_leaves_a_readable_recording_marked_incomplete(tmp_path):
     pipeline = load_pipeline(PAPER, [o for o in LOW_GAIN_LAGGED if o != "--set"])
     with pytest.raises(Diverged):
@@ -286,6 +341,11 @@ def test_recording_renders_in_the_real_viewer(paper, tmp_path):
     assert colour_pixels(image, BOUND_COLOR) > 2000
     assert colour_pixels(image, JOINT_COLORS[0]) > 2000
     assert colour_pixels(image, VIOLATION_COLOR) > 100
+    # the command, at a size of the user's choosing
+    done = cosim_cli("view", str(paper[0]), "--screenshot", str(tmp_path / "small.png"),
+                     "--size", "1200x700")
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert matplotlib.image.imread(tmp_path / "small.png").shape[:2] == (700, 1200)
 
 
 def test_live_viewer_follows_a_run(tmp_path):

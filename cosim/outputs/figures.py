@@ -1,6 +1,8 @@
 """PNG figures for reports, in the manner of the paper's Figs. 2-4: joint 1's position and
 velocity (Fig. 2) and their errors (Fig. 3) for every run on one set of axes, with the safe
-region shaded green and the unsafe region red, and each run's torques (Fig. 4).
+region shaded green and the unsafe region red and a zoom on the worst moment below; each
+run's torques (Fig. 4), with the torque a filter was asked for beside what it applied; the
+barriers (Fig. 5).
 """
 
 from __future__ import annotations
@@ -39,11 +41,13 @@ def _shade(ax, lower: float, upper: float) -> None:
 def write_figures(out, time: Mapping[str, np.ndarray],
                   checks: Mapping[str, Mapping[str, Check]],
                   torques: Mapping[str, np.ndarray],
-                  barriers: Mapping[str, Mapping[str, np.ndarray]] | None = None) -> list[str]:
+                  barriers: Mapping[str, Mapping[str, np.ndarray]] | None = None,
+                  asked: Mapping[str, tuple[np.ndarray, str]] | None = None) -> list[str]:
     """Write the figures into ``out``: a folder, or a :class:`~.run_folder.RunFolder`
     (which writes each to a temporary, verifies and renames it). ``time``, ``checks``,
-    ``torques`` and ``barriers`` (H1, H2, H, condition) are per run name. Returns the names
-    written."""
+    ``torques`` and ``barriers`` (H1, H2, H, condition) are per run name; ``asked``, for the
+    runs whose torque a filter changed, the torque before it and the filter's kind. Returns
+    the names written."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -52,20 +56,26 @@ def write_figures(out, time: Mapping[str, np.ndarray],
     written = []
     runs = list(checks)
     for filename, pair in FIGURES.items():
-        fig, axes = plt.subplots(1, 2, figsize=(12, 4.2), constrained_layout=True)
-        for ax, check_name in zip(axes, pair, strict=True):
+        # Top: the whole run. Bottom: ±1 s around the worst value of any run, where the
+        # runs differ by fractions of the bound (the reference's peaks, for the position).
+        fig, axes = plt.subplots(2, 2, figsize=(12, 7.6), constrained_layout=True,
+                                 height_ratios=(1.2, 1))
+        for column, check_name in enumerate(pair):
             first = checks[runs[0]][check_name]
-            if first.reference is not None:
-                ax.plot(time[runs[0]], first.reference, color="black", lw=0.9, ls=":",
-                        label="reference")
-            for i, run in enumerate(runs):
-                ax.plot(time[run], checks[run][check_name].value, lw=1.0,
-                        color=RUN_COLORS[i % len(RUN_COLORS)], label=run)
-            _shade(ax, first.lower, first.upper)
-            ax.set_xlabel("time (s)")
-            ax.set_ylabel(FIGURE_CHECKS[check_name])
-            ax.set_title(f"joint 1: {FIGURE_CHECKS[check_name].split(' (')[0]}")
-            ax.legend(loc="lower right", fontsize=8)
+            for ax in axes[:, column]:
+                if first.reference is not None:
+                    ax.plot(time[runs[0]], first.reference, color="black", lw=0.9, ls=":",
+                            label="reference")
+                for i, run in enumerate(runs):
+                    ax.plot(time[run], checks[run][check_name].value, lw=1.0,
+                            color=RUN_COLORS[i % len(RUN_COLORS)], label=run)
+                ax.set_xlabel("time (s)")
+                ax.set_ylabel(FIGURE_CHECKS[check_name])
+            whole, zoom = axes[:, column]
+            _shade(whole, first.lower, first.upper)
+            whole.set_title(f"joint 1: {FIGURE_CHECKS[check_name].split(' (')[0]}")
+            whole.legend(loc="lower right", fontsize=8)
+            _zoom(zoom, time, {run: checks[run][check_name] for run in runs})
         _save(out, filename, fig)
         plt.close(fig)
         written.append(filename)
@@ -74,12 +84,21 @@ def write_figures(out, time: Mapping[str, np.ndarray],
                              constrained_layout=True, squeeze=False)
     for ax, run in zip(axes[:, 0], runs, strict=True):
         tau = torques[run]
+        before, kind = (asked or {}).get(run, (None, ""))
         for j in range(tau.shape[1]):
             color = np.array(JOINT_COLORS[j % len(JOINT_COLORS)]) / 255
             ax.plot(time[run], tau[:, j], lw=0.8, color=color, label=f"τ{j + 1}")
+            if before is not None:
+                ax.plot(time[run], before[:, j], lw=0.7, ls=(0, (2, 2)), color=color,
+                        alpha=0.8, label=f"τ{j + 1} asked (before the {kind})")
         ax.set_ylabel("torque (N·m)")
-        ax.set_title(f"{run}: joint torques")
-        ax.legend(loc="upper right", fontsize=8)
+        title = f"{run}: joint torques"
+        if before is not None and len(tau):
+            changed = np.any(tau != before, axis=1)
+            title += (f"; the {kind} changed them in {100 * changed.mean():.1f} % of steps, "
+                      f"by up to {np.max(np.abs(tau - before)):.3g} N·m")
+        ax.set_title(title, fontsize=10)
+        ax.legend(loc="upper right", fontsize=7, ncol=2 if before is not None else 1)
     axes[-1, 0].set_xlabel("time (s)")
     _save(out, "fig4_torques.png", fig)
     plt.close(fig)
@@ -87,6 +106,32 @@ def write_figures(out, time: Mapping[str, np.ndarray],
     if barriers:
         written.append(_barrier_figure(plt, out, time, barriers))
     return written
+
+
+def _zoom(ax, time: Mapping[str, np.ndarray], checks: Mapping[str, Check]) -> None:
+    """Limit ``ax`` to ±1 s around the worst value of any run, the bound it nears drawn."""
+    worst_run = max(checks, key=lambda r: np.max(checks[r].magnitude, initial=-np.inf))
+    check = checks[worst_run]
+    if not len(check.value):
+        ax.set_title("zoom: no rows")
+        return
+    k = int(np.argmax(check.magnitude))
+    t0 = float(time[worst_run][k])
+    window = [(time[r] >= t0 - 1.0) & (time[r] <= t0 + 1.0) for r in checks]
+    values = np.concatenate([c.value[w] for c, w in zip(checks.values(), window, strict=True)]
+                            + [c.reference[w] for c, w in zip(checks.values(), window,
+                                                              strict=True)
+                               if c.reference is not None])
+    bound = check.upper if check.value[k] >= 0 else check.lower
+    low, high = min(values.min(), bound), max(values.max(), bound)
+    pad = 0.08 * (high - low or 1.0)
+    ax.set_xlim(t0 - 1.0, t0 + 1.0)
+    ax.set_ylim(low - pad, high + pad)
+    ax.axhline(bound, color="darkred", lw=0.9, ls="--")
+    ax.axhspan(bound, high + pad if bound == check.upper else low - pad, color="tab:red",
+               alpha=0.10, lw=0)
+    ax.set_title(f"zoom: ±1 s around the worst value ({worst_run}, {check.value[k]:.4g} at "
+                 f"t = {t0:.3g} s; bound {bound:g})", fontsize=9)
 
 
 def _save(out, name: str, fig) -> None:

@@ -88,10 +88,16 @@ def series_names(stem: str, width: int) -> list[str]:
     return [stem] if width == 1 else [f"{stem}{j + 1}" for j in range(width)]
 
 
+# Up to this many runs sit side by side (the paper's pair, compared at a glance); more get a
+# tab each, every one full width (five columns of eight plots are unreadable).
+SIDE_BY_SIDE = 2
+
+
 def blueprint(run_names: list[str], filtered: frozenset[str] = frozenset()):
-    """Figs. 2-4 of the paper for every run side by side, then barriers, observer error and
-    the arm, and for the ``filtered`` runs (a CBF safety filter in their chain) its barrier
-    values and how much it corrects the torque; time panel on sim_time, paused."""
+    """Figs. 2-4 of the paper for every run, then barriers, observer error and the arm, and
+    for the ``filtered`` runs (a CBF safety filter in their chain) its barrier values and
+    how much it corrects the torque; runs side by side up to :data:`SIDE_BY_SIDE`, else a
+    tab per run; time panel on sim_time, paused."""
     import rerun.blueprint as rrb
 
     columns = []
@@ -116,8 +122,10 @@ def blueprint(run_names: list[str], filtered: frozenset[str] = frozenset()):
                                    name=f"{run}: ‖τ − τ_nom‖ (N·m)"),
             ))
         columns.append(rrb.Vertical(*views, name=run))
+    runs = (rrb.Horizontal(*columns) if len(columns) <= SIDE_BY_SIDE
+            else rrb.Tabs(*columns, name="runs"))
     return rrb.Blueprint(
-        rrb.Horizontal(*columns),
+        runs,
         rrb.TimePanel(timeline="sim_time", play_state="paused", expanded=False),
         collapse_panels=True,
     )
