@@ -4,8 +4,9 @@ PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV := .venv
 BIN := $(VENV)/bin
 
-.PHONY: demo test lint venv render-deps mutants
+.PHONY: demo test lint venv test-venv render-deps mutants
 venv: $(VENV)/.installed
+test-venv: $(VENV)/.installed-test
 
 # Software Vulkan (Debian's mesa-vulkan-drivers) so the tests can render the recording in the
 # real Rerun viewer without a GPU or display. Without it those tests skip and say why.
@@ -23,19 +24,25 @@ render-deps:
 $(VENV)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e .
+	touch $@
+
+# The test extras (pytest, ruff, Pinocchio, rerun's reader, PythonFMU) on top: `make demo`
+# installs only what cosim needs to run.
+$(VENV)/.installed-test: $(VENV)/.installed
 	$(BIN)/python -m pip install --quiet -e '.[test]'
 	touch $@
 
 demo: venv
 	$(BIN)/cosim run pipelines/paper_two_link.toml --out runs/paper --force
 
-test: venv render-deps
+test: test-venv render-deps
 	$(BIN)/ruff check .
 	$(BIN)/python -m pytest
 
-lint: venv
+lint: test-venv
 	$(BIN)/ruff check .
 
 # The curated mutation run (outside CI's budget: ~1 min per mutant): score and survivors.
-mutants: venv
+mutants: test-venv
 	$(BIN)/python benchmarks/mutants.py
