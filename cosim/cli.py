@@ -394,6 +394,9 @@ def _parser() -> argparse.ArgumentParser:
     p.add_argument("--out", required=True, type=Path, help="sweep folder")
     p.add_argument("--force", action="store_true", help="replace what --out holds")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--dry-run", action="store_true",
+                   help="check every point, the runs and --out; print what would run; run "
+                   "nothing")
     p.add_argument("--max-points", type=int, default=MAX_SWEEP_POINTS, metavar="N",
                    help="refuse a sweep of more points than this before any work "
                    f"(default {MAX_SWEEP_POINTS:,})")

@@ -633,6 +633,35 @@ def record_points(spec: SweepSpec, rows: list[dict], which: list[str], out: Path
     return written
 
 
+def _dry_run(spec: SweepSpec, all_points: list[dict], runs: list[str], out: Path,
+             args) -> int:
+    """What the sweep would do, every point checked (as before a real sweep), nothing run."""
+    from .outputs.run_folder import would_refuse
+
+    load = load_pipeline(spec.pipeline, spec.base, warn=None)
+    steps = round(load.simulation.duration / load.simulation.step)
+    where = args.scheduler or f"{args.workers or os.cpu_count() or 1} local Dask worker(s)"
+    print(f"sweep of {spec.pipeline}: {len(all_points):,} point(s) × {len(runs)} run(s) "
+          f"({', '.join(runs)}) = {len(all_points) * len(runs):,} row(s), "
+          f"{load.simulation.duration:g} s simulated each ({steps:,} steps), on {where}")
+    for axis in spec.grid:
+        print(f"  grid   {axis.key} = {', '.join(json.dumps(v) for v in axis.values)}")
+    for axis in spec.samples:
+        name, *bounds = axis.distribution
+        shown = ", ".join(str(int(b)) if float(b).is_integer() else f"{b:g}" for b in bounds)
+        print(f"  sample {axis.key} = {name}({shown}), "
+              f"{spec.count} draw(s) per grid point, seed {spec.seed}")
+    for assignment in spec.base:
+        print(f"  set    {assignment}")
+    print(f"results -> {out} (results.parquet, results.csv, sweep.json, sweep_safety.png)"
+          + (f"; then --record {args.record}" if args.record else ""))
+    refusal = would_refuse(out, args.force)
+    if refusal:
+        raise SweepError(f"{refusal} (--dry-run: the sweep would be refused here)")
+    print("every point checked against the pipeline's schema; nothing was run")
+    return 0
+
+
 def _on_sigterm(signum, frame) -> None:
     raise KeyboardInterrupt("terminated (SIGTERM)")
 
@@ -674,6 +703,8 @@ def _main(args) -> int:
         raise SweepError(f"{str(exc) or 'interrupted (Ctrl-C)'} while checking the points; "
                          "nothing was run") from None
     runs = spec.runs or list(load_pipeline(spec.pipeline, spec.base, warn=None).runs)
+    if args.dry_run:
+        return _dry_run(spec, all_points, runs, out, args)
     folder = RunFolder.create(out, args.force)
     rows: list[dict] = []
     interrupted = False
