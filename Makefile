@@ -4,7 +4,7 @@ PYTHON ?= $(shell command -v python3.11 || command -v python3)
 VENV := .venv
 BIN := $(VENV)/bin
 
-.PHONY: demo test lint venv test-venv render-deps mutants
+.PHONY: demo test lint venv test-venv render-deps mutants readme
 venv: $(VENV)/.installed
 test-venv: $(VENV)/.installed-test
 
@@ -46,3 +46,8 @@ lint: test-venv
 # The curated mutation run (outside CI's budget: ~1 min per mutant): score and survivors.
 mutants: test-venv
 	$(BIN)/python benchmarks/mutants.py
+
+# The README's commands in order with their real runs and sweeps (CI checks them with
+# --dry-run): ~20 min on 2 cores, most of it the 500-point Monte Carlo sweep.
+readme: test-venv render-deps
+	COSIM_README_FULL=1 $(BIN)/python -m pytest -q tests/test_readme.py

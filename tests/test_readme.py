@@ -1,0 +1,160 @@
+"""The README's commands, in the order a newcomer meets them, as written, in a folder of their
+own (a copy of `pipelines/`): each `cosim` command must succeed.
+
+`cosim run` and `cosim sweep` are checked with `--dry-run` (every key, point, run name and
+`--out` checked, nothing run: their real runs take minutes); `make readme` runs them for real
+(COSIM_README_FULL=1). `make demo` is stood in for by its own command at 1 s of simulated
+time, so that the commands after it have `runs/paper` to read. The benchmark scripts are run
+with `--help`, each option the README gives them checked against it. What cannot run here
+is listed in SKIPPED with the reason, and a README command that matches nothing is an error:
+a new command is tested or explicitly skipped.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import shlex
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from cosim.outputs.viewer import headless_renderer_available
+
+ROOT = Path(__file__).resolve().parents[1]
+FULL = os.environ.get("COSIM_README_FULL") == "1"
+
+# command (its words; a trailing "…" matches any more) -> why the test does not run it (each
+# is covered where named)
+SKIPPED = {
+    "cosim view runs/paper": "opens a window (tests/test_recording.py: without a display it "
+    "says how to view the file elsewhere)",
+    "cosim run pipelines/paper_two_link.toml --spawn": "starts a viewer window "
+    "(tests/test_recording.py: refused without a display)",
+    "cosim run pipelines/paper_two_link.toml --connect …": "needs a running viewer "
+    "(tests/test_recording.py: test_live_viewer_follows_a_run)",
+    "cosim sweep ... …": "an elided command (the sweep above on another cluster; "
+    "tests/test_sweep.py runs one on an external scheduler)",
+    "make test": "this suite",
+}
+
+
+def matches(argv: list[str], key: str) -> bool:
+    words = key.split()
+    return argv == words or (words[-1] == "…" and argv[:len(words) - 1] == words[:-1])
+
+
+def skipped(argv: list[str]) -> bool:
+    return any(matches(argv, key) for key in SKIPPED)
+
+
+def readme_commands() -> list[list[str]]:
+    """Every shell command of the README's indented code blocks as its words (continuation
+    lines joined, comments dropped); the fenced custom-block guide is test_plugins.py's."""
+    commands, fenced, pending = [], False, ""
+    for line in (ROOT / "README.md").read_text(encoding="utf-8").splitlines():
+        if line.startswith("```"):
+            fenced = not fenced
+            continue
+        if fenced:
+            continue
+        if pending:
+            pending += " " + line.strip()
+        elif re.match(r"    (cosim|make|\.venv/bin/python) ", line):
+            pending = line.strip()
+        else:
+            continue
+        if pending.endswith("\\"):
+            pending = pending[:-1].rstrip()
+            continue
+        commands.append(shlex.split(pending, comments=True))
+        pending = ""
+    return commands
+
+
+def test_the_readme_has_the_commands_this_test_knows():
+    commands = readme_commands()
+    assert len(commands) >= 20
+    for key in SKIPPED:  # a skip whose command left the README is stale
+        assert any(matches(c, key) for c in commands), key
+
+
+@pytest.fixture(scope="module")
+def workspace(tmp_path_factory) -> Path:
+    folder = tmp_path_factory.mktemp("readme")
+    shutil.copytree(ROOT / "pipelines", folder / "pipelines")
+    return folder
+
+
+def cosim(folder: Path, args: list[str]) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "cosim.cli", *args], cwd=folder,
+                          capture_output=True, text=True, timeout=3600)
+
+
+def test_every_readme_command_runs_in_order_as_written(workspace):
+    renderer = headless_renderer_available()
+    ran = []
+    for argv in readme_commands():
+        if skipped(argv):
+            continue
+        command = shlex.join(argv)
+        program, *args = argv
+        if program == "make":
+            _make(workspace, args)
+        elif program == ".venv/bin/python":
+            _benchmark_help(args)
+        else:
+            assert program == "cosim", command
+            if args[0] == "view" and renderer:
+                print(f"not run: {command}: cannot render headless here: {renderer}")
+                continue
+            if args[0] in ("run", "sweep") and not FULL:
+                args = [*args, "--dry-run"]
+            if args[0] == "compare":  # its two folders are placeholders: two runs of ours
+                for name in args[1:3]:
+                    shutil.copytree(workspace / "runs" / "paper", workspace / name)
+            done = cosim(workspace, args)
+            assert done.returncode == 0, (command, done.stderr[-3000:])
+            _check_output(workspace, args, done)
+        ran.append(command)
+    assert len(ran) >= 15, ran
+    print("\n".join(["README commands run:", *ran]))
+
+
+def _make(workspace: Path, args: list[str]) -> None:
+    """`make demo`: its target exists; then its own cosim command, at 1 s of simulated time
+    unless FULL, so that runs/paper exists for the commands after it."""
+    plan = subprocess.run(["make", "-n", *args], cwd=ROOT, capture_output=True, text=True)
+    assert plan.returncode == 0, plan.stderr
+    line = next(x for x in plan.stdout.splitlines() if "bin/cosim run " in x)
+    demo = shlex.split(line)[1:]
+    done = cosim(workspace, [*demo, *([] if FULL else ["--set", "simulation.duration=1"])])
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert (workspace / "runs" / "paper" / "recording.rrd").is_file()
+
+
+def _benchmark_help(args: list[str]) -> None:
+    script, *options = args
+    done = subprocess.run([sys.executable, script, "--help"], cwd=ROOT, capture_output=True,
+                          text=True, timeout=300)
+    assert done.returncode == 0, (script, done.stderr[-2000:])
+    for option in (o for o in options if o.startswith("--")):
+        assert option in done.stdout, (script, option)
+
+
+def _check_output(workspace: Path, args: list[str], done: subprocess.CompletedProcess) -> None:
+    """What a command says it made is there."""
+    if args[0] == "view":
+        png = workspace / args[args.index("--screenshot") + 1]
+        header = png.read_bytes()[:24]
+        size = tuple(int.from_bytes(header[i:i + 4], "big") for i in (16, 20))
+        expected = args[args.index("--size") + 1] if "--size" in args else "1600x1000"
+        assert size == tuple(int(v) for v in expected.split("x"))
+    elif args[0] in ("export", "build-fmu"):
+        for path in done.stdout.split():
+            assert (workspace / path).is_file(), path
+    elif args[0] in ("run", "sweep") and not FULL:
+        assert "nothing was run" in done.stdout.splitlines()[-1], done.stdout[-2000:]
