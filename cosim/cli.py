@@ -292,26 +292,35 @@ def _print_summary(results) -> None:
             covered = g["starts_inside"] and g["feasible"] and g["within_bounds"]
             exit_text = (f"left {g['first_exit']['set']} at {g['first_exit']['t']:.3f} s"
                          if g["first_exit"] else "kept every hard set")
-            print(f"{name}: {exit_text}; guarantee "
-                  + ("covers this run" if covered else "does not cover this run: "
-                     + "; ".join([*(["started outside"] if not g["starts_inside"] else []),
-                                  *([f"{g['infeasible_steps']} infeasible step(s)"]
-                                    if not g["feasible"] else []), *g["outside"]]))
-                  + (" — BROKEN" if g["broken"] else ""))
+            _wrapped(f"{name}: {exit_text}; guarantee "
+                     + ("covers this run" if covered else "does not cover this run: "
+                        + "; ".join([*(["started outside"] if not g["starts_inside"] else []),
+                                     *([f"{g['infeasible_steps']} infeasible step(s)"]
+                                       if not g["feasible"] else []), *g["outside"]]))
+                     + (" — BROKEN" if g["broken"] else ""))
         tau = ", ".join(f"{x:.1f}" for x in m["peak_torque"])
         obs = m["observer_velocity_error_rms_after_1s"]
         obs_text = ", ".join(f"{x:.3f}" for x in obs) if obs else "-"
         sps = m["steps_per_second"]
         gain = m.get("feedback_gain")
         condition = m["barrier_condition"]
-        gain_text = f"{gain['median']:.1f} N.m.s/rad" if gain else "-"
+        gain_text = f"{gain['median']:.1f} N·m·s/rad" if gain else "-"
         failing = condition["fraction_failing"]
-        print(f"{name}: peak torque [{tau}] N.m, effective gain on r_hat (median) "
-              f"{gain_text}, observer velocity RMS error after 1 s [{obs_text}] rad/s, "
-              f"min H {m['min_barrier_H']:.3g} (H1 {m['min_barrier_H1']:.3g}, "
-              f"H2 {m['min_barrier_H2']:.3g}), dH/dt + {condition['alpha']:g} H < 0 in "
-              f"{100 * (failing or 0):.1f} % of steps, {m['wall_time_s']:.2f} s wall, "
-              f"{sps or 0:,.0f} steps/s")
+        print("\n    ".join([
+            f"{name}: peak torque [{tau}] N·m; effective gain on r̂ (median) {gain_text}",
+            f"observer velocity RMS error after 1 s [{obs_text}] rad/s",
+            f"min H {m['min_barrier_H']:.3g} (H1 {m['min_barrier_H1']:.3g}, "
+            f"H2 {m['min_barrier_H2']:.3g}); dH/dt + {condition['alpha']:g} H < 0 in "
+            f"{100 * (failing or 0):.1f} % of steps",
+            f"{m['wall_time_s']:.2f} s wall, {sps or 0:,.0f} steps/s"]))
+
+
+def _wrapped(line: str) -> None:
+    """A summary line within 100 columns, its continuations indented."""
+    import textwrap
+
+    print(textwrap.fill(line, width=100, subsequent_indent="    ", break_long_words=False,
+                        break_on_hyphens=False))
 
 
 def _parser() -> argparse.ArgumentParser:

@@ -43,7 +43,7 @@ def test_the_filter_keeps_every_joint1_set_of_the_paper_strictly(compared):
         assert not compared["baseline"].safety[check]["satisfied"], check
 
 
-def test_the_safety_table_reads_at_a_glance(compared):
+def test_the_safety_table_reads_at_a_glance(compared, capsys):
     """Five runs: the text fits 100 columns (runs paged into column groups), each check's
     bound is stated once, each cell's mark is its entry's verdict, and one verdict line per
     run names the first set left (Theorem 1's sufficient condition and the sets the
@@ -65,6 +65,14 @@ def test_the_safety_table_reads_at_a_glance(compared):
     assert rows[0].split()[4:] == ["21.392", "✗", "20.081", "✗", "20.082", "✗", "19.890",
                                    "✓"]
     assert "position_norm ≤ 20 rad" in text and "20.165 ~" in text  # unattainable
+    # what `cosim run` prints after the table too: the guarantee and metric lines
+    from cosim.cli import _print_summary
+
+    capsys.readouterr()
+    _print_summary(compared)
+    printed = capsys.readouterr().out
+    assert max(len(line) for line in printed.splitlines()) <= 100
+    assert "proposed_cbf: kept every hard set; guarantee covers this run" in printed
     markdown = markdown_table(summaries, "paper_safety")
     assert "| velocity_true_joint1 ≤ 13.5 rad/s | 18.782 ✗ from 0.19 s, 1.77 s out |" \
         in markdown
