@@ -721,3 +721,40 @@ def test_a_pipeline_swallowed_by_sweep_runs_is_named(tmp_path):
                        "the pipeline first (cosim sweep PIPELINE … --runs NAME …), or end the "
                        "run names with --")
     assert not (tmp_path / "out").exists()
+
+
+def test_a_file_that_fails_verification_makes_the_folder_incomplete_and_is_named(tmp_path):
+    """The bookkeeping itself: a trace whose bytes are not a readable npz is refused (never
+    renamed into place) and named; a recording that another process left empty is noted as
+    incomplete without an exception; either way the summary, though every run finished, is
+    not complete, and says which file and why."""
+    import json
+
+    from cosim.outputs.run_folder import RunFolder, RunFolderError
+
+    folder = RunFolder.create(tmp_path / "out")
+    with pytest.raises(RunFolderError) as refused:
+        folder.write("trace_x.npz", lambda tmp: tmp.write_bytes(b"PK\x03\x04 not a zip"))
+    assert str(refused.value).startswith(f"{tmp_path / 'out' / 'trace_x.npz'}: could not be "
+                                         "written: the written file is not a readable npz")
+    assert not (tmp_path / "out" / "trace_x.npz").exists()
+    assert not list((tmp_path / "out").glob(".*.tmp"))
+    folder.write("notes.txt", lambda tmp: tmp.write_text("fine"))
+    (tmp_path / "out" / "recording.rrd").write_bytes(b"")
+    folder.note("recording.rrd", True)  # the writer said it closed, but the file is empty
+    assert folder.write_summary({"complete": True}, final=True) is False
+    folder.release()
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert summary["complete"] is False and summary["status"] == "incomplete"
+    assert summary["files"]["trace_x.npz"]["complete"] is False
+    assert summary["files"]["trace_x.npz"]["reason"].startswith(
+        "the written file is not a readable npz")
+    assert summary["files"]["recording.rrd"] == {"complete": False, "bytes": 0,
+                                                 "reason": "empty"}
+    assert summary["files"]["notes.txt"]["complete"] is True
+
+    # the same folder's rules with every file whole: complete
+    whole = RunFolder.create(tmp_path / "whole")
+    whole.write("notes.txt", lambda tmp: tmp.write_text("fine"))
+    assert whole.write_summary({"complete": True}, final=True) is True
+    whole.release()

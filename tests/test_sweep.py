@@ -239,3 +239,28 @@ def test_dry_run_checks_every_point_and_runs_nothing(tmp_path):
                     "--dry-run")
     assert bad.returncode == 2 and "point 0 (controller.kv=-1)" in bad.stderr
     assert not out.exists()
+
+
+def test_the_safety_table_counts_failed_points_apart_not_as_unsafe():
+    """Rates and their Wilson intervals over the completed points only; failed ones counted
+    in their own column (reference: SciPy's Wilson interval for 2 of 3)."""
+    from scipy import stats
+
+    from cosim.sweep import safety_table
+
+    def row(run_name, status, safe=None):
+        return {"run": run_name, "status": status, "safe": safe,
+                "position_joint1.satisfied": safe}
+
+    rows = [row("a", "ok", True), row("a", "ok", True), row("a", "ok", False),
+            row("a", "failed"), row("a", "failed"), row("b", "failed")]
+    a, b = safety_table(rows)
+    assert (a["run"], a["points"], a["failed"]) == ("a", 5, 2)
+    ci = stats.binomtest(2, 3).proportion_ci(2 * stats.norm.cdf(1.96) - 1, "wilson")
+    for column in ("all sets", "position"):
+        rate, low, high = a[column]
+        assert rate == pytest.approx(2 / 3, abs=1e-15)
+        assert (low, high) == (pytest.approx(ci.low, abs=1e-12),
+                               pytest.approx(ci.high, abs=1e-12))
+    assert (b["points"], b["failed"]) == (1, 1)
+    assert all(np.isnan(v) for v in b["all sets"])  # no completed point: no rate

@@ -50,20 +50,22 @@ def jsonable(x):
     return x
 
 
-def _verify(path: Path) -> str | None:
-    """None if the file is whole, else why not (a quick structural check)."""
+def _verify(path: Path, suffix: str | None = None) -> str | None:
+    """None if the file is whole, else why not (a quick structural check by ``suffix``, the
+    final name's: a temporary's own is .tmp)."""
+    suffix = path.suffix if suffix is None else suffix
     if not path.is_file():
         return "missing"
     if path.stat().st_size == 0:
         return "empty"
-    if path.suffix == ".npz":
+    if suffix == ".npz":
         try:
             with zipfile.ZipFile(path) as archive:
                 bad = archive.testzip()
         except (zipfile.BadZipFile, OSError) as exc:
             return f"not a readable npz ({exc})"
         return f"entry {bad} is damaged" if bad else None
-    if path.suffix == ".png":
+    if suffix == ".png":
         with path.open("rb") as f:
             return None if f.read(8) == PNG_MAGIC else "not a PNG"
     return None
@@ -144,7 +146,7 @@ class RunFolder:
         tmp = self.path / f".{name}.tmp"
         try:
             produce(tmp)
-            problem = _verify(tmp)
+            problem = _verify(tmp, target.suffix)
             if problem:
                 raise OSError(f"the written file is {problem}")
             os.replace(tmp, target)
