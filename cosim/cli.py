@@ -55,7 +55,23 @@ class Terminated(KeyboardInterrupt):
 
 
 def _on_sigterm(signum, frame) -> None:
+    _acknowledge_to_supervisor()
     raise Terminated("terminated (SIGTERM)")
+
+
+def _on_sigint(signum, frame) -> None:
+    _acknowledge_to_supervisor()
+    raise KeyboardInterrupt
+
+
+_supervisor: list[int] = []  # in a supervised run process: the supervisor's pid
+
+
+def _acknowledge_to_supervisor() -> None:
+    """Tell the supervisor this process heard its signal (Python ran the handler, so it is
+    not stuck in a plant's binary) and is ending: no need to kill it after the grace."""
+    if _supervisor and os.getppid() == _supervisor[0]:
+        os.kill(_supervisor[0], signal.SIGUSR1)
 
 
 def _check_viewer(spawn: bool, connect: str | None) -> None:
@@ -492,24 +508,58 @@ def _parser() -> argparse.ArgumentParser:
 SUPERVISED = "COSIM_SUPERVISED"
 
 
+# Seconds the run process has to answer Ctrl-C or SIGTERM (its handler acknowledges at once
+# when Python runs it) before it is killed: only a plant binary that never returns control
+# (a foreign FMU blocking in doStep) keeps Python from running it.
+STOP_GRACE_S = float(os.environ.get("COSIM_STOP_GRACE_S", "10"))
+
+
 def _supervise(args: list[str]) -> int:
     """Run ``cosim run`` in a child process and wait: if it dies by a signal (a plant
     binary that crashes takes the process with it), say so and mark its summary. The child
-    has its own process group, so Ctrl-C and SIGTERM reach it once, through here."""
+    has its own process group, so Ctrl-C and SIGTERM reach it once, through here; if it does
+    not acknowledge one within STOP_GRACE_S, it is killed (and its summary marked)."""
+    import threading
+
     child = subprocess.Popen([sys.executable, "-m", "cosim.cli", *args],
                              env=dict(os.environ, **{SUPERVISED: "1"}), process_group=0)
+    stopping: dict = {"timer": None, "acknowledged": False, "killed": None}
+
+    def end_unanswered(name: str) -> None:
+        if not stopping["acknowledged"] and child.poll() is None:
+            stopping["killed"] = name
+            child.kill()
 
     def forward(signum, frame) -> None:
         child.send_signal(signum)
+        if stopping["timer"] is None:
+            stopping["timer"] = threading.Timer(STOP_GRACE_S, end_unanswered,
+                                                (signal.Signals(signum).name,))
+            stopping["timer"].daemon = True
+            stopping["timer"].start()
 
+    def acknowledged(signum, frame) -> None:
+        stopping["acknowledged"] = True
+
+    signal.signal(signal.SIGUSR1, acknowledged)
     for signum in (signal.SIGINT, signal.SIGTERM):
         signal.signal(signum, forward)
     status = child.wait()
+    if stopping["timer"] is not None:
+        stopping["timer"].cancel()
     if status >= 0:
         return status
     name = signal.Signals(-status).name
     out, plant = _crashed_run(args)
     where = f" in {plant}" if plant else ""
+    if stopping["killed"]:
+        print(f"cosim: error: the run process did not answer {stopping['killed']} within "
+              f"{STOP_GRACE_S:g} s (most likely blocked inside the plant FMU's doStep{where}) "
+              f"and was killed; what was written before is kept in {out} (summary.json "
+              "marked crashed)", file=sys.stderr)
+        _mark_crashed(out, f"killed: the run process did not answer {stopping['killed']} "
+                      f"within {STOP_GRACE_S:g} s{where}")
+        return 2
     print(f"cosim: error: the run process was killed by {name}, most likely inside the "
           f"plant FMU's binary{where}; what was computed is kept in {out} (summary.json "
           "marked crashed)", file=sys.stderr)
@@ -566,6 +616,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             and not {"-h", "--help", "--dry-run"} & set(sys.argv[2:]):
         return _supervise(sys.argv[1:])
     if argv is None and os.environ.get(SUPERVISED):
+        _supervisor.append(os.getppid())
+        signal.signal(signal.SIGINT, _on_sigint)
         _end_with_the_supervisor()
     args = _parser().parse_args(argv)
     # Every command ends on SIGTERM as on Ctrl-C (run and sweep keep what they computed).

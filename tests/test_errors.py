@@ -332,6 +332,57 @@ def test_a_plant_that_crashes_mid_run_is_named_and_what_was_computed_is_kept(tmp
     assert (out / "recording.rrd").stat().st_size > 0
 
 
+def test_a_plant_deaf_to_signals_is_killed_after_the_grace_and_named(tmp_path):
+    """A PythonFMU whose doStep never returns and blocks SIGINT/SIGTERM (as a binary stuck
+    in a system call): the run process cannot run its handler, so it does not acknowledge
+    the SIGTERM; the supervisor kills it after the grace (2 s here), says so naming the FMU,
+    marks summary.json crashed, and leaves no process behind."""
+    from test_plant_swapping import FOREIGN_ARM, build_pythonfmu
+
+    fmu = build_pythonfmu(FOREIGN_ARM, tmp_path / "fmu")
+    out, marker = tmp_path / "stuck", tmp_path / "hanging"
+    args = [sys.executable, "-m", "cosim.cli", "run", PAPER, "--out", str(out), "--no-figures",
+            "--set", f'plant.fmu="{fmu}"', "--set", "simulation.duration=5"]
+    for item in ['plant.variables.tau=["shoulder_torque", "elbow_torque"]',
+                 'plant.variables.q=["shoulder", "elbow"]',
+                 'plant.variables.qdot=["shoulder_rate", "elbow_rate"]',
+                 "plant.parameters.hang_at=0.5", "runs.baseline.controller.kv=20.0"]:
+        args += ["--set", item]
+    env = {**os.environ, "COSIM_STOP_GRACE_S": "2", "PYTHON_ARM_HANG_MARKER": str(marker)}
+    child = subprocess.Popen(args, stderr=subprocess.PIPE, text=True, env=env)
+    began = time.monotonic()
+    descendants: list[int] = []
+
+    def stuck() -> bool:  # the FMU hangs now: note the run process and the writer's pids
+        if not marker.exists():
+            return False
+        level = [child.pid]
+        while level:
+            level = [int(pid) for parent in level for pid in subprocess.run(
+                ["pgrep", "-P", str(parent)], capture_output=True, text=True).stdout.split()]
+            descendants.extend(level)
+        return True
+
+    err = signal_when(child, stuck, "SIGTERM", 300)
+    lines = [line for line in err.splitlines() if line.startswith("cosim: error:")]
+    assert child.returncode == 2 and "Traceback" not in err, err[-2000:]
+    assert lines == [f"cosim: error: the run process did not answer SIGTERM within 2 s (most "
+                     f"likely blocked inside the plant FMU's doStep in {fmu.name}) and was "
+                     f"killed; what was written before is kept in {out} (summary.json marked "
+                     "crashed)"]
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["complete"] is False and summary["status"] == "crashed"
+    assert summary["error"] == (f"killed: the run process did not answer SIGTERM within 2 s "
+                                f"in {fmu.name}")
+    assert time.monotonic() - began < 120
+    assert len(descendants) == 2  # the run process and its recording writer ...
+    deadline = time.monotonic() + 10
+    while any(Path(f"/proc/{pid}").exists() for pid in descendants) and \
+            time.monotonic() < deadline:
+        time.sleep(0.1)  # ... which ends when its run process's pipe closes
+    assert not [pid for pid in descendants if Path(f"/proc/{pid}").exists()]
+
+
 def test_force_never_deletes_what_cosim_did_not_write(finished, tmp_path):
     """--force replaces a run folder of ours; a folder holding anything else (a project
     folder, a run folder with the user's notes added) is refused, naming what is there,

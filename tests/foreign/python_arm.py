@@ -4,12 +4,14 @@ A plant from a different exporter for the plant-swapping tests: the same equatio
 built-in FMU (Lewis's arm, SPEC §2, in closed form rather than by CRBA/RNEA), integrated by
 the same fixed-step RK4 (sub-steps of at most ``rk4_step``), but with its own variable
 names and no inertia-matrix outputs. ``fail_at`` makes doStep return an error from that
-time on (seconds), and ``crash_at`` kill the process that runs it (SIGSEGV, as a broken
-binary would), for the error tests. SI units, radians.
+time on (seconds), ``crash_at`` kill the process that runs it (SIGSEGV, as a broken
+binary would), and ``hang_at`` never return from doStep, deaf to SIGINT and SIGTERM (as a
+binary blocked in a system call would be), for the error tests. SI units, radians.
 """
 
 import os
 import signal
+import time
 from math import ceil, cos, sin
 
 from pythonfmu import Fmi2Causality, Fmi2Slave, Fmi2Variability, Real
@@ -19,7 +21,7 @@ OUTPUTS = ("shoulder", "elbow", "shoulder_rate", "elbow_rate")
 PARAMETERS = {"upper_mass": 0.8, "fore_mass": 2.3, "upper_length": 1.0, "fore_length": 1.0,
               "gravity": 9.8, "disturbance": 0.01, "shoulder_start": 0.1,
               "elbow_start": 0.1, "shoulder_rate_start": 10.0, "elbow_rate_start": 10.0,
-              "rk4_step": 1e-4, "fail_at": 1e300, "crash_at": 1e300}
+              "rk4_step": 1e-4, "fail_at": 1e300, "crash_at": 1e300, "hang_at": 1e300}
 
 
 class PythonArm(Fmi2Slave):
@@ -65,6 +67,14 @@ class PythonArm(Fmi2Slave):
     def do_step(self, current_time, step_size):
         if current_time + step_size > self.crash_at:
             os.kill(os.getpid(), signal.SIGSEGV)
+        if current_time + step_size > self.hang_at:
+            # Python's handlers run only in this (the main) thread, between bytecodes: with
+            # the signals blocked here and the thread asleep, none runs, as in C code.
+            signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+            if os.environ.get("PYTHON_ARM_HANG_MARKER"):  # tells a test it is stuck now
+                open(os.environ["PYTHON_ARM_HANG_MARKER"], "w").close()
+            while True:
+                time.sleep(3600)
         if current_time + step_size > self.fail_at:
             self.log(f"the arm refuses to step past fail_at = {self.fail_at} s")
             return False
