@@ -155,6 +155,7 @@ def _barrier_figure(plt, out, time, barriers) -> str:
         left.set_yscale("symlog", linthresh=10.0)
         left.axhline(0.0, color="darkred", lw=0.8, ls="--")
         left.set_title(f"{run}: barriers (H ≥ 0 inside)")
+        left.set_ylabel("H1, H2, H (mixed units)")  # k0·ε², ‖Ŵ‖²/F, rᵀMr: no one unit
         left.legend(loc="upper right", fontsize=8)
         condition = h["condition"]
         right.plot(time[run], condition, lw=0.6, color="tab:purple")
@@ -165,6 +166,7 @@ def _barrier_figure(plt, out, time, barriers) -> str:
         finite = condition[np.isfinite(condition)]
         failing = f"{100 * np.mean(finite < 0):.1f} %" if len(finite) else "none (no rows)"
         right.set_title(f"{run}: Ḣ + αH ≥ 0 fails in {failing} of steps")
+        right.set_ylabel("Ḣ + αH (H per second)")
     for ax in axes[-1]:
         ax.set_xlabel("time (s)")
     _save(out, "fig5_barriers.png", fig)
