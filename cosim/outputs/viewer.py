@@ -8,6 +8,7 @@ import re
 import socket
 import subprocess
 import sys
+import tempfile
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -114,7 +115,11 @@ def headless_viewer(recording: str | Path | None = None, size: str = "1600x1000"
         raise ViewerError(reason)
     port = free_port()
     url = f"rerun+http://127.0.0.1:{port}/proxy"
-    env = dict(os.environ, VK_ICD_FILENAMES=str(LAVAPIPE_ICD), RERUN_ANALYTICS="0")
+    # The viewer leaves a rerun-data-<pid> folder in its temporary folder: give it one of
+    # ours, removed when it stops.
+    scratch = tempfile.TemporaryDirectory(prefix="cosim_viewer_")
+    env = dict(os.environ, VK_ICD_FILENAMES=str(LAVAPIPE_ICD), RERUN_ANALYTICS="0",
+               TMPDIR=scratch.name)
     command = [str(viewer_binary()), "--headless", "--renderer", "vulkan", "--bind",
                "127.0.0.1", "--port", str(port), "--window-size", size,
                "--hide-welcome-screen", *([str(recording)] if recording else [])]
@@ -140,6 +145,8 @@ def headless_viewer(recording: str | Path | None = None, size: str = "1600x1000"
             process.wait(timeout=10)
         except subprocess.TimeoutExpired:
             process.kill()
+            process.wait()
+        scratch.cleanup()
 
 
 def wait_for_recording(client, timeout: float = 60.0) -> None:
