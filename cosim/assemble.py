@@ -4,9 +4,9 @@ order, wired signal by signal), checked before anything runs or is written.
 Wiring is checked as python-control's ``interconnect`` does: every input a block reads must
 be produced before it (by the plant or an earlier block; a *delayed* input by any block),
 every signal has one producer (a block that reads and writes a signal filters it), the
-plant's torque input and the evaluation's signals must be produced, and every output must
-be read by something or recorded. Each problem is one :class:`PipelineError` naming the run,
-the block and the signal.
+plant's torque input must be produced, and every output must be read by something or
+recorded. The evaluation reads what it finds and does not constrain the chain. Each problem
+is one :class:`PipelineError` naming the run, the block and the signal.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from plant_fmu import build_fmu
 from .blocks import BLOCKS, Block, BlockContext, Ports
 from .config import Pipeline, PipelineError
 from .config.declared import Uncertainty
-from .evaluate import EVALUATION_INPUTS, Evaluator, SafeSet, gains
+from .evaluate import Evaluator, SafeSet, evaluated_signals
 from .plant import PLANT_INPUT, PLANT_INPUT_ENTITY, PLANT_OUTPUTS
 from .plant.fmu import Fmu, FmuError
 from .signals import Signal, Trace
@@ -56,8 +56,15 @@ class RunPlan:
             block.reset(Ports({port: trace[key] for port, key in ins.items()},
                               {port: trace[key] for port, key in outs.items()}, trace, const))
 
+    def published(self) -> dict:
+        """Every constant the run's blocks publish (a later block's replaces an earlier's)."""
+        out: dict = {}
+        for block in self.blocks:
+            out.update(block.publishes)
+        return out
+
     def evaluator(self, trace: Trace) -> Evaluator:
-        return Evaluator(trace, self.safe, gains(self.params, self.links))
+        return Evaluator(trace, self.safe, self.published())
 
     def entities(self) -> dict[str, tuple[str, str]]:
         """Recording entity under ``/<run>/`` -> (trace key, series-name stem), from the
@@ -289,15 +296,12 @@ def wire(blocks: list[Block], context: BlockContext, run: str, plant
         raise PipelineError(f"{where}: no block produces '{PLANT_INPUT}', the plant's torque "
                             f"input (chain: {', '.join(b.kind for b in blocks)})")
     read.add(current[PLANT_INPUT])
-    for needed in EVALUATION_INPUTS:
-        if needed not in signals:
-            raise PipelineError(f"{where}: the safety evaluation reads '{needed}', which no "
-                                f"block produces ({_producers_hint(needed, blocks)})")
+    evaluated = evaluated_signals()
     entities: dict[str, str] = {}
     for key, signal in signals.items():
         owner = producer.get(key, key)
         if signal.entity is None and key not in read and owner != "plant" \
-                and key not in EVALUATION_INPUTS and not signal.kept:
+                and key not in evaluated and not signal.kept:
             raise PipelineError(f"{where}: the {owner} block's output '{key}' is neither read "
                                 "nor recorded (give it an entity, or drop it)")
         if signal.entity is not None:

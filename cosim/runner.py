@@ -51,7 +51,8 @@ class RunResult:
 
     def summary(self) -> dict:
         out = {"complete": self.complete, "inertia_model": self.inertia_model,
-               "blocks": self.blocks, "metrics": self.metrics, "safety": self.safety}
+               "blocks": self.blocks, "metrics": self.metrics, "safety": self.safety,
+               "evaluators": self.evaluation.evaluators}
         if self.error:
             out["error"] = self.error
         return out
@@ -191,8 +192,10 @@ def _run_one(plan: RunPlan, scenario: Scenario, plant_info: dict, recorder: Reco
     trace = plan.new_trace(steps)
     report = percent(name, steps) if progress else None
     entities = plan.entities()
+    derived = {entity: spec for entity, spec in DERIVED_ENTITIES.items()
+               if spec[0] in trace and spec[1] in trace}
     recorded = sorted({key for key, _ in entities.values()} | {"q", "q_d"}
-                      | {s for true, est, _ in DERIVED_ENTITIES.values() for s in (true, est)})
+                      | {s for true, est, _ in derived.values() for s in (true, est)})
     evaluator = None
 
     def evaluate_rows() -> None:
@@ -208,7 +211,8 @@ def _run_one(plan: RunPlan, scenario: Scenario, plant_info: dict, recorder: Reco
                 name, plan.links, sim.step, sim.duration,
                 {entity: (key, stem, plan.signals[key].width(plan.links))
                  for entity, (key, stem) in entities.items()},
-                evaluator.bounds, link_lengths(plant_info, plan)))
+                evaluator.bounds, link_lengths(plant_info, plan),
+                tuple(n for n in evaluator.barrier_values if n != "condition"), derived))
         # Everything evaluated that the recorder has not been given (an interrupt between
         # the two leaves it for the next call).
         start, stop = recorder.sent[name], evaluator.upto

@@ -269,7 +269,7 @@ def result_columns(result) -> dict:
                       if c in result.safety)
     m = result.metrics
     for key in ("peak_torque", "rms_error", "torque_reversals_per_s"):
-        for j, value in enumerate(m[key]):
+        for j, value in enumerate(m.get(key) or []):
             out[f"{key}.{j + 1}"] = value
     out["hard_joint1_kept"] = all(result.safety[c]["satisfied"] for c in HARD_JOINT1_CHECKS
                                   if c in result.safety)
@@ -283,7 +283,8 @@ def result_columns(result) -> dict:
         out["filter_active_fraction"] = float(np.mean(result.trace["cbf_active"] > 0))
     gain = m.get("feedback_gain") or {}
     out["feedback_gain.median"] = gain.get("median")
-    out["barrier_condition.fraction_failing"] = m["barrier_condition"]["fraction_failing"]
+    out["barrier_condition.fraction_failing"] = (m.get("barrier_condition")
+                                                 or {}).get("fraction_failing")
     out["simulated_time_s"] = m["simulated_time_s"]
     out["wall_time_s"] = m["wall_time_s"]
     return out

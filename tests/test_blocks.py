@@ -74,7 +74,7 @@ def test_the_limiter_table_is_validated_like_any_other():
      "(produced by: sensor)"),
     ('["reference", "sensor", "inertia_model", "observer"]',
      "the observer block reads 'tau' of the previous step, which no block produces "
-     "(produced by: cbf_filter, controller, torque_limiter)"),
+     "(produced by: cbf_filter, controller, pd_controller, torque_limiter)"),
     ('["reference", "sensor", "inertia_model", "observer", "controller", "controller"]',
      "'tau' is produced twice, by the controller and the controller block; a block that "
      "changes a signal must also read it (a filter)"),

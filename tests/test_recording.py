@@ -17,7 +17,7 @@ from rerun.chunk import RrdReader
 from cosim.assemble import assemble_run, safe_set
 from cosim.config import load_pipeline
 from cosim.engine import Diverged
-from cosim.evaluate import BARRIERS, barriers, gains
+from cosim.evaluate import BARRIERS, Gains, barriers
 from cosim.outputs.recording.layout import (
     BOUND_COLOR,
     DERIVED_ENTITIES,
@@ -133,7 +133,7 @@ def test_values_equal_the_trace(paper, tables):
             recorded = scalars(tables[name], f"/{name}/{entity}")
             assert np.array_equal(recorded, trace[true] - trace[estimate]), entity
         pipeline = load_pipeline(PAPER)
-        expected = barriers(trace, safe_set(pipeline), gains(pipeline.runs[name], 2))
+        expected = barriers(trace, safe_set(pipeline), table_gains(pipeline.runs[name]))
         for b in BARRIERS:
             recorded = scalars(tables[name], f"/{name}/barrier/{b}")[:, 0]
             np.testing.assert_allclose(recorded, expected[b], rtol=1e-12)
@@ -379,3 +379,12 @@ def test_spawn_without_display_is_refused_before_running(tmp_path):
     assert result.returncode == 2
     assert "--spawn needs a display" in result.stderr and "nothing was run" in result.stderr
     assert "Traceback" not in result.stderr
+
+
+def table_gains(run) -> Gains:
+    """The gains the barriers use, read from the run's tables here (independently of what
+    the blocks publish): Λ per joint, F, G, Fo, and output feedback for the proposed
+    controller."""
+    lam = np.broadcast_to(np.asarray(run.controller.lam, float), (2,))
+    return Gains(lam, run.controller.f, run.controller.g, run.observer.fo,
+                 run.controller.variant == "proposed")

@@ -37,11 +37,11 @@ import pytest
 from scipy import integrate, linalg, special, stats
 
 from cosim.blocks import BlockContext, Ports
-from cosim.blocks.controller import ControllerParams, NnController, controller_step
+from cosim.blocks.controller import ControllerParams, NnController, NnGains, controller_step
 from cosim.blocks.inertia import planar_bias, planar_mass_matrix
 from cosim.blocks.observer import FlnnObserver, ObserverParams, _gain, observer_step
 from cosim.config.declared import Uncertainty
-from cosim.evaluate import Evaluator, Gains, SafeSet, theorem1
+from cosim.evaluate import Evaluator, SafeSet, theorem1
 from cosim.evaluate.guarantee import classify
 from cosim.signals import Signal, Trace
 from cosim.sweep import wilson
@@ -660,7 +660,9 @@ def expected_checks(raw: dict, output_feedback: bool, r_bound: float) -> dict:
 
 def evaluated(trace: Trace, output_feedback: bool):
     """The project's evaluation of the trace, chunk by chunk as a run streams it."""
-    evaluator = Evaluator(trace, SAFE, Gains(LAMBDA, 8.0, 13.0, 2.5, output_feedback))
+    published = {"nn_gains": NnGains(LAMBDA, 8.0, 13.0), "observer_gain": 2.5,
+                 "velocity_source": "observer" if output_feedback else "plant"}
+    evaluator = Evaluator(trace, SAFE, published)
     evaluator.update(700)
     evaluator.update(1901)
     return evaluator.result()

@@ -9,7 +9,7 @@ import pytest
 
 from cosim.blocks.cbf_filter import cbf_rows, solve_soft_qp
 from cosim.config import load_pipeline
-from cosim.evaluate import barriers
+from cosim.evaluate import Gains, barriers
 from cosim.runner import run
 
 SAFETY = "pipelines/paper_safety.toml"
@@ -115,9 +115,8 @@ def test_the_barrier_condition_fails_for_the_baseline_and_is_a_finite_difference
     assert condition["fraction_failing"] > 0.1 and condition["worst"] < 0
     trace = result.trace
     from cosim.assemble import safe_set
-    from cosim.evaluate import gains
 
-    h = barriers(trace, safe_set(pipeline), gains(pipeline.runs["baseline"], 2))["H"]
+    h = barriers(trace, safe_set(pipeline), table_gains(pipeline.runs["baseline"]))["H"]
     alpha = pipeline.safety.barrier_alpha
     expected = np.diff(h) / trace.dt + alpha * h[1:]
     recorded = result.evaluation.barriers["condition"]
@@ -239,3 +238,12 @@ def test_finite_difference_velocity_is_worse_than_the_observer_under_noise():
     observer_error = np.sqrt(np.mean((observed["qdot_hat"] - observed["qdot"])[after] ** 2))
     assert fd_error > 1.0  # ≈ √2 · 1e-3 / 1e-3
     assert fd_error > 2.5 * observer_error, (fd_error, observer_error)
+
+
+def table_gains(run) -> Gains:
+    """The gains the barriers use, read from the run's tables here (independently of what
+    the blocks publish): Λ per joint, F, G, Fo, and output feedback for the proposed
+    controller."""
+    lam = np.broadcast_to(np.asarray(run.controller.lam, float), (2,))
+    return Gains(lam, run.controller.f, run.controller.g, run.observer.fo,
+                 run.controller.variant == "proposed")

@@ -14,7 +14,8 @@ from ..jit_cache import use_versioned_cache
 use_versioned_cache()
 
 # The built-in blocks register themselves on import.
-from . import cbf_filter, controller, inertia, observer, reference, sensor  # noqa: E402, F401, I001
+from . import (  # noqa: E402, F401, I001
+    cbf_filter, controller, inertia, observer, pd_controller, reference, sensor)
 from .base import BLOCKS, Block, BlockContext, Ports, register_block  # noqa: E402
 
 # The chain a run steps when its pipeline names none: the order data flows in.

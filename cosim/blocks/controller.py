@@ -58,6 +58,15 @@ class ControllerParams(Section):
     seed: Seed = 0  # of the random initial weights
 
 
+class NnGains(NamedTuple):
+    """The gains the controller publishes (constant ``nn_gains``) for Theorem 1's R and
+    barriers: Λ per joint (1/s), and the scalar adaptation gains F and G of (25)–(26)."""
+
+    Lambda: np.ndarray
+    F: float
+    G: float
+
+
 class ControllerArgs(NamedTuple):
     dt: float  # master step, s
     proposed: bool
@@ -162,6 +171,9 @@ class NnController(Block):
     Params = ControllerParams
     per_joint = ("kv", "lambda")
     kernel = controller_step
+    # nn_gains: NnGains (Λ, F, G), for Theorem 1's R and barriers; velocity_source: where ė
+    # comes from ("plant", "observer" or "finite_difference").
+    PUBLISHES = ("nn_gains", "velocity_source")
 
     def __init__(self, params: ControllerParams, context: BlockContext):
         super().__init__(params, context)
@@ -169,6 +181,9 @@ class NnController(Block):
         if velocity == "auto":
             velocity = "plant" if params.variant == "baseline" else "observer"
         self.velocity_source = velocity
+        self.publishes = {"nn_gains": NnGains(
+            np.broadcast_to(np.asarray(params.lam, float), (context.links,)).copy(),
+            params.f, params.g), "velocity_source": velocity}
         # Full state reads the plant's true q, q̇; output feedback only the sensor (and the
         # observer, or its own difference quotient).
         self.position, self.velocity = {"plant": ("q", "qdot"),

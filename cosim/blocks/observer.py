@@ -202,7 +202,9 @@ class FlnnObserver(Block):
     Params = ObserverParams
     per_joint = ("tau_d", "initial_velocity")
     kernel = observer_step
-    PUBLISHES = ("tau_d_model",)
+    # tau_d_model: the disturbance bound τ_d (N·m per joint); observer_gain: Fo of (10),
+    # for H1 (28).
+    PUBLISHES = ("tau_d_model", "observer_gain")
 
     def __init__(self, params: ObserverParams, context: BlockContext):
         super().__init__(params, context)
@@ -221,7 +223,8 @@ class FlnnObserver(Block):
                                      "left out: unknown, |·| ≤ kp ε)", kept=True),
         }
         self.publishes = {"tau_d_model": np.broadcast_to(
-            np.asarray(params.tau_d, float), (context.links,)).copy()}
+            np.asarray(params.tau_d, float), (context.links,)).copy(),
+            "observer_gain": float(params.fo)}
 
     def reset(self, ports: Ports) -> None:
         p, n = self.params, self.context.links

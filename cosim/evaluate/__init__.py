@@ -1,109 +1,123 @@
 """Evaluation of a run: safety checks, barrier values and metrics, computed once.
 
-The :class:`Evaluator` fills each check's and barrier's values as rows complete (so a
-recording can stream them), and :meth:`Evaluator.result` gives the :class:`Evaluation`
-that summary.json, the recording and the figures all read.
+The evaluation is made of evaluators (:mod:`.parts`), each declaring the signals and block
+constants it reads; a run is evaluated by those whose inputs it has, and its summary says
+why each other one did not run. The :class:`Evaluator` fills each check's and barrier's
+values as rows complete (so a recording can stream them), and :meth:`Evaluator.result`
+gives the :class:`Evaluation` that summary.json, the recording and the figures all read.
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
 from ..signals import Trace
+from .parts import (
+    EVALUATORS,
+    Part,
+    evaluated_signals,
+    register_evaluator,
+    select,
+)
 from .safety import (
-    EVALUATION_INPUTS,
     Check,
     Gains,
     SafeSet,
     barrier_condition,
     barriers,
-    check_references,
-    check_signals,
-    summarise,
+    safety_entries,
     theorem1,
     torque_reversals,
 )
 
 BARRIERS = ("H1", "H2", "H")
 
-__all__ = ["BARRIERS", "EVALUATION_INPUTS", "Check", "Evaluation", "Evaluator", "Gains",
-           "SafeSet", "barriers", "check_signals", "gains", "theorem1", "torque_reversals"]
-
-
-def gains(run, links: int) -> Gains:
-    """The gains the barriers need, from a run's tables (``pipeline.runs[name]``)."""
-    controller = run.controller
-    lam = np.broadcast_to(np.asarray(controller.lam, float), (links,)).copy()
-    velocity = controller.velocity
-    if velocity == "auto":
-        velocity = "observer" if controller.variant == "proposed" else "plant"
-    return Gains(lam, controller.f, controller.g, run.observer.fo, velocity == "observer")
+__all__ = ["BARRIERS", "EVALUATORS", "Check", "Evaluation", "Evaluator", "Gains",
+           "Part", "SafeSet", "barriers", "evaluated_signals", "register_evaluator",
+           "theorem1", "torque_reversals"]
 
 
 @dataclass
 class Evaluation:
     """A run's completed rows evaluated: every check (values per row, bounds, reference),
-    the barriers per row, and what summary.json says of them."""
+    the barriers per row (none when that evaluator did not run), what summary.json says of
+    them, and per evaluator whether it ran (or why not)."""
 
     checks: dict[str, Check]
     barriers: dict[str, np.ndarray]
     metrics: dict
     safety: dict
+    evaluators: dict[str, str] = field(default_factory=dict)
 
 
 @dataclass
 class Evaluator:
-    """Evaluates a run's trace chunk by chunk, as the master completes rows.
+    """Evaluates a run's trace chunk by chunk, as the master completes rows, with the
+    evaluators its signals and ``constants`` (what the run's blocks publish) allow.
 
-    R of Theorem 1 depends on the whole reference, which is known once the blocks are reset,
-    so every chunk is evaluated against the same bounds.
+    Built once the blocks are reset: R of Theorem 1 depends on the whole reference, so every
+    chunk is evaluated against the same bounds.
     """
 
     trace: Trace
     safe: SafeSet
-    gains: Gains
+    constants: Mapping[str, Any]
     upto: int = 0
     values: dict[str, np.ndarray] = field(default_factory=dict)
     bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
     barrier_values: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        self.r_bound = theorem1(self.trace, self.safe, self.gains.Lambda)["R"]
-        rows = self.trace.steps + 1
-        self.barrier_values = {name: np.full(rows, np.nan) for name in (*BARRIERS, "condition")}
+        chosen, self.skipped = select(self.trace, self.constants)
+        self.parts: list[Part] = [cls(self.trace, self.safe, self.constants) for cls in chosen]
 
     def update(self, upto: int) -> tuple[int, dict[str, np.ndarray], dict[str, np.ndarray]]:
         """Evaluate rows [previous ``upto``, ``upto``). Returns (first row, check values,
         barrier values) of those rows."""
         start = self.upto
         rows = {name: array[start:upto] for name, array in self.trace.arrays.items()}
-        checks = check_signals(rows, self.safe, self.gains, self.r_bound)
-        if not self.values:
-            total = self.trace.steps + 1
-            self.values = {name: np.full(total, np.nan) for name in checks}
-            self.bounds = {name: (c.lower, c.upper) for name, c in checks.items()}
+        total = self.trace.steps + 1
+        checks, series = {}, {}
+        for part in self.parts:
+            checks.update(part.checks(rows))
+            series.update(part.series(rows))
         for name, check in checks.items():
+            if name not in self.values:
+                self.values[name] = np.full(total, np.nan)
+                self.bounds[name] = (check.lower, check.upper)
             self.values[name][start:upto] = check.value
-        h = barriers(rows, self.safe, self.gains, self.r_bound)
-        previous = self.barrier_values["H"][start - 1] if start else np.nan
-        h["condition"] = barrier_condition(h["H"], previous, self.trace.dt,
-                                           self.safe.barrier_alpha)
-        for name, value in h.items():
+        if "H" in series:
+            previous = self.barrier_values["H"][start - 1] if start else np.nan
+            series["condition"] = barrier_condition(series["H"], previous, self.trace.dt,
+                                                    self.safe.barrier_alpha)
+        for name, value in series.items():
+            if name not in self.barrier_values:
+                self.barrier_values[name] = np.full(total, np.nan)
             self.barrier_values[name][start:upto] = value
         self.upto = upto
-        return start, {n: c.value for n, c in checks.items()}, h
+        return start, {n: c.value for n, c in checks.items()}, series
 
     def result(self) -> Evaluation:
         """The evaluation of the completed rows (``trace.rows_done``)."""
         k = self.trace.rows_done
-        if self.upto < k or not self.values:
+        if self.upto < k or (self.parts and not self.values and not self.barrier_values):
             self.update(k)
         done = self.trace.completed()
-        references = check_references(done, self.safe, self.gains)
+        references = {}
+        for part in self.parts:
+            references.update(part.references(done))
         checks = {name: Check(self.values[name][:k], upper, lower, references.get(name))
                   for name, (lower, upper) in self.bounds.items()}
         h = {name: value[:k] for name, value in self.barrier_values.items()}
-        metrics, safety = summarise(done, checks, h, self.safe, self.gains)
-        return Evaluation(checks, h, metrics, safety)
+        metrics = {}
+        if k:  # a run stopped at its first row (a block raised there): nothing to sum up
+            for part in self.parts:
+                metrics.update(part.metrics(done, h))
+        ran = {part.name for part in self.parts}
+        said = {name: "ran" if name in ran else f"not run: {self.skipped[name]}"
+                for name in EVALUATORS if name in ran or name in self.skipped}
+        return Evaluation(checks, h, metrics, safety_entries(checks, self.trace.dt), said)

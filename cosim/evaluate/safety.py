@@ -19,12 +19,6 @@ from ..signals import Trace
 # evaluator passes one chunk of rows as a plain dict).
 Signals = Trace | Mapping[str, np.ndarray]
 
-# The signals the checks, barriers and metrics read: the assembly refuses a chain that does
-# not produce them.
-EVALUATION_INPUTS = ("q", "qdot", "M", "q_d", "qdot_d", "q_s", "qdot_s", "q_hat", "qdot_hat",
-                     "k0", "W_o_norm", "M_model", "tau", "e", "edot", "r_hat", "W_norm",
-                     "V_norm")
-
 
 @dataclass
 class SafeSet:
@@ -100,68 +94,10 @@ BARRIER_MEANINGS = {"H1": "H1 of (28): the observer's barrier (mixed units)",
                     "condition": "dH/dt + α·H per row, ≥ 0 where the condition holds (1/s × H)"}
 
 
-def _deviations(trace: Signals, safe: SafeSet, gains: Gains
-                ) -> list[tuple[str, np.ndarray | None, float, np.ndarray | None]]:
-    """(check stem, signal per row and joint, bound, the reference's own signal) of the
-    per-joint checks; a signal of None is not computed (references only)."""
-    ref_pos = trace["q_d"] - trace["q_s"]
-    ref_vel = trace["qdot_d"] - trace["qdot_s"]
-    # The physical sets (position, true velocity) are the same for every run; the error rate
-    # is the one the controller used (ė̂ for output feedback) and, for output feedback, the
-    # true one too.
-    out = [("position", "q", safe.position_bound, ref_pos),
-           ("velocity_estimated", "used_velocity", safe.velocity_bound, ref_vel),
-           ("velocity_true", "qdot", safe.velocity_bound, ref_vel),
-           ("error", "e", safe.error_bound, None),
-           ("error_rate", "edot", safe.error_rate_bound, None)]
-    if gains.output_feedback:
-        out.append(("error_rate_true", "edot_true", safe.error_rate_bound, None))
-    return out
-
-
-def check_references(trace: Signals, safe: SafeSet, gains: Gains) -> dict[str, np.ndarray]:
-    """The reference trajectory's own value of each check that has one (joint 1, norm)."""
-    out = {}
-    for name, _, _, ref in _deviations(trace, safe, gains):
-        if ref is not None:
-            out[f"{name}_joint1"] = ref[:, 0]
-            out[f"{name}_norm"] = np.linalg.norm(ref, axis=1)
-    return out
-
-
-def check_signals(trace: Signals, safe: SafeSet, gains: Gains,
-                  r_bound: float | None = None) -> dict[str, Check]:
-    """Every safety check by name, in the order summary.json lists them. ``r_bound``: R of
-    Theorem 1 (default: from these rows' reference)."""
-    signals = {
-        "q": trace["q"] - trace["q_s"],
-        # x̂2 (proposed) or q̇ (baseline): the velocity the controller used
-        "used_velocity": trace["qdot_d"] - trace["edot"] - trace["qdot_s"],
-        "qdot": trace["qdot"] - trace["qdot_s"],
-        "e": trace["e"],
-        "edot": trace["edot"],
-        "edot_true": trace["qdot_d"] - trace["qdot"],
-    }
-    eps = safe.observer_error_bound if gains.output_feedback else 0.0
-    if r_bound is None:
-        r_bound = theorem1(trace, safe, gains.Lambda)["R"]
-    checks = {}
-    for name, key, bound, ref in _deviations(trace, safe, gains):
-        signal = signals[key]
-        checks[f"{name}_joint1"] = Check(signal[:, 0], bound, -bound,
-                                         None if ref is None else ref[:, 0])
-        checks[f"{name}_norm"] = Check(np.linalg.norm(signal, axis=1), bound, 0.0,
-                                       None if ref is None else np.linalg.norm(ref, axis=1))
-    checks["filtered_error_norm"] = Check(np.linalg.norm(trace["r_hat"], axis=1), r_bound, 0.0)
-    if gains.output_feedback:
-        checks["observer_error_norm"] = Check(
-            np.linalg.norm(trace["qdot"] - trace["qdot_hat"], axis=1), eps, 0.0)
-    return checks
-
-
 def barriers(trace: Signals, safe: SafeSet, gains: Gains,
              r_bound: float | None = None) -> dict[str, np.ndarray]:
-    """H1 (28), H2 (29) and H = H1 + H2 per row (``r_bound`` as in :func:`check_signals`)."""
+    """H1 (28), H2 (29) and H = H1 + H2 per row (``r_bound``: R of Theorem 1, default: from
+    these rows' reference)."""
     eps = safe.observer_error_bound
     x1_err = np.sum((trace["q"] - trace["q_hat"]) ** 2, axis=1)
     x2_err = np.sum((trace["qdot"] - trace["qdot_hat"]) ** 2, axis=1)
@@ -209,10 +145,9 @@ def barrier_condition(h: np.ndarray, previous: float, dt: float, alpha: float) -
     return (h - before) / dt + alpha * h
 
 
-def summarise(trace: Trace, checks: Mapping[str, Check], h: Mapping[str, np.ndarray],
-              safe: SafeSet, gains: Gains) -> tuple[dict, dict]:
-    """(metrics, safety) for summary.json, from the completed rows of the trace and their
-    checks and barriers."""
+def safety_entries(checks: Mapping[str, Check], dt: float) -> dict:
+    """summary.json's ``safety``: per check its bound, worst value, whether it held, when it
+    was first left and for how long, and the reference's own worst value."""
     safety = {}
     for name, check in checks.items():
         if not len(check.value):  # the run stopped at its first row: nothing is known
@@ -227,54 +162,23 @@ def summarise(trace: Trace, checks: Mapping[str, Check], h: Mapping[str, np.ndar
             continue
         worst = float(np.max(check.magnitude))
         entry = {"bound": float(check.upper), "worst": worst,
-                 "satisfied": bool(worst <= check.upper), **excursions(check, trace.dt)}
+                 "satisfied": bool(worst <= check.upper), **excursions(check, dt)}
         if check.reference is not None and len(check.reference):
             entry["reference_worst"] = float(np.max(np.abs(check.reference)))
             # A set the reference itself leaves cannot be kept by any controller that tracks.
             entry["attainable"] = bool(entry["reference_worst"] <= check.upper)
         safety[name] = entry
-
-    t = trace.time
-    if not len(t):  # a run stopped at its first row (a block raised there): nothing to sum up
-        return {}, safety
-    after_1s = t >= 1.0
-    obs_err = trace["qdot"] - trace["qdot_hat"]
-
-    def per_joint(x: np.ndarray) -> list[float]:
-        return [float(v) for v in x]
-
-    def lowest(x: np.ndarray) -> float:
-        return float(np.min(x)) if len(x) else float("nan")
-
-    metrics = {
-        "rms_error": per_joint(np.sqrt(np.mean(trace["e"] ** 2, axis=0))),
-        "max_error": per_joint(np.max(np.abs(trace["e"]), axis=0)),
-        "rms_error_rate": per_joint(np.sqrt(np.mean(trace["edot"] ** 2, axis=0))),
-        "max_error_rate": per_joint(np.max(np.abs(trace["edot"]), axis=0)),
-        "observer_velocity_error_rms_after_1s": per_joint(
-            np.sqrt(np.mean(obs_err[after_1s] ** 2, axis=0))) if after_1s.any() else None,
-        "peak_torque": per_joint(np.max(np.abs(trace["tau"]), axis=0)),
-        "rms_torque": per_joint(np.sqrt(np.mean(trace["tau"] ** 2, axis=0))),
-        "torque_reversals_per_s": per_joint(torque_reversals(trace["tau"], trace.dt)),
-        "min_barrier_H": lowest(h["H"]),
-        "min_barrier_H1": lowest(h["H1"]),
-        "min_barrier_H2": lowest(h["H2"]),
-        "barrier_condition": _condition_summary(h["condition"], safe.barrier_alpha),
-        "barrier_condition_terms": _condition_terms(trace, h, safe),
-        "feedback_gain": _gain_summary(trace),
-        "theorem1": theorem1(trace, safe, gains.Lambda),
-    }
-    return metrics, safety
+    return safety
 
 
-def _condition_summary(condition: np.ndarray, alpha: float) -> dict:
+def condition_summary(condition: np.ndarray, alpha: float) -> dict:
     """The barrier condition Ḣ + α·H ≥ 0 over the rows that have one."""
     valid = condition[np.isfinite(condition)]
     return {"alpha": alpha, "worst": float(np.min(valid)) if len(valid) else None,
             "fraction_failing": float(np.mean(valid < 0)) if len(valid) else None}
 
 
-def _condition_terms(trace: Trace, h: Mapping[str, np.ndarray], safe: SafeSet) -> dict:
+def barrier_terms_failing(trace: Signals, h: Mapping[str, np.ndarray], safe: SafeSet) -> dict:
     """The barrier condition per term: Ḣ1 + αH1 and Ḣ2 + αH2 on their own, and H's without
     the rate of the observer gain k0 in H1's ½k0(ε² − ‖x̃1‖²), i.e. ½k̇0(ε² − ‖x̃1‖²): the
     term that makes H's condition fail when k0 moves (fractions of steps failing)."""
@@ -296,7 +200,7 @@ def _condition_terms(trace: Trace, h: Mapping[str, np.ndarray], safe: SafeSet) -
             "k0_rate_term": "½·dk0/dt·(ε_max² − ‖x̃1‖²), of H1's ½k0(ε_max² − ‖x̃1‖²)"}
 
 
-def _gain_summary(trace: Trace) -> dict | None:
+def gain_summary(trace: Signals) -> dict | None:
     """The controller's effective feedback gain on r̂, ‖τ_feedback‖/‖r̂‖ (N·m·s/rad), over
     the rows where ‖r̂‖ is not negligible: how much of a result is gain."""
     if "feedback_gain" not in trace:

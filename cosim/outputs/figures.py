@@ -54,8 +54,12 @@ def write_figures(out, time: Mapping[str, np.ndarray],
     import matplotlib.pyplot as plt
 
     written = []
-    runs = list(checks)
     for filename, pair in FIGURES.items():
+        # The runs evaluated with these checks (a run whose chain has no error signals has
+        # none); a figure no run has is not drawn.
+        runs = [run for run in checks if all(c in checks[run] for c in pair)]
+        if not runs:
+            continue
         # Top: the whole run. Bottom: ±1 s around the worst value of any run, where the
         # runs differ by fractions of the bound (the reference's peaks, for the position).
         fig, axes = plt.subplots(2, 2, figsize=(12, 7.6), constrained_layout=True,
@@ -80,6 +84,7 @@ def write_figures(out, time: Mapping[str, np.ndarray],
         plt.close(fig)
         written.append(filename)
 
+    runs = list(torques)
     fig, axes = plt.subplots(len(runs), 1, figsize=(10, 2.6 * len(runs)), sharex=True,
                              constrained_layout=True, squeeze=False)
     for ax, run in zip(axes[:, 0], runs, strict=True):
@@ -103,7 +108,8 @@ def write_figures(out, time: Mapping[str, np.ndarray],
     _save(out, "fig4_torques.png", fig)
     plt.close(fig)
     written.append("fig4_torques.png")
-    if barriers:
+    barriers = {run: h for run, h in (barriers or {}).items() if "H" in h}
+    if barriers:  # only the runs evaluated with Theorem 1's barriers
         written.append(_barrier_figure(plt, out, time, barriers))
     return written
 

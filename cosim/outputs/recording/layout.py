@@ -19,7 +19,7 @@ holds the value at the rows where it leaves its bound: its first row, then every
 from __future__ import annotations
 
 from collections.abc import Iterator, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -56,6 +56,9 @@ class RunSpec:
     entities: dict[str, tuple[str, str, int]]  # entity -> (trace key, series stem, width)
     bounds: dict[str, tuple[float, float]]  # check -> (lower, upper)
     link_lengths: np.ndarray
+    barriers: tuple[str, ...] = ()  # the barrier series evaluated (H1, H2, H; none without)
+    # the DERIVED_ENTITIES whose signals the run has (none without an observer)
+    derived: dict[str, tuple[str, str, str]] = field(default_factory=dict)
 
 
 def violations(values: Mapping[str, np.ndarray], bounds: Mapping[str, tuple[float, float]],

@@ -18,11 +18,9 @@ from multiprocessing.connection import Connection
 
 import numpy as np
 
-from ...evaluate import BARRIERS
 from .layout import (
     ARM_RATE_HZ,
     BOUND_COLOR,
-    DERIVED_ENTITIES,
     JOINT_COLORS,
     REFERENCE_COLOR,
     VIOLATION_COLOR,
@@ -56,15 +54,16 @@ class _Writer:
         for entity, (_, stem, width) in spec.entities.items():
             self.rec.log(f"{root}/{entity}", rr.SeriesLines(
                 names=series_names(stem, width), colors=colors[:width]), static=True)
-        for entity, (_, _, stem) in DERIVED_ENTITIES.items():
+        for entity, (_, _, stem) in spec.derived.items():
             self.rec.log(f"{root}/{entity}", rr.SeriesLines(names=series_names(stem, n),
                                                               colors=colors), static=True)
-        for i, name in enumerate(BARRIERS):
+        for i, name in enumerate(spec.barriers):
             self.rec.log(f"{root}/barrier/{name}", rr.SeriesLines(
                 names=[name], colors=[JOINT_COLORS[i]]), static=True)
-        self.rec.log(f"{root}/barrier_condition", rr.SeriesPoints(
-            names=["Ḣ + αH < 0"], colors=[VIOLATION_COLOR], markers=["cross"],
-            marker_sizes=[3.0]), static=True)
+        if spec.barriers:
+            self.rec.log(f"{root}/barrier_condition", rr.SeriesPoints(
+                names=["Ḣ + αH < 0"], colors=[VIOLATION_COLOR], markers=["cross"],
+                marker_sizes=[3.0]), static=True)
         ends = rr.TimeColumn("sim_time", duration=[0.0, spec.duration])
         for name, (lower, upper) in spec.bounds.items():
             base = f"{root}/safety/{name}"
@@ -118,7 +117,7 @@ class _Writer:
         index = [rr.TimeColumn("sim_time", duration=times)]
         columns = [(entity, rows[key]) for entity, (key, _, _) in spec.entities.items()]
         columns += [(entity, rows[true] - rows[estimate])
-                    for entity, (true, estimate, _) in DERIVED_ENTITIES.items()]
+                    for entity, (true, estimate, _) in spec.derived.items()]
         columns += [(f"safety/{name}/value", value) for name, value in checks.items()]
         columns += [(f"barrier/{name}", value) for name, value in barrier_values.items()
                     if name != "condition"]
@@ -131,7 +130,7 @@ class _Writer:
                                   indexes=[rr.TimeColumn("sim_time", duration=times[where])],
                                   columns=rr.Scalars.columns(scalars=values))
         # The barrier condition where it fails, like a violation (dense in the trace file).
-        failing = {"condition": barrier_values["condition"]}
+        failing = {"condition": barrier_values["condition"]} if spec.barriers else {}
         for _, where, values in violations(failing, {"condition": (0.0, np.inf)}, start,
                                            stride):
             self.rec.send_columns(f"{root}/barrier_condition",

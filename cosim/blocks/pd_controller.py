@@ -1,0 +1,114 @@
+"""PD control with gravity compensation, a classical baseline without an observer:
+
+    τ = Kp e + Kd ė + Ĝ(q),  e = q_d − q,  ė = q̇_d − q̇,
+
+with Ĝ(q) the nominal chain's gravity torque (constant ``nominal_chain``, published by the
+inertia model) at the position the controller reads. Two velocity sources: the plant's true
+q̇ with its true q (``plant``, full state), or the backward difference of the measured
+position (``finite_difference``, (y_k − y_k−1)/h, which amplifies sensor noise). With
+Kp, Kd > 0 and exact gravity the set-point error converges (Takegaki & Arimoto 1981); it
+tracks a moving reference with an error that grows with its speed. SI units, radians.
+"""
+
+from __future__ import annotations
+
+from typing import Literal, NamedTuple
+
+import numpy as np
+from numba import njit
+
+from ..config.schema import GainVector, NonNegativeFloat, Section
+from ..signals import Signal
+from .base import Block, BlockContext, Ports, register_block
+from .inertia import planar_bias
+
+
+class PdControllerParams(Section):
+    """Kp [N·m/rad] and Kd [N·m·s/rad], per joint or one scalar for all; where ė comes from;
+    whether the nominal chain's gravity torque is added (needs an inertia_model block
+    before this one)."""
+
+    kp: GainVector = 200.0  # Kp, N·m/rad
+    kd: NonNegativeFloat | list[NonNegativeFloat] = 40.0  # Kd, N·m·s/rad
+    # where ė comes from: the plant's true q̇, or the measured position's backward difference
+    velocity: Literal["plant", "finite_difference"] = "plant"
+    gravity_compensation: bool = True  # add the nominal chain's gravity torque Ĝ(q)
+
+
+class PdArgs(NamedTuple):
+    dt: float  # master step, s
+    finite_difference: bool
+    gravity_compensation: bool
+    kp: np.ndarray  # (n,)
+    kd: np.ndarray  # (n,)
+    m: np.ndarray  # the nominal chain, for Ĝ(q)
+    l: np.ndarray  # noqa: E741
+    lc: np.ndarray
+    inertia: np.ndarray
+    gravity: float
+    gravity_torque: np.ndarray  # scratch (n,)
+    zero_velocity: np.ndarray  # (n,) zeros: Ĝ is the bias at q̇ = 0
+    position: np.ndarray  # q (plant) or q_meas (finite difference)
+    velocity: np.ndarray  # q̇ (plant); unused for the finite difference
+    q_d: np.ndarray
+    qdot_d: np.ndarray
+    tau: np.ndarray
+    e: np.ndarray
+    edot: np.ndarray
+
+
+@njit(cache=True)
+def pd_step(k, a):
+    q = a.position[k]
+    if a.finite_difference:
+        velocity = (q - a.position[k - 1]) / a.dt if k > 0 else a.qdot_d[0]
+    else:
+        velocity = a.velocity[k]
+    e = a.q_d[k] - q
+    edot = a.qdot_d[k] - velocity
+    a.e[k] = e
+    a.edot[k] = edot
+    a.tau[k] = a.kp * e + a.kd * edot
+    if a.gravity_compensation:
+        planar_bias(q, a.zero_velocity, a.m, a.l, a.lc, a.inertia, a.gravity,
+                    a.gravity_torque)
+        a.tau[k] += a.gravity_torque
+    return np.isfinite(np.sum(a.tau[k]))
+
+
+@register_block
+class PdController(Block):
+    kind = "pd_controller"
+    Params = PdControllerParams
+    per_joint = ("kp", "kd")
+    kernel = pd_step
+    PUBLISHES = ("velocity_source",)  # "plant" or "finite_difference"
+
+    def __init__(self, params: PdControllerParams, context: BlockContext):
+        super().__init__(params, context)
+        self.position, self.velocity = (("q", "qdot") if params.velocity == "plant"
+                                        else ("q_meas", "q_meas"))
+        self.inputs = tuple(dict.fromkeys((self.position, self.velocity, "q_d", "qdot_d")))
+        self.requires = ("nominal_chain",) if params.gravity_compensation else ()
+        self.outputs = {
+            "tau": Signal("n", "N·m", "joint torque τ", "pd_controller/tau"),
+            "e": Signal("n", "rad", "tracking error e = q_d − q", "pd_controller/e"),
+            "edot": Signal("n", "rad/s", "error rate ė = q̇_d − q̇ (or its difference "
+                           "estimate)", "pd_controller/edot"),
+        }
+        self.publishes = {"velocity_source": params.velocity}
+
+    def reset(self, ports: Ports) -> None:
+        p, n = self.params, self.context.links
+        chain = ports.constants.get("nominal_chain")
+        if chain is None:  # no gravity compensation: the chain is never read
+            zeros = np.zeros(n)
+            chain = (zeros, zeros, zeros, zeros, 0.0)
+        inp, out = ports.inputs, ports.outputs
+        self.args = PdArgs(
+            self.context.dt, p.velocity == "finite_difference", p.gravity_compensation,
+            np.broadcast_to(np.asarray(p.kp, float), (n,)).copy(),
+            np.broadcast_to(np.asarray(p.kd, float), (n,)).copy(),
+            *(np.asarray(x, float) for x in chain[:4]), float(chain[4]), np.zeros(n),
+            np.zeros(n), inp[self.position], inp[self.velocity], inp["q_d"], inp["qdot_d"],
+            out["tau"], out["e"], out["edot"])

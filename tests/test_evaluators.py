@@ -1,0 +1,102 @@
+"""Evaluation that declares its inputs: a chain without an observer (PD control with
+gravity compensation) assembles, runs and is evaluated by the evaluators whose inputs it
+has; the others are reported as not run, with the signal or constant they miss."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from cosim.config import load_pipeline
+from cosim.evaluate import EVALUATORS, Evaluator, SafeSet
+from cosim.runner import run
+from cosim.signals import Signal, Trace
+
+PD = "pipelines/pd_control.toml"
+GRAVITY = 9.8  # m/s², the inertia model's default
+MASSES, LENGTH = (0.8, 2.3), 1.0  # the nominal arm (paper): lc = l = 1 m, I = 0
+
+
+@pytest.fixture(scope="module")
+def pd_runs(tmp_path_factory):
+    """Both PD runs, 2 s, into a run folder with its recording and figures."""
+    out = tmp_path_factory.mktemp("pd") / "run"
+    pipeline = load_pipeline(PD, ["simulation.duration=2.0"])
+    return pipeline, run(pipeline, out, progress=False), out
+
+
+def gravity_torque(q: np.ndarray) -> np.ndarray:
+    """G(q) of the two-link arm in closed form (point masses at the link tips, link 1 from
+    the horizontal, gravity along −y), written here apart from the block's Newton–Euler."""
+    (m1, m2), g, l1 = MASSES, GRAVITY, LENGTH
+    c1, c12 = np.cos(q[:, 0]), np.cos(q[:, 0] + q[:, 1])
+    return np.column_stack([(m1 + m2) * g * l1 * c1 + m2 * g * LENGTH * c12,
+                            m2 * g * LENGTH * c12])
+
+
+@pytest.mark.parametrize("name", ["pd_full_state", "pd_finite_difference"])
+def test_pd_torque_is_kp_e_plus_kd_edot_plus_the_nominal_gravity(pd_runs, name):
+    pipeline, results, _ = pd_runs
+    trace = results[name].trace
+    kp, kd = pipeline.runs[name].pd_controller.kp, pipeline.runs[name].pd_controller.kd
+    if name == "pd_full_state":
+        q, velocity = trace["q"], trace["qdot"]
+    else:  # the measured position and its backward difference (q̇_d at the first row)
+        q = trace["q_meas"]
+        velocity = np.vstack([trace["qdot_d"][:1], np.diff(q, axis=0) / trace.dt])
+    e, edot = trace["q_d"] - q, trace["qdot_d"] - velocity
+    np.testing.assert_allclose(trace["e"], e, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(trace["edot"], edot, rtol=1e-9, atol=1e-9)
+    expected = kp * e + kd * edot + gravity_torque(q)
+    np.testing.assert_allclose(trace["tau"], expected, rtol=1e-9, atol=1e-9)
+
+
+def test_a_run_without_an_observer_is_evaluated_by_what_it_has(pd_runs):
+    """Safe sets, tracking and torque are evaluated; the observer's check, Theorem 1's R and
+    barriers and the NN's gain are reported as not run, naming what they miss."""
+    _, results, out = pd_runs
+    summary = json.loads((out / "summary.json").read_text())
+    for name, result in results.items():
+        said = summary["runs"][name]["evaluators"]
+        assert list(said) == list(EVALUATORS)
+        ran = {n for n, text in said.items() if text == "ran"}
+        assert ran == {"safe_sets", "tracking", "torque"}, said
+        assert said["barriers"] == (
+            "not run: needs the signals 'q_hat', 'qdot_hat', 'k0', 'W_o_norm', 'r_hat', "
+            "'W_norm', 'V_norm', which no block in the chain produces; needs the constants "
+            "'nn_gains', 'observer_gain', which no block in the chain publishes")
+        assert said["observer_error"] == ("not run: needs the signal 'qdot_hat', which no "
+                                          "block in the chain produces")
+        safety = summary["runs"][name]["safety"]
+        assert "position_joint1" in safety and "error_rate_norm" in safety
+        assert "filtered_error_norm" not in safety and "observer_error_norm" not in safety
+        # the true error rate is checked apart only where ė is an estimate
+        assert ("error_rate_true_norm" in safety) == (name == "pd_finite_difference")
+        metrics = summary["runs"][name]["metrics"]
+        e = result.trace["e"]
+        np.testing.assert_allclose(metrics["rms_error"], np.sqrt(np.mean(e**2, axis=0)),
+                                   rtol=1e-12)
+        assert "min_barrier_H" not in metrics and "theorem1" not in metrics
+        assert result.evaluation.barriers == {}
+    files = {p.name for p in out.iterdir()}
+    assert {"recording.rrd", "fig2_position_velocity.png", "fig4_torques.png"} <= files
+    assert "fig5_barriers.png" not in files  # no run has barriers to draw
+
+
+def test_an_evaluator_whose_inputs_are_missing_does_not_run():
+    """Straight on the Evaluator: a trace with only a torque is evaluated for torque alone,
+    and every other evaluator says which signals it misses."""
+    signals = {"tau": Signal("n", "N·m", "torque")}
+    trace = Trace(signals, 2, 10, 1e-3)
+    trace["tau"][:] = np.linspace(-1.0, 1.0, 22).reshape(11, 2)
+    trace.rows_done = 11
+    result = Evaluator(trace, SafeSet(), {}).result()
+    assert result.evaluators["torque"] == "ran"
+    assert result.metrics["peak_torque"] == [1.0, 1.0]
+    assert result.checks == {} and result.safety == {} and result.barriers == {}
+    for name, text in result.evaluators.items():
+        if name != "torque":
+            assert text.startswith("not run: needs the signal"), (name, text)
+            assert "'tau'" not in text
