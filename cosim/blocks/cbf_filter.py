@@ -505,6 +505,8 @@ def solve_soft_qp(tau_nominal, G, h, weights, iterations, tolerance):
         for j in range(m):
             if binding[j]:
                 hessian += weights[j] * np.outer(G[j], G[j])
+        if not (np.isfinite(np.sum(hessian)) and np.isfinite(np.sum(gradient))):
+            return tau + np.nan, it  # a diverging loop: the filter's step reports it
         direction = -np.linalg.solve(hessian, gradient)
         value = _penalty(tau, tau_nominal, G, h, weights)
         slope = gradient @ direction

@@ -153,7 +153,11 @@ def _fused(plant, plan, trace: Trace, progress, progress_every: int) -> float:
     k, start, failed, status = 0, time.perf_counter(), -1, 0
     while k <= steps:
         stop = 1 if k == 0 else min(steps + 1, k + progress_every)
-        k, failed, status = loop(k, stop, steps, h, io.functions, io.handles, *arrays, args)
+        try:
+            k, failed, status = loop(k, stop, steps, h, io.functions, io.handles, *arrays, args)
+        except Exception as exc:  # a kernel raised (numba's linalg on non-finite input)
+            raise BlockFailed(f"a block of the compiled loop (rows {k} to {stop - 1})", k * h,
+                              exc) from exc
         trace.rows_done = k
         if failed != -1:
             break
