@@ -1,10 +1,14 @@
-"""The plant: an n-link planar arm as a C-source FMU (FMI 2.0 and 3.0, CS and ME).
+"""The plants: built-in models as C-source FMUs (FMI 2.0 and 3.0, CS and ME) — the n-link
+planar arm, and the arm with elastic joints.
 
     from plant_fmu import build_fmu
-    path = build_fmu(links=2, fmi_version=2)
+    path = build_fmu(links=2, fmi_version=2)                          # the rigid arm
+    path = build_fmu(links=2, fmi_version=3, model="elastic_joints")
 """
 
 from .build import BuildError, build_fmu
+from .models import DEFAULT_MODEL, MODELS
 from .models.planar_arm import MAX_LINKS, MODEL_IDENTIFIER, variables
 
-__all__ = ["BuildError", "MAX_LINKS", "MODEL_IDENTIFIER", "build_fmu", "variables"]
+__all__ = ["BuildError", "DEFAULT_MODEL", "MAX_LINKS", "MODELS", "MODEL_IDENTIFIER",
+           "build_fmu", "variables"]

@@ -1,8 +1,8 @@
-"""Build the plant FMU: generate the description, compile with the system C compiler, pack.
+"""Build a plant FMU: generate the description, compile with the system C compiler, pack.
 
-Builds are cached by a digest of everything that goes into them (link count, FMI version,
-variable table, C sources, compiler), so calling :func:`build_fmu` again is cheap, and
-concurrent calls are safe (each writes a temporary file and renames it into place).
+Builds are cached by a digest of everything that goes into them (model, link count, FMI
+version, variable table, C sources, compiler), so calling :func:`build_fmu` again is cheap,
+and concurrent calls are safe (each writes a temporary file and renames it into place).
 """
 
 from __future__ import annotations
@@ -15,16 +15,15 @@ import sys
 import tempfile
 import zipfile
 from pathlib import Path
+from types import ModuleType
 
-from . import description
-from .models import planar_arm
+from . import description, variables
+from .models import DEFAULT_MODEL, MODELS
 
 # The FMI glue every model plugs into: one file per FMI version, and the instance they share.
 FMI_DIR = Path(__file__).parent / "fmi"
 FMI_SOURCES = ("fmu_instance.c",)
-FMI_HEADERS = ("fmu_instance.h",)
-MODEL = planar_arm  # the built-in model build_fmu builds
-MAX_LINKS, MODEL_IDENTIFIER = MODEL.MAX_LINKS, MODEL.MODEL_IDENTIFIER
+FMI_HEADERS = ("fmu_instance.h", "model.h")
 CFLAGS = ["-O2", "-std=c99", "-Wall", "-Wextra", "-fPIC", "-shared"]
 
 
@@ -64,52 +63,64 @@ def _shared_library_suffix() -> str:
     return {"win32": ".dll", "darwin": ".dylib"}.get(sys.platform, ".so")
 
 
-def _sources_digest() -> str:
+def _sources_digest(model: ModuleType) -> str:
     h = hashlib.sha256()
-    for path in sorted(_source_files(2) + _source_files(3) + [Path(MODEL.__file__)]):
+    for path in sorted(_source_files(model, 2) + _source_files(model, 3)
+                       + [Path(model.__file__), Path(variables.__file__)]):
         h.update(path.name.encode())
         h.update(path.read_bytes())
     return h.hexdigest()
 
 
-def _source_files(fmi_version: int) -> list[Path]:
+def _source_files(model: ModuleType, fmi_version: int) -> list[Path]:
     """The C files an FMU of ``fmi_version`` is built from: the model's and the glue."""
-    model = [MODEL.SOURCE_DIR / name for name in MODEL.SOURCES + MODEL.HEADERS]
     glue = [FMI_DIR / name for name in (*FMI_SOURCES, *FMI_HEADERS, f"fmi{fmi_version}.c")]
-    return model + glue
+    return [*model.SOURCES, *model.HEADERS, *glue]
 
 
-def _build_key(links: int, fmi_version: int, cc: str) -> str:
+def _build_key(model: ModuleType, links: int, fmi_version: int, cc: str) -> str:
     h = hashlib.sha256()
-    h.update(f"{links}|{fmi_version}|{cc}|{' '.join(CFLAGS)}|".encode())
-    h.update(_sources_digest().encode())
+    h.update(f"{model.MODEL_IDENTIFIER}|{links}|{fmi_version}|{cc}|{' '.join(CFLAGS)}|"
+             .encode())
+    h.update(_sources_digest(model).encode())
     h.update(Path(description.__file__).read_bytes())
     return h.hexdigest()[:16]
 
 
-def _check_options(links: int, fmi_version: int) -> None:
-    if not isinstance(links, int) or not 1 <= links <= MAX_LINKS:
-        raise BuildError(f"links must be a whole number from 1 to {MAX_LINKS}, got {links!r}")
+def _model(name: str) -> ModuleType:
+    if name not in MODELS:
+        raise BuildError(f"model {name!r} is not a built-in plant model (built-in: "
+                         f"{', '.join(MODELS)})")
+    return MODELS[name]
+
+
+def _check_options(model: ModuleType, links: int, fmi_version: int) -> None:
+    if not isinstance(links, int) or not 1 <= links <= model.MAX_LINKS:
+        raise BuildError(f"links must be a whole number from 1 to {model.MAX_LINKS}, got "
+                         f"{links!r}")
     if fmi_version not in (2, 3):
         raise BuildError(f"fmi_version must be 2 or 3, got {fmi_version!r}")
 
 
 def build_fmu(links: int = 2, fmi_version: int = 2, output: str | Path | None = None,
-              cache_dir: str | Path | None = None) -> Path:
-    """Build (or take from the cache) the ``links``-link arm FMU for FMI 2.0 or 3.0.
+              cache_dir: str | Path | None = None, model: str = DEFAULT_MODEL) -> Path:
+    """Build (or take from the cache) the ``links``-link FMU of the built-in ``model``
+    (:data:`plant_fmu.models.MODELS`: the rigid arm, or the arm with elastic joints) for
+    FMI 2.0 or 3.0.
 
     The archive holds Co-Simulation and Model Exchange, the binary for this platform, and
     its C sources with a ``buildDescription.xml`` so that ``fmpy compile`` can rebuild it
     elsewhere. Returns the path of the FMU: ``output`` if given, else the cached file.
     """
-    _check_options(links, fmi_version)
+    chosen = _model(model)
+    _check_options(chosen, links, fmi_version)
     cc = _compiler()
     cache = Path(cache_dir) if cache_dir else default_cache_dir()
     cache.mkdir(parents=True, exist_ok=True)
-    key = _build_key(links, fmi_version, cc)
-    cached = cache / f"{MODEL_IDENTIFIER}{links}_fmi{fmi_version}_{key}.fmu"
+    key = _build_key(chosen, links, fmi_version, cc)
+    cached = cache / f"{chosen.MODEL_IDENTIFIER}{links}_fmi{fmi_version}_{key}.fmu"
     if not cached.exists():
-        _build_into(cached, links, fmi_version, cc)
+        _build_into(chosen, cached, links, fmi_version, cc)
     if output is None:
         return cached
     output = Path(output)
@@ -129,31 +140,34 @@ def _write_atomically(target: Path, produce) -> None:
         raise
 
 
-def _build_into(target: Path, links: int, fmi_version: int, cc: str) -> None:
-    token = description.instantiation_token(MODEL, links, _sources_digest())
+def _build_into(model: ModuleType, target: Path, links: int, fmi_version: int,
+                cc: str) -> None:
+    token = description.instantiation_token(model, links, _sources_digest(model))
     with tempfile.TemporaryDirectory(prefix="plant_fmu_") as tmpdir:
         root = Path(tmpdir)
         sources = root / "sources"
         sources.mkdir()
-        for path in _source_files(fmi_version):  # flat: fmpy compile builds from here
+        for path in _source_files(model, fmi_version):  # flat: fmpy compile builds from here
             shutil.copyfile(path, sources / path.name)
-        (sources / "variables.h").write_text(description.variables_header(MODEL, links, token))
-        (sources / "variables.c").write_text(description.variables_source(MODEL, links))
-        compiled = [*MODEL.SOURCES, *FMI_SOURCES, "variables.c", f"fmi{fmi_version}.c"]
+        (sources / "variables.h").write_text(description.variables_header(model, links, token))
+        (sources / "variables.c").write_text(description.variables_source(model, links))
+        compiled = [*(path.name for path in model.SOURCES), *FMI_SOURCES, "variables.c",
+                    f"fmi{fmi_version}.c"]
         (sources / "buildDescription.xml").write_text(
-            description.build_description(MODEL, fmi_version, compiled))
+            description.build_description(model, fmi_version, compiled))
         (root / "modelDescription.xml").write_text(
-            description.model_description(MODEL, links, fmi_version, token))
+            description.model_description(model, links, fmi_version, token))
 
         binary_dir = root / "binaries" / _platform_dir(fmi_version)
         binary_dir.mkdir(parents=True)
-        binary = binary_dir / (MODEL_IDENTIFIER + _shared_library_suffix())
+        binary = binary_dir / (model.MODEL_IDENTIFIER + _shared_library_suffix())
         command = [cc, *CFLAGS, f"-I{sources}", f"-I{_fmi_headers()}",
                    *[str(sources / s) for s in compiled], "-o", str(binary), "-lm"]
         result = subprocess.run(command, capture_output=True, text=True)
         if result.returncode != 0:
-            raise BuildError(f"compiling the {links}-link FMI {fmi_version} plant failed "
-                             f"({' '.join(command)}):\n{result.stderr}")
+            raise BuildError(f"compiling the {links}-link FMI {fmi_version} "
+                             f"{model.MODEL_IDENTIFIER} plant failed ({' '.join(command)}):\n"
+                             f"{result.stderr}")
 
         def pack(tmp: Path) -> None:
             with zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as archive:

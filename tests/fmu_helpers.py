@@ -29,7 +29,7 @@ class FmuInstance:
         if self.fmi_version == 2:
             self.fmu.setupExperiment(startTime=0.0)
         self.n = sum(1 for v in self.md.modelVariables if v.name.startswith("q["))
-        self.nx = 2 * self.n
+        self.nx = len(self.md.derivatives)  # continuous states (2n rigid, 4n elastic)
         if initialize:
             self.fmu.enterInitializationMode()
             if parameters:

@@ -43,7 +43,8 @@ def test_fmpy_validate_finds_no_problems(plant_fmu, links, fmi_version):
 def test_archive_carries_sources_for_fmpy_compile(plant_fmu):
     with zipfile.ZipFile(plant_fmu(2, 3)) as archive:
         names = set(archive.namelist())
-    assert {"sources/buildDescription.xml", "sources/model.c", "sources/arm_dynamics.h",
+    assert {"sources/buildDescription.xml", "sources/model.c", "sources/planar_chain.h",
+            "sources/rk4.h", "sources/model.h", "sources/fmu_instance.c",
             "sources/fmi3.c", "sources/variables.c", "modelDescription.xml"} <= names
     assert any(n.startswith("binaries/") and n.endswith("PlanarArm.so") for n in names)
 

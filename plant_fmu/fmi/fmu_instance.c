@@ -1,4 +1,5 @@
-/* The FMI-version independent instance: see fmu_instance.h. */
+/* The FMI-version independent instance: see fmu_instance.h. It knows no model: what it
+ * needs of one is in model.h and the model's generated variables.h. */
 #include <math.h>
 #include <stdarg.h>
 #include <stdio.h>
@@ -36,11 +37,35 @@ void instance_event(const Instance *inst, const char *format, ...)
     va_end(args);
 }
 
+/* Every variable at its start value, then the states from their initial values. */
+static void reset_state(ModelState *s)
+{
+    for (int k = 0; k < N_VARIABLES; k++) s->v[k] = VARIABLES[k].start;
+    model_apply_initial_state(s);
+}
+
+/* 1 if `value` is allowed for variable `vr` by its table entry; else 0 and a message. */
+static int check_value(unsigned vr, double value, char *msg, size_t len)
+{
+    const VariableInfo *var = &VARIABLES[vr];
+    const char *rule = NULL;
+    switch (var->check) {
+    case CHECK_NONE: return 1;
+    case CHECK_FINITE: if (!isfinite(value)) rule = "a finite number"; break;
+    case CHECK_POSITIVE: if (!(isfinite(value) && value > 0)) rule = "finite and > 0"; break;
+    case CHECK_NONNEGATIVE: if (!(isfinite(value) && value >= 0)) rule = "finite and >= 0"; break;
+    }
+    if (!rule) return 1;
+    snprintf(msg, len, "%s = %g is not valid: it must be %s (unit %s)", var->name, value, rule,
+             var->unit);
+    return 0;
+}
+
 Instance *instance_new(const char *name, const char *token, int is_cosimulation, int logging_on,
                        LogFunction log, void *environment, const void *callbacks,
                        void (*log_message)(void))
 {
-    Instance probe = {.name = (char *)(name ? name : "PlanarArm"), .log = log,
+    Instance probe = {.name = (char *)(name ? name : MODEL_IDENTIFIER_STRING), .log = log,
                       .environment = environment, .callbacks = callbacks,
                       .log_message = log_message};
     if (!token || strcmp(token, INSTANTIATION_TOKEN) != 0) {
@@ -64,7 +89,7 @@ Instance *instance_new(const char *name, const char *token, int is_cosimulation,
     inst->callbacks = callbacks;
     inst->log_message = log_message;
     inst->mode = MODE_INSTANTIATED;
-    model_reset(&inst->state);
+    reset_state(&inst->state);
     return inst;
 }
 
@@ -92,6 +117,11 @@ Status instance_exit_initialization(Instance *inst)
     char msg[MESSAGE_LENGTH];
     if (inst->mode != MODE_INITIALIZATION)
         return instance_error(inst, "exit initialization mode: not in initialization mode");
+    for (unsigned vr = 0; vr < N_VARIABLES; vr++) {
+        if (VARIABLES[vr].kind == KIND_PARAMETER && !check_value(vr, inst->state.v[vr], msg,
+                                                                  sizeof msg))
+            return instance_error(inst, "%s", msg);
+    }
     if (!model_check_parameters(&inst->state, msg, sizeof msg)) return instance_error(inst, "%s", msg);
     model_apply_initial_state(&inst->state);
     inst->mode = MODE_RUNNING;
@@ -107,23 +137,23 @@ Status instance_terminate(Instance *inst)
 
 Status instance_reset(Instance *inst)
 {
-    model_reset(&inst->state);
+    reset_state(&inst->state);
     inst->mode = MODE_INSTANTIATED;
     return STATUS_OK;
 }
 
 Status instance_get_float64(Instance *inst, const unsigned *vr, size_t n, double *value)
 {
+    char msg[MESSAGE_LENGTH];
     int outputs_needed = 0;
     for (size_t k = 0; k < n; k++) {
         if (vr[k] >= N_VARIABLES)
             return instance_error(inst, "get: value reference %u does not exist (0..%d)", vr[k],
                                   N_VARIABLES - 1);
-        outputs_needed |= vr[k] >= VR_M; /* M, energy, der(qdot) are computed on demand */
+        outputs_needed |= VARIABLES[vr[k]].computed; /* computed on demand */
     }
-    if (outputs_needed && !model_update_outputs(&inst->state))
-        return instance_error(inst, "the inertia matrix M(q) is singular at t = %g s",
-                              inst->state.v[VR_time]);
+    if (outputs_needed && !model_update_outputs(&inst->state, msg, sizeof msg))
+        return instance_error(inst, "%s", msg);
     for (size_t k = 0; k < n; k++) value[k] = inst->state.v[vr[k]];
     return STATUS_OK;
 }
@@ -144,7 +174,7 @@ Status instance_set_float64(Instance *inst, const unsigned *vr, size_t n, const 
             return instance_error(inst, "set: %s is not a parameter or an input and cannot be set",
                                   var->name);
         }
-        if (!model_check_value(vr[k], value[k], msg, sizeof msg))
+        if (!check_value(vr[k], value[k], msg, sizeof msg))
             return instance_error(inst, "set: %s", msg);
     }
     int parameters_changed = 0;
@@ -168,10 +198,19 @@ Status instance_do_step(Instance *inst, double current_time, double step)
     if (fabs(current_time - time) > 1e-9 * (1.0 + fabs(time)))
         return instance_error(inst, "doStep: communication point %.17g s is not the FMU's "
                               "time %.17g s", current_time, time);
+    const ModelState before = inst->state;
     inst->state.v[VR_time] = current_time; /* land exactly where the importer says */
     if (!model_do_step(&inst->state, step, msg, sizeof msg)) {
-        inst->state.v[VR_time] = time;
+        inst->state = before;
         return instance_error(inst, "doStep: %s", msg);
+    }
+    for (int i = 0; i < N_STATES; i++) {
+        if (!isfinite(inst->state.v[STATE_VRS[i]])) {
+            const char *name = VARIABLES[STATE_VRS[i]].name;
+            inst->state = before;
+            return instance_error(inst, "doStep: %s became non-finite in the step from t = %g s "
+                                  "to %g s", name, current_time, current_time + step);
+        }
     }
     return STATUS_OK;
 }
@@ -197,8 +236,8 @@ Status instance_set_states(Instance *inst, const double *x, size_t n)
     for (size_t i = 0; i < n; i++)
         if (!isfinite(x[i]))
             return instance_error(inst, "set continuous states: %s = %g is not finite",
-                                  VARIABLES[VR_q + i].name, x[i]);
-    memcpy(&inst->state.v[VR_q], x, n * sizeof(double));
+                                  VARIABLES[STATE_VRS[i]].name, x[i]);
+    for (size_t i = 0; i < n; i++) inst->state.v[STATE_VRS[i]] = x[i];
     inst->state.outputs_current = 0;
     return STATUS_OK;
 }
@@ -206,18 +245,17 @@ Status instance_set_states(Instance *inst, const double *x, size_t n)
 Status instance_get_states(Instance *inst, double *x, size_t n)
 {
     if (check_state_count(inst, n, "get continuous states")) return STATUS_ERROR;
-    memcpy(x, &inst->state.v[VR_q], n * sizeof(double));
+    for (size_t i = 0; i < n; i++) x[i] = inst->state.v[STATE_VRS[i]];
     return STATUS_OK;
 }
 
 Status instance_get_derivatives(Instance *inst, double *dx, size_t n)
 {
     if (check_state_count(inst, n, "get derivatives")) return STATUS_ERROR;
-    if (!model_update_outputs(&inst->state))
-        return instance_error(inst, "get derivatives: the inertia matrix M(q) is singular at "
-                              "t = %g s", inst->state.v[VR_time]);
-    memcpy(dx, &inst->state.v[VR_qdot], N_LINKS * sizeof(double));
-    memcpy(&dx[N_LINKS], &inst->state.v[VR_qddot], N_LINKS * sizeof(double));
+    char msg[MESSAGE_LENGTH];
+    if (!model_update_outputs(&inst->state, msg, sizeof msg))
+        return instance_error(inst, "get derivatives: %s", msg);
+    for (size_t i = 0; i < n; i++) dx[i] = inst->state.v[DERIVATIVE_VRS[i]];
     return STATUS_OK;
 }
 

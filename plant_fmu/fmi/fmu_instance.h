@@ -1,7 +1,7 @@
 /*
  * What FMI 2.0 and FMI 3.0 share: an instance with a mode, a logger, checked get/set of
  * Float64 variables by value reference, stepping, and FMU state handling. fmi2.c and
- * fmi3.c translate their API onto these calls; the model is in model.c.
+ * fmi3.c translate their API onto these calls; the model is behind model.h.
  */
 #ifndef FMU_INSTANCE_H
 #define FMU_INSTANCE_H

@@ -1,9 +1,10 @@
 /*
- * Rigid-body algorithms for a planar serial chain of N_LINKS revolute joints.
+ * Rigid-body algorithms for a planar serial chain of N_LINKS revolute joints, shared by the
+ * built-in models (the rigid arm, and the elastic-joint arm's links).
  *
  * Written once for a generic scalar so that the same code runs in `double` (simulation)
  * and in `double complex` (complex-step directional derivatives, exact to round-off).
- * model.c includes this file twice with SCALAR and FN(name) defined, after <tgmath.h>,
+ * A model includes this file twice with SCALAR and FN(name) defined, after <tgmath.h>,
  * which makes cos/sin/tanh/sqrt type-generic.
  *
  * Geometry: joint 1 sits at the origin; q[0] is link 1's angle from the horizontal (x)
@@ -11,6 +12,27 @@
  * Link i has mass m, length l, centre of mass at distance lc along the link and
  * rotational inertia I about its centre of mass.
  */
+
+#ifndef PLANAR_CHAIN_PARAMS
+#define PLANAR_CHAIN_PARAMS
+/* The parameters the algorithms read, as views into the model's variables. */
+typedef struct {
+    const double *m, *l, *lc, *inertia, *b, *fc, *tau_d, *tau_d_amp, *tau_d_freq;
+    double fc_vel, g;
+} ChainParams;
+
+/* The chain's parameters of a model whose variable table has the rigid arm's link
+ * parameters (m, l, lc, I, b, fc, tau_d, tau_d_amp, tau_d_freq, fc_vel, g). */
+static ChainParams chain_params(const ModelState *s)
+{
+    const double *v = s->v;
+    ChainParams p = {
+        &v[VR_m], &v[VR_l], &v[VR_lc], &v[VR_I], &v[VR_b], &v[VR_fc],
+        &v[VR_tau_d], &v[VR_tau_d_amp], &v[VR_tau_d_freq], v[VR_fc_vel], v[VR_g],
+    };
+    return p;
+}
+#endif
 
 /* Recursive Newton–Euler: tau = M(q) qdd + C(q, qd) qd + G(q).
  * qdd may be NULL (zero acceleration): then tau is the bias force C qd + G. */

@@ -1,0 +1,44 @@
+/*
+ * Fixed-step classical Runge–Kutta for the built-in models: from t0 to t0 + h in equal
+ * sub-steps no longer than max_step, landing exactly on t0 + h. Header-only; a model
+ * includes it after defining N_STATES.
+ */
+#ifndef RK4_H
+#define RK4_H
+
+#include <math.h>
+
+/* dx = f(t, x); 0 when it cannot be evaluated (a singular inertia matrix). */
+typedef int (*StateDerivative)(const void *context, double t, const double *x, double *dx);
+
+/* x is advanced in place; on failure it is left unchanged, *failed_at holds the time and
+ * 0 is returned. */
+static int rk4_integrate(StateDerivative f, const void *context, double t0, double h,
+                         double max_step, double *x, double *failed_at)
+{
+    int n_sub = (int)ceil(h / max_step - 1e-9);
+    if (n_sub < 1) n_sub = 1;
+    const double dt = h / n_sub;
+    double y[N_STATES], k1[N_STATES], k2[N_STATES], k3[N_STATES], k4[N_STATES], yt[N_STATES];
+    for (int i = 0; i < N_STATES; i++) y[i] = x[i];
+    for (int step = 0; step < n_sub; step++) {
+        const double t = t0 + step * dt;
+        int ok = f(context, t, y, k1);
+        for (int i = 0; i < N_STATES; i++) yt[i] = y[i] + 0.5 * dt * k1[i];
+        ok = ok && f(context, t + 0.5 * dt, yt, k2);
+        for (int i = 0; i < N_STATES; i++) yt[i] = y[i] + 0.5 * dt * k2[i];
+        ok = ok && f(context, t + 0.5 * dt, yt, k3);
+        for (int i = 0; i < N_STATES; i++) yt[i] = y[i] + dt * k3[i];
+        ok = ok && f(context, t + dt, yt, k4);
+        if (!ok) {
+            *failed_at = t;
+            return 0;
+        }
+        for (int i = 0; i < N_STATES; i++)
+            y[i] += dt / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]);
+    }
+    for (int i = 0; i < N_STATES; i++) x[i] = y[i];
+    return 1;
+}
+
+#endif
