@@ -51,20 +51,21 @@ def cell(result) -> str:
     return f"{text} ({peak:.0f} N·m{f', {chatter:.0f} rev/s' if chatter >= 2 else ''})"
 
 
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--duration", type=float, default=20.0, help="simulated seconds")
-    args = parser.parse_args()
+def table(path: Path, conditions: dict[str, list[str]], duration: float,
+          label: str = "condition") -> int:
+    """Print the markdown table: a row per condition (its ``--set`` overrides of the
+    pipeline at ``path``), a column per run, each cell by :func:`cell`. Each run on its own,
+    so that a diverging run does not stop the others."""
     header = None
-    for condition, sets in CONDITIONS.items():
+    for condition, sets in conditions.items():
         began = time.perf_counter()
         try:
-            pipeline = load_pipeline(PIPELINE, [*sets, f"simulation.duration={args.duration}"])
+            pipeline = load_pipeline(path, [*sets, f"simulation.duration={duration}"])
         except PipelineError as exc:
-            print(f"robustness: {exc}", file=sys.stderr)
+            print(f"{path.stem}: {exc}", file=sys.stderr)
             return 2
         results = {}
-        for name in list(pipeline.runs):  # one at a time: a diverging run does not stop others
+        for name in list(pipeline.runs):
             single = pipeline.model_copy()
             single.runs = {name: pipeline.runs[name]}
             try:
@@ -73,13 +74,20 @@ def main() -> int:
                 results[name] = exc
         if header is None:
             header = list(results)
-            print("| condition | " + " | ".join(header) + " |")
+            print(f"| {label} | " + " | ".join(header) + " |")
             print("|---" * (len(header) + 1) + "|")
         cells = [cell(r) if not isinstance(r, Diverged) else f"stopped: {r}"
                  for r in results.values()]
         print(f"| {condition} | " + " | ".join(cells) + " |", flush=True)
         print(f"  ({time.perf_counter() - began:.1f} s)", file=sys.stderr)
     return 0
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--duration", type=float, default=20.0, help="simulated seconds")
+    args = parser.parse_args()
+    return table(PIPELINE, CONDITIONS, args.duration)
 
 
 if __name__ == "__main__":

@@ -119,7 +119,7 @@ def plant_path(pipeline: Pipeline) -> Path:
             raise PipelineError(f"plant.fmu: {path} does not exist")
         return path
     b = pipeline.plant.builtin
-    return build_fmu(links=b.links, fmi_version=b.fmi_version)
+    return build_fmu(links=b.links, fmi_version=b.fmi_version, model=b.model)
 
 
 def open_plant(pipeline: Pipeline) -> Fmu:

@@ -11,7 +11,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from plant_fmu import MAX_LINKS, BuildError, build_fmu
+from plant_fmu import DEFAULT_MODEL, MAX_LINKS, MODELS, BuildError, build_fmu
 
 from .config.schema import PipelineError
 
@@ -34,13 +34,15 @@ def _build_fmu(args: argparse.Namespace) -> None:
         except OSError as exc:
             raise UserError(f"--output {args.output}: cannot make the folder: "
                             f"{exc.strerror or exc}") from None
-        output = output / f"PlanarArm{args.links}_fmi{args.fmi_version}.fmu"
+        identifier = MODELS[args.model].MODEL_IDENTIFIER
+        output = output / f"{identifier}{args.links}_fmi{args.fmi_version}.fmu"
     elif output is not None and output.suffix.lower() != ".fmu":
         raise UserError(f"--output {args.output}: an FMU's file name ends in .fmu (e.g. "
                         f"{output.with_suffix('.fmu')}); for a folder, end it with "
                         f"{os.sep} and the FMU is written into it; nothing was written")
     try:
-        path = build_fmu(links=args.links, fmi_version=args.fmi_version, output=output)
+        path = build_fmu(links=args.links, fmi_version=args.fmi_version, output=output,
+                         model=args.model)
     except OSError as exc:
         raise UserError(f"--output {args.output}: cannot write the FMU there: "
                         f"{exc.strerror or exc}") from None
@@ -358,9 +360,14 @@ def _parser() -> argparse.ArgumentParser:
         "controller. SI units, angles in radians.")
     sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
 
-    p = sub.add_parser("build-fmu", help="build the n-link planar arm FMU (FMI 2.0 or 3.0)",
-                       description="Compile the built-in plant with the system C compiler into "
-                       "an FMU with Co-Simulation and Model Exchange. Prints the FMU's path.")
+    p = sub.add_parser("build-fmu", help="build a built-in plant FMU (FMI 2.0 or 3.0)",
+                       description="Compile a built-in plant model with the system C compiler "
+                       "into an FMU with Co-Simulation and Model Exchange. Prints the FMU's "
+                       "path.")
+    p.add_argument("--model", default=DEFAULT_MODEL, choices=list(MODELS),
+                   help=f"the plant model: the rigid n-link planar arm (planar_arm), or the "
+                   f"arm with elastic joints, motors driving the links through springs "
+                   f"(elastic_joints) (default {DEFAULT_MODEL})")
     p.add_argument("--links", type=int, default=2, choices=range(1, MAX_LINKS + 1),
                    metavar="N", help=f"number of links, 1 to {MAX_LINKS} (default 2)")
     p.add_argument("--fmi-version", type=int, default=2, choices=(2, 3),

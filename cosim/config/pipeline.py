@@ -20,6 +20,8 @@ from typing import Annotated, Any, Literal
 
 from pydantic import BaseModel, Field, ValidationError, create_model, model_validator
 
+from plant_fmu import DEFAULT_MODEL, MODELS
+
 from ..blocks import BLOCKS, DEFAULT_CHAIN
 from ..blocks.plugins import load_entry_points, load_plugins
 from .declared import Safety, Uncertainty
@@ -66,7 +68,10 @@ def check_name(name: str, what: str) -> str:
 
 
 class BuiltinPlant(Section):
-    links: Annotated[int, Field(ge=1, le=7)] = 2  # joints of the built-in planar arm
+    # The model: plant_fmu.models.MODELS (the elastic-joint arm's motors drive the links
+    # through springs; its extra parameters are k, d, J per joint).
+    model: Literal[tuple(MODELS)] = DEFAULT_MODEL  # the rigid arm, or with elastic joints
+    links: Annotated[int, Field(ge=1, le=7)] = 2  # joints of the built-in arm
     fmi_version: Literal[2, 3] = 2  # the FMI version it is built for
 
 

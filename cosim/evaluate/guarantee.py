@@ -27,10 +27,13 @@ from .safety import SafeSet
 PARAMETER_TOLERANCE = 1e-9
 
 
-def plant_payload(parameters: dict, chain) -> tuple[float | None, list[str]]:
-    """The payload the plant carries against the nominal chain (m[n] − m_n, kg), and the
-    other link parameters where the plant differs from it. (None, []) when the plant does
-    not expose the chain's parameters (a foreign FMU)."""
+def plant_payload(parameters: dict, chain, modelled: frozenset[str] | None = None
+                  ) -> tuple[float | None, list[str]]:
+    """The payload the plant carries against the nominal chain (m[n] − m_n, kg), and what
+    else sets the plant apart from it: link parameters that differ, and parameters the
+    rigid chain's model does not have (``modelled``: its parameter names; the joint
+    springs of the elastic-joint arm, say). (None, []) when the plant does not expose the
+    chain's parameters (a foreign FMU)."""
     if chain is None:
         return None, []
     n = len(chain.m)
@@ -41,6 +44,13 @@ def plant_payload(parameters: dict, chain) -> tuple[float | None, list[str]]:
               for key, values in names.items() for i in range(n)
               if not (key == "m" and i == n - 1)
               and abs(parameters[f"{key}[{i + 1}]"] - values[i]) > PARAMETER_TOLERANCE]
+    if modelled is not None:
+        extra = [name for name in parameters if name not in modelled]
+        if extra:
+            shown = ", ".join(extra[:6]) + (f" and {len(extra) - 6} more" if len(extra) > 6
+                                            else "")
+            differ.append(f"has parameters the nominal rigid chain does not ({shown}): it is "
+                          "another model")
     return float(parameters[f"m[{n}]"] - chain.m[n - 1]), differ
 
 
