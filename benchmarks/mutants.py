@@ -120,7 +120,7 @@ MUTANTS = [
      "if substeps > self.simulation.max_plant_substeps:", "if False:", LIMITS),
     ("limit-unpack-size", "cosim/plant/unpack.py",
      "if total > MAX_MEGABYTES * 1e6:", "if False:", LIMITS),
-    ("limit-seed", "cosim/config/schema.py",
+    ("limit-seed", "cosim/schema.py",
      "Seed = Annotated[int, Field(ge=0)]", "Seed = int", LIMITS),
 ]
 

@@ -20,7 +20,7 @@ from plant_fmu import build_fmu
 
 from .blocks import BLOCKS, Block, BlockContext, Ports
 from .config import Pipeline, PipelineError
-from .config.declared import Uncertainty
+from .declared import Uncertainty
 from .evaluate import Evaluator, SafeSet, evaluated_signals
 from .plant import PLANT_INPUT, PLANT_INPUT_ENTITY, PLANT_OUTPUTS
 from .plant.fmu import Fmu, FmuError

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from plant_fmu import DEFAULT_MODEL, MAX_LINKS, MODELS, BuildError, build_fmu
 
-from .config.schema import PipelineError
+from .schema import PipelineError
 
 # A sweep's rows are held in memory and its points validated one by one (~1 ms each): past
 # 100,000 points a typo (a 1000-value grid on three keys is 10⁹) would exhaust the machine

@@ -10,9 +10,9 @@ from cli_helpers import PAPER
 from cosim.assemble import assemble_run
 from cosim.blocks import BLOCKS, Block, register_block
 from cosim.config import PipelineError, Section, load_pipeline
-from cosim.config.schema import PositiveFloat
 from cosim.engine import simulate
 from cosim.runner import run
+from cosim.schema import PositiveFloat
 from cosim.signals import Signal
 
 CHAIN = '["reference", "sensor", "inertia_model", "observer", "controller", "torque_limiter"]'

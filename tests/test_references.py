@@ -40,7 +40,7 @@ from cosim.blocks import BlockContext, Ports
 from cosim.blocks.controller import ControllerParams, NnController, NnGains, controller_step
 from cosim.blocks.inertia import planar_bias, planar_mass_matrix
 from cosim.blocks.observer import FlnnObserver, ObserverParams, _gain, observer_step
-from cosim.config.declared import Uncertainty
+from cosim.declared import Uncertainty
 from cosim.evaluate import Evaluator, SafeSet, theorem1
 from cosim.evaluate.guarantee import classify
 from cosim.signals import Signal, Trace

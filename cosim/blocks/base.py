@@ -3,7 +3,7 @@
 A block declares:
 
 - ``kind``: its name in pipelines (``blocks = [...]``) and the name of its table;
-- ``Params``: a :class:`~cosim.config.schema.Section` whose fields, defaults, units and
+- ``Params``: a :class:`~cosim.schema.Section` whose fields, defaults, units and
   documentation are the block's parameters *and* its pipeline schema (one source);
 - ``inputs``: the signals it reads at row k (``delayed``: only at rows before k, so their
   producer may come later in the chain: the torque fed back to the observer);
@@ -30,8 +30,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
-from ..config.declared import Safety, Uncertainty
-from ..config.schema import Section
+from ..declared import Safety, Uncertainty
+from ..schema import Section
 from ..signals import Signal
 
 
@@ -106,7 +106,7 @@ def register_block(cls: type[Block]) -> type[Block]:
     if not isinstance(kind, str) or not kind.isidentifier():
         raise TypeError(f"{cls.__name__}.kind must be an identifier (got {kind!r})")
     if not (isinstance(getattr(cls, "Params", None), type) and issubclass(cls.Params, Section)):
-        raise TypeError(f"{cls.__name__}.Params must be a cosim.config.schema.Section")
+        raise TypeError(f"{cls.__name__}.Params must be a cosim.schema.Section")
     if kind in BLOCKS and BLOCKS[kind] is not cls:
         raise ValueError(f"a block of kind {kind!r} is registered already "
                          f"({BLOCKS[kind].__module__}.{BLOCKS[kind].__name__})")

@@ -60,7 +60,7 @@ import numpy as np
 from numba import njit
 from pydantic import Field
 
-from ..config.schema import FiniteFloat, PipelineError, PositiveFloat, Section
+from ..schema import FiniteFloat, PipelineError, PositiveFloat, Section
 from ..signals import Signal
 from .base import Block, BlockContext, Ports, register_block
 from .inertia import planar_bias, planar_mass_matrix

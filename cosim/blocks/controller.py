@@ -23,7 +23,7 @@ import numpy as np
 from numba import njit
 from pydantic import Field
 
-from ..config.schema import GainVector, NonNegativeFloat, PositiveFloat, Section, Seed
+from ..schema import GainVector, NonNegativeFloat, PositiveFloat, Section, Seed
 from ..signals import Signal
 from .base import Block, BlockContext, Ports, register_block
 

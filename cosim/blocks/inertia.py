@@ -25,7 +25,7 @@ from numba import njit
 
 from plant_fmu.models.planar_arm import PAPER_MASSES
 
-from ..config.schema import FiniteFloat, NonNegativeFloat, PositiveFloat, Section
+from ..schema import FiniteFloat, NonNegativeFloat, PositiveFloat, Section
 from ..signals import Signal
 from .base import Block, BlockContext, Ports, register_block
 

@@ -26,7 +26,7 @@ import numpy as np
 from numba import njit
 from pydantic import Field
 
-from ..config.schema import FiniteFloat, NonNegativeFloat, PositiveFloat, Section
+from ..schema import FiniteFloat, NonNegativeFloat, PositiveFloat, Section
 from ..signals import Signal
 from .base import Block, BlockContext, Ports, register_block
 

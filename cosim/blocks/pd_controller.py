@@ -17,7 +17,7 @@ from typing import Literal, NamedTuple
 import numpy as np
 from numba import njit
 
-from ..config.schema import GainVector, NonNegativeFloat, Section
+from ..schema import GainVector, NonNegativeFloat, Section
 from ..signals import Signal
 from .base import Block, BlockContext, Ports, register_block
 from .inertia import planar_bias

@@ -25,7 +25,7 @@ from importlib.metadata import entry_points
 from pathlib import Path
 from types import ModuleType
 
-from ..config.schema import PipelineError
+from ..schema import PipelineError
 
 ENTRY_POINT_GROUP = "cosim.blocks"
 

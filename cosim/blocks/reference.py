@@ -8,7 +8,7 @@ from typing import Literal
 import numpy as np
 from pydantic import model_validator
 
-from ..config.schema import FiniteFloat, NonNegativeFloat, PositiveFloat, Section
+from ..schema import FiniteFloat, NonNegativeFloat, PositiveFloat, Section
 from ..signals import Signal
 from .base import Block, BlockContext, Ports, register_block
 

@@ -8,7 +8,7 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from ..config.schema import NonNegativeFloat, Section, Seed
+from ..schema import NonNegativeFloat, Section, Seed
 from ..signals import Signal
 from .base import Block, BlockContext, Ports, register_block
 

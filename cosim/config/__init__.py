@@ -1,19 +1,14 @@
 """Pipeline configuration: the schema (assembled from the block registry), loading TOML
 files and ``--set`` overrides.
 
-``schema`` holds what blocks build their parameter tables from; ``pipeline`` needs the
-registered blocks, so it is imported on first use (blocks import ``schema``).
+What blocks build their parameter tables from (``Section``, the field types) and the
+pipeline-wide declarations they may read (``[safety]``, ``[uncertainty]``) live below the
+blocks, in :mod:`cosim.schema` and :mod:`cosim.declared`; ``Section`` and ``PipelineError``
+are re-exported here for a block's author.
 """
 
-from importlib import import_module
+from ..schema import PipelineError, Section
+from .pipeline import Pipeline, Run, apply_override, load_pipeline, pipeline_model, validate
 
-from .schema import PipelineError, Section
-
-_PIPELINE = ("Pipeline", "Run", "apply_override", "load_pipeline", "pipeline_model", "validate")
-__all__ = ["PipelineError", "Section", *_PIPELINE]
-
-
-def __getattr__(name: str):
-    if name in _PIPELINE:
-        return getattr(import_module(".pipeline", __name__), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__all__ = ["Pipeline", "PipelineError", "Run", "Section", "apply_override", "load_pipeline",
+           "pipeline_model", "validate"]

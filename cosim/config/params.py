@@ -20,7 +20,7 @@ from typing import Any
 
 from pydantic import BaseModel
 
-from .schema import Section
+from ..schema import Section
 
 
 @dataclass(frozen=True)

@@ -24,8 +24,8 @@ from plant_fmu import DEFAULT_MODEL, MODELS
 
 from ..blocks import BLOCKS, DEFAULT_CHAIN
 from ..blocks.plugins import load_entry_points, load_plugins
-from .declared import Safety, Uncertainty
-from .schema import FiniteFloat, PipelineError, PositiveFloat, Section
+from ..declared import Safety, Uncertainty
+from ..schema import FiniteFloat, PipelineError, PositiveFloat, Section
 
 
 class Simulation(Section):

@@ -18,8 +18,8 @@ from numba import typeof, types
 
 from ..blocks import Block
 from ..blocks.plugins import describe_exception
-from ..config.schema import PipelineError
 from ..plant.mapping import FmuError
+from ..schema import PipelineError
 from ..signals import Trace
 from .fused import fused_loop
 

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..config.declared import Uncertainty
+from ..declared import Uncertainty
 from ..signals import Trace
 from .safety import SafeSet
 

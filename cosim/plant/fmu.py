@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 from fmpy.model_description import ModelDescription
 
-from ..engine.fused import FusedIo, function_pointer
 from .lifecycle import STATUS, FmiInstance, open_instance
 from .mapping import FmuError, PlantVariables, check_parameters, open_plant
+from .native import FusedIo, function_pointer
 
 
 @dataclass

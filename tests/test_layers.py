@@ -1,0 +1,104 @@
+"""The package's import graph, read from the source (every import, at module level or inside
+a function): modules import only from their own layer or lower ones, and no modules import
+each other round a cycle. A new module is placed in :data:`LAYERS`."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+# Low to high; a module may import its own layer and those before it.
+LAYERS = (
+    ("cosim.schema", "cosim.declared", "cosim.signals", "cosim.jit_cache", "cosim.progress",
+     "plant_fmu"),
+    ("cosim.plant", "cosim.evaluate"),
+    ("cosim.blocks",),
+    ("cosim.config", "cosim.engine"),
+    ("cosim.assemble",),
+    ("cosim.outputs", "cosim.plan", "cosim.runner"),
+    ("cosim.sweep",),
+    ("cosim.cli", "cosim"),
+)
+
+
+def module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts.pop()
+    return ".".join(parts)
+
+
+def imports(path: Path) -> set[str]:
+    """The project modules ``path`` imports (relative imports resolved)."""
+    package = module_name(path).split(".")
+    if path.name != "__init__.py":
+        package = package[:-1]
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.Import):
+            names = [alias.name for alias in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                base = ".".join(package[:len(package) - node.level + 1] + ([base] if base else []))
+            names = [base] + [f"{base}.{alias.name}" for alias in node.names]
+        else:
+            continue
+        out.update(n for n in names if n.split(".")[0] in ("cosim", "plant_fmu"))
+    return out
+
+
+def layer(module: str) -> int:
+    """The layer of the longest prefix of ``module`` that is listed."""
+    best, rank = -1, None
+    for index, members in enumerate(LAYERS):
+        for prefix in members:
+            if (module == prefix or module.startswith(prefix + ".")) and len(prefix) > best:
+                best, rank = len(prefix), index
+    assert rank is not None, f"{module} is in no layer: place it in LAYERS"
+    return rank
+
+
+def graph() -> dict[str, set[str]]:
+    files = [*ROOT.glob("cosim/**/*.py"), *ROOT.glob("plant_fmu/**/*.py")]
+    modules = {module_name(p): p for p in files}
+    out = {}
+    for name, path in modules.items():
+        # An imported name may be a module or an attribute of one: keep the modules. Importing
+        # a.b.c runs the package a.b's __init__ first: an edge to a.b too, except to the
+        # importer's own packages (entered already).
+        own = {".".join(name.split(".")[:i]) for i in range(1, name.count(".") + 1)}
+        targets = set()
+        for imported in imports(path):
+            parts = imported.split(".")
+            targets.update(".".join(parts[:i]) for i in range(2, len(parts) + 1))
+        out[name] = {m for m in targets if m in modules and m != name and m not in own}
+    return out
+
+
+def test_no_module_imports_from_a_higher_layer():
+    upward = [f"{a} -> {b}" for a, targets in graph().items() for b in targets
+              if layer(b) > layer(a)]
+    assert upward == []
+
+
+def test_the_import_graph_has_no_cycle():
+    edges = graph()
+    state: dict[str, int] = {}
+    cycles = []
+
+    def visit(node: str, path: list[str]) -> None:
+        state[node] = 1
+        for target in sorted(edges[node]):
+            if state.get(target) == 1:
+                cycles.append(" -> ".join(path[path.index(target):] + [target]))
+            elif target not in state:
+                visit(target, [*path, target])
+        state[node] = 2
+
+    for node in sorted(edges):
+        if node not in state:
+            visit(node, [node])
+    assert cycles == []
