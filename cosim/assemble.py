@@ -11,7 +11,7 @@ is one :class:`PipelineError` naming the run, the block and the signal.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 import numpy as np
@@ -82,7 +82,7 @@ class RunPlan:
         for block, ins, outs in zip(reversed(self.blocks), reversed(self.inputs),
                                     reversed(self.outputs), strict=True):
             if PLANT_INPUT in outs:
-                return (ins[PLANT_INPUT], block.kind) if PLANT_INPUT in ins else None
+                return (ins[PLANT_INPUT], block.instance) if PLANT_INPUT in ins else None
         return None
 
     def block(self, kind: str) -> Block | None:
@@ -209,7 +209,12 @@ def assemble_run(pipeline: Pipeline, name: str, plant) -> RunPlan:
     context = BlockContext(links, dt, name, plant_outputs(plant), pipeline.safety,
                            pipeline.uncertainty)
     check_sizes(run, name, plant)
-    blocks = [BLOCKS[kind](run.block_params(kind), context) for kind in run.blocks]
+    blocks = []
+    for instance, kind in run.chain():
+        block = BLOCKS[kind](run.block_params(instance), context)
+        if instance != kind:  # a named instance: its messages, kept signals and entities
+            block.instance, block.name = instance, instance.replace("_", " ")
+        blocks.append(block)
     signals, inputs, outputs, plant_input = wire(blocks, context, name, plant)
     constants = wire_constants(blocks, name)
     return RunPlan(name, blocks, signals, inputs, outputs, plant_input,
@@ -227,7 +232,7 @@ def wire_constants(blocks: list[Block], run: str) -> list[dict]:
             if name not in published:
                 makers = [kind for kind, cls in BLOCKS.items() if name in _published_by(cls)]
                 hint = f"published by: {', '.join(makers)}" if makers else "no block publishes it"
-                raise PipelineError(f"run '{run}': the {block.kind} block needs the constant "
+                raise PipelineError(f"run '{run}': the {block.instance} block needs the constant "
                                     f"'{name}', which no block before it publishes ({hint})")
             needed[name] = published[name]
         out.append(needed)
@@ -256,19 +261,24 @@ def wire(blocks: list[Block], context: BlockContext, run: str, plant
             if port not in current:
                 hint = (f"{file} does not map it (plant.variables.{port})" if port in PLANT_OUTPUTS
                         else _producers_hint(port, blocks))
-                raise PipelineError(f"{where}: the {block.kind} block reads '{port}', which "
+                raise PipelineError(f"{where}: the {block.instance} block reads '{port}', which "
                                     f"nothing before it produces ({hint})")
             ins[port] = current[port]
         outs = {}
         for port, signal in block.outputs.items():
+            if block.instance != block.kind and signal.entity is not None:
+                # a named instance records under its own name (two of one kind apart)
+                head, _, rest = signal.entity.partition("/")
+                if head == block.kind:
+                    signal = replace(signal, entity=f"{block.instance}/{rest}")
             if port in current:
                 if port not in block.inputs:
                     raise PipelineError(
                         f"{where}: '{port}' is produced twice, by the {producer[port]} and "
-                        f"the {block.kind} block; a block that changes a signal must also "
+                        f"the {block.instance} block; a block that changes a signal must also "
                         "read it (a filter)")
                 if producer[port] == "plant":
-                    raise PipelineError(f"{where}: the {block.kind} block writes '{port}', "
+                    raise PipelineError(f"{where}: the {block.instance} block writes '{port}', "
                                         f"a plant output; blocks may only read it")
                 # A filter: the value before it is kept under its producer's name.
                 kept = f"{port}_{producer[port]}"
@@ -279,7 +289,7 @@ def wire(blocks: list[Block], context: BlockContext, run: str, plant
                             bindings[p] = kept
             signals[port] = signal
             current[port] = port
-            producer[port] = block.kind
+            producer[port] = block.instance
             outs[port] = port
         read.update(ins.values())
         inputs.append(ins)
@@ -287,14 +297,14 @@ def wire(blocks: list[Block], context: BlockContext, run: str, plant
     for block, ins in zip(blocks, inputs, strict=True):  # delayed: the final value
         for port in block.delayed:
             if port not in current:
-                raise PipelineError(f"{where}: the {block.kind} block reads '{port}' of the "
+                raise PipelineError(f"{where}: the {block.instance} block reads '{port}' of the "
                                     f"previous step, which no block produces "
                                     f"({_producers_hint(port, blocks)})")
             ins[port] = current[port]
             read.add(current[port])
     if PLANT_INPUT not in current or producer[PLANT_INPUT] == "plant":
         raise PipelineError(f"{where}: no block produces '{PLANT_INPUT}', the plant's torque "
-                            f"input (chain: {', '.join(b.kind for b in blocks)})")
+                            f"input (chain: {', '.join(b.instance for b in blocks)})")
     read.add(current[PLANT_INPUT])
     evaluated = evaluated_signals()
     entities: dict[str, str] = {}
@@ -337,11 +347,11 @@ def check_sizes(run, name: str, plant) -> None:
         raise PipelineError(f"reference.offset has {len(run.reference.offset)} entries (one "
                             f"per joint, rad); {joints}")
     sized = {}
-    for kind in run.blocks:
-        values = run.block_params(kind).model_dump(by_alias=True)
+    for instance, kind in run.chain():
+        values = run.block_params(instance).model_dump(by_alias=True)
         for key in BLOCKS[kind].per_joint:
             if isinstance(values.get(key), list):
-                sized[f"{kind}.{key}"] = values[key]
+                sized[f"{instance}.{key}"] = values[key]
     for key, value in sized.items():
         if len(value) != n:
             raise PipelineError(f"{key} (run '{name}') has {len(value)} entries; {joints}")

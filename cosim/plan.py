@@ -30,7 +30,7 @@ def describe_plan(pipeline: Pipeline, out: str | Path, record: bool = True) -> s
             size = trace_bytes(plan, steps)
             memory += size
             disk += NPZ_SHARE * size + (RECORDING_BYTES_PER_ROW * (steps + 1) if record else 0)
-            chain = " -> ".join(b.kind for b in plan.blocks)
+            chain = " -> ".join(b.instance for b in plan.blocks)
             lines.append(f"  run {name}: {chain} -> plant ({plan.plant_input}); "
                          f"{len(plan.signals)} signals, trace {size / 1e6:.1f} MB")
         available = available_memory()

@@ -253,7 +253,7 @@ def _run_one(plan: RunPlan, scenario: Scenario, plant_info: dict, recorder: Reco
         metrics["recording_handoff_s"] = recorder.handoff_seconds - handed_over
     result = RunResult(name, done, evaluation, error is None, error, failure,
                        inertia.describe() if inertia is not None else {}, wall,
-                       {block.kind: block.describe() for block in plan.blocks
+                       {block.instance: block.describe() for block in plan.blocks
                         if block.describe()}, plan.torque_before_filter())
     if recorder is not None:
         recorder.end_run(name, result.summary())
@@ -282,7 +282,8 @@ def _open_recorder(out: Path, pipeline: Pipeline, spawn: bool,
     sim = pipeline.simulation
     title = (f"{pipeline.name}: {' vs '.join(pipeline.runs)} "
              f"({sim.duration:g} s at {1 / sim.step:g} Hz)")
-    filtered = [name for name, run in pipeline.runs.items() if "cbf_filter" in run.blocks]
+    filtered = [name for name, run in pipeline.runs.items()
+                if "cbf_filter" in dict(run.chain()).values()]
     return Recorder(out / "recording.rrd", title, list(pipeline.runs), spawn=spawn,
                     connect=connect, filtered=filtered)
 

@@ -42,6 +42,44 @@ class TorqueLimiter(Block):
         return True
 
 
+def test_two_instances_of_one_kind_in_one_chain():
+    """"kind as name" adds a named instance with its own table over the kind's: two limiters
+    in series, each keeping what it was given under its own name, recorded apart."""
+    chain = CHAIN.replace('"torque_limiter"]', '"torque_limiter", "torque_limiter as outer"]')
+    pipeline = load_pipeline(PAPER, ["simulation.duration=1", "torque_limiter.limit=300",
+                                     f"runs.baseline.blocks={chain}",
+                                     "runs.baseline.outer.limit=150"])
+    results = run(pipeline, None, progress=False)
+    trace = results["baseline"].trace
+    assert np.abs(trace["tau_controller"]).max() > 300
+    np.testing.assert_array_equal(trace["tau_torque_limiter"],
+                                  np.clip(trace["tau_controller"], -300, 300))
+    np.testing.assert_array_equal(trace["tau"], np.clip(trace["tau_torque_limiter"], -150, 150))
+    plan = assemble_run(pipeline, "baseline", TwoLinkArm())
+    assert [b.instance for b in plan.blocks][-2:] == ["torque_limiter", "outer"]
+    entities = plan.entities()
+    assert entities["torque_limiter/tau"][0] == "tau_torque_limiter"
+    assert entities["outer/tau"][0] == "tau"
+    assert plan.torque_before_filter() == ("tau_torque_limiter", "outer")
+
+
+@pytest.mark.parametrize("overrides,message", [
+    (['runs.baseline.blocks=["reference", "torque_limiter as controller"]'],
+     "blocks: 'torque_limiter as controller': the name 'controller' is taken (by a block kind "
+     "or another instance); name it otherwise"),
+    ([f"runs.baseline.blocks={CHAIN[:-1]}, \"torque_limiter as outer\"]",
+      "runs.baseline.outer.limit=-1"],
+     "outer.limit: Input should be greater than 0 (got -1)"),
+    (['runs.baseline.blocks=["reference", "torque_limiter as 2nd"]'],
+     "blocks: 'torque_limiter as 2nd' is not a block (\"kind\", or \"kind as name\" for a "
+     "named instance, both identifiers)"),
+])
+def test_named_instances_are_refused_with_the_key_at_fault(overrides, message):
+    with pytest.raises(PipelineError) as info:
+        load_pipeline(PAPER, overrides)
+    assert str(info.value).endswith(message), str(info.value)
+
+
 class TwoLinkArm:  # what assembly needs to know of a plant
     links, has_qdot, has_M = 2, True, True
 

@@ -71,7 +71,8 @@ class Block:
     def __init__(self, params: Section, context: BlockContext):
         self.params = params
         self.context = context
-        self.name = self.kind.replace("_", " ")
+        self.instance = self.kind  # its name in the chain (another for "kind as name")
+        self.name = self.kind.replace("_", " ")  # in messages
         self.inputs: tuple[str, ...] = ()
         self.delayed: tuple[str, ...] = ()
         self.outputs: dict[str, Signal] = {}
