@@ -1,5 +1,6 @@
 """What the co-simulation and recording tests share: the paper's pipeline, a way to run the
-real `cosim` command, and overrides that make a run diverge."""
+real `cosim` command, overrides that make a run diverge, and the barriers' gains read from a
+run's tables."""
 
 from __future__ import annotations
 
@@ -9,6 +10,10 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable
+
+import numpy as np
+
+from cosim.evaluate import Gains
 
 PAPER = "pipelines/paper_two_link.toml"
 
@@ -56,3 +61,12 @@ def assert_message(message: str, expected: str | re.Pattern) -> None:
         assert body == expected
     else:
         assert expected.fullmatch(body), body
+
+
+def table_gains(run) -> Gains:
+    """The gains the barriers use, read from the run's tables here (independently of what
+    the blocks publish): Λ per joint, F, G, Fo, and output feedback for the proposed
+    controller."""
+    lam = np.broadcast_to(np.asarray(run.controller.lam, float), (2,))
+    return Gains(lam, run.controller.f, run.controller.g, run.observer.fo,
+                 run.controller.variant == "proposed")

@@ -11,13 +11,13 @@ import sys
 import numpy as np
 import pytest
 import rerun as rr
-from cli_helpers import LOW_GAIN_LAGGED, PAPER, cosim_cli
+from cli_helpers import LOW_GAIN_LAGGED, PAPER, cosim_cli, table_gains
 from rerun.chunk import RrdReader
 
 from cosim.assemble import assemble_run, safe_set
 from cosim.config import load_pipeline
 from cosim.engine import Diverged
-from cosim.evaluate import BARRIERS, Gains, barriers
+from cosim.evaluate import BARRIERS, barriers
 from cosim.outputs.recording.layout import (
     BOUND_COLOR,
     DERIVED_ENTITIES,
@@ -379,12 +379,3 @@ def test_spawn_without_display_is_refused_before_running(tmp_path):
     assert result.returncode == 2
     assert "--spawn needs a display" in result.stderr and "nothing was run" in result.stderr
     assert "Traceback" not in result.stderr
-
-
-def table_gains(run) -> Gains:
-    """The gains the barriers use, read from the run's tables here (independently of what
-    the blocks publish): Λ per joint, F, G, Fo, and output feedback for the proposed
-    controller."""
-    lam = np.broadcast_to(np.asarray(run.controller.lam, float), (2,))
-    return Gains(lam, run.controller.f, run.controller.g, run.observer.fo,
-                 run.controller.variant == "proposed")

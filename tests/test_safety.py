@@ -6,10 +6,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from cli_helpers import table_gains
 
 from cosim.blocks.cbf_filter import cbf_rows, solve_soft_qp
 from cosim.config import load_pipeline
-from cosim.evaluate import Gains, barriers
+from cosim.evaluate import barriers
 from cosim.runner import run
 
 SAFETY = "pipelines/paper_safety.toml"
@@ -238,12 +239,3 @@ def test_finite_difference_velocity_is_worse_than_the_observer_under_noise():
     observer_error = np.sqrt(np.mean((observed["qdot_hat"] - observed["qdot"])[after] ** 2))
     assert fd_error > 1.0  # ≈ √2 · 1e-3 / 1e-3
     assert fd_error > 2.5 * observer_error, (fd_error, observer_error)
-
-
-def table_gains(run) -> Gains:
-    """The gains the barriers use, read from the run's tables here (independently of what
-    the blocks publish): Λ per joint, F, G, Fo, and output feedback for the proposed
-    controller."""
-    lam = np.broadcast_to(np.asarray(run.controller.lam, float), (2,))
-    return Gains(lam, run.controller.f, run.controller.g, run.observer.fo,
-                 run.controller.variant == "proposed")
