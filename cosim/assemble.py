@@ -22,7 +22,7 @@ from .blocks import BLOCKS, Block, BlockContext, Ports
 from .config import Pipeline, PipelineError
 from .declared import Uncertainty
 from .evaluate import Evaluator, SafeSet, evaluated_signals
-from .plant import PLANT_INPUT, PLANT_INPUT_ENTITY, PLANT_OUTPUTS
+from .plant import PLANT_INPUT, PLANT_INPUT_ENTITY, PLANT_OUTPUTS, Plant
 from .plant.fmu import Fmu, FmuError
 from .signals import Signal, Trace
 
@@ -195,15 +195,14 @@ def simulation_width(scenario: Scenario) -> int:
     return sum(s.width(plan.links) for s in plan.signals.values())
 
 
-def plant_outputs(plant) -> frozenset[str]:
-    """The plant outputs a block may read: q always, qdot and M where the FMU maps them."""
-    return frozenset({"q"} | ({"qdot"} if plant.has_qdot else set())
-                     | ({"M"} if plant.has_M else set()))
+def plant_outputs(plant: Plant) -> frozenset[str]:
+    """The plant outputs a block may read: the output ports the plant maps (q always)."""
+    return frozenset(plant.mapped) & frozenset(PLANT_OUTPUTS)
 
 
 def assemble_run(pipeline: Pipeline, name: str, plant) -> RunPlan:
-    """One run's blocks, built from its tables and wired. ``plant`` needs ``links``,
-    ``has_qdot``, ``has_M`` and a ``path`` (for messages) only."""
+    """One run's blocks, built from its tables and wired. ``plant`` needs ``links`` and
+    ``mapped`` (a :class:`~cosim.plant.Plant`), and a ``path`` for messages, only."""
     run = pipeline.runs[name]
     links, dt = plant.links, pipeline.simulation.step
     context = BlockContext(links, dt, name, plant_outputs(plant), pipeline.safety,
@@ -309,7 +308,7 @@ def wire(blocks: list[Block], context: BlockContext, run: str, plant
     evaluated = evaluated_signals()
     entities: dict[str, str] = {}
     for key, signal in signals.items():
-        owner = producer.get(key, key)
+        owner = "plant" if key in PLANT_OUTPUTS else producer.get(key, key)
         if signal.entity is None and key not in read and owner != "plant" \
                 and key not in evaluated and not signal.kept:
             raise PipelineError(f"{where}: the {owner} block's output '{key}' is neither read "
@@ -356,13 +355,14 @@ def check_sizes(run, name: str, plant) -> None:
         if len(value) != n:
             raise PipelineError(f"{key} (run '{name}') has {len(value)} entries; {joints}")
     controller = getattr(run, "controller", None)
-    if "controller" in run.blocks and controller.variant == "baseline" and not plant.has_qdot:
+    if "controller" in run.blocks and controller.variant == "baseline" \
+            and "qdot" not in plant.mapped:
         raise PipelineError(
             f"run '{name}': the full-state baseline reads the true joint velocity, but "
             f"{file} has no qdot mapping (no outputs qdot[1]..qdot[{n}]); map them with "
             "plant.variables.qdot = [...] or drop the run")
     inertia = getattr(run, "inertia_model", None)
-    if "inertia_model" in run.blocks and inertia.source == "fmu" and not plant.has_M:
+    if "inertia_model" in run.blocks and inertia.source == "fmu" and "M" not in plant.mapped:
         raise PipelineError(
             f"inertia_model.source = \"fmu\" (run '{name}'), but {file} has no M mapping "
             f"(no outputs M[1,1]..M[{n},{n}]); map them with plant.variables.M = [...] "

@@ -274,7 +274,7 @@ def describe_inertia(model, plant) -> str:
     links = model.nominal_links()
     return (f"nominal (m = {links['m']} kg, l = {links['l']} m, lc = {links['lc']} m, "
             f"I = {links['I']} kg·m²) at the measured position"
-            + ("" if plant.has_M else f"; {plant.path.name} maps no M outputs"))
+            + ("" if "M" in plant.mapped else f"; {plant.path.name} maps no M outputs"))
 
 
 def _open_recorder(out: Path, pipeline: Pipeline, spawn: bool,

@@ -81,7 +81,7 @@ def test_named_instances_are_refused_with_the_key_at_fault(overrides, message):
 
 
 class TwoLinkArm:  # what assembly needs to know of a plant
-    links, has_qdot, has_M = 2, True, True
+    links, mapped = 2, frozenset({"q", "qdot", "M"})
 
 
 def test_a_registered_block_runs_in_a_pipeline():
@@ -130,7 +130,7 @@ def test_wiring_errors_name_the_run_the_block_and_the_signal(chain, message):
 
 def test_a_plant_output_the_fmu_does_not_map_cannot_be_read():
     class NoVelocity(TwoLinkArm):
-        has_qdot = False
+        mapped = frozenset({"q", "M"})
 
     pipeline = load_pipeline(PAPER, ["runs.baseline.controller.variant=\"baseline\""])
     with pytest.raises(PipelineError, match="full-state baseline reads the true joint velocity"):

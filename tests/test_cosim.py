@@ -14,6 +14,7 @@ from cosim.assemble import assemble_run
 from cosim.config import PipelineError, load_pipeline
 from cosim.engine import Diverged, simulate
 from cosim.evaluate import torque_reversals
+from cosim.plant.ports import output_buffers
 from cosim.runner import run
 
 
@@ -99,13 +100,13 @@ def test_error_driven_observer_converges(paper_run):
 
 class PythonArm:
     """SPEC §2's closed form integrated by solve_ivp (DOP853, rtol 1e-12) each step: an
-    independent stand-in for the FMU with the same interface as cosim.plant.fmu.Fmu."""
+    independent stand-in for the FMU (a :class:`cosim.plant.Plant`)."""
 
-    links, has_M, has_qdot = 2, True, True
+    links, mapped = 2, frozenset({"q", "qdot", "M"})
 
     def __init__(self):
-        self.q, self.qdot = np.zeros(2), np.zeros(2)
-        self.M, self.tau = np.zeros((2, 2)), np.zeros(2)
+        self.values = output_buffers(2)
+        self.tau = np.zeros(2)
 
     @staticmethod
     def terms(q, qd, m1=0.8, m2=2.3, g=9.8):
@@ -117,10 +118,10 @@ class PythonArm:
         return M, vm + G
 
     def _outputs(self):
-        self.M[:] = self.terms(self.q, self.qdot)[0]
+        self.values["M"][:] = self.terms(self.values["q"], self.values["qdot"])[0]
 
     def start(self, t0):
-        self.q[:], self.qdot[:] = [0.1, 0.1], [10.0, 10.0]
+        self.values["q"][:], self.values["qdot"][:] = [0.1, 0.1], [10.0, 10.0]
         self._outputs()
 
     def step(self, t, h):
@@ -130,9 +131,9 @@ class PythonArm:
             M, bias = self.terms(x[:2], x[2:])
             return np.concatenate([x[2:], np.linalg.solve(M, tau - bias - 0.01)])
 
-        x = solve_ivp(rhs, (t, t + h), np.concatenate([self.q, self.qdot]), method="DOP853",
-                      rtol=1e-12, atol=1e-12).y[:, -1]
-        self.q[:], self.qdot[:] = x[:2], x[2:]
+        x0 = np.concatenate([self.values["q"], self.values["qdot"]])
+        x = solve_ivp(rhs, (t, t + h), x0, method="DOP853", rtol=1e-12, atol=1e-12).y[:, -1]
+        self.values["q"][:], self.values["qdot"][:] = x[:2], x[2:]
         self._outputs()
 
 

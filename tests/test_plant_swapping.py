@@ -204,7 +204,7 @@ def test_nominal_inertia_model_equals_the_fmus_M(plant_fmu, links):
         q = rng.uniform(-3, 3, links)
         with Fmu(plant_fmu(links, 2), parameters=fmu_parameters(params, q0=q)) as plant:
             plant.start(0.0)
-            expected = plant.M.copy()
+            expected = plant.values["M"].copy()
         out = np.zeros((links, links))
         planar_mass_matrix(q, params["m"], params["l"], params["lc"], params["I"], out)
         assert np.allclose(out, expected, rtol=1e-12, atol=1e-12)

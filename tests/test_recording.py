@@ -39,7 +39,7 @@ from cosim.runner import run  # noqa: E402
 
 
 class _TwoLinkArm:  # what assembly needs to know of the paper's plant
-    links, has_qdot, has_M = 2, True, True
+    links, mapped = 2, frozenset({"q", "qdot", "M"})
 
 
 # Recording entity -> (trace signal, series stem), derived from the blocks' declarations.

@@ -2,7 +2,9 @@
 means, generated from the schema the pipeline is validated with (so always current).
 
 The meaning of a key is its comment in the section's source: the comment after the field,
-or the comment lines just above it, or its entry in the section docstring's ``name``: list.
+or the comment lines just above it, or its entry in the section docstring's ``name``: list;
+for a field built from a table (``plant.variables``, from the plant's ports), its
+description.
 Units are part of that text (SI, radians).
 """
 
@@ -73,7 +75,8 @@ def _meaning(model: type[BaseModel], name: str) -> str:
             text = _comments(cls).get(name, "")
             if text:
                 return text
-    return ""
+    field = model.model_fields.get(name)  # a field built from a table (plant.variables)
+    return (field.description or "") if field is not None else ""
 
 
 def _constraint(item: Any) -> str:

@@ -25,6 +25,7 @@ from plant_fmu import DEFAULT_MODEL, MODELS
 from ..blocks import BLOCKS, DEFAULT_CHAIN
 from ..blocks.plugins import load_entry_points, load_plugins
 from ..declared import Safety, Uncertainty
+from ..plant.ports import PORTS
 from ..schema import FiniteFloat, PipelineError, PositiveFloat, Section
 
 
@@ -75,15 +76,18 @@ class BuiltinPlant(Section):
     fmi_version: Literal[2, 3] = 2  # the FMI version it is built for
 
 
-class VariableMapping(Section):
-    """Our interface in the FMU's names, one name per joint (M: n×n, row-major). Unset: our
-    FMU's names (``tau[1]``, ``q[1]``, …; ``qdot``/``M`` only where the FMU has them);
-    ``[]`` for ``qdot`` or ``M``: not mapped."""
+class _VariableMapping(Section):
+    """The plant's ports in the FMU's names, one name per joint (n×n row-major for M), a
+    key per port of cosim.plant.ports.PORTS. Unset: the built-in plants' names (``tau[1]``,
+    ``q[1]``, …; an optional output only where the FMU has them); ``[]`` for an optional
+    output: not mapped."""
 
-    tau: list[str] | None = None  # inputs, N·m
-    q: list[str] | None = None  # outputs, rad
-    qdot: list[str] | None = None  # outputs, rad/s
-    M: list[str] | None = None  # outputs, kg·m²
+
+VariableMapping = create_model(
+    "VariableMapping", __base__=_VariableMapping,
+    **{port.name: (list[str] | None, Field(None, description=(
+        f"{port.direction}s, {port.signal.unit}: {port.role}"
+        + ("" if port.required else " (optional)")))) for port in PORTS})
 
 
 class Plant(Section):

@@ -19,6 +19,7 @@ from numba import typeof, types
 from ..blocks import Block
 from ..blocks.plugins import describe_exception
 from ..plant.mapping import FmuError
+from ..plant.ports import OUTPUT_PORTS
 from ..schema import PipelineError
 from ..signals import Trace
 from .fused import fused_loop
@@ -109,14 +110,14 @@ def _stepper(block) -> Callable[[int], bool]:
 
 def _python(plant, plan, trace: Trace, progress, progress_every: int) -> float:
     blocks = [(block, _stepper(block)) for block in plan.blocks]
-    q, qdot, mass, tau = trace["q"], trace["qdot"], trace["M"], trace[plan.plant_input]
+    rows = [(trace[port.name], plant.values[port.name]) for port in OUTPUT_PORTS]
+    tau = trace[plan.plant_input]
     h, steps = trace.dt, trace.steps
     start = time.perf_counter()
     for k in range(steps + 1):
         t = k * h
-        q[k] = plant.q
-        qdot[k] = plant.qdot
-        mass[k] = plant.M
+        for row, value in rows:
+            row[k] = value
         for block, step in blocks:
             try:
                 finite = step(k)
@@ -146,7 +147,7 @@ def _fused(plant, plan, trace: Trace, progress, progress_every: int) -> float:
     io = plant.fused_io()
     loop = fused_loop(tuple(b.kernel for b in stepping), io.fmi_version)
     args = tuple(b.args for b in stepping)
-    arrays = (trace["q"], trace["qdot"], trace["M"], trace[plan.plant_input])
+    arrays = (trace[plan.plant_input], tuple(trace[port.name] for port in OUTPUT_PORTS))
     h, steps = trace.dt, trace.steps
     # Row 0 alone first: its progress call may wait for the recording writer, and the
     # kernels load on first use; neither belongs in the timing.

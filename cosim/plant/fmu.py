@@ -18,18 +18,19 @@ from fmpy.model_description import ModelDescription
 from .lifecycle import STATUS, FmiInstance, open_instance
 from .mapping import FmuError, PlantVariables, check_parameters, open_plant
 from .native import FusedIo, function_pointer
+from .ports import OUTPUT_PORTS, output_buffers
 
 
 @dataclass
 class Fmu:
     """One Co-Simulation instance of a plant FMU.
 
-    After :meth:`start`, ``q``, ``qdot`` and ``M`` (numpy arrays) hold the latest outputs and
-    :meth:`step` applies ``tau`` (held over the step) and advances by ``h`` seconds.
-    ``mapping`` is ``plant.variables``: our interface key -> the FMU's names (unset keys:
-    the built-in plant's names). The file, the mapping and the parameters are checked by
-    :func:`cosim.plant.mapping.open_plant` first; ``variables`` then holds the mapping as
-    used.
+    After :meth:`start`, ``values[port]`` (numpy arrays, :mod:`.ports`) hold the latest
+    outputs (NaN for a port not in ``mapped``) and :meth:`step` applies ``tau`` (held over
+    the step) and advances by ``h`` seconds. ``mapping`` is ``plant.variables``: a port ->
+    the FMU's names (unset keys: the built-in plants' names). The file, the mapping and the
+    parameters are checked by :func:`cosim.plant.mapping.open_plant` first; ``variables``
+    then holds the mapping as used.
     """
 
     path: Path
@@ -44,13 +45,15 @@ class Fmu:
         self.fmi_version = int(md.fmiVersion[0])
         self.by_name = {v.name: v for v in md.modelVariables}
         self.links = len(self.variables.q)
-        self.has_qdot = bool(self.variables.qdot)
-        self.has_M = bool(self.variables.M)
-        self.q = np.zeros(self.links)
-        self.qdot = np.full(self.links, np.nan)
-        self.M = np.full((self.links, self.links), np.nan)
+        self.mapped = frozenset(p.name for p in OUTPUT_PORTS if p.name in self.variables.mapped)
+        self.values = output_buffers(self.links)
         self.tau = np.zeros(self.links)
-        outputs = self.variables.q + (self.variables.qdot or []) + (self.variables.M or [])
+        # The mapped outputs, port after port, in one buffer the FMU writes per step.
+        outputs, self._layout = [], []
+        for port in OUTPUT_PORTS:
+            names = self.variables.names.get(port.name) or []
+            self._layout.append(len(outputs) if names else -1)
+            outputs += names
         self._outputs = np.zeros(len(outputs))
         self._vr_tau = self._refs(self.variables.tau)
         self._vr_out = self._refs(outputs)
@@ -122,7 +125,7 @@ class Fmu:
         return {"model_name": md.modelName, "instantiation_token": md.guid,
                 "fmi_version": md.fmiVersion, "file": str(self.path),
                 "generation_tool": md.generationTool or "",
-                "variables": {k: v for k, v in vars(self.variables).items() if v},
+                "variables": {k: v for k, v in self.variables.names.items() if v},
                 "parameters": dict(zip(names, values, strict=True))}
 
     # Per step -------------------------------------------------------------------------------
@@ -143,14 +146,10 @@ class Fmu:
         status = self._get(*self._get_args)
         if status > 1:
             raise FmuError(self.describe_failure(2, status, self.time))
-        n = self.links
-        self.q[:] = self._outputs[:n]
-        k = n
-        if self.has_qdot:
-            self.qdot[:] = self._outputs[k:k + n]
-            k += n
-        if self.has_M:
-            self.M[:] = self._outputs[k:k + n * n].reshape(n, n)
+        for port, offset in zip(OUTPUT_PORTS, self._layout, strict=True):
+            if offset >= 0:
+                values = self.values[port.name]
+                values.reshape(-1)[:] = self._outputs[offset:offset + values.size]
 
     def fused_io(self) -> FusedIo:
         """The per-step FMI functions and handles for the fused loop (after :meth:`start`)."""
@@ -160,8 +159,7 @@ class Fmu:
         handles = (ctypes.cast(self._component, ctypes.c_void_p).value,
                    np.array(self._vr_tau, dtype=np.uint32),
                    np.array(self._vr_out, dtype=np.uint32), self._outputs,
-                   self.links if self.has_qdot else 0,
-                   self.links ** 2 if self.has_M else 0, self._flags)
+                   np.array(self._layout, dtype=np.int64), self._flags)
         return FusedIo(version, functions, handles)
 
     def describe_failure(self, call: int, status: int, t: float) -> str:

@@ -1,9 +1,10 @@
 """Does an FMU fit cosim's plant interface? Open it safely and map our names onto its own.
 
-The interface, per joint i of n: input ``tau`` (N·m), outputs ``q`` (rad) and, optionally,
-``qdot`` (rad/s) and the inertia matrix ``M`` (n×n row-major, kg·m²), each a Real (FMI 2.0)
-or Float64 (FMI 3.0) scalar variable. n is the number of ``q`` names: mapped in the
-pipeline, else counted from outputs named ``q[1]``, ``q[2]``, … as the built-in plant has.
+The interface is the port table (:mod:`.ports`): per joint i of n, input ``tau`` (N·m),
+output ``q`` (rad) and the optional outputs (``qdot``, the inertia matrix ``M`` n×n
+row-major, the motor angles ``theta``), each a Real (FMI 2.0) or Float64 (FMI 3.0) scalar
+variable. n is the number of ``q`` names: mapped in the pipeline, else counted from outputs
+named ``q[1]``, ``q[2]``, … as the built-in plants have.
 
 Every check here reports what is wrong in one message naming the file and the variable,
 and what would be valid, so a user's FMU is refused before anything runs.
@@ -19,35 +20,32 @@ import fmpy
 from fmpy.model_description import ModelDescription, ValidationError
 
 from .errors import FmuError
+from .ports import PORT, PORTS
 
 REAL_TYPES = ("Real", "Float64")
-# What each interface key must be in the FMU, and what it is called in messages.
-ROLES = {"tau": ("input", "joint torques"), "q": ("output", "joint angles"),
-         "qdot": ("output", "joint velocities"), "M": ("output", "inertia matrix")}
-
-
 
 
 @dataclass
 class PlantVariables:
-    """Our interface, in the FMU's own names: one name per joint (M row-major, n×n)."""
+    """Our ports, in the FMU's own names: per port one name per joint (n×n row-major for
+    an "nn" port), None for an optional port the FMU does not map. ``variables.q`` reads
+    the port ``q``."""
 
-    tau: list[str]
-    q: list[str]
-    qdot: list[str] | None = None
-    M: list[str] | None = None
+    names: dict[str, list[str] | None]
+
+    def __getattr__(self, port: str) -> list[str] | None:
+        if port.startswith("_") or port not in PORT:
+            raise AttributeError(port)
+        return self.names.get(port)
 
     @property
     def links(self) -> int:
-        return len(self.q)
+        return len(self.names["q"])
 
-    @classmethod
-    def default(cls, links: int) -> PlantVariables:
-        """The built-in plant's names."""
-        idx = range(1, links + 1)
-        return cls(tau=[f"tau[{i}]" for i in idx], q=[f"q[{i}]" for i in idx],
-                   qdot=[f"qdot[{i}]" for i in idx],
-                   M=[f"M[{i},{j}]" for i in idx for j in idx])
+    @property
+    def mapped(self) -> frozenset[str]:
+        """The ports mapped."""
+        return frozenset(name for name, names in self.names.items() if names)
 
 
 def read_description(path: str | Path) -> ModelDescription:
@@ -127,25 +125,26 @@ def map_variables(md: ModelDescription, requested: dict[str, list[str] | None] |
     if not q:
         return None, ["plant.variables.q is empty: the plant needs at least one joint"]
     n = len(q)
-    default = PlantVariables.default(n)
     mapping: dict[str, list[str] | None] = {"q": q}
-    for key in ("tau", "qdot", "M"):
-        names = requested.get(key)
-        if names is None:
-            names = getattr(default, key)
-            if key != "tau" and not all(name in by_name for name in names):
-                names = None  # optional, and the FMU does not have our names: not mapped
-        mapping[key] = names or None
     problems = []
-    if mapping["tau"] is None:
-        problems.append("plant.variables.tau is empty: the plant needs one torque input "
-                        "per joint")
+    for port in PORTS:
+        if port.name == "q":
+            continue
+        names = requested.get(port.name)
+        if names is None:
+            names = port.default_names(n)
+            if not port.required and not all(name in by_name for name in names):
+                names = None  # optional, and the FMU does not have our names: not mapped
+        mapping[port.name] = names or None
+        if port.required and not names:
+            problems.append(f"plant.variables.{port.name} is empty: the plant needs one "
+                            f"{port.role[:-1]} {port.direction} per joint")
     for key, names in mapping.items():
         if names is None:
             continue
-        expected = n * n if key == "M" else n
+        expected = PORT[key].width(n)
         if len(names) != expected:
-            what = f"{n}×{n} = {expected}" if key == "M" else f"{n}"
+            what = f"{n}×{n} = {expected}" if PORT[key].shape == "nn" else f"{n}"
             problems.append(f"plant.variables.{key} has {len(names)} name"
                             f"{'s' * (len(names) != 1)}, the plant has "
                             f"{n} joints (from plant.variables.q), so it needs {what}")
@@ -153,11 +152,11 @@ def map_variables(md: ModelDescription, requested: dict[str, list[str] | None] |
         problems += [p for name in names if (p := _check(md, by_name, key, name))]
     if problems:
         return None, problems
-    return PlantVariables(**mapping), []
+    return PlantVariables(mapping), []
 
 
 def _check(md: ModelDescription, by_name: dict, key: str, name: str) -> str | None:
-    causality, what = ROLES[key]
+    causality, what = PORT[key].direction, PORT[key].role
     var = by_name.get(name)
     where = f"plant.variables.{key} ({what})"
     if var is None:

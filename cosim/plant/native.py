@@ -27,7 +27,9 @@ class FusedIo(NamedTuple):
 
     fmi_version: int
     functions: tuple  # (set, step, get): ctypes function pointers of PROTOTYPES
-    handles: tuple  # (instance, vr_tau, vr_out, outputs, n_qdot, n_M, fmi3 flags)
+    # (instance, vr_tau, vr_out, outputs, where each output port starts in outputs (-1: not
+    # mapped), fmi3 flags)
+    handles: tuple
 
 
 def function_pointer(function, fmi_version: int, role: str):
