@@ -33,6 +33,7 @@ from cosim.assemble import assemble_run, open_plant
 from cosim.config import load_pipeline
 from cosim.engine import simulate
 from cosim.engine.fused import fused_loop
+from cosim.plant.ports import OUTPUT_PORTS
 from cosim.runner import run
 
 PIPELINE = Path(__file__).resolve().parent.parent / "pipelines" / "paper_two_link.toml"
@@ -60,13 +61,13 @@ def fmu_only_compiled(plant, duration: float, h: float = 1e-3) -> float:
     """The floor: the fused loop with no blocks, the FMU's set/doStep/get per step."""
     steps = int(round(duration / h))
     n = plant.links
-    rows = [np.zeros((steps + 1, n)), np.zeros((steps + 1, n)), np.zeros((steps + 1, n, n)),
-            np.ones((steps + 1, n))]
+    tau = np.ones((steps + 1, n))
+    rows = tuple(np.zeros((steps + 1,) + plant.values[port.name].shape) for port in OUTPUT_PORTS)
     plant.start(0.0)
     io = plant.fused_io()
     loop = fused_loop((), io.fmi_version)
     start = time.perf_counter()
-    loop(0, steps + 1, steps, h, io.functions, io.handles, *rows, ())
+    loop(0, steps + 1, steps, h, io.functions, io.handles, tau, rows, ())
     return (time.perf_counter() - start) / steps
 
 
