@@ -85,8 +85,18 @@ class RunPlan:
                 return (ins[PLANT_INPUT], block.instance) if PLANT_INPUT in ins else None
         return None
 
+    def views(self) -> list[tuple[str, str]]:
+        """The views the run's blocks add to its Rerun layout: (entity under ``/<run>/``,
+        title), each under its block's instance name."""
+        return [(f"{block.instance}/{entity}", title)
+                for block in self.blocks for entity, title in block.views]
+
     def block(self, kind: str) -> Block | None:
         return next((b for b in self.blocks if b.kind == kind), None)
+
+    def publisher(self, constant: str) -> Block | None:
+        """The last block that publishes ``constant`` (the one later blocks see)."""
+        return next((b for b in reversed(self.blocks) if constant in b.publishes), None)
 
 
 @dataclass
@@ -205,8 +215,9 @@ def assemble_run(pipeline: Pipeline, name: str, plant) -> RunPlan:
     ``mapped`` (a :class:`~cosim.plant.Plant`), and a ``path`` for messages, only."""
     run = pipeline.runs[name]
     links, dt = plant.links, pipeline.simulation.step
+    file = getattr(getattr(plant, "path", None), "name", "the plant")
     context = BlockContext(links, dt, name, plant_outputs(plant), pipeline.safety,
-                           pipeline.uncertainty)
+                           pipeline.uncertainty, file)
     check_sizes(run, name, plant)
     blocks = []
     for instance, kind in run.chain():
@@ -337,14 +348,12 @@ def _producers_hint(port: str, chain: list[Block]) -> str:
 
 
 def check_sizes(run, name: str, plant) -> None:
-    """Everything sized per joint must have the plant's n entries, and the run must find
-    the plant outputs it reads; else one :class:`PipelineError` naming the key."""
+    """Every block parameter given per joint (its kind's ``per_joint``) must have the
+    plant's n entries; else one :class:`PipelineError` naming the key. What a block needs of
+    the plant beyond that, it checks itself when built (:class:`BlockContext`)."""
     n = plant.links
     file = getattr(getattr(plant, "path", None), "name", "the plant")
     joints = f"the plant ({file}) has {n} joint{'s' * (n != 1)}"
-    if "reference" in run.blocks and len(run.reference.offset) != n:
-        raise PipelineError(f"reference.offset has {len(run.reference.offset)} entries (one "
-                            f"per joint, rad); {joints}")
     sized = {}
     for instance, kind in run.chain():
         values = run.block_params(instance).model_dump(by_alias=True)
@@ -354,19 +363,6 @@ def check_sizes(run, name: str, plant) -> None:
     for key, value in sized.items():
         if len(value) != n:
             raise PipelineError(f"{key} (run '{name}') has {len(value)} entries; {joints}")
-    controller = getattr(run, "controller", None)
-    if "controller" in run.blocks and controller.variant == "baseline" \
-            and "qdot" not in plant.mapped:
-        raise PipelineError(
-            f"run '{name}': the full-state baseline reads the true joint velocity, but "
-            f"{file} has no qdot mapping (no outputs qdot[1]..qdot[{n}]); map them with "
-            "plant.variables.qdot = [...] or drop the run")
-    inertia = getattr(run, "inertia_model", None)
-    if "inertia_model" in run.blocks and inertia.source == "fmu" and "M" not in plant.mapped:
-        raise PipelineError(
-            f"inertia_model.source = \"fmu\" (run '{name}'), but {file} has no M mapping "
-            f"(no outputs M[1,1]..M[{n},{n}]); map them with plant.variables.M = [...] "
-            "(n×n, row-major) or use source = \"nominal\"")
 
 
 def safe_set(pipeline: Pipeline) -> SafeSet:
@@ -377,11 +373,11 @@ def safe_set(pipeline: Pipeline) -> SafeSet:
 
 
 def link_lengths(plant_info: dict, plan: RunPlan) -> np.ndarray:
-    """Link lengths for drawing the arm: the FMU's ``l[i]`` parameters, else the run's
-    nominal model's (1 m each unless given)."""
+    """Link lengths for drawing the arm: the FMU's ``l[i]`` parameters, else the nominal
+    chain a block of the run publishes, else 1 m each."""
     params = plant_info["parameters"]
     names = [f"l[{i}]" for i in range(1, plan.links + 1)]
     if all(n in params for n in names):
         return np.array([params[n] for n in names])
-    inertia = plan.block("inertia_model")
-    return np.array(inertia.nominal_links()["l"] if inertia else [1.0] * plan.links)
+    chain = plan.published().get("nominal_chain")
+    return np.array(chain.l, float) if chain is not None else np.ones(plan.links)

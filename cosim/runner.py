@@ -85,7 +85,7 @@ def run(pipeline: Pipeline, out_dir: str | Path | None = None, progress: bool = 
         folder = RunFolder.create(out_dir, force) if out_dir else None
         # The writer imports Rerun in its own process while the first run loads its blocks.
         if folder is not None and record:
-            recorder = _open_recorder(folder.path, pipeline, spawn, connect)
+            recorder = _open_recorder(folder.path, scenario, spawn, connect)
             recorder.set_properties(_properties(pipeline, plant_info))
         for name, plan in scenario.runs.items():
             result = _run_one(plan, scenario, plant_info, recorder, progress, engine)
@@ -189,9 +189,9 @@ def _run_one(plan: RunPlan, scenario: Scenario, plant_info: dict, recorder: Reco
     second each)."""
     name, plant, sim = plan.name, scenario.plant, scenario.pipeline.simulation
     steps = scenario.steps
-    inertia = plan.block("inertia_model")
-    if progress and inertia is not None:
-        print(f"  {name}: inertia model {describe_inertia(inertia, plant)}", file=sys.stderr)
+    if progress:
+        for line in filter(None, (block.headline() for block in plan.blocks)):
+            print(f"  {name}: {line}", file=sys.stderr)
     trace = plan.new_trace(steps)
     report = percent(name, steps) if progress else None
     entities = plan.entities()
@@ -242,7 +242,10 @@ def _run_one(plan: RunPlan, scenario: Scenario, plant_info: dict, recorder: Reco
     evaluation = evaluator.result()
     done = trace.completed()
     metrics = evaluation.metrics
-    chain = inertia.publishes.get("nominal_chain") if inertia is not None else None
+    # The run's model of the plant: the block publishing the nominal chain (summary.json
+    # says which source and links it used).
+    model = plan.publisher("nominal_chain")
+    chain = model.publishes["nominal_chain"] if model is not None else None
     metrics["guarantee"] = classify(done, plan.safe, plan.uncertainty,
                                     *plant_payload(plant_info["parameters"], chain,
                                                    rigid_chain_parameters(plan.links)))
@@ -252,7 +255,7 @@ def _run_one(plan: RunPlan, scenario: Scenario, plant_info: dict, recorder: Reco
     if recorder is not None:  # the loop's share of writing the recording
         metrics["recording_handoff_s"] = recorder.handoff_seconds - handed_over
     result = RunResult(name, done, evaluation, error is None, error, failure,
-                       inertia.describe() if inertia is not None else {}, wall,
+                       model.describe() if model is not None else {}, wall,
                        {block.instance: block.describe() for block in plan.blocks
                         if block.describe()}, plan.torque_before_filter())
     if recorder is not None:
@@ -268,24 +271,14 @@ def rigid_chain_parameters(links: int) -> frozenset[str] | None:
     return frozenset(v.name for v in plant_variables(links) if v.causality == "parameter")
 
 
-def describe_inertia(model, plant) -> str:
-    if model.source == "fmu":
-        return f"from {plant.path.name}'s M outputs ({', '.join(plant.variables.M[:2])}, …)"
-    links = model.nominal_links()
-    return (f"nominal (m = {links['m']} kg, l = {links['l']} m, lc = {links['lc']} m, "
-            f"I = {links['I']} kg·m²) at the measured position"
-            + ("" if "M" in plant.mapped else f"; {plant.path.name} maps no M outputs"))
-
-
-def _open_recorder(out: Path, pipeline: Pipeline, spawn: bool,
+def _open_recorder(out: Path, scenario: Scenario, spawn: bool,
                    connect: str | None) -> Recorder:
-    sim = pipeline.simulation
+    pipeline, sim = scenario.pipeline, scenario.pipeline.simulation
     title = (f"{pipeline.name}: {' vs '.join(pipeline.runs)} "
              f"({sim.duration:g} s at {1 / sim.step:g} Hz)")
-    filtered = [name for name, run in pipeline.runs.items()
-                if "cbf_filter" in dict(run.chain()).values()]
+    views = {name: plan.views() for name, plan in scenario.runs.items()}
     return Recorder(out / "recording.rrd", title, list(pipeline.runs), spawn=spawn,
-                    connect=connect, filtered=filtered)
+                    connect=connect, views=views)
 
 
 def _properties(pipeline: Pipeline, plant_info: dict) -> dict[str, dict]:

@@ -237,7 +237,12 @@ def test_the_layout_puts_two_runs_side_by_side_and_gives_more_a_tab_each():
     assert isinstance(pair, rrb.Horizontal)
     assert [c.name for c in pair.contents] == ["baseline", "proposed"]
     five = ["baseline", "proposed", "baseline_matched", "proposed_cbf", "baseline_cbf"]
-    tabs = blueprint(five, frozenset({"proposed_cbf", "baseline_cbf"})).root_container
+    safety = load_pipeline("pipelines/paper_safety.toml")
+    views = {run: assemble_run(safety, run, _TwoLinkArm()).views() for run in five}
+    assert views["proposed_cbf"] == [("cbf_filter/h", "CBF barrier values β − |x| (≥ 0 inside)"),
+                                     ("cbf_filter/correction", "‖τ − τ_nom‖ (N·m)")]
+    assert views["proposed"] == [] and views["baseline_cbf"] == views["proposed_cbf"]
+    tabs = blueprint(five, views).root_container
     assert isinstance(tabs, rrb.Tabs) and [c.name for c in tabs.contents] == five
     # a filtered run's tab adds the filter's row (barrier values, correction)
     assert len(tabs.contents[3].contents) == len(tabs.contents[0].contents) + 1

@@ -38,8 +38,11 @@ from ..signals import Signal
 @dataclass(frozen=True)
 class BlockContext:
     """What a block may know of the scenario when it is built: the joint count, the master
-    step (s), the run's name, the plant outputs available (``q``, ``qdot``, ``M``), and the
-    pipeline's declared safe set (``[safety]``) and uncertainty (``[uncertainty]``)."""
+    step (s), the run's name, the plant outputs available (ports of cosim.plant.ports the
+    plant maps: ``q``, ``qdot``, ``M``, …), the pipeline's declared safe set (``[safety]``)
+    and uncertainty (``[uncertainty]``), and the plant's file name (for messages). A block
+    whose parameters need what the plant lacks refuses it in its constructor with a
+    :class:`~cosim.schema.PipelineError` naming the key."""
 
     links: int
     dt: float
@@ -47,6 +50,7 @@ class BlockContext:
     plant_outputs: frozenset[str]
     safety: Safety = field(default_factory=Safety)
     uncertainty: Uncertainty = field(default_factory=Uncertainty)
+    plant_file: str = "the plant"
 
 
 @dataclass
@@ -67,6 +71,9 @@ class Block:
     per_joint: ClassVar[tuple[str, ...]] = ()
     # The names of the constants its instances publish (for the wiring's messages).
     PUBLISHES: ClassVar[tuple[str, ...]] = ()
+    # Views it adds to the Rerun layout of a run that holds it: (entity under the block's
+    # instance name, title); the layout knows no block by name.
+    views: ClassVar[tuple[tuple[str, str], ...]] = ()
 
     def __init__(self, params: Section, context: BlockContext):
         self.params = params
@@ -96,6 +103,11 @@ class Block:
     def describe(self) -> dict:
         """What summary.json records of this block beyond its parameters (none by default)."""
         return {}
+
+    def headline(self) -> str | None:
+        """A line a run prints as it starts, for a choice the user should see (none by
+        default)."""
+        return None
 
 
 BLOCKS: dict[str, type[Block]] = {}

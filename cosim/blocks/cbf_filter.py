@@ -593,6 +593,8 @@ class CbfFilter(Block):
     kind = "cbf_filter"
     Params = CbfFilterParams
     per_joint = ("tau_d",)
+    views = (("h", "CBF barrier values β − |x| (≥ 0 inside)"),
+             ("correction", "‖τ − τ_nom‖ (N·m)"))
 
     def __init__(self, params: CbfFilterParams, context: BlockContext):
         super().__init__(params, context)

@@ -23,7 +23,7 @@ import numpy as np
 from numba import njit
 from pydantic import Field
 
-from ..schema import GainVector, NonNegativeFloat, PositiveFloat, Section, Seed
+from ..schema import GainVector, NonNegativeFloat, PipelineError, PositiveFloat, Section, Seed
 from ..signals import Signal
 from .base import Block, BlockContext, Ports, register_block
 
@@ -180,6 +180,14 @@ class NnController(Block):
         velocity = params.velocity
         if velocity == "auto":
             velocity = "plant" if params.variant == "baseline" else "observer"
+        if velocity == "plant" and "qdot" not in context.plant_outputs:
+            n = context.links
+            who = ("the full-state baseline" if params.variant == "baseline"
+                   else 'controller.velocity = "plant"')
+            raise PipelineError(
+                f"run '{context.run}': {who} reads the true joint velocity, but "
+                f"{context.plant_file} has no qdot mapping (no outputs qdot[1]..qdot[{n}]); map "
+                "them with plant.variables.qdot = [...] or drop the run")
         self.velocity_source = velocity
         self.publishes = {"nn_gains": NnGains(
             np.broadcast_to(np.asarray(params.lam, float), (context.links,)).copy(),

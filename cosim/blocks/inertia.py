@@ -25,7 +25,7 @@ from numba import njit
 
 from plant_fmu.models.planar_arm import PAPER_MASSES
 
-from ..schema import FiniteFloat, NonNegativeFloat, PositiveFloat, Section
+from ..schema import FiniteFloat, NonNegativeFloat, PipelineError, PositiveFloat, Section
 from ..signals import Signal
 from .base import Block, BlockContext, Ports, register_block
 
@@ -165,6 +165,13 @@ class InertiaModel(Block):
         source = params.source
         if source == "auto":
             source = "fmu" if "M" in context.plant_outputs else "nominal"
+        if source == "fmu" and "M" not in context.plant_outputs:
+            n = context.links
+            raise PipelineError(
+                f"inertia_model.source = \"fmu\" (run '{context.run}'), but "
+                f"{context.plant_file} has no M mapping (no outputs M[1,1]..M[{n},{n}]); map "
+                "them with plant.variables.M = [...] (n×n, row-major) or use source = "
+                "\"nominal\"")
         self.source = source
         self.inputs = ("M",) if source == "fmu" else ("q_meas",)
         self.outputs = {"M_model": M_MODEL}
@@ -195,3 +202,12 @@ class InertiaModel(Block):
     def describe(self) -> dict:
         return ({"source": "nominal", **self.nominal_links()} if self.source == "nominal"
                 else {"source": "fmu"})
+
+    def headline(self) -> str:
+        file = self.context.plant_file
+        if self.source == "fmu":
+            return f"inertia model from {file}'s M outputs"
+        links = self.nominal_links()
+        return (f"inertia model nominal (m = {links['m']} kg, l = {links['l']} m, "
+                f"lc = {links['lc']} m, I = {links['I']} kg·m²) at the measured position"
+                + ("" if "M" in self.context.plant_outputs else f"; {file} maps no M outputs"))

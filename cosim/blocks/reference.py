@@ -8,7 +8,7 @@ from typing import Literal
 import numpy as np
 from pydantic import model_validator
 
-from ..schema import FiniteFloat, NonNegativeFloat, PositiveFloat, Section
+from ..schema import FiniteFloat, NonNegativeFloat, PipelineError, PositiveFloat, Section
 from ..signals import Signal
 from .base import Block, BlockContext, Ports, register_block
 
@@ -53,6 +53,11 @@ class SinusoidReference(Block):
 
     def __init__(self, params: ReferenceParams, context: BlockContext):
         super().__init__(params, context)
+        n = context.links
+        if len(params.offset) != n:
+            raise PipelineError(f"reference.offset has {len(params.offset)} entries (one per "
+                                f"joint, rad); the plant ({context.plant_file}) has {n} "
+                                f"joint{'s' * (n != 1)}")
         self.outputs = {
             "q_d": Signal("n", "rad", "desired position q_d", "reference/q_d"),
             "qdot_d": Signal("n", "rad/s", "desired velocity q̇_d", "reference/qdot_d"),

@@ -43,14 +43,14 @@ class Recorder:
 
     def __init__(self, path: str | Path, name: str, run_names: list[str],
                  spawn: bool = False, connect: str | None = None, port: int = 9876,
-                 filtered: list[str] = ()):
+                 views: dict[str, list] | None = None):
         self.path = Path(path)
         self.sent: dict[str, int] = {}
         self.handoff_seconds = 0.0  # time the caller spent handing rows over
         self._error: str | None = None
         self._ready = False
         header = {"name": name, "runs": run_names, "recording_id": str(uuid.uuid4()),
-                  "filtered": list(filtered)}
+                  "views": views or {}}
         live = {"spawn": spawn, "connect": connect, "port": port, "viewer": None}
         if spawn:
             from ..viewer import has_display, viewer_binary

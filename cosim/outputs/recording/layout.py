@@ -96,11 +96,11 @@ def series_names(stem: str, width: int) -> list[str]:
 SIDE_BY_SIDE = 2
 
 
-def blueprint(run_names: list[str], filtered: frozenset[str] = frozenset()):
+def blueprint(run_names: list[str], block_views: dict[str, list] | None = None):
     """Figs. 2-4 of the paper for every run, then barriers, observer error and the arm, and
-    for the ``filtered`` runs (a CBF safety filter in their chain) its barrier values and
-    how much it corrects the torque; runs side by side up to :data:`SIDE_BY_SIDE`, else a
-    tab per run; time panel on sim_time, paused."""
+    the views the run's blocks add (``block_views[run]``: (entity, title) pairs, e.g. a CBF
+    filter's barrier values and how much it corrects the torque); runs side by side up to
+    :data:`SIDE_BY_SIDE`, else a tab per run; time panel on sim_time, paused."""
     import rerun.blueprint as rrb
 
     columns = []
@@ -117,13 +117,11 @@ def blueprint(run_names: list[str], filtered: frozenset[str] = frozenset()):
                                name=f"{run}: observer error q̇ − x̂2 (rad/s)"),
             rrb.Spatial2DView(origin=f"/{run}/arm", name=f"{run}: arm (m)"),
         ))
-        if run in filtered:
-            views.append(rrb.Horizontal(
-                rrb.TimeSeriesView(origin=f"/{run}/cbf_filter/h",
-                                   name=f"{run}: CBF barrier values β − |x| (≥ 0 inside)"),
-                rrb.TimeSeriesView(origin=f"/{run}/cbf_filter/correction",
-                                   name=f"{run}: ‖τ − τ_nom‖ (N·m)"),
-            ))
+        extra = (block_views or {}).get(run) or []
+        if extra:
+            views.append(rrb.Horizontal(*(
+                rrb.TimeSeriesView(origin=f"/{run}/{entity}", name=f"{run}: {title}")
+                for entity, title in extra)))
         columns.append(rrb.Vertical(*views, name=run))
     runs = (rrb.Horizontal(*columns) if len(columns) <= SIDE_BY_SIDE
             else rrb.Tabs(*columns, name="runs"))
