@@ -20,7 +20,7 @@ def describe_plan(pipeline: Pipeline, out: str | Path, record: bool = True) -> s
     try:
         steps = scenario.steps
         sim = pipeline.simulation
-        info = scenario.plant.describe()
+        info = scenario.plant.info()
         lines = [f"pipeline {pipeline.name}: {len(scenario.runs)} run(s), {sim.duration:g} s "
                  f"at {1 / sim.step:g} Hz ({steps:,} steps each)",
                  f"plant: {info['file']} ({info['model_name']}, FMI {info['fmi_version']}, "

@@ -77,7 +77,7 @@ def run(pipeline: Pipeline, out_dir: str | Path | None = None, progress: bool = 
     :class:`~cosim.plant.fmu.Fmu` to re-use (it stays open).
     """
     scenario = assemble(pipeline, plant)
-    plant_info = scenario.plant.describe()
+    plant_info = scenario.plant.info()
     results: dict[str, RunResult] = {}
     folder = recorder = None
     failure: BaseException | None = None

@@ -16,7 +16,7 @@ import numpy as np
 from fmpy.model_description import ModelDescription
 
 from .lifecycle import STATUS, FmiInstance, open_instance
-from .mapping import FmuError, PlantVariables, check_parameters, open_plant
+from .mapping import FmuError, PlantVariables, check_parameters, check_plant_fmu
 from .native import FusedIo, function_pointer
 from .ports import OUTPUT_PORTS, output_buffers
 
@@ -29,7 +29,7 @@ class Fmu:
     outputs (NaN for a port not in ``mapped``) and :meth:`step` applies ``tau`` (held over
     the step) and advances by ``h`` seconds. ``mapping`` is ``plant.variables``: a port ->
     the FMU's names (unset keys: the built-in plants' names). The file, the mapping and the
-    parameters are checked by :func:`cosim.plant.mapping.open_plant` first; ``variables``
+    parameters are checked by :func:`cosim.plant.mapping.check_plant_fmu` first; ``variables``
     then holds the mapping as used.
     """
 
@@ -39,7 +39,7 @@ class Fmu:
 
     def __post_init__(self) -> None:
         self.path = Path(self.path)
-        md, variables = open_plant(self.path, self.mapping, self.parameters)
+        md, variables = check_plant_fmu(self.path, self.mapping, self.parameters)
         self.model_description: ModelDescription = md
         self.variables: PlantVariables = variables
         self.fmi_version = int(md.fmiVersion[0])
@@ -72,7 +72,7 @@ class Fmu:
                             for n, v in parameters.items()}
 
     def _refs(self, names: list[str]):
-        """Value references of names :func:`open_plant` has checked."""
+        """Value references of names :func:`check_plant_fmu` has checked."""
         refs = [self.by_name[n].valueReference for n in names]
         return (ctypes.c_uint32 * len(refs))(*refs)
 
@@ -110,7 +110,7 @@ class Fmu:
                            (True, flags, flags + 8, flags + 16, flags + 24))
         self._component = component
 
-    def describe(self) -> dict:
+    def info(self) -> dict:
         """What the recording's properties say of the plant: model name, instantiation token
         (FMI 2 GUID), FMI version, file, our interface in its names (``plant.variables`` as
         used), and every real parameter's value as used (after :meth:`start`, so pipeline

@@ -190,7 +190,7 @@ def check_parameters(path: str | Path, md: ModelDescription, parameters: dict[st
                            "parameters, inputs and start values can be set")
 
 
-def open_plant(path: str | Path, requested: dict[str, list[str] | None] | None = None,
+def check_plant_fmu(path: str | Path, requested: dict[str, list[str] | None] | None = None,
                parameters: dict[str, float] | None = None
                ) -> tuple[ModelDescription, PlantVariables]:
     """Every check a plant FMU must pass before it runs, in the order a user would fix
