@@ -12,12 +12,19 @@ process.
    asks for — and against the physical floor: the same FMU-only loop in one compiled call
    (FMI functions through their C pointers, no Python per step).
 
+3. With ``--profile``: where the fused closed loop's time goes, in µs per step: each block
+   of the proposed chain alone (its kernel in a compiled loop over the rows of the run just
+   simulated, fed the same inputs, so it does the run's own work), the floor, and the rest
+   (the fused loop's calls, cache misses between kernels). The inertia model's nominal chain
+   is timed too, though the paper's run takes M̂ from the FMU.
+
 Each figure is the best of ``--repeat`` repetitions, interleaved so that a slow spell of the
 machine hits every variant. The last line is
 
     closed_loop_us_per_step=X fmu_only_us_per_step=Y ratio=X/Y
 
 Run: .venv/bin/python benchmarks/bench_cosim.py [--duration 20] [--repeat 5] [--no-recording]
+     [--profile]
 """
 
 from __future__ import annotations
@@ -28,8 +35,11 @@ import time
 from pathlib import Path
 
 import numpy as np
+from numba import njit
 
 from cosim.assemble import assemble_run, open_plant
+from cosim.blocks import Ports
+from cosim.blocks.inertia import InertiaModel, InertiaModelParams
 from cosim.config import load_pipeline
 from cosim.engine import simulate
 from cosim.engine.fused import fused_loop
@@ -71,6 +81,79 @@ def fmu_only_compiled(plant, duration: float, h: float = 1e-3) -> float:
     return (time.perf_counter() - start) / steps
 
 
+@njit
+def _drive(kernel, start: int, stop: int, args) -> int:
+    """One kernel over rows [start, stop), compiled: what it costs inside the fused loop
+    (numba specialises this per kernel; a kernel as an argument cannot be cached)."""
+    for k in range(start, stop):
+        if not kernel(k, args):
+            return k
+    return stop
+
+
+def profile(plant, duration: float, repeat: int) -> dict[str, tuple[float, float]]:
+    """µs per step of each block of the proposed run: its reset (once per run, spread over
+    the steps) and its kernel alone (see the module docstring); and of the fused loop and
+    the floor over the same steps (as (0, µs))."""
+    pipeline = load_pipeline(PIPELINE, [f"simulation.duration={duration}"])
+    steps = int(round(duration / pipeline.simulation.step))
+    plan = assemble_run(pipeline, "proposed", plant)
+    trace = plan.new_trace(steps)
+    # The nominal inertia model on the same measured positions, into an array of its own.
+    nominal = InertiaModel(InertiaModelParams(source="nominal"), plan.blocks[0].context)
+    trace.arrays["M_model (nominal)"] = np.empty_like(trace["M"])
+    blocks = {b.kind: b for b in plan.blocks} | {"inertia_model (nominal)": nominal}
+    wiring = [*zip(plan.inputs, plan.outputs, plan.constants, strict=True),
+              ({"q_meas": "q_meas"}, {"M_model": "M_model (nominal)"}, {})]
+
+    def reset(block, ins: dict, outs: dict, constants: dict) -> float:
+        # the ports as the plan's reset builds them, after the blocks before this one (the
+        # inertia model's reset puts the plant's M in the trace as M_model)
+        ports = Ports({port: trace[key] for port, key in ins.items()},
+                      {port: trace[key] for port, key in outs.items()}, trace, constants)
+        start = time.perf_counter()
+        block.reset(ports)
+        return 1e6 * (time.perf_counter() - start) / steps
+
+    # resets of fresh blocks (the reference keeps its safe-set centres once computed)
+    us = {name: [reset(block, *ports), float("inf")]
+          for (name, block), ports in zip(blocks.items(), wiring, strict=True)}
+    us["fused"], us["floor"] = [0.0, float("inf")], [0.0, float("inf")]
+    for _ in range(repeat):
+        us["fused"][1] = min(us["fused"][1],
+                             1e6 * simulate(plant, plan, trace, engine="fused") / steps)
+        us["floor"][1] = min(us["floor"][1], 1e6 * fmu_only_compiled(plant, duration))
+        # in chain order: each block reads what the one before it rewrote, as in the run
+        for (name, block), ports in zip(blocks.items(), wiring, strict=True):
+            reset(block, *ports)
+            if block.kernel is None:
+                us[name][1] = 0.0
+                continue
+            _drive(block.kernel, 0, 0, block.args)  # compile outside the timing
+            start = time.perf_counter()
+            done = _drive(block.kernel, 0, steps + 1, block.args)
+            assert done == steps + 1, f"{name} failed at row {done}"
+            us[name][1] = min(us[name][1], 1e6 * (time.perf_counter() - start) / (steps + 1))
+    return {name: (value[0], value[1]) for name, value in us.items()}
+
+
+def print_profile(us: dict[str, tuple[float, float]], duration: float, repeat: int) -> None:
+    blocks = [name for name in us if name not in ("fused", "floor", "inertia_model (nominal)")]
+    total = sum(us[name][1] for name in blocks)
+    print(f"profile of the proposed run, {int(duration * 1000)} steps, best of {repeat}, "
+          "us/step (reset: once per run, over the steps; kernel: in the loop):")
+    for name in [*blocks, "inertia_model (nominal)"]:
+        reset, kernel = us[name]
+        print(f"  {name:<24} kernel {kernel:6.2f}   reset {reset:6.2f}")
+    print("  (inertia_model nominal: not in the paper's chain, whose M̂ is the FMU's M)")
+    print(f"  {'blocks':<24} kernel {total:6.2f}")
+    print(f"  {'floor':<24}        {us['floor'][1]:6.2f}   (FMU set/doStep/get, the plant's "
+          "output rows)")
+    print(f"  {'rest':<24}        {us['fused'][1] - us['floor'][1] - total:6.2f}   "
+          "(fused - floor - blocks: the loop, cache misses between kernels)")
+    print(f"  {'fused closed loop':<24}        {us['fused'][1]:6.2f}")
+
+
 def paper_run(record: bool, out: Path) -> tuple[float, float, float]:
     """(sum of the runs' loop wall times, wall time of the whole call, time the loops spent
     handing rows to the recording writer), in seconds."""
@@ -110,6 +193,8 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=5, help="repetitions (best is kept)")
     parser.add_argument("--no-recording", action="store_true",
                         help="skip the recording on/off comparison")
+    parser.add_argument("--profile", action="store_true",
+                        help="also print µs per step of each block of the fused loop")
     args = parser.parse_args()
     if not args.no_recording:
         recording_cost(args.repeat)
@@ -125,6 +210,9 @@ def main() -> None:
         for _ in range(args.repeat):
             for name, measure in variants.items():
                 best[name] = min(best[name], measure(args.duration))
+        if args.profile:
+            print_profile(profile(plant, args.duration, args.repeat), args.duration,
+                          args.repeat)
     finally:
         plant.close()
     us = {name: 1e6 * value for name, value in best.items()}

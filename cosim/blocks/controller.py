@@ -98,71 +98,113 @@ class ControllerArgs(NamedTuple):
     W_norm: np.ndarray
     V_norm: np.ndarray
     feedback_gain: np.ndarray
+    # scratch, so that a step allocates nothing: ξ (1 + 5n), V̂ᵀξ (hidden), σ̂ (hidden + 1),
+    # σ̂'ᵀŴr̂ (hidden)
+    xi: np.ndarray
+    act: np.ndarray
+    sig_hat: np.ndarray
+    back: np.ndarray
 
 
 @njit(cache=True)
 def controller_step(k, a):
+    # Loops over scratch arrays rather than numpy expressions: at n = 2 and 10 hidden units
+    # the temporaries and BLAS calls cost more than the arithmetic.
     n = a.position.shape[1]
     hidden = a.hidden
     n_in = 1 + 5 * n
     W = a.state[0:(hidden + 1) * n].reshape((hidden + 1, n))
     V = a.state[(hidden + 1) * n:(hidden + 1) * n + n_in * hidden].reshape((n_in, hidden))
+    xi, act, sig_hat, back = a.xi, a.act, a.sig_hat, a.back  # scratch
+    e, edot, r = a.e[k], a.edot[k], a.r_hat[k]  # written here, then read
 
-    e = a.q_d[k] - a.position[k]
-    if a.finite_difference:
-        velocity = (a.position[k] - a.position[k - 1]) / a.dt if k > 0 else a.qdot_d[0]
-    else:
-        velocity = a.velocity[k]
-    edot = a.qdot_d[k] - velocity
-    r = edot + a.lam * e
-    xi = np.empty(n_in)
+    r_sq = 0.0
+    for i in range(n):
+        e[i] = a.q_d[k, i] - a.position[k, i]
+        if not a.finite_difference:
+            velocity = a.velocity[k, i]
+        elif k > 0:
+            velocity = (a.position[k, i] - a.position[k - 1, i]) / a.dt
+        else:
+            velocity = a.qdot_d[0, i]
+        edot[i] = a.qdot_d[k, i] - velocity
+        r[i] = edot[i] + a.lam[i] * e[i]
+        r_sq += r[i] * r[i]
+        # ξ = [1; e; ė; q_d; q̇_d; q̈_d]
+        xi[1 + i] = e[i]
+        xi[1 + n + i] = edot[i]
+        xi[1 + 2 * n + i] = a.q_d[k, i]
+        xi[1 + 3 * n + i] = a.qdot_d[k, i]
+        xi[1 + 4 * n + i] = a.qddot_d[k, i]
     xi[0] = 1.0
-    xi[1:1 + n] = e
-    xi[1 + n:1 + 2 * n] = edot
-    xi[1 + 2 * n:1 + 3 * n] = a.q_d[k]
-    xi[1 + 3 * n:1 + 4 * n] = a.qdot_d[k]
-    xi[1 + 4 * n:1 + 5 * n] = a.qddot_d[k]
-    act = V.T @ xi
-    sig = 1.0 / (1.0 + np.exp(-act))
-    sig_hat = np.empty(hidden + 1)
+    # V̂ᵀξ, σ̂ = [1; σ(V̂ᵀξ)], and ‖V̂‖² on the same pass over V̂
+    v_sq = 0.0
+    for j in range(hidden):
+        act[j] = 0.0
+    for m in range(n_in):
+        for j in range(hidden):
+            act[j] += V[m, j] * xi[m]
+            v_sq += V[m, j] * V[m, j]
     sig_hat[0] = 1.0
-    sig_hat[1:] = sig
-    dsig = sig * (1.0 - sig)  # σ̂' without its zero bias row
-    f_hat = W.T @ sig_hat
-
-    w_norm = np.sqrt(np.sum(W**2))
-    v_norm = np.sqrt(np.sum(V**2))
+    for j in range(hidden):
+        sig_hat[1 + j] = 1.0 / (1.0 + np.exp(-act[j]))
+    # f̂ = Ŵᵀσ̂ (21), ‖Ŵ‖², and Ŵr̂ for (26)'s σ̂'ᵀŴr̂, on one pass over Ŵ
+    f_hat = a.nn_output[k]
+    for i in range(n):
+        f_hat[i] = 0.0
+    w_sq = 0.0
+    for m in range(hidden + 1):
+        w_r = 0.0
+        for i in range(n):
+            f_hat[i] += W[m, i] * sig_hat[m]
+            w_sq += W[m, i] * W[m, i]
+            w_r += W[m, i] * r[i]
+        if m > 0:
+            s = sig_hat[m]
+            back[m - 1] = s * (1.0 - s) * w_r  # σ̂'ᵀŴr̂, σ̂' = diag(σ(1 − σ)) below its 0 row
+    w_norm = np.sqrt(w_sq)
+    v_norm = np.sqrt(v_sq)
     z_norm = np.sqrt(w_norm**2 + v_norm**2)  # ‖Ẑ‖_F, Ẑ = diag(V̂, Ŵ)
-    r_sq = np.sum(r**2)
     r_norm = np.sqrt(r_sq)
-    v = -a.kz * (z_norm + a.z_w) * r
-    if a.proposed:  # eq. (27)
-        v -= (a.kappa * (a.z_w + a.c1 / a.kappa) ** 2 / 4.0 + a.c0) / np.sqrt(a.delta + r_sq) * r
-        v -= e
-        v -= a.psi_b**2 / (a.delta + r_sq) * r
-    feedback = a.kv * r - v
-    torque = f_hat + feedback
-
-    a.tau[k] = torque
-    a.e[k] = e
-    a.edot[k] = edot
-    a.r_hat[k] = r
-    a.nn_output[k] = f_hat
-    a.v_c[k] = v
+    # v = −Kz(‖Ẑ‖_F + Z)r̂, and for the proposed controller the rest of (27): the smooth sign
+    # r̂/√(δ + ‖r̂‖²) times κ(Z_Wc + C1/κ)²/4 + C0, −e, and −ψ_B² r̂/(δ + ‖r̂‖²)
+    robust = -a.kz * (z_norm + a.z_w)
+    sign_gain = (a.kappa * (a.z_w + a.c1 / a.kappa) ** 2 / 4.0 + a.c0) / np.sqrt(a.delta + r_sq)
+    psi_gain = a.psi_b**2 / (a.delta + r_sq)
+    v = a.v_c[k]
+    feedback_sq = 0.0
+    finite = w_norm + v_norm
+    for i in range(n):
+        v[i] = robust * r[i]
+        if a.proposed:
+            v[i] = v[i] - sign_gain * r[i] - e[i] - psi_gain * r[i]
+        feedback = a.kv[i] * r[i] - v[i]
+        feedback_sq += feedback * feedback
+        a.tau[k, i] = f_hat[i] + feedback
+        finite += a.tau[k, i]
     a.W_norm[k] = w_norm
     a.V_norm[k] = v_norm
-    a.feedback_gain[k] = np.sqrt(np.sum(feedback**2)) / r_norm if r_norm > 0.0 else 0.0
+    a.feedback_gain[k] = np.sqrt(feedback_sq) / r_norm if r_norm > 0.0 else 0.0
 
-    # (25)-(26) over [t_k, t_k+1)
-    dt = a.dt
-    s_prime_a = np.zeros(hidden + 1)
-    s_prime_a[1:] = dsig * act  # σ̂' V̂ᵀ ξ
-    w_r = W @ r
-    back = dsig * w_r[1:]  # σ̂'ᵀ Ŵ r̂
-    W[:, :] = (W + dt * a.f * np.outer(sig_hat - s_prime_a, r)) / (1.0 + dt * a.kappa * a.f
-                                                                    * r_norm)
-    V[:, :] = (V + dt * a.g * np.outer(xi, back)) / (1.0 + dt * a.kappa * a.g * r_norm)
-    return np.isfinite(np.sum(torque) + w_norm + v_norm)
+    # (25)-(26) over [t_k, t_k+1), the κ‖r̂‖ decay implicit:
+    # Ŵ⁺ = (Ŵ + dt F (σ̂ − σ̂'V̂ᵀξ) r̂ᵀ) / (1 + dt κ F ‖r̂‖),
+    # V̂⁺ = (V̂ + dt G ξ (σ̂'ᵀŴr̂)ᵀ) / (1 + dt κ G ‖r̂‖)
+    dt_f = a.dt * a.f
+    shrink_w = 1.0 + a.dt * a.kappa * a.f * r_norm
+    for m in range(hidden + 1):
+        if m == 0:
+            row = 1.0  # σ̂'s bias entry, whose σ̂' row is 0
+        else:
+            s = sig_hat[m]
+            row = s - s * (1.0 - s) * act[m - 1]
+        for i in range(n):
+            W[m, i] = (W[m, i] + dt_f * (row * r[i])) / shrink_w
+    dt_g = a.dt * a.g
+    shrink_v = 1.0 + a.dt * a.kappa * a.g * r_norm
+    for m in range(n_in):
+        for j in range(hidden):
+            V[m, j] = (V[m, j] + dt_g * (xi[m] * back[j])) / shrink_v
+    return np.isfinite(finite)
 
 
 @register_block
@@ -234,4 +276,5 @@ class NnController(Block):
             weights,
             inp[self.position], inp[self.velocity], inp["q_d"], inp["qdot_d"], inp["qddot_d"],
             out["tau"], out["e"], out["edot"], out["r_hat"], out["nn_output"], out["v_c"],
-            out["W_norm"], out["V_norm"], out["feedback_gain"])
+            out["W_norm"], out["V_norm"], out["feedback_gain"], np.empty(n_in),
+            np.empty(p.hidden), np.empty(p.hidden + 1), np.empty(p.hidden))

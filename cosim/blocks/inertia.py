@@ -69,10 +69,15 @@ def default_links(links: int) -> dict[str, list[float]]:
 def planar_mass_matrix(q, m, l, lc, inertia, out):  # noqa: E741
     """M(q) of a planar serial chain into ``out`` (n×n)."""
     n = q.shape[0]
-    ox = np.zeros(n)  # joint origins
-    oy = np.zeros(n)
-    px = np.empty(n)  # centres of mass
-    py = np.empty(n)
+    _mass_matrix(q, m, l, lc, inertia, out, np.empty((4, n)))
+
+
+@njit(cache=True)
+def _mass_matrix(q, m, l, lc, inertia, out, points):  # noqa: E741
+    """planar_mass_matrix with its joint origins and centres of mass in ``points`` (4×n
+    scratch), so that a kernel calling it every step allocates nothing."""
+    n = q.shape[0]
+    ox, oy, px, py = points[0], points[1], points[2], points[3]
     theta = 0.0
     x = 0.0
     y = 0.0
@@ -136,11 +141,12 @@ class NominalArgs(NamedTuple):
     lc: np.ndarray  # m
     inertia: np.ndarray  # kg·m²
     M_model: np.ndarray
+    points: np.ndarray  # (4, n) scratch of _mass_matrix
 
 
 @njit(cache=True)
 def nominal_step(k, a):
-    planar_mass_matrix(a.q_meas[k], a.m, a.l, a.lc, a.inertia, a.M_model[k])
+    _mass_matrix(a.q_meas[k], a.m, a.l, a.lc, a.inertia, a.M_model[k], a.points)
     return True  # a non-finite M̂ makes the observer's output non-finite: caught there
 
 
@@ -197,7 +203,7 @@ class InertiaModel(Block):
         links = self.nominal_links()
         self.args = NominalArgs(ports.inputs["q_meas"],
                                 *(np.asarray(links[key], float) for key in ("m", "l", "lc", "I")),
-                                ports.outputs["M_model"])
+                                ports.outputs["M_model"], np.empty((4, self.context.links)))
 
     def describe(self) -> dict:
         return ({"source": "nominal", **self.nominal_links()} if self.source == "nominal"

@@ -20,6 +20,7 @@ Weight laws: "paper" is (24) as printed, Ŵo' = Fo(κo·1 − Ŵo), which has no
 
 from __future__ import annotations
 
+import math
 from typing import Annotated, Literal, NamedTuple
 
 import numpy as np
@@ -68,6 +69,9 @@ class ObserverArgs(NamedTuple):
     nu: float
     z_wo: float
     eps_sum: float  # ε_oM + ζ_oM
+    kp_kd: float  # kp kD, √No and 2√(kp kD): (8)'s constant factors, once
+    sqrt_basis: float
+    den_scale: float
     fo: float
     kappa_o: float
     n_basis: int
@@ -87,6 +91,15 @@ class ObserverArgs(NamedTuple):
     W_o_norm: np.ndarray
     error_bound: np.ndarray  # ε(t) per joint
     drift: np.ndarray  # dx̂2/dt − M̂⁻¹τ
+    # scratch, so that a step allocates nothing: σo (n_basis), y, x̃1, x̂2, Ŵoᵀσo (+ M̂⁻¹τ),
+    # M̂⁻¹(τ − τ_d) (n each), M̂'s elimination (n × n)
+    sigma: np.ndarray
+    y: np.ndarray
+    x1_err: np.ndarray
+    x2: np.ndarray
+    g: np.ndarray
+    torque_term: np.ndarray
+    lu: np.ndarray
 
 
 @njit(cache=True)
@@ -107,24 +120,74 @@ def error_envelope(kp, kd, k0):
 
 @njit(cache=True)
 def _basis(x1, x2, qdd, basis, out):
+    """σo = [x̂1; x̂2; q̂̈ (basis "lagged" only); |x̂1|; |x̂2|] into ``out``."""
     n = x1.shape[0]
-    out[0:n] = x1
-    out[n:2 * n] = x2
-    k = 2 * n
-    if basis == 0:
-        out[k:k + n] = qdd
-        k += n
-    out[k:k + n] = np.abs(x1)
-    out[k + n:k + 2 * n] = np.abs(x2)
+    k = 3 * n if basis == 0 else 2 * n  # where |x̂1| starts
+    for i in range(n):
+        out[i] = x1[i]
+        out[n + i] = x2[i]
+        if basis == 0:
+            out[2 * n + i] = qdd[i]
+        out[k + i] = abs(x1[i])
+        out[k + n + i] = abs(x2[i])
 
 
 @njit(cache=True)
 def _gain(a, x1_err_norm, w_norm, e_norm):
     """k0 of eq. (8)."""
-    num = (a.kp * a.kd * x1_err_norm + np.sqrt(a.n_basis) * (a.z_wo + w_norm) + a.eps_sum
-           + e_norm)
-    den = 2.0 * np.sqrt(a.kp * a.kd) * (x1_err_norm * x1_err_norm + a.nu)
+    num = a.kp_kd * x1_err_norm + a.sqrt_basis * (a.z_wo + w_norm) + a.eps_sum + e_norm
+    den = a.den_scale * (x1_err_norm * x1_err_norm + a.nu)
     return (num / den) ** 2
+
+
+@njit(cache=True)
+def _distance(u, v):
+    """‖u − v‖, summed in index order (as np.sum would)."""
+    total = 0.0
+    for i in range(u.shape[0]):
+        d = u[i] - v[i]
+        total += d * d
+    return np.sqrt(total)
+
+
+@njit(cache=True)
+def _weights_times(W, sigma, out):
+    """out = Ŵoᵀσo, as loops: a BLAS call per sub-step costs more than its 2·No·n flops."""
+    for i in range(out.shape[0]):
+        total = 0.0
+        for b in range(sigma.shape[0]):
+            total += W[b, i] * sigma[b]
+        out[i] = total
+
+
+@njit(cache=True)
+def _solve(M, b, lu, out):
+    """out = M⁻¹b by Gaussian elimination with partial pivoting in ``lu`` (n×n scratch): the
+    n ≤ 9 joints' M̂ is too small for LAPACK's call and checks to pay."""
+    n = b.shape[0]
+    for i in range(n):
+        out[i] = b[i]
+        for j in range(n):
+            lu[i, j] = M[i, j]
+    for col in range(n):
+        pivot = col
+        for i in range(col + 1, n):
+            if abs(lu[i, col]) > abs(lu[pivot, col]):
+                pivot = i
+        if pivot != col:
+            for j in range(col, n):
+                lu[col, j], lu[pivot, j] = lu[pivot, j], lu[col, j]
+            out[col], out[pivot] = out[pivot], out[col]
+        for i in range(col + 1, n):
+            factor = lu[i, col] / lu[col, col]
+            for j in range(col + 1, n):
+                lu[i, j] -= factor * lu[col, j]
+            out[i] -= factor * out[col]
+    for i in range(n - 1, -1, -1):
+        total = out[i]
+        for j in range(i + 1, n):
+            total -= lu[i, j] * out[j]
+        out[i] = total / lu[i, i]
 
 
 @njit(cache=True)
@@ -138,44 +201,77 @@ def observer_step(k, a):
     z2 = s[n:2 * n]
     qdd = s[2 * n:3 * n]
     W = s[3 * n:3 * n + n_basis * n].reshape((n_basis, n))
-    sigma = np.empty(n_basis)
+    sigma, y, x1_err, x2, g = a.sigma, a.y, a.x1_err, a.x2, a.g  # scratch
     transient = s[3 * n + n_basis * n:]  # the free-response part of ε(t), rad/s
+    w_sq = 0.0  # ‖Ŵo‖², kept up to date by the weight law's loop below
+    for b in range(n_basis):
+        for i in range(n):
+            w_sq += W[b, i] * W[b, i]
     if k == 0:  # x̂1(0) = y(0): x̃1(0) = 0; x̂2(0) as configured
         x1[:] = a.q_meas[0]
         z2[:] = a.initial_velocity
     else:  # integrate over [t_{k-1}, t_k] under the torque held over that interval
         y0 = a.q_meas[k - 1]
-        dy = a.q_meas[k] - y0
-        torque_term = np.linalg.solve(a.M_model[k - 1], a.tau[k - 1] - a.tau_d)
-        e_norm = np.sqrt(np.sum((a.q_d[k - 1] - y0) ** 2))
+        y1 = a.q_meas[k]
+        for i in range(n):
+            g[i] = a.tau[k - 1, i] - a.tau_d[i]
+        torque_term = a.torque_term
+        _solve(a.M_model[k - 1], g, a.lu, torque_term)  # M̂⁻¹(τ − τ_d), held over the step
+        e_norm = _distance(a.q_d[k - 1], y0)
         h = a.dt / a.substeps
+        # What no sub-step changes, once: the implicit part's coefficients h(kp + kD), h², and
+        # the weight law's decay factor e^{−Fo h} (24) or its gains h Fo, h κo Fo.
+        hc = h * c
+        hh = h * h
+        w_decay = np.exp(-a.fo * h)
+        h_fo = h * a.fo
+        h_kappa_fo = h * a.kappa_o * a.fo
         for j in range(a.substeps):
-            y = y0 + dy * ((j + 1) / a.substeps)
-            x1_err = y - x1
-            x1_err_norm = np.sqrt(np.sum(x1_err**2))
-            x2 = z2 + kp * x1_err
-            k0 = _gain(a, x1_err_norm, np.sqrt(np.sum(W**2)), e_norm)
+            frac = (j + 1) / a.substeps
+            err_sq = 0.0
+            for i in range(n):
+                y[i] = y0[i] + (y1[i] - y0[i]) * frac
+                x1_err[i] = y[i] - x1[i]
+                err_sq += x1_err[i] * x1_err[i]
+                x2[i] = z2[i] + kp * x1_err[i]
+            x1_err_norm = np.sqrt(err_sq)
+            k0 = _gain(a, x1_err_norm, np.sqrt(w_sq), e_norm)
             _basis(x1, x2, qdd, a.basis, sigma)
-            g = W.T @ sigma + torque_term
-            denom = 1.0 + h * c + h * h * k0
-            x1_new = (x1 + h * z2 + h * h * g + (h * c + h * h * k0) * y) / denom
-            z2_new = z2 + h * (g + k0 * (y - x1_new))
-            qdd[:] = (z2_new + kp * (y - x1_new) - x2) / h
+            _weights_times(W, sigma, g)
+            # backward Euler of the linear part: (1 + h(kp + kD) + h²k0) x̂1⁺ = x̂1 + h ẑ2
+            # + h² g + (h(kp + kD) + h²k0) y, then ẑ2⁺ = ẑ2 + h(g + k0 (y − x̂1⁺))
+            denom = 1.0 + hc + hh * k0
+            gain_y = hc + hh * k0
+            for i in range(n):
+                g[i] += torque_term[i]
+                x1_new = (x1[i] + h * z2[i] + hh * g[i] + gain_y * y[i]) / denom
+                z2_new = z2[i] + h * (g[i] + k0 * (y[i] - x1_new))
+                qdd[i] = (z2_new + kp * (y[i] - x1_new) - x2[i]) / h
+                x1[i] = x1_new
+                z2[i] = z2_new
+            w_sq = 0.0
             if a.law == 0:  # (24): exact solution of Ŵo' = Fo(κo·1 − Ŵo) over h
-                decay = np.exp(-a.fo * h)
-                W[:, :] = a.kappa_o + (W - a.kappa_o) * decay
+                for b in range(n_basis):
+                    for i in range(n):
+                        W[b, i] = a.kappa_o + (W[b, i] - a.kappa_o) * w_decay
+                        w_sq += W[b, i] * W[b, i]
             else:  # error-driven, decay term implicit so it never overshoots
-                W[:, :] = (W + h * a.fo * np.outer(sigma, x1_err)) / (
-                    1.0 + h * a.kappa_o * a.fo * x1_err_norm)
-            x1[:] = x1_new
-            z2[:] = z2_new
-    y = a.q_meas[k]
-    x1_err = y - x1
-    x1_err_norm = np.sqrt(np.sum(x1_err**2))
-    w_norm = np.sqrt(np.sum(W**2))
-    k0 = _gain(a, x1_err_norm, w_norm, np.sqrt(np.sum((a.q_d[k] - y) ** 2)))
-    a.q_hat[k] = x1
-    a.qdot_hat[k] = z2 + kp * x1_err
+                shrink = 1.0 + h_kappa_fo * x1_err_norm
+                for b in range(n_basis):
+                    for i in range(n):
+                        W[b, i] = (W[b, i] + h_fo * (sigma[b] * x1_err[i])) / shrink
+                        w_sq += W[b, i] * W[b, i]
+    y_k = a.q_meas[k]
+    err_sq = 0.0
+    for i in range(n):
+        x1_err[i] = y_k[i] - x1[i]
+        err_sq += x1_err[i] * x1_err[i]
+    w_norm = np.sqrt(w_sq)
+    k0 = _gain(a, np.sqrt(err_sq), w_norm, _distance(a.q_d[k], y_k))
+    qdot_hat = a.qdot_hat[k]
+    for i in range(n):
+        a.q_hat[k, i] = x1[i]
+        qdot_hat[i] = z2[i] + kp * x1_err[i]
     a.k0[k] = k0
     a.W_o_norm[k] = w_norm
     # ε(t): x̃2 = kD x̃1 + w, x̃1 measured to within the noise bound, w the free response to
@@ -190,10 +286,15 @@ def observer_step(k, a):
                                + l1 * a.residual_rate)
     # dx̂2/dt = Ŵoᵀσo + M̂⁻¹(τ − τ_d) + (k0 − kp kD) x̃1 + kp x̃2: all but M̂⁻¹τ and the
     # unknown kp x̃2 (|·| ≤ kp ε) is the drift the filter's rows on x̂2 need.
-    _basis(x1, a.qdot_hat[k], qdd, a.basis, sigma)
-    a.drift[k] = (W.T @ sigma - np.linalg.solve(a.M_model[k], a.tau_d)
-                  + (k0 - kp * a.kd) * x1_err)
-    return np.isfinite(np.sum(a.qdot_hat[k]) + np.sum(x1) + w_norm)
+    _basis(x1, qdot_hat, qdd, a.basis, sigma)
+    _weights_times(W, sigma, g)
+    disturbance = a.torque_term  # the step's M̂⁻¹(τ − τ_d) is spent: its array is free
+    _solve(a.M_model[k], a.tau_d, a.lu, disturbance)
+    finite = 0.0
+    for i in range(n):
+        a.drift[k, i] = g[i] - disturbance[i] + (k0 - kp * a.kd) * x1_err[i]
+        finite += qdot_hat[i] + x1[i]
+    return np.isfinite(finite + w_norm)
 
 
 @register_block
@@ -238,10 +339,12 @@ class FlnnObserver(Block):
         inp, out = ports.inputs, ports.outputs
         self.args = ObserverArgs(
             self.context.dt, p.substeps, LAWS[p.law], BASES[p.basis], p.kp, p.kd, p.nu,
-            p.z_wo, p.eps_om + p.zeta_om, p.fo, p.kappa_o, n_basis,
+            p.z_wo, p.eps_om + p.zeta_om, p.kp * p.kd, math.sqrt(n_basis),
+            2.0 * math.sqrt(p.kp * p.kd), p.fo, p.kappa_o, n_basis,
             np.broadcast_to(np.asarray(p.tau_d, float), (n,)).copy(), np.array(v0, float),
             u.noise_bound, u.initial_velocity_error, u.observer_residual_rate,
             np.zeros(3 * n + n_basis * n + 1),  # weights start at 0
             inp["q_meas"], inp["tau"], inp["M_model"], inp["q_d"],
             out["q_hat"], out["qdot_hat"], out["k0"], out["W_o_norm"], out["qdot_hat_bound"],
-            out["qdot_hat_drift"])
+            out["qdot_hat_drift"], np.empty(n_basis), *(np.empty(n) for _ in range(5)),
+            np.empty((n, n)))
