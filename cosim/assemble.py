@@ -44,6 +44,8 @@ class RunPlan:
     params: object  # the run's validated tables (pipeline.runs[name])
     constants: list[dict] = field(default_factory=list)  # per block: what it requires
     uncertainty: Uncertainty = field(default_factory=Uncertainty)
+    # The plant outputs the plant maps; the others stay NaN in the trace and count as absent.
+    plant_outputs: frozenset[str] = frozenset(PLANT_OUTPUTS)
 
     def new_trace(self, steps: int) -> Trace:
         return Trace(self.signals, self.links, steps, self.dt)
@@ -64,7 +66,8 @@ class RunPlan:
         return out
 
     def evaluator(self, trace: Trace) -> Evaluator:
-        return Evaluator(trace, self.safe, self.published())
+        return Evaluator(trace, self.safe, self.published(),
+                         frozenset(PLANT_OUTPUTS) - self.plant_outputs)
 
     def entities(self) -> dict[str, tuple[str, str]]:
         """Recording entity under ``/<run>/`` -> (trace key, series-name stem), from the
@@ -228,7 +231,8 @@ def assemble_run(pipeline: Pipeline, name: str, plant) -> RunPlan:
     signals, inputs, outputs, plant_input = wire(blocks, context, name, plant)
     constants = wire_constants(blocks, name)
     return RunPlan(name, blocks, signals, inputs, outputs, plant_input,
-                   safe_set(pipeline), links, dt, run, constants, pipeline.uncertainty)
+                   safe_set(pipeline), links, dt, run, constants, pipeline.uncertainty,
+                   context.plant_outputs)
 
 
 def wire_constants(blocks: list[Block], run: str) -> list[dict]:

@@ -100,3 +100,35 @@ def test_an_evaluator_whose_inputs_are_missing_does_not_run():
         if name != "torque":
             assert text.startswith("not run: needs the signal"), (name, text)
             assert "'tau'" not in text
+
+
+def test_a_plant_output_the_fmu_does_not_map_is_absent_to_evaluation_and_the_guarantee():
+    """Without qdot (plant.variables.qdot = []) the trace keeps q̇ as NaN, and NaN must not
+    pass for a kept set: the true-velocity checks are unavailable (said so), Theorem 1's
+    barriers (which need q̇) do not run, naming the plant output, and the filter's
+    guarantee does not cover the run, instead of a 'kept every hard set' that compared
+    nothing."""
+    pipeline = load_pipeline("pipelines/paper_safety.toml",
+                             ["plant.variables.qdot=[]", "simulation.duration=0.5"])
+    pipeline.runs = {"proposed_cbf": pipeline.runs["proposed_cbf"]}
+    result = run(pipeline, None, progress=False)["proposed_cbf"]
+    assert result.complete and np.isnan(result.trace["qdot"]).all()
+    said = result.evaluation.evaluators
+    assert said["safe_sets"] == ("ran (the true-velocity sets unavailable: the plant does not "
+                                 "map its joint velocities qdot)")
+    assert said["observer_error"] == ("ran (its check unavailable: the plant does not map "
+                                      "qdot)")
+    assert said["barriers"] == ("not run: needs the plant output 'qdot', which the plant does "
+                                "not map")
+    assert "min_barrier_H" not in result.metrics
+    assert result.metrics["observer_velocity_error_rms_after_1s"] is None
+    checks = result.safety
+    assert checks["position_joint1"]["satisfied"] is True
+    for name in ("velocity_true_joint1", "error_rate_true_norm", "observer_error_norm"):
+        assert checks[name]["satisfied"] is None and "no qdot" in checks[name]["unavailable"]
+    guarantee = result.metrics["guarantee"]
+    assert guarantee["within_bounds"] is False and "velocity_true" not in str(
+        guarantee["first_exit"])
+    assert ("true velocity unknown (the plant does not map qdot): the velocity set cannot be "
+            "judged") in guarantee["outside"]
+    assert guarantee["broken"] is False and "starts_inside_observer_set" not in guarantee

@@ -66,14 +66,18 @@ class Evaluator:
     trace: Trace
     safe: SafeSet
     constants: Mapping[str, Any]
+    # Trace signals that hold no values (plant outputs the plant does not map: NaN).
+    unmapped: frozenset[str] = frozenset()
     upto: int = 0
     values: dict[str, np.ndarray] = field(default_factory=dict)
     bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
     barrier_values: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        chosen, self.skipped = select(self.trace, self.constants)
-        self.parts: list[Part] = [cls(self.trace, self.safe, self.constants) for cls in chosen]
+        chosen, self.skipped = select(self.trace, self.constants, self.unmapped)
+        available = frozenset(self.trace.arrays) - self.unmapped
+        self.parts: list[Part] = [cls(self.trace, self.safe, self.constants, available)
+                                  for cls in chosen]
 
     def update(self, upto: int) -> tuple[int, dict[str, np.ndarray], dict[str, np.ndarray]]:
         """Evaluate rows [previous ``upto``, ``upto``). Returns (first row, check values,
@@ -118,6 +122,8 @@ class Evaluator:
             for part in self.parts:
                 metrics.update(part.metrics(done, h))
         ran = {part.name for part in self.parts}
-        said = {name: "ran" if name in ran else f"not run: {self.skipped[name]}"
+        notes = {part.name: part.note for part in self.parts if part.note}
+        said = {name: ("ran" + (f" ({notes[name]})" if name in notes else "")) if name in ran
+                else f"not run: {self.skipped[name]}"
                 for name in EVALUATORS if name in ran or name in self.skipped}
         return Evaluation(checks, h, metrics, safety_entries(checks, self.trace.dt), said)

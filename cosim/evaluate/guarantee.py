@@ -55,15 +55,17 @@ def plant_payload(parameters: dict, chain, modelled: frozenset[str] | None = Non
 
 
 def classify(trace: Trace, safe: SafeSet, uncertainty: Uncertainty,
-             payload: float | None, other_parameters: list[str]) -> dict:
+             payload: float | None, other_parameters: list[str],
+             true_velocity: bool = True) -> dict:
     """The run's class and outcome (module docstring); ``payload``: what the plant carries
-    (None: unknown), ``other_parameters``: plant link parameters off the nominal chain."""
+    (None: unknown), ``other_parameters``: plant link parameters off the nominal chain;
+    ``true_velocity``: whether the plant maps q̇ (if not, the velocity set cannot be judged
+    and the run is outside what the guarantee speaks for)."""
     if trace.rows_done == 0:
         return {}
-    position = np.abs(trace["q"] - trace["q_s"])
-    velocity = np.abs(trace["qdot"] - trace["qdot_s"])
-    hard = {"position": (position, safe.position_bound),
-            "velocity_true": (velocity, safe.velocity_bound)}
+    hard = {"position": (np.abs(trace["q"] - trace["q_s"]), safe.position_bound)}
+    if true_velocity:
+        hard["velocity_true"] = (np.abs(trace["qdot"] - trace["qdot_s"]), safe.velocity_bound)
     starts_inside = all(bool(np.all(v[0] <= bound)) for v, bound in hard.values())
     first_exit = None
     for name, (values, bound) in hard.items():
@@ -79,12 +81,15 @@ def classify(trace: Trace, safe: SafeSet, uncertainty: Uncertainty,
     elif not low - PARAMETER_TOLERANCE <= payload <= high + PARAMETER_TOLERANCE:
         outside.append(f"payload {payload:g} kg outside [{low:g}, {high:g}]")
     outside += [f"plant {text}" for text in other_parameters]
+    if not true_velocity:
+        outside.append("true velocity unknown (the plant does not map qdot): the velocity set "
+                       "cannot be judged")
     if "q_meas" in trace:
         noise = float(np.max(np.abs(trace["q_meas"] - trace["q"])))
         if noise > uncertainty.noise_bound:
             outside.append(f"noise {noise:.3g} rad > {uncertainty.noise_bound:g}")
     out = {"starts_inside": starts_inside}
-    if "qdot_hat" in trace and np.isfinite(trace["qdot_hat"][0]).all():
+    if true_velocity and "qdot_hat" in trace and np.isfinite(trace["qdot_hat"][0]).all():
         error = np.abs(trace["qdot"] - trace["qdot_hat"])
         out["starts_inside_observer_set"] = bool(
             np.linalg.norm(error[0]) <= safe.observer_error_bound)

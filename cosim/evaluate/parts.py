@@ -43,9 +43,12 @@ class Part:
     inputs: ClassVar[tuple[str, ...]]
     constants: ClassVar[tuple[str, ...]] = ()
 
-    def __init__(self, trace: Signals, safe: SafeSet, constants: Mapping[str, Any]):
+    def __init__(self, trace: Signals, safe: SafeSet, constants: Mapping[str, Any],
+                 available: frozenset[str] = frozenset()):
         self.safe = safe
         self.given = constants
+        self.available = available  # the run's signals that hold values
+        self.note: str | None = None  # what summary.json adds to "ran" (a part left out)
 
     def checks(self, rows: Signals) -> dict[str, Check]:
         """Safety checks of these rows (joint-1 and norm values against their bounds)."""
@@ -80,20 +83,26 @@ def evaluated_signals() -> frozenset[str]:
     return frozenset(s for cls in EVALUATORS.values() for s in cls.inputs)
 
 
-def select(trace: Signals, constants: Mapping[str, Any]
+def select(trace: Signals, constants: Mapping[str, Any],
+           unmapped: frozenset[str] = frozenset()
            ) -> tuple[list[type[Part]], dict[str, str]]:
-    """(the evaluators whose inputs this run has, why each other one does not run)."""
+    """(the evaluators whose inputs this run has, why each other one does not run);
+    ``unmapped``: plant outputs in the trace that the plant does not map (NaN, absent)."""
     chosen, skipped = [], {}
     for name, cls in EVALUATORS.items():
         signals = [s for s in cls.inputs if s not in trace]
+        ports = [s for s in cls.inputs if s in unmapped]
         missing = [c for c in cls.constants if c not in constants]
-        if not signals and not missing:
+        if not signals and not ports and not missing:
             chosen.append(cls)
             continue
         why = []
         if signals:
             why.append(f"needs {_listed('signal', signals)}, which no block in the chain "
                        "produces")
+        if ports:
+            why.append(f"needs {_listed('plant output', ports)}, which the plant does not "
+                       "map")
         if missing:
             why.append(f"needs {_listed('constant', missing)}, which no block in the chain "
                        "publishes")
@@ -129,7 +138,16 @@ class SafeSets(Part):
 
     name = "safe_sets"
     meaning = "safe sets (13)-(16): position, velocity, error and error rate"
-    inputs = ("q", "qdot", "q_s", "qdot_s", "q_d", "qdot_d", "e", "edot")
+    # and the true velocity q̇: where the plant does not map it (NaN), the true-velocity
+    # sets are reported unavailable (safety.safety_entries), never as kept
+    inputs = ("q", "q_s", "qdot_s", "q_d", "qdot_d", "e", "edot")
+
+    def __init__(self, trace: Signals, safe: SafeSet, constants: Mapping[str, Any],
+                 available: frozenset[str] = frozenset()):
+        super().__init__(trace, safe, constants, available)
+        if "qdot" not in available:
+            self.note = ("the true-velocity sets unavailable: the plant does not map its "
+                         "joint velocities qdot")
 
     def _sets(self, rows: Signals, with_signals: bool):
         safe = self.safe
@@ -180,8 +198,9 @@ class FilteredError(Part):
     inputs = ("r_hat", "q_s", "qdot_s", "q_d", "qdot_d")
     constants = ("nn_gains",)
 
-    def __init__(self, trace: Signals, safe: SafeSet, constants: Mapping[str, Any]):
-        super().__init__(trace, safe, constants)
+    def __init__(self, trace: Signals, safe: SafeSet, constants: Mapping[str, Any],
+                 available: frozenset[str] = frozenset()):
+        super().__init__(trace, safe, constants, available)
         self.lam = constants["nn_gains"].Lambda
         self.r_bound = theorem1(trace, safe, self.lam)["R"]
 
@@ -200,7 +219,16 @@ class ObserverError(Part):
 
     name = "observer_error"
     meaning = "the observer's velocity error q̇ − x̂2 against ε_max of (16)"
-    inputs = ("qdot", "qdot_hat")
+    # and the true q̇: where the plant does not map it, the check is unavailable (as the
+    # true-velocity sets) and the RMS is None
+    inputs = ("qdot_hat",)
+
+    def __init__(self, trace: Signals, safe: SafeSet, constants: Mapping[str, Any],
+                 available: frozenset[str] = frozenset()):
+        super().__init__(trace, safe, constants, available)
+        self.true_velocity = "qdot" in available
+        if not self.true_velocity:
+            self.note = "its check unavailable: the plant does not map qdot"
 
     def checks(self, rows: Signals) -> dict[str, Check]:
         if self.given.get("velocity_source") != "observer":
@@ -211,9 +239,11 @@ class ObserverError(Part):
 
     def metrics(self, trace: Signals, series: Mapping[str, np.ndarray]) -> dict:
         after_1s = trace.time >= 1.0
+        if not (self.true_velocity and after_1s.any()):
+            return {"observer_velocity_error_rms_after_1s": None}
         error = (trace["qdot"] - trace["qdot_hat"])[after_1s]
         return {"observer_velocity_error_rms_after_1s": [
-            float(v) for v in np.sqrt(np.mean(error**2, axis=0))] if after_1s.any() else None}
+            float(v) for v in np.sqrt(np.mean(error**2, axis=0))]}
 
 
 @register_evaluator
@@ -223,12 +253,14 @@ class Barriers(Part):
 
     name = "barriers"
     meaning = "Theorem 1's barriers H1 (28), H2 (29) and Ḣ + αH ≥ 0"
+    # M(q) is the plant's where it maps it, else the controller's model M̂ (safety.barriers)
     inputs = ("q", "qdot", "q_hat", "qdot_hat", "k0", "W_o_norm", "r_hat", "e", "W_norm",
-              "V_norm", "M", "M_model", "q_s", "qdot_s", "q_d", "qdot_d")
+              "V_norm", "M_model", "q_s", "qdot_s", "q_d", "qdot_d")
     constants = ("nn_gains", "observer_gain")
 
-    def __init__(self, trace: Signals, safe: SafeSet, constants: Mapping[str, Any]):
-        super().__init__(trace, safe, constants)
+    def __init__(self, trace: Signals, safe: SafeSet, constants: Mapping[str, Any],
+                 available: frozenset[str] = frozenset()):
+        super().__init__(trace, safe, constants, available)
         nn = constants["nn_gains"]
         self.gains = Gains(nn.Lambda, nn.F, nn.G, constants["observer_gain"],
                            constants.get("velocity_source") == "observer")
