@@ -183,8 +183,17 @@ def variables_header(model: ModuleType, links: int, token: str) -> str:
              f'#define MODEL_IDENTIFIER_STRING "{model.MODEL_IDENTIFIER}"',
              f'#define INSTANTIATION_TOKEN "{token}"', "",
              "/* Value reference of the first element of each group (row-major for M). */"]
+    stems: dict[str, str] = {}
     for g in groups:
-        lines.append(f"#define VR_{_c_group(g)} {first_vr(table, g)}")
+        stem = _c_group(g)
+        if stem in stems:  # two macros of one name: the later would silently win in C
+            raise ValueError(f"{model.MODEL_IDENTIFIER}: the variable families {stems[stem]!r} "
+                             f"and {g!r} both make the C name VR_{stem}; rename one")
+        if not stem.isidentifier():
+            raise ValueError(f"{model.MODEL_IDENTIFIER}: the variable family {g!r} makes "
+                             f"VR_{stem}, not a C identifier; rename it")
+        stems[stem] = g
+        lines.append(f"#define VR_{stem} {first_vr(table, g)}")
     lines += ["",
               "typedef enum { KIND_INDEPENDENT, KIND_PARAMETER, KIND_INPUT, KIND_OUTPUT,"
               " KIND_LOCAL } VariableKind;",

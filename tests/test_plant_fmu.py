@@ -333,3 +333,22 @@ def test_cosimulation_lands_on_variable_communication_points(plant_fmu):
         assert any("communication point" in m for m in inst.messages)
     finally:
         inst.free()
+
+
+def test_a_variable_family_whose_c_name_is_taken_is_refused_naming_both():
+    """der(qdot) is VR_qddot in C: an output family named qddot would define the macro again
+    and one of the two would silently read the other's values (gcc only warns)."""
+    from types import SimpleNamespace
+
+    from plant_fmu.description import variables_header
+    from plant_fmu.models import planar_arm
+    from plant_fmu.variables import VariableFamily, expand
+
+    acceleration = VariableFamily("qddot", "n", "output", "continuous", "rad/s2",
+                                  "Joint acceleration, as an output")
+    model = SimpleNamespace(MODEL_IDENTIFIER="ArmWithAcceleration",
+                            variables=lambda n: expand((*planar_arm.FAMILIES, acceleration), n))
+    with pytest.raises(ValueError, match=r"ArmWithAcceleration: the variable families "
+                       r"'der\(qdot\)' and 'qddot' both make the C name VR_qddot; rename one"):
+        variables_header(model, 2, "{token}")
+    assert "#define VR_qddot" in variables_header(planar_arm, 2, "{token}")

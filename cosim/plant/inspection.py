@@ -22,6 +22,7 @@ from .mapping import (
     map_variables,
     read_description,
 )
+from .ports import PORTS
 from .unpack import size_problem, unsafe_entries
 
 CAUSALITIES = ("input", "output", "parameter", "calculatedParameter", "local", "independent")
@@ -81,13 +82,12 @@ class FmuInfo:
             m = self.mapping
             lines.append(f"fits the cosim plant interface: yes, {m.links} joint"
                          f"{'s' * (m.links != 1)}")
-            for key in ("tau", "q", "qdot", "M"):
-                names = getattr(m, key)
-                lines.append(f"  {key:<4} -> {', '.join(names) if names else 'not mapped'}")
-            if not m.qdot:
-                lines.append("  (no qdot: the full-state baseline cannot run on it)")
-            if not m.M:
-                lines.append("  (no M: the controller uses the pipeline's nominal inertia model)")
+            for port in PORTS:
+                names = m.names.get(port.name)
+                lines.append(f"  {port.name:<4} -> "
+                             f"{', '.join(names) if names else 'not mapped'}")
+            lines += [f"  (no {port.name}: {port.unmapped})" for port in PORTS
+                      if port.unmapped and not m.names.get(port.name)]
         else:
             lines.append("fits the cosim plant interface: no")
             lines += [f"  - {p}" for p in self.problems]

@@ -30,6 +30,7 @@ class PlantPort:
     required: bool
     role: str
     signal: Signal
+    unmapped: str = ""  # what a plant without this optional output cannot do (cosim inspect)
 
     def default_names(self, links: int) -> list[str]:
         """The built-in plants' names: ``q[1]``, …, ``M[1,2]``, …"""
@@ -48,10 +49,13 @@ PORTS: tuple[PlantPort, ...] = (
     PlantPort("q", "output", "n", True, "joint angles",
               Signal("n", "rad", "joint angles q (plant)", "plant/q")),
     PlantPort("qdot", "output", "n", False, "joint velocities",
-              Signal("n", "rad/s", "joint velocities q̇ (plant)", "plant/qdot")),
+              Signal("n", "rad/s", "joint velocities q̇ (plant)", "plant/qdot"),
+              "the full-state baseline cannot run on it, and the true-velocity sets are "
+              "not judged"),
     # n² series per run add little to the review; the trace files keep M.
     PlantPort("M", "output", "nn", False, "inertia matrix",
-              Signal("nn", "kg·m²", "inertia matrix M(q) (plant)")),
+              Signal("nn", "kg·m²", "inertia matrix M(q) (plant)"),
+              "the controller uses the pipeline's nominal inertia model"),
     # The elastic-joint arm's motor angles (θ, link side); in the trace files.
     PlantPort("theta", "output", "n", False, "motor angles",
               Signal("n", "rad", "motor angles θ (plant with elastic joints)")),
