@@ -12,8 +12,8 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from plant_fmu import MAX_LINKS
-from plant_fmu import variables as plant_variables
+from plant_fmu.models.planar_arm import MAX_LINKS
+from plant_fmu.models.planar_arm import variables as rigid_arm_variables
 
 from .assemble import RunPlan, Scenario, assemble, link_lengths
 from .config import Pipeline, PipelineError
@@ -269,7 +269,7 @@ def rigid_chain_parameters(links: int) -> frozenset[str] | None:
     assumes (None beyond the built-in arm's link count)."""
     if links > MAX_LINKS:
         return None
-    return frozenset(v.name for v in plant_variables(links) if v.causality == "parameter")
+    return frozenset(v.name for v in rigid_arm_variables(links) if v.causality == "parameter")
 
 
 def _open_recorder(out: Path, scenario: Scenario, spawn: bool,

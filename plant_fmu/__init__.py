@@ -8,7 +8,5 @@ planar arm, and the arm with elastic joints.
 
 from .build import BuildError, build_fmu
 from .models import DEFAULT_MODEL, MODELS
-from .models.planar_arm import MAX_LINKS, MODEL_IDENTIFIER, variables
 
-__all__ = ["BuildError", "DEFAULT_MODEL", "MAX_LINKS", "MODELS", "MODEL_IDENTIFIER",
-           "build_fmu", "variables"]
+__all__ = ["BuildError", "DEFAULT_MODEL", "MODELS", "build_fmu"]
