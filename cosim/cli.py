@@ -11,7 +11,7 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from plant_fmu import DEFAULT_MODEL, MAX_LINKS, MODELS, BuildError, build_fmu
+from plant_fmu import DEFAULT_MODEL, MODELS, BuildError, build_fmu
 
 from .schema import PipelineError
 
@@ -368,6 +368,7 @@ def _parser() -> argparse.ArgumentParser:
                    help=f"the plant model: the rigid n-link planar arm (planar_arm), or the "
                    f"arm with elastic joints, motors driving the links through springs "
                    f"(elastic_joints) (default {DEFAULT_MODEL})")
+    MAX_LINKS = max(model.MAX_LINKS for model in MODELS.values())
     p.add_argument("--links", type=int, default=2, choices=range(1, MAX_LINKS + 1),
                    metavar="N", help=f"number of links, 1 to {MAX_LINKS} (default 2)")
     p.add_argument("--fmi-version", type=int, default=2, choices=(2, 3),
