@@ -250,12 +250,20 @@ def wire_constants(blocks: list[Block], run: str) -> list[dict]:
                                     f"'{name}', which no block before it publishes ({hint})")
             needed[name] = published[name]
         out.append(needed)
+        declared = dict(getattr(block, "PUBLISHES", {}))
+        for name, value in block.publishes.items():
+            if name not in declared or not isinstance(value, declared[name]):
+                what = (f"of type {type(value).__name__}, declared "
+                        f"{getattr(declared[name], '__name__', declared[name])}"
+                        if name in declared else "not declared in its PUBLISHES")
+                raise PipelineError(f"run '{run}': the {block.instance} block publishes "
+                                    f"'{name}' {what}")
         published.update(block.publishes)
     return out
 
 
 def _published_by(cls: type[Block]) -> tuple[str, ...]:
-    return tuple(getattr(cls, "PUBLISHES", ()))
+    return tuple(getattr(cls, "PUBLISHES", {}))
 
 
 def wire(blocks: list[Block], context: BlockContext, run: str, plant

@@ -152,3 +152,36 @@ def test_the_fused_and_the_python_engine_give_the_same_rows_bit_for_bit(plant_fm
             assert fused.rows_done == python.rows_done == 1001
             for name in fused.arrays:
                 np.testing.assert_array_equal(fused[name], python[name], err_msg=name)
+
+
+class BadGainParams(Section):
+    pass
+
+
+@register_block
+class BadGainPublisher(Block):
+    """Publishes Theorem 1's gains as a plain number, not the NnGains it declares."""
+
+    kind = "bad_gain_publisher"
+    Params = BadGainParams
+    PUBLISHES = {"nn_gains": tuple}
+
+    def __init__(self, params, context):
+        super().__init__(params, context)
+        self.publishes = {"nn_gains": 5.0, "undeclared": 1}
+
+    def reset(self, ports):
+        pass
+
+
+def test_a_published_constant_is_checked_against_its_declared_type():
+    chain = ('["reference", "sensor", "inertia_model", "observer", "controller", '
+             '"bad_gain_publisher"]')
+    pipeline = load_pipeline(PAPER, [f"runs.proposed.blocks={chain}"])
+    with pytest.raises(PipelineError, match=r"^run 'proposed': the bad_gain_publisher block "
+                       r"publishes 'nn_gains' of type float, declared tuple$"):
+        assemble_run(pipeline, "proposed", TwoLinkArm())
+    BadGainPublisher.PUBLISHES = {"nn_gains": float}
+    with pytest.raises(PipelineError, match=r"^run 'proposed': the bad_gain_publisher block "
+                       r"publishes 'undeclared' not declared in its PUBLISHES$"):
+        assemble_run(pipeline, "proposed", TwoLinkArm())

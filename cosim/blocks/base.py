@@ -26,13 +26,13 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Any, ClassVar
+from typing import ClassVar
 
 import numpy as np
 
 from ..declared import Safety, Uncertainty
 from ..schema import Section
-from ..signals import Signal
+from ..signals import Signal, Trace
 
 
 @dataclass(frozen=True)
@@ -59,8 +59,9 @@ class Ports:
 
     inputs: Mapping[str, np.ndarray]
     outputs: Mapping[str, np.ndarray]
-    trace: Any  # the Trace, for whole-run blocks (the reference writes all rows in reset)
-    constants: Mapping[str, Any] = field(default_factory=dict)  # what ``requires`` names
+    trace: Trace  # for whole-run blocks (the reference writes all rows in reset)
+    # what ``requires`` names, each of the type its publisher declares (``PUBLISHES``)
+    constants: Mapping[str, object] = field(default_factory=dict)
 
 
 class Block:
@@ -69,8 +70,9 @@ class Block:
     kernel: ClassVar[Callable[..., bool] | None] = None
     # Parameters given per joint (a list must have one entry per joint; a scalar serves all).
     per_joint: ClassVar[tuple[str, ...]] = ()
-    # The names of the constants its instances publish (for the wiring's messages).
-    PUBLISHES: ClassVar[tuple[str, ...]] = ()
+    # The constants its instances publish, each with its type: the wiring checks every
+    # published value against it, and names the publishers in its messages.
+    PUBLISHES: ClassVar[Mapping[str, type | tuple[type, ...]]] = {}
     # Views it adds to the Rerun layout of a run that holds it: (entity under the block's
     # instance name, title); the layout knows no block by name.
     views: ClassVar[tuple[tuple[str, str], ...]] = ()
@@ -83,7 +85,7 @@ class Block:
         self.inputs: tuple[str, ...] = ()
         self.delayed: tuple[str, ...] = ()
         self.outputs: dict[str, Signal] = {}
-        self.publishes: dict[str, Any] = {}  # constants for the blocks after this one
+        self.publishes: dict[str, object] = {}  # constants for the blocks after this one
         self.requires: tuple[str, ...] = ()  # constants from the blocks before this one
         self.args: tuple | None = None  # the kernel's arguments, set by reset
 

@@ -215,7 +215,7 @@ class NnController(Block):
     kernel = controller_step
     # nn_gains: NnGains (Λ, F, G), for Theorem 1's R and barriers; velocity_source: where ė
     # comes from ("plant", "observer" or "finite_difference").
-    PUBLISHES = ("nn_gains", "velocity_source")
+    PUBLISHES = {"nn_gains": NnGains, "velocity_source": str}
 
     def __init__(self, params: ControllerParams, context: BlockContext):
         super().__init__(params, context)

@@ -164,7 +164,7 @@ class InertiaModel(Block):
     per_joint = ("m", "l", "lc", "I")
     # nominal_chain: Chain; inertia_is_plant: True when M̂ is the plant's own M (so it
     # includes any payload), False when it is the nominal chain's.
-    PUBLISHES = ("nominal_chain", "inertia_is_plant")
+    PUBLISHES = {"nominal_chain": Chain, "inertia_is_plant": bool}
 
     def __init__(self, params: InertiaModelParams, context: BlockContext):
         super().__init__(params, context)

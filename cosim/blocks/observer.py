@@ -305,7 +305,8 @@ class FlnnObserver(Block):
     kernel = observer_step
     # tau_d_model: the disturbance bound τ_d (N·m per joint); observer_gain: Fo of (10),
     # for H1 (28).
-    PUBLISHES = ("tau_d_model", "observer_gain")
+    # tau_d_model: τ_d per joint (N·m), the disturbance (7) assumes; observer_gain: Fo
+    PUBLISHES = {"tau_d_model": np.ndarray, "observer_gain": float}
 
     def __init__(self, params: ObserverParams, context: BlockContext):
         super().__init__(params, context)

@@ -82,7 +82,7 @@ class PdController(Block):
     Params = PdControllerParams
     per_joint = ("kp", "kd")
     kernel = pd_step
-    PUBLISHES = ("velocity_source",)  # "plant" or "finite_difference"
+    PUBLISHES = {"velocity_source": str}  # "plant" or "finite_difference"
 
     def __init__(self, params: PdControllerParams, context: BlockContext):
         super().__init__(params, context)
