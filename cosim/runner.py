@@ -22,10 +22,11 @@ from .evaluate import Evaluation
 from .evaluate.guarantee import classify, plant_payload
 from .outputs.figures import FIGURE_FILES, write_figures
 from .outputs.recording import Recorder, RunSpec
-from .outputs.recording.layout import DERIVED_ENTITIES
+from .outputs.recording.layout import derived_entities
 from .outputs.run_folder import RunFolder, RunFolderError, jsonable
 from .outputs.table import markdown_table
 from .outputs.versions import package_versions
+from .plant import PLANT_OUTPUTS
 from .plant.mapping import FmuError
 from .progress import percent, phase
 from .signals import Trace
@@ -195,8 +196,7 @@ def _run_one(plan: RunPlan, scenario: Scenario, plant_info: dict, recorder: Reco
     trace = plan.new_trace(steps)
     report = percent(name, steps) if progress else None
     entities = plan.entities()
-    derived = {entity: spec for entity, spec in DERIVED_ENTITIES.items()
-               if spec[0] in trace and spec[1] in trace}
+    derived = derived_entities(plan.signals, _present(plan))
     recorded = sorted({key for key, _ in entities.values()} | {"q", "q_d"}
                       | {s for true, est, _ in derived.values() for s in (true, est)})
     evaluator = None
@@ -278,8 +278,18 @@ def _open_recorder(out: Path, scenario: Scenario, spawn: bool,
     title = (f"{pipeline.name}: {' vs '.join(pipeline.runs)} "
              f"({sim.duration:g} s at {1 / sim.step:g} Hz)")
     views = {name: plan.views() for name, plan in scenario.runs.items()}
+    errors = {name: [(entity, "observer error q̇ − x̂2 (rad/s)")
+                     for entity, (_, _, stem) in derived_entities(plan.signals,
+                                                                  _present(plan)).items()
+                     if stem == "qdot_err"]
+              for name, plan in scenario.runs.items()}
     return Recorder(out / "recording.rrd", title, list(pipeline.runs), spawn=spawn,
-                    connect=connect, views=views)
+                    connect=connect, views=views, error_views=errors)
+
+
+def _present(plan: RunPlan) -> frozenset[str]:
+    """The run's signals that hold values: what its blocks produce and what the plant maps."""
+    return frozenset(plan.signals) - (frozenset(PLANT_OUTPUTS) - plan.plant_outputs)
 
 
 def _properties(pipeline: Pipeline, plant_info: dict) -> dict[str, dict]:

@@ -20,9 +20,9 @@ from cosim.engine import Diverged
 from cosim.evaluate import BARRIERS, barriers
 from cosim.outputs.recording.layout import (
     BOUND_COLOR,
-    DERIVED_ENTITIES,
     JOINT_COLORS,
     VIOLATION_COLOR,
+    derived_entities,
 )
 from cosim.outputs.viewer import (
     ViewerError,
@@ -43,7 +43,12 @@ class _TwoLinkArm:  # what assembly needs to know of the paper's plant
 
 
 # Recording entity -> (trace signal, series stem), derived from the blocks' declarations.
-TRACE_ENTITIES = assemble_run(load_pipeline(PAPER), "proposed", _TwoLinkArm()).entities()
+_PROPOSED = assemble_run(load_pipeline(PAPER), "proposed", _TwoLinkArm())
+TRACE_ENTITIES = _PROPOSED.entities()
+# The observer's errors, recorded beside its estimates (x̃1 = q − x̂1, x̃2 = q̇ − x̂2).
+DERIVED_ENTITIES = derived_entities(_PROPOSED.signals, set(_PROPOSED.signals))
+assert DERIVED_ENTITIES == {"observer/q_err": ("q", "q_hat", "q_err"),
+                            "observer/qdot_err": ("qdot", "qdot_hat", "qdot_err")}
 
 
 @pytest.fixture(scope="module")
@@ -242,6 +247,12 @@ def test_the_layout_puts_two_runs_side_by_side_and_gives_more_a_tab_each():
     assert views["proposed_cbf"] == [("cbf_filter/h", "CBF barrier values β − |x| (≥ 0 inside)"),
                                      ("cbf_filter/correction", "‖τ − τ_nom‖ (N·m)")]
     assert views["proposed"] == [] and views["baseline_cbf"] == views["proposed_cbf"]
+    pd = assemble_run(load_pipeline("pipelines/pd_control.toml"), "pd_full_state",
+                      _TwoLinkArm())
+    assert derived_entities(pd.signals, set(pd.signals)) == {}  # no observer: no error view
+    assert len(blueprint(["pd"]).root_container.contents[0].contents[-1].contents) == 3
+    assert len(blueprint(["proposed"], None, {"proposed": [("observer/qdot_err", "x̃2")]})
+               .root_container.contents[0].contents[-1].contents) == 4
     tabs = blueprint(five, views).root_container
     assert isinstance(tabs, rrb.Tabs) and [c.name for c in tabs.contents] == five
     # a filtered run's tab adds the filter's row (barrier values, correction)

@@ -20,12 +20,18 @@ import numpy as np
 
 # Not .writer: it runs as its own process (python -m), and importing it here first would
 # make runpy warn.
-from .layout import BOUND_COLOR, DERIVED_ENTITIES, JOINT_COLORS, VIOLATION_COLOR, RunSpec
+from .layout import (
+    BOUND_COLOR,
+    JOINT_COLORS,
+    VIOLATION_COLOR,
+    RunSpec,
+    derived_entities,
+)
 
 F_SETPIPE_SZ = getattr(fcntl, "F_SETPIPE_SZ", 1031)  # Linux; elsewhere the call just fails
 PIPE_BYTES = 1 << 20
 
-__all__ = ["BOUND_COLOR", "DERIVED_ENTITIES", "JOINT_COLORS", "VIOLATION_COLOR", "Recorder",
+__all__ = ["BOUND_COLOR", "JOINT_COLORS", "VIOLATION_COLOR", "Recorder", "derived_entities",
            "RecordingError", "RunSpec"]
 
 
@@ -43,14 +49,15 @@ class Recorder:
 
     def __init__(self, path: str | Path, name: str, run_names: list[str],
                  spawn: bool = False, connect: str | None = None, port: int = 9876,
-                 views: dict[str, list] | None = None):
+                 views: dict[str, list] | None = None,
+                 error_views: dict[str, list] | None = None):
         self.path = Path(path)
         self.sent: dict[str, int] = {}
         self.handoff_seconds = 0.0  # time the caller spent handing rows over
         self._error: str | None = None
         self._ready = False
         header = {"name": name, "runs": run_names, "recording_id": str(uuid.uuid4()),
-                  "views": views or {}}
+                  "views": views or {}, "error_views": error_views or {}}
         live = {"spawn": spawn, "connect": connect, "port": port, "viewer": None}
         if spawn:
             from ..viewer import has_display, viewer_binary

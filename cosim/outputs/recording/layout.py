@@ -4,7 +4,8 @@ Layout (one subtree per run; one timeline, ``sim_time``, in seconds; SI units, r
 
     /<run>/<entity of each declared signal>      e.g. plant/q, observer/qdot_hat, controller/e
     /<run>/plant/tau                            the torque applied to the plant
-    /<run>/observer/{q_err, qdot_err}           true minus estimate (x̃1, x̃2)
+    /<run>/observer/{q_err, qdot_err}           true minus estimate (x̃1, x̃2), beside the
+                                                estimate's own entity (observer/q_hat)
     /<run>/safety/<check>/{value, upper, lower, violation}
     /<run>/barrier/{H1, H2, H}
     /<run>/barrier_condition                     Ḣ + α·H where it fails (< 0): first row
@@ -18,10 +19,12 @@ holds the value at the rows where it leaves its bound: its first row, then every
 
 from __future__ import annotations
 
-from collections.abc import Iterator, Mapping
+from collections.abc import Collection, Iterator, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from ...signals import Signal
 
 # One colour per joint, the same in every run (matplotlib's tab10).
 JOINT_COLORS = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (148, 103, 189),
@@ -32,9 +35,23 @@ REFERENCE_COLOR = (120, 120, 120)
 ARM_RATE_HZ = 50.0  # the arm drawing does not need 1 kHz
 VIOLATION_RATE_HZ = 100.0
 
-# Observer errors, true minus estimate (x̃1, x̃2 of the paper): entity -> (true, estimate, stem).
-DERIVED_ENTITIES = {"observer/q_err": ("q", "q_hat", "q_err"),
-                    "observer/qdot_err": ("qdot", "qdot_hat", "qdot_err")}
+# Estimation errors, true minus estimate (x̃1, x̃2 of the paper): (true, estimate, stem), each
+# recorded beside the estimate's own entity (observer/q_hat -> observer/q_err).
+ESTIMATION_ERRORS = (("q", "q_hat", "q_err"), ("qdot", "qdot_hat", "qdot_err"))
+
+
+def derived_entities(signals: Mapping[str, Signal], present: Collection[str]
+                     ) -> dict[str, tuple[str, str, str]]:
+    """entity -> (true, estimate, stem) of the estimation errors a run can record: both
+    signals ``present`` (produced, or a plant output the plant maps) and the estimate
+    recorded."""
+    out = {}
+    for true, estimate, stem in ESTIMATION_ERRORS:
+        entity = signals[estimate].entity if estimate in signals else None
+        if entity and true in present and estimate in present:
+            parent = entity.rpartition("/")[0]
+            out[f"{parent}/{stem}" if parent else stem] = (true, estimate, stem)
+    return out
 
 # The checks the figures show (paper Figs. 2-3), with their axis labels.
 FIGURE_CHECKS = {
@@ -57,7 +74,7 @@ class RunSpec:
     bounds: dict[str, tuple[float, float]]  # check -> (lower, upper)
     link_lengths: np.ndarray
     barriers: tuple[str, ...] = ()  # the barrier series evaluated (H1, H2, H; none without)
-    # the DERIVED_ENTITIES whose signals the run has (none without an observer)
+    # the derived_entities the run records (none without an observer)
     derived: dict[str, tuple[str, str, str]] = field(default_factory=dict)
 
 
@@ -96,10 +113,12 @@ def series_names(stem: str, width: int) -> list[str]:
 SIDE_BY_SIDE = 2
 
 
-def blueprint(run_names: list[str], block_views: dict[str, list] | None = None):
-    """Figs. 2-4 of the paper for every run, then barriers, observer error and the arm, and
-    the views the run's blocks add (``block_views[run]``: (entity, title) pairs, e.g. a CBF
-    filter's barrier values and how much it corrects the torque); runs side by side up to
+def blueprint(run_names: list[str], block_views: dict[str, list] | None = None,
+              error_views: dict[str, list] | None = None):
+    """Figs. 2-4 of the paper for every run, then barriers, the observer's velocity error
+    where the run has one (``error_views[run]``: (entity, title)) and the arm, and the views
+    the run's blocks add (``block_views[run]``: (entity, title) pairs, e.g. a CBF filter's
+    barrier values and how much it corrects the torque); runs side by side up to
     :data:`SIDE_BY_SIDE`, else a tab per run; time panel on sim_time, paused."""
     import rerun.blueprint as rrb
 
@@ -113,8 +132,8 @@ def blueprint(run_names: list[str], block_views: dict[str, list] | None = None):
             rrb.TimeSeriesView(origin=f"/{run}/barrier", name=f"{run}: barriers H1, H2, H"),
             rrb.TimeSeriesView(origin=f"/{run}/barrier_condition",
                                name=f"{run}: barrier condition Ḣ + αH ≥ 0"),
-            rrb.TimeSeriesView(origin=f"/{run}/observer/qdot_err",
-                               name=f"{run}: observer error q̇ − x̂2 (rad/s)"),
+            *(rrb.TimeSeriesView(origin=f"/{run}/{entity}", name=f"{run}: {title}")
+              for entity, title in (error_views or {}).get(run) or []),
             rrb.Spatial2DView(origin=f"/{run}/arm", name=f"{run}: arm (m)"),
         ))
         extra = (block_views or {}).get(run) or []

@@ -175,7 +175,7 @@ def _writer_main(inbox: Connection, outbox: Connection) -> None:
             sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{live['port']}/proxy"))
         elif live.get("connect"):
             sinks.append(rr.GrpcSink(live["connect"]))
-        layout = blueprint(header["runs"], header.get("views"))
+        layout = blueprint(header["runs"], header.get("views"), header.get("error_views"))
         rec.set_sinks(*sinks, default_blueprint=layout)
         rec.send_recording_name(header["name"])
         outbox.send(("ready", ""))
