@@ -229,6 +229,9 @@ class ObserverError(Part):
         self.true_velocity = "qdot" in available
         if not self.true_velocity:
             self.note = "its check unavailable: the plant does not map qdot"
+        elif "velocity_source" not in constants:
+            self.note = ("no check against ε_max: no block publishes velocity_source = "
+                         "\"observer\" (a controller that feeds back x̂2 says so)")
 
     def checks(self, rows: Signals) -> dict[str, Check]:
         if self.given.get("velocity_source") != "observer":
