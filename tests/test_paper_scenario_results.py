@@ -2,7 +2,7 @@
 (issue 21: loops over preallocated scratch instead of numpy temporaries, BLAS and LAPACK).
 
 ``paper_scenario_reference.json`` holds both runs of pipelines/paper_two_link.toml (20 s at
-1 kHz) as the kernels before the rewrite (commit 3a412e1) computed them: the plant's
+1 kHz) as the kernels before the rewrite (commit a6d3a51) computed them: the plant's
 q and q̇, the observer's x̂2, k0 of (8) and ‖Ŵo‖, the torque τ and the NN controller's ‖Ŵ‖
 and ‖V̂‖, at 22 instants (0.1 s, 0.5 s, then every second) and as their peaks |·| over the
 run (552 numbers).
