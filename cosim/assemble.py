@@ -24,6 +24,7 @@ from .declared import Uncertainty
 from .evaluate import Evaluator, SafeSet, evaluated_signals
 from .plant import PLANT_INPUT, PLANT_INPUT_ENTITY, PLANT_OUTPUTS, Plant
 from .plant.fmu import Fmu, FmuError
+from .plant.ports import traced_outputs
 from .signals import Signal, Trace
 
 
@@ -271,7 +272,7 @@ def wire(blocks: list[Block], context: BlockContext, run: str, plant
     """Resolve every port to a trace key; :class:`PipelineError` on the first problem."""
     file = getattr(getattr(plant, "path", None), "name", "the plant")
     where = f"run '{run}'"
-    signals: dict[str, Signal] = dict(PLANT_OUTPUTS)  # NaN where not mapped
+    signals: dict[str, Signal] = traced_outputs(context.plant_outputs)  # NaN where not mapped
     current = {s: s for s in context.plant_outputs}  # signal -> trace key of its latest value
     producer = {s: "plant" for s in context.plant_outputs}
     inputs: list[dict[str, str]] = []

@@ -14,6 +14,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable
 
+import numpy as np
 from numba import typeof, types
 
 from ..blocks import Block
@@ -110,7 +111,8 @@ def _stepper(block) -> Callable[[int], bool]:
 
 def _python(plant, plan, trace: Trace, progress, progress_every: int) -> float:
     blocks = [(block, _stepper(block)) for block in plan.blocks]
-    rows = [(trace[port.name], plant.values[port.name]) for port in OUTPUT_PORTS]
+    rows = [(trace[port.name], plant.values[port.name]) for port in OUTPUT_PORTS
+            if port.name in trace]
     tau = trace[plan.plant_input]
     h, steps = trace.dt, trace.steps
     start = time.perf_counter()
@@ -147,7 +149,12 @@ def _fused(plant, plan, trace: Trace, progress, progress_every: int) -> float:
     io = plant.fused_io()
     loop = fused_loop(tuple(b.kernel for b in stepping), io.fmi_version)
     args = tuple(b.args for b in stepping)
-    arrays = (trace[plan.plant_input], tuple(trace[port.name] for port in OUTPUT_PORTS))
+    # A port the trace does not hold is one the plant does not map: the loop never writes
+    # it, but its typed slot needs an array of the port's shape.
+    arrays = (trace[plan.plant_input],
+              tuple(trace[port.name] if port.name in trace
+                    else np.empty((0,) + plant.values[port.name].shape)
+                    for port in OUTPUT_PORTS))
     h, steps = trace.dt, trace.steps
     # Row 0 alone first: its progress call may wait for the recording writer, and the
     # kernels load on first use; neither belongs in the timing.

@@ -31,6 +31,9 @@ class PlantPort:
     role: str
     signal: Signal
     unmapped: str = ""  # what a plant without this optional output cannot do (cosim inspect)
+    # The paper's interface (q, q̇, M) is in every trace, NaN where the plant does not map
+    # it, so that every run folder holds the same arrays; another port only where mapped.
+    always_traced: bool = True
 
     def default_names(self, links: int) -> list[str]:
         """The built-in plants' names: ``q[1]``, …, ``M[1,2]``, …"""
@@ -58,7 +61,8 @@ PORTS: tuple[PlantPort, ...] = (
               "the controller uses the pipeline's nominal inertia model"),
     # The elastic-joint arm's motor angles (θ, link side); in the trace files.
     PlantPort("theta", "output", "n", False, "motor angles",
-              Signal("n", "rad", "motor angles θ (plant with elastic joints)")),
+              Signal("n", "rad", "motor angles θ (plant with elastic joints)"),
+              always_traced=False),
 )
 PORT = {port.name: port for port in PORTS}
 OUTPUT_PORTS = tuple(port for port in PORTS if port.direction == "output")
@@ -66,6 +70,13 @@ OUTPUT_PORTS = tuple(port for port in PORTS if port.direction == "output")
 
 # Ground truth from the plant, a signal per output port (NaN where not mapped).
 PLANT_OUTPUTS = {port.name: port.signal for port in OUTPUT_PORTS}
+
+
+def traced_outputs(mapped: frozenset[str]) -> dict[str, Signal]:
+    """The plant outputs a run's trace holds: the paper's interface always (NaN where not
+    ``mapped``), every other port where mapped."""
+    return {port.name: port.signal for port in OUTPUT_PORTS
+            if port.always_traced or port.name in mapped}
 # The plant's input: the torque the last block in the chain produces under this name.
 PLANT_INPUT = INPUT_PORT.name
 PLANT_INPUT_ENTITY = INPUT_PORT.signal.entity
