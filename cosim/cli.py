@@ -11,9 +11,9 @@ import sys
 from collections.abc import Sequence
 from pathlib import Path
 
-from plant_fmu import DEFAULT_MODEL, MODELS, BuildError, build_fmu
-
-from .schema import PipelineError
+# Nothing heavier at module level: `cosim run` first starts a supervisor process that only
+# waits for the run's own process (_supervise), and plant_fmu and pydantic (cosim.schema)
+# would add a quarter of a second to every run there. Each command imports what it needs.
 
 # A sweep's rows are held in memory and its points validated one by one (~1 ms each): past
 # 100,000 points a typo (a 1000-value grid on three keys is 10⁹) would exhaust the machine
@@ -27,6 +27,8 @@ class UserError(Exception):
 
 
 def _build_fmu(args: argparse.Namespace) -> None:
+    from plant_fmu import MODELS, build_fmu
+
     output = Path(args.output) if args.output is not None else None
     if output is not None and (output.is_dir() or args.output.endswith(os.sep)):
         try:  # a folder (one ending in / is made): the FMU goes into it
@@ -129,11 +131,16 @@ def _run(args: argparse.Namespace) -> None:
             raise UserError(f"{refusal} (--dry-run: the run would be refused here)")
         return
     _check_viewer(args.spawn, args.connect)
-    from .jit_cache import cache_is_cold
+    from .jit_cache import announce_compiles, cache_is_cold
 
     if cache_is_cold():  # otherwise the terminal would sit silent while numba compiles
         print("compiling the numba kernels for this machine (the first run after installing "
-              "or updating cosim: ~30 s on 2 cores; cached for later runs)", file=sys.stderr)
+              "or updating cosim without its set-up step, `cosim warm-up`, which `make venv` "
+              "runs: ~30 s on 2 cores; cached for later runs)", file=sys.stderr)
+    if not args.no_figures:  # they import matplotlib while the runs go
+        from .outputs.figures import start_painters
+
+        start_painters()
     print(f"running {pipeline.name}: {', '.join(pipeline.runs)} "
           f"({pipeline.simulation.duration:g} s at {1 / pipeline.simulation.step:g} Hz) -> {out}",
           file=sys.stderr)
@@ -145,8 +152,11 @@ def _run(args: argparse.Namespace) -> None:
         return "nothing was written (the run had not started)"
 
     try:
-        results = run(pipeline, out, record=not args.no_recording, spawn=args.spawn,
-                      connect=args.connect, figures=not args.no_figures, force=args.force)
+        # A kernel edited since the last run (or the warm-up) recompiles: each module's
+        # kernels are named as they are done.
+        with announce_compiles(sys.stderr):
+            results = run(pipeline, out, record=not args.no_recording, spawn=args.spawn,
+                          connect=args.connect, figures=not args.no_figures, force=args.force)
     except Diverged as exc:
         raise UserError(f"{exc}; {kept()}") from None
     except KeyboardInterrupt as exc:
@@ -179,6 +189,25 @@ def _sweep(args: argparse.Namespace) -> int:
     try:
         return main(args)
     except (SweepError, RunFolderError) as exc:
+        raise UserError(str(exc)) from None
+
+
+def _warm_up(args: argparse.Namespace) -> None:
+    from .warm import WarmUpError, default_pipelines, warm_up
+
+    pipelines = args.pipelines or default_pipelines()
+    if not pipelines:
+        raise UserError("no pipeline to warm up: give one, e.g. cosim warm-up "
+                        "pipelines/paper_two_link.toml")
+    missing = [p for p in pipelines if not Path(p).is_file()]
+    if missing:
+        raise UserError(f"{missing[0]}: no such pipeline file; nothing was compiled")
+    if args.workers is not None and not 1 <= args.workers <= 4 * (os.cpu_count() or 1):
+        raise UserError(f"--workers {args.workers}: give 1 to {4 * (os.cpu_count() or 1)} "
+                        "processes")
+    try:
+        warm_up([Path(p) for p in pipelines], args.workers)
+    except WarmUpError as exc:
         raise UserError(str(exc)) from None
 
 
@@ -354,6 +383,10 @@ def _wrapped(line: str, indent: int = 0) -> None:
 
 
 def _parser() -> argparse.ArgumentParser:
+    from plant_fmu import DEFAULT_MODEL, MODELS
+
+    MAX_LINKS = max(model.MAX_LINKS for model in MODELS.values())
+
     parser = argparse.ArgumentParser(
         prog="cosim",
         description="Co-simulate a robot-arm FMU with a safe adaptive output-feedback "
@@ -368,7 +401,6 @@ def _parser() -> argparse.ArgumentParser:
                    help=f"the plant model: the rigid n-link planar arm (planar_arm), or the "
                    f"arm with elastic joints, motors driving the links through springs "
                    f"(elastic_joints) (default {DEFAULT_MODEL})")
-    MAX_LINKS = max(model.MAX_LINKS for model in MODELS.values())
     p.add_argument("--links", type=int, default=2, choices=range(1, MAX_LINKS + 1),
                    metavar="N", help=f"number of links, 1 to {MAX_LINKS} (default 2)")
     p.add_argument("--fmi-version", type=int, default=2, choices=(2, 3),
@@ -446,6 +478,21 @@ def _parser() -> argparse.ArgumentParser:
                    help="refuse a sweep of more points than this before any work "
                    f"(default {MAX_SWEEP_POINTS:,})")
     p.set_defaults(func=_sweep)
+
+    p = sub.add_parser("warm-up", help="compile the kernels and fused loops of pipelines and "
+                       "build their FMUs now, so that their first run starts at once",
+                       description="Fill the caches a run loads from: compile the numba "
+                       "kernels and fused loops that the pipelines' runs step (in parallel, one "
+                       "process per core), build their plant FMUs and matplotlib's font list. "
+                       "`make venv` and `make test-venv` run it; a warm cache is recognised "
+                       "in a fraction of a second. Caches: $NUMBA_CACHE_DIR (else "
+                       "~/.cache/cosim/numba, a folder per kernel module and version of its "
+                       "sources), $COSIM_ENGINE_CACHE, $COSIM_CACHE.")
+    p.add_argument("pipelines", nargs="*", metavar="PIPELINE",
+                   help="pipeline files (default: pipelines/paper_two_link.toml)")
+    p.add_argument("--workers", type=int, default=None, metavar="K",
+                   help="compile in K processes (default: one per core)")
+    p.set_defaults(func=_warm_up)
 
     p = sub.add_parser("view", help="open a run folder's recording in the Rerun viewer",
                        description="Open RUN_DIR/recording.rrd in the Rerun viewer, with the "
@@ -590,6 +637,7 @@ def _supervise(args: list[str]) -> int:
 def _crashed_run(args: list[str]) -> tuple[Path, str]:
     """The run folder and plant of the run that crashed, from its arguments."""
     from .config import load_pipeline
+    from .schema import PipelineError
 
     ns = _parser().parse_args(args)
     try:
@@ -639,6 +687,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         _supervisor.append(os.getppid())
         signal.signal(signal.SIGINT, _on_sigint)
         _end_with_the_supervisor()
+    from plant_fmu import BuildError
+
+    from .schema import PipelineError
+
     args = _parser().parse_args(argv)
     # Every command ends on SIGTERM as on Ctrl-C (run and sweep keep what they computed).
     previous = signal.signal(signal.SIGTERM, _on_sigterm) if argv is None else None

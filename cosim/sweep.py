@@ -7,9 +7,10 @@ any key ``--set`` accepts, every point run on Dask, one row per (point, run).
 Points: the Cartesian product of the grids; with samples, each grid point with ``--samples``
 random draws (``uniform(a,b)``, ``normal(m,s)``, ``integers(a,b)``, seeded). Every point is
 validated before anything runs. Each Dask worker keeps one plant FMU per file and mapping,
-extracted once and ``reset()`` between points, and its compiled kernels stay loaded. A point
-that diverges or whose FMU fails is a row marked failed with its message; the sweep goes on.
-Ctrl-C keeps every finished row. SI units, radians.
+extracted once and ``reset()`` between points, and its compiled kernels stay loaded; short
+points go a few to a task (Dask's own cost is per task). A point that diverges or whose FMU
+fails is a row marked failed with its message; the sweep goes on. Ctrl-C keeps every
+finished row. SI units, radians.
 """
 
 from __future__ import annotations
@@ -241,8 +242,9 @@ def run_point(pipeline_path: str, sets: list[str], runs: list[str] | None, index
     rows = []
     pipeline = load_pipeline(pipeline_path, sets, warn=None)
     for name in runs or list(pipeline.runs):
-        single = load_pipeline(pipeline_path, sets, warn=None)
-        single.runs = {name: single.runs[name]}
+        # The point's pipeline with this run alone: a shallow copy (a run reads its tables,
+        # never writes them), not a second read and validation of the file per run.
+        single = pipeline.model_copy(update={"runs": {name: pipeline.runs[name]}})
         row = {"point": index, **{f"set:{k}": _cell(v) for k, v in point.items()}, "run": name}
         try:
             result = run(single, None, progress=False, plant=_plant_for(single))[name]
@@ -292,32 +294,107 @@ def result_columns(result) -> dict:
 
 # Execution -------------------------------------------------------------------------------------
 
+def run_points(pipeline_path: str, runs: list[str] | None,
+               jobs: list[tuple[int, list[str], dict]]) -> list[dict]:
+    """Several points (index, --set assignments, point), one after another in one task:
+    their rows."""
+    rows = []
+    for index, sets, point in jobs:
+        rows.extend(run_point(pipeline_path, sets, runs, index, point))
+    return rows
+
+
+# Points per Dask task. A task costs the scheduler and this process ~3.5 ms of CPU (and the
+# worker ~1 ms) whatever it does: with one point a task, a sweep of 0.1 s points on two
+# workers spent a twentieth of a core of two on Dask. Short points are therefore grouped, a
+# few a task, while every worker still gets many tasks (the load stays balanced, the
+# progress bar moves) and a task stays short (an interrupt drops the points of the tasks in
+# progress: at most about STEPS_PER_TASK steps of work per worker). Long points (the
+# Monte Carlo's 20 s runs) stay one a task.
+MAX_POINTS_PER_TASK = 8
+TASKS_PER_WORKER = 8
+STEPS_PER_TASK = 20_000  # ~0.6 s of the paper's closed loop, with its evaluation
+
+
+def points_per_task(points: int, slots: int, steps_per_point: int = 0) -> int:
+    """How many of ``points`` to put in one task for ``slots`` workers, a point being
+    ``steps_per_point`` steps of simulation (every run of it)."""
+    by_steps = STEPS_PER_TASK // steps_per_point if steps_per_point > 0 else MAX_POINTS_PER_TASK
+    return max(1, min(MAX_POINTS_PER_TASK, by_steps,
+                      points // (TASKS_PER_WORKER * max(1, slots))))
+
+
 def execute(spec: SweepSpec, all_points: list[dict], client,
-            on_row: Callable[[int], None] | None = None) -> tuple[list[dict], bool]:
-    """Every point on the Dask ``client``; returns (rows, interrupted). Ctrl-C cancels what
-    has not finished and keeps every finished row."""
+            on_rows: Callable[[int], None] | None = None,
+            per_task: int | None = None) -> tuple[list[dict], bool]:
+    """Every point on the Dask ``client``, ``per_task`` points a task (default
+    :func:`points_per_task` for the client's workers); returns (rows, interrupted).
+    ``on_rows(points)`` is told of each task's points as they finish. Ctrl-C cancels what
+    has not finished and keeps the rows of every finished task (the points of a task in
+    progress are dropped with it). A task whose worker died (a plant that crashes its
+    process) is run again point by point, so that only the point that killed it is a
+    failed row, one per run."""
+    import uuid
+
     from dask.distributed import as_completed
 
-    runs = spec.runs or list(load_pipeline(spec.pipeline, spec.base, warn=None).runs)
-    futures = [client.submit(run_point, spec.pipeline, assignments(spec, point), spec.runs,
-                             index, point, pure=False, key=f"cosim-point-{index}")
-               for index, point in enumerate(all_points)]
+    pipeline = load_pipeline(spec.pipeline, spec.base, warn=None)
+    runs = spec.runs or list(pipeline.runs)
+    if per_task is None:
+        slots = sum(client.nthreads().values()) or 1  # the tasks that run at once
+        per_task = points_per_task(len(all_points), slots,
+                                   pipeline.simulation.steps * len(runs))
+    # Keys unique to this call: a scheduler still holding another sweep's (or an earlier
+    # call's) "point 3" would hand back its result for this one.
+    sweep_id = uuid.uuid4().hex[:12]
+
+    def submit(indices: list[int]):
+        jobs = [(i, assignments(spec, all_points[i]), all_points[i]) for i in indices]
+        return client.submit(run_points, spec.pipeline, spec.runs, jobs, pure=False,
+                             key=f"cosim-points-{sweep_id}-{indices[0]}-{len(indices)}")
+
+    batches = [list(range(start, min(start + per_task, len(all_points))))
+               for start in range(0, len(all_points), per_task)]
+    futures = {submit(batch): batch for batch in batches}
+    pending = as_completed(list(futures))
+    # Points of a task whose worker died, run again one at a time: alone on a worker, the
+    # point that kills it is the only one its death fails (Dask fails every task a dying
+    # worker holds once it has died under them too often).
+    again: list[int] = []
+    alone: list = []  # the one such point's future in flight
+
+    def next_alone() -> None:
+        if again and not alone:
+            index = again.pop(0)
+            single = submit([index])
+            futures[single] = [index]
+            alone.append(single)
+            pending.add(single)
+
     rows: list[dict] = []
     try:
-        for future in as_completed(futures):
+        for future in pending:
+            batch = futures[future]
+            if future in alone:
+                alone.remove(future)
             try:
                 rows.extend(future.result())
-            except Exception as exc:  # the worker itself failed: one failed row per run
-                index = futures.index(future)
-                for run in runs:
+            except Exception as exc:  # the worker itself failed
+                if len(batch) > 1:  # which point killed it is unknown: each on its own
+                    again.extend(batch)
+                    next_alone()
+                    continue
+                index = batch[0]
+                for run in runs:  # one failed row per run
                     rows.append({"point": index, **{f"set:{k}": _cell(v)
                                                     for k, v in all_points[index].items()},
                                  "run": run, "status": "failed",
                                  "error": f"{type(exc).__name__}: {exc}"})
-            if on_row is not None:
-                on_row(len(futures))
+            if on_rows is not None:
+                on_rows(len(batch))
+            next_alone()
     except KeyboardInterrupt:
-        client.cancel(futures)
+        client.cancel(list(futures))
         return sorted(rows, key=_order), True
     return sorted(rows, key=_order), False
 
@@ -378,11 +455,29 @@ def cluster_client(workers: int | None, scheduler: str | None):
         return client, None
     import logging
 
+    import dask
+
     # Quiet workers: a cancelled point (Ctrl-C) is not a warning the user needs to read.
-    cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
-                           processes=True, host="127.0.0.1", dashboard_address=None,
-                           silence_logs=logging.ERROR)
+    with dask.config.set(WORKER_CONFIG):
+        cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
+                               processes=True, host="127.0.0.1", dashboard_address=None,
+                               silence_logs=logging.ERROR)
     return Client(cluster), cluster
+
+
+# What a local worker runs with, against Dask's defaults, so that a point costs on a worker
+# what it costs in-process (1.01 times it, against 1.18: the paper's proposed run, 5 s):
+WORKER_CONFIG = {
+    # Dask's nannies set MALLOC_TRIM_THRESHOLD_=65536 (to hand freed memory back to the OS
+    # at once). That also turns off glibc's adaptive mmap threshold, so every trace and
+    # evaluation array of every point is a fresh mmap, page-faulted in as it is written:
+    # each point took 18 % longer. A worker holds a few traces at a time; glibc's defaults
+    # reuse their memory.
+    "distributed.nanny.pre-spawn-environ.MALLOC_TRIM_THRESHOLD_": None,
+    # The statistical profiler samples every thread's stack every 10 ms, taking the GIL
+    # from the point's own thread (2-3 % of a point); nobody reads it (no dashboard).
+    "distributed.worker.profile.enabled": False,
+}
 
 
 # Summary -----------------------------------------------------------------------------------------
@@ -721,7 +816,7 @@ def _main(args) -> int:
                   f"{spec.pipeline} on {where} worker(s) -> {out}", file=sys.stderr)
             bar = tqdm(total=len(all_points), unit="point", file=sys.stderr,
                        disable=args.quiet or not sys.stderr.isatty())
-            rows, interrupted = execute(spec, all_points, client, lambda _: bar.update(1))
+            rows, interrupted = execute(spec, all_points, client, bar.update)
             bar.close()
         finally:
             client.close()

@@ -1,9 +1,12 @@
-"""numba's cache of the block kernels is versioned by every kernel source: the blocks'
-kernels land in the versioned folder (none beside it), and a changed kernel source makes a
-fresh process compile anew into another folder, the old one left as it was."""
+"""numba's cache of the kernels is versioned per kernel module: each module's kernels land in
+a folder of their own, keyed by the module's source and the kernel modules it imports (none
+beside them), and a changed kernel source makes a fresh process compile anew only that
+module's kernels and those of the modules that import it, into new folders, the old ones
+left as they were; the other kernels load from the cache untouched."""
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import subprocess
@@ -12,43 +15,136 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
 
-# Compile the sensor's kernel (cache=True) in a fresh process; print numba's cache folder.
+# A kernel module of the test's own, in the copied package: a kernel that calls another
+# module's kernel (the inertia model's mass matrix), as the blocks and the fused loop do.
+CALLER = '''"""A kernel calling another module's kernel (tests/test_kernel_cache.py)."""
+import numpy as np
+from numba import njit
+
+from .inertia import planar_mass_matrix
+
+
+@njit(cache=True)
+def first_entry(q):
+    out = np.empty((q.shape[0], q.shape[0]))
+    ones = np.ones(q.shape[0])
+    planar_mass_matrix(q, ones, ones, ones, np.zeros(q.shape[0]), out)
+    return out[0, 0]
+'''
+
+# Compile (or load) three kernels in a fresh process; print each one's cache folder and
+# how many of its signatures were loaded from the cache and how many compiled.
 COMPILE = """
-import numba, numpy as np
+import json, numpy as np
 from cosim.blocks.sensor import SensorArgs, sensor_step
+from cosim.blocks.inertia import planar_mass_matrix
+from cosim.blocks.cache_probe import first_entry
 q = np.zeros((2, 2))
 sensor_step(0, SensorArgs(q, np.zeros((2, 2)), 0.0, np.zeros((2, 2))))
-print(numba.config.CACHE_DIR)
+planar_mass_matrix(np.zeros(2), np.ones(2), np.ones(2), np.ones(2), np.zeros(2),
+                   np.empty((2, 2)))
+first_entry(np.zeros(2))
+print(json.dumps({f.py_func.__module__: [f.stats.cache_path, sum(f.stats.cache_hits.values()),
+                                        sum(f.stats.cache_misses.values())]
+                  for f in (sensor_step, planar_mass_matrix, first_entry)}))
 """
+SENSOR, INERTIA, CALLER_MODULE = "cosim.blocks.sensor", "cosim.blocks.inertia", \
+    "cosim.blocks.cache_probe"
 
 
-def compile_in_fresh_process(source: Path, cache: Path) -> Path:
+def compile_in_fresh_process(source: Path, cache: Path) -> dict[str, tuple[Path, int, int]]:
+    """module -> (its kernels' cache folder, signatures loaded, signatures compiled)."""
     env = {**os.environ, "PYTHONPATH": str(source), "NUMBA_CACHE_DIR": str(cache)}
     done = subprocess.run([sys.executable, "-c", COMPILE], capture_output=True, text=True,
-                          env=env, cwd=source, timeout=300, check=True)
-    return Path(done.stdout.strip().splitlines()[-1])
+                          env=env, cwd=source, timeout=300)
+    assert done.returncode == 0, done.stderr[-3000:]
+    report = json.loads(done.stdout.strip().splitlines()[-1])
+    return {module: (Path(folder), hits, misses)
+            for module, (folder, hits, misses) in report.items()}
 
 
-def sensor_entries(folder: Path) -> set[Path]:
-    return {p for p in folder.rglob("*.nbi") if "sensor_step" in p.name}
+def entries(folder: Path) -> dict[Path, int]:
+    """Every cache file (index and data) in ``folder``, with its modification time."""
+    return {p: p.stat().st_mtime_ns for p in folder.glob("*.nb[ic]")}
 
 
-def test_a_changed_kernel_source_recompiles_in_a_fresh_process(tmp_path):
+def edit(path: Path) -> None:
+    path.write_text(path.read_text() + "\n# an edit\n")
+
+
+def test_a_changed_kernel_source_recompiles_only_its_kernels_in_a_fresh_process(tmp_path):
     source, cache = tmp_path / "src", tmp_path / "numba"
     ignore = shutil.ignore_patterns("__pycache__")
     for package in ("cosim", "plant_fmu"):
         shutil.copytree(ROOT / package, source / package, ignore=ignore)
-    first = compile_in_fresh_process(source, cache)
-    assert first.parent == cache and first.name != ""  # cache/<digest of the sources>
-    entries = sensor_entries(first)
-    assert entries, list(cache.rglob("*"))
-    assert sensor_entries(cache) == entries  # nothing cached outside the versioned folder
-    before = {p: p.stat().st_mtime_ns for p in entries}
-    assert compile_in_fresh_process(source, cache) == first  # unchanged: the same folder
+    (source / "cosim" / "blocks" / "cache_probe.py").write_text(CALLER)
 
-    kernel = source / "cosim" / "blocks" / "sensor.py"
-    kernel.write_text(kernel.read_text() + "\n# an edit\n")
-    second = compile_in_fresh_process(source, cache)
-    assert second != first and second.parent == cache
-    assert sensor_entries(second)  # compiled anew for the new sources
-    assert {p: p.stat().st_mtime_ns for p in sensor_entries(first)} == before
+    first = compile_in_fresh_process(source, cache)
+    for module, (folder, hits, misses) in first.items():
+        assert folder.parent == cache and folder.name.startswith(f"{module}-"), folder
+        assert misses >= 1 and hits == 0, (module, hits, misses)  # compiled, not loaded
+        assert entries(folder), list(cache.rglob("*"))
+    folders = {folder for folder, _, _ in first.values()}
+    assert len(folders) == 3  # a folder per kernel module
+    # nothing of ours cached outside them (numba's own helpers are not cached at all)
+    assert {p.parent for p in cache.rglob("*.nbi")} == folders
+    before = {p: t for folder in folders for p, t in entries(folder).items()}
+
+    # Unchanged sources: the same folders, every kernel loaded, no file rewritten.
+    again = compile_in_fresh_process(source, cache)
+    for module, (folder, hits, misses) in again.items():
+        assert folder == first[module][0] and hits >= 1 and misses == 0, (module, again)
+    assert {p: t for folder in folders for p, t in entries(folder).items()} == before
+
+    # The sensor's source changes: only its kernel compiles, into a new folder.
+    edit(source / "cosim" / "blocks" / "sensor.py")
+    third = compile_in_fresh_process(source, cache)
+    assert third[SENSOR][0] != first[SENSOR][0] and third[SENSOR][0].parent == cache
+    assert third[SENSOR][2] >= 1 and entries(third[SENSOR][0])  # compiled anew
+    for module in (INERTIA, CALLER_MODULE):  # loaded as they were
+        assert third[module][0] == first[module][0], (module, third)
+        assert third[module][1] >= 1 and third[module][2] == 0, (module, third)
+    assert {p: t for folder in folders for p, t in entries(folder).items()} == before
+
+    # The inertia model's source changes: its kernels and its caller's compile anew (the
+    # caller's machine code holds the callee's), the sensor's loads.
+    edit(source / "cosim" / "blocks" / "inertia.py")
+    fourth = compile_in_fresh_process(source, cache)
+    for module in (INERTIA, CALLER_MODULE):
+        assert fourth[module][0] not in (first[module][0], third[module][0]), (module, fourth)
+        assert fourth[module][2] >= 1 and fourth[module][1] == 0, (module, fourth)
+    assert fourth[SENSOR][0] == third[SENSOR][0]
+    assert fourth[SENSOR][1] >= 1 and fourth[SENSOR][2] == 0
+    assert {p: t for folder in folders for p, t in entries(folder).items()} == before
+
+
+def test_a_fused_loop_is_versioned_by_the_kernels_it_calls(tmp_path, monkeypatch):
+    """The generated loop imports its kernels by name: its folder's digest covers their
+    modules' sources (and those they import), not only its own text."""
+    from cosim import jit_cache
+
+    loop = tmp_path / "cosim_fused_probe.py"
+    loop.write_text("from numba import njit\n\n"
+                    "from cosim.blocks.sensor import sensor_step as kernel_0\n"
+                    "from cosim.blocks.pd_controller import pd_step as kernel_1\n")
+    monkeypatch.setattr(jit_cache, "_closures", {})
+    monkeypatch.setattr(jit_cache, "_digests", {})
+    closure = jit_cache._closure("cosim_fused_probe", loop)
+    # pd_controller calls the inertia model's kernels: they are part of the loop's code
+    assert closure == ("cosim.blocks.inertia", "cosim.blocks.pd_controller",
+                       "cosim.blocks.sensor", "cosim_fused_probe")
+    digest = jit_cache.module_digest("cosim_fused_probe", loop)
+    assert jit_cache._ours("cosim_fused_probe", str(loop))
+    import numpy
+
+    assert not jit_cache._ours("numpy.linalg", numpy.__file__)  # installed: numba's own way
+    # a kernel module's digest changes with a callee's source, and with nothing else
+    sensor = jit_cache.module_digest("cosim.blocks.sensor")
+    monkeypatch.setattr(jit_cache, "_digests", {})
+    real = jit_cache.module_file
+    copy = tmp_path / "inertia.py"
+    copy.write_text(real("cosim.blocks.inertia").read_text() + "\n# an edit\n")
+    monkeypatch.setattr(jit_cache, "module_file",
+                        lambda name: copy if name == "cosim.blocks.inertia" else real(name))
+    assert jit_cache.module_digest("cosim_fused_probe", loop) != digest
+    assert jit_cache.module_digest("cosim.blocks.sensor") == sensor

@@ -18,7 +18,7 @@ LAYERS = (
     ("cosim.config", "cosim.engine"),
     ("cosim.assemble",),
     ("cosim.outputs", "cosim.plan", "cosim.runner"),
-    ("cosim.sweep",),
+    ("cosim.sweep", "cosim.warm"),
     ("cosim.cli", "cosim"),
 )
 

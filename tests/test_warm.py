@@ -1,0 +1,78 @@
+"""The set-up's warm-up (`cosim warm-up`, cosim/warm.py): it compiles what a pipeline's runs
+step and builds its FMU into the caches, after which the pipeline's first run compiles
+nothing and says nothing of compiling; a second warm-up recognises the warm caches; and a
+compile, when one happens, is announced module by module while it happens."""
+
+from __future__ import annotations
+
+import importlib.util
+import io
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+from cosim import jit_cache
+
+ROOT = Path(__file__).resolve().parent.parent
+PD = "pipelines/pd_control.toml"  # few, small kernels: a short compile
+
+
+def cosim(args: list[str], env: dict[str, str]) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "cosim.cli", *args], cwd=ROOT, env=env,
+                          capture_output=True, text=True, timeout=600)
+
+
+def test_after_the_warm_up_a_first_run_compiles_nothing(tmp_path):
+    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "numba"),
+           "COSIM_ENGINE_CACHE": str(tmp_path / "engine"), "COSIM_CACHE": str(tmp_path / "fmus"),
+           "MPLCONFIGDIR": str(tmp_path / "matplotlib")}
+    warm = cosim(["warm-up", PD, "--workers", "2"], env)
+    assert warm.returncode == 0, warm.stderr[-3000:]
+    # what it compiled, module by module, and the fused loop of the runs' chain
+    assert "    cosim.blocks.pd_controller: " in warm.stderr, warm.stderr
+    assert "    the fused loop of " in warm.stderr, warm.stderr
+    assert "cosim warm-up: done in " in warm.stderr
+    assert list((tmp_path / "fmus").rglob("*.fmu")) and list((tmp_path / "engine").glob("*.py"))
+    assert list((tmp_path / "numba").glob("warm-up-*.json"))
+
+    again = cosim(["warm-up", PD], env)
+    assert again.returncode == 0 and "the caches are warm" in again.stderr, again.stderr
+
+    done = cosim(["run", PD, "--out", str(tmp_path / "run"), "--no-recording", "--no-figures",
+                  "--set", "simulation.duration=0.05"], env)
+    assert done.returncode == 0, done.stderr[-3000:]
+    assert "compiling" not in done.stderr, done.stderr  # neither the notice nor a module
+
+
+def test_a_missing_pipeline_is_one_message(tmp_path):
+    done = cosim(["warm-up", str(tmp_path / "nope.toml")], dict(os.environ))
+    assert done.returncode == 2
+    assert done.stderr.strip() == (f"cosim: error: {tmp_path / 'nope.toml'}: no such pipeline "
+                                   "file; nothing was compiled")
+
+
+def test_a_compile_is_announced_module_by_module(tmp_path):
+    """Each module of ours whose kernels compile gets a line with its seconds, its helpers
+    counted with it; numba's own helpers (np.linalg here) are never named."""
+    module = tmp_path / "probe_kernels.py"
+    module.write_text("import numpy as np\nfrom numba import njit\n\n\n@njit\n"
+                      "def helper(a):\n    return np.linalg.norm(a)\n\n\n@njit\n"
+                      "def kernel(a):\n    return helper(a) + 1.0\n")
+    spec = importlib.util.spec_from_file_location("probe_kernels", module)
+    probe = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(probe)
+    stream = io.StringIO()
+    import numpy as np
+
+    with jit_cache.announce_compiles(stream) as compiled:
+        assert probe.kernel(np.ones(3)) > 1.0
+    lines = stream.getvalue().splitlines()
+    assert compiled == ["probe_kernels"], lines
+    assert lines[0].startswith("  compiling numba kernels"), lines
+    assert len(lines) == 2 and lines[1].startswith("    probe_kernels: ") \
+        and lines[1].endswith(" s"), lines
+    stream.truncate(0)
+    with jit_cache.announce_compiles(stream) as compiled:  # compiled already: silent
+        probe.kernel(np.ones(3))
+    assert compiled == [] and stream.getvalue() == ""
