@@ -63,7 +63,16 @@ from pydantic import Field
 from ..schema import FiniteFloat, PipelineError, PositiveFloat, Section
 from ..signals import Signal
 from .base import Block, BlockContext, Ports, register_block
-from .inertia import planar_bias, planar_mass_matrix
+
+# What a step runs is compiled without numba's reference counting (_nrt=False): it
+# allocates nothing (every array it works in is made at reset, and the compiler refuses an
+# allocation in such a function), and counting the references to the arrays it passes
+# around cost more than its arithmetic (numba counts one per array each time a tuple of
+# them is bound, and the filter's arguments hold ~100: measured ~1000 counting call sites in
+# the step, and a helper taking two of a's arrays 44 ns a call against 4 ns without).
+# Functions that take the arguments ``a`` are inlined, so that those are not copied per call.
+_step_jit = njit(cache=True, _nrt=False)
+_step_inline = njit(cache=True, inline="always", _nrt=False)
 
 SETS = ("position", "velocity", "error", "error_rate")
 HardSet = Literal["position", "velocity"]
@@ -106,6 +115,132 @@ class CbfFilterParams(Section):
     solver: str = "newton"  # or a qpsolvers solver: daqp, osqp, clarabel, proxqp, quadprog
     iterations: Annotated[int, Field(ge=1, le=1000)] = 50  # Newton steps at most
     tolerance: PositiveFloat = 1e-12  # on the gradient, relative to ‖τ_nom‖
+
+
+class ChainWork(NamedTuple):
+    """Scratch for the nominal chain at one position, per link: its geometry (m), the forces
+    of the recursive Newton–Euler bias (N) and the velocities of the polarisation."""
+
+    cx: np.ndarray  # link i's centre-of-mass offset from its joint
+    cy: np.ndarray
+    lx: np.ndarray  # link i's vector, joint i to joint i+1
+    ly: np.ndarray
+    ox: np.ndarray  # joint i's origin
+    oy: np.ndarray
+    fx: np.ndarray  # m_i a_ci, the force link i's own motion needs
+    fy: np.ndarray
+    e: np.ndarray  # the velocity b is taken at when polarising
+    plus: np.ndarray  # b at e_j + e_k
+    minus: np.ndarray  # b at e_j − e_k
+
+
+@njit(cache=True)
+def chain_work(n):
+    return ChainWork(np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n),
+                     np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n),
+                     np.zeros(n))
+
+
+class SolverWork(NamedTuple):
+    """The semismooth Newton's scratch for n torques and up to ``rows`` rows."""
+
+    tau: np.ndarray  # (n,) the iterate, then the answer
+    trial: np.ndarray  # (n,) the line search's point
+    gradient: np.ndarray  # (n,)
+    direction: np.ndarray  # (n,)
+    factor: np.ndarray  # (n, n) R of the piece's least squares
+    rotated: np.ndarray  # (n,) a row being rotated into R
+    binding: np.ndarray  # (rows,) the rows violated at the iterate
+
+
+@njit(cache=True)
+def solver_work(n, rows):
+    return SolverWork(np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros((n, n)),
+                      np.zeros(n), np.zeros(rows, np.bool_))
+
+
+class CbfWork(NamedTuple):
+    """Every array a step of the filter works in, allocated once at reset: a step allocates
+    nothing (each allocation costs tens of ns, and the rows took hundreds a step)."""
+
+    chain: ChainWork
+    solver: SolverWork
+    lu: np.ndarray  # (n, n) the inverses' elimination scratch
+    nominal_now: np.ndarray  # (n, n) the nominal chain's M at y
+    nominal: np.ndarray  # (n, n) ... at a predicted position
+    shifted: np.ndarray  # (n, n) M̂ moved to a predicted position
+    minv: np.ndarray  # (n, n) M̂⁻¹ at y
+    minv_end: np.ndarray  # (n, n) at the hold's end
+    minv_mid: np.ndarray  # (n, n) at its midpoint
+    bias: np.ndarray  # (n,) b̂ at (y, v)
+    moved_bias: np.ndarray  # (n,) b̂ at a predicted state
+    base: np.ndarray  # (n,) M̂⁻¹b̂ at (y, v)
+    base_end: np.ndarray  # (n,) at the hold's end
+    base_mid: np.ndarray  # (n,) at its midpoint
+    acceleration: np.ndarray  # (n,) the nominal model's q̈ under the held torque
+    y_end: np.ndarray  # (n,) the state predicted at the hold's end
+    v_end: np.ndarray
+    y_mid: np.ndarray  # (n,) and at its midpoint
+    v_mid: np.ndarray
+    x: np.ndarray  # (4, n) each set's x, SETS order
+    drift: np.ndarray  # (n,) dv/dt − M̂⁻¹τ
+    row: np.ndarray  # (n,) a row before its scaling
+    forms: np.ndarray  # (n, n, n) Γ of the nominal chain
+    payload_forms: np.ndarray  # (n, n, n) Γ of a unit payload (zero without a payload range)
+    unit: np.ndarray  # (n,) link masses of a unit payload: 1 kg on the last link
+    linear: np.ndarray  # (2, n, n) B at each end of the payload range
+    quadratic: np.ndarray  # (n,) the bias error's quadratic part and d̄
+    rows_error: np.ndarray  # (n,) the bound on |M̂⁻¹(Δb + d)|
+    jac: np.ndarray  # (2, n) J of the payload's point
+    gamma: np.ndarray  # (2,) γ = J̇v + g ŷ
+    jm: np.ndarray  # (2, n) J M̂⁻¹
+    jb: np.ndarray  # (2,) J M̂⁻¹b̂ (J base)
+    kmat: np.ndarray  # (2, 2) K = J M̂⁻¹ Jᵀ
+    lam: np.ndarray  # (2,) K's eigenvalues, ascending
+    vec: np.ndarray  # (2, 2) K's eigenvectors, as columns
+    s_grid: np.ndarray  # (grid + 1, 2) s_j(Δm) at Δm = low … high
+    corner_index: np.ndarray  # (3 grid + 1, 2) the grid points of each box corner
+    alpha: np.ndarray  # (2, n)
+    beta: np.ndarray  # (2,)
+    plant_shift: np.ndarray  # (n,) M̂⁻¹Jᵀγ when M̂ is the plant's
+    lowered: np.ndarray  # (rows,) the limits the QP is solved with
+    weights: np.ndarray  # (rows,) the weights it is solved with
+
+
+def payload_corners(grid: int) -> np.ndarray:
+    """The grid points (of s_1, of s_2) of the box corners the payload's rows are taken at:
+    s_j increases with Δm, so between two grid points (s_1, s_2) lies in their box, whose
+    corners are (g, g), (g+1, g+1), (g, g+1), (g+1, g). 3 grid + 1 corners."""
+    corner_index = np.zeros((3 * grid + 1, 2), np.int64)
+    corners = 0
+    for g in range(grid + 1):
+        corner_index[corners, 0] = corner_index[corners, 1] = g
+        corners += 1
+        if g < grid:
+            corner_index[corners, 0], corner_index[corners, 1] = g, g + 1
+            corner_index[corners + 1, 0], corner_index[corners + 1, 1] = g + 1, g
+            corners += 2
+    return corner_index
+
+
+def cbf_work(n: int, rows: int, grid: int) -> CbfWork:
+    """The scratch of a filter on n joints with at most ``rows`` rows."""
+    unit = np.zeros(n)
+    unit[n - 1] = 1.0
+    return CbfWork(
+        chain=chain_work(n), solver=solver_work(n, rows), lu=np.zeros((n, n)),
+        nominal_now=np.zeros((n, n)), nominal=np.zeros((n, n)), shifted=np.zeros((n, n)),
+        minv=np.zeros((n, n)), minv_end=np.zeros((n, n)), minv_mid=np.zeros((n, n)),
+        bias=np.zeros(n), moved_bias=np.zeros(n), base=np.zeros(n), base_end=np.zeros(n),
+        base_mid=np.zeros(n), acceleration=np.zeros(n), y_end=np.zeros(n), v_end=np.zeros(n),
+        y_mid=np.zeros(n), v_mid=np.zeros(n), x=np.zeros((4, n)), drift=np.zeros(n),
+        row=np.zeros(n), forms=np.zeros((n, n, n)), payload_forms=np.zeros((n, n, n)),
+        unit=unit, linear=np.zeros((2, n, n)), quadratic=np.zeros(n), rows_error=np.zeros(n),
+        jac=np.zeros((2, n)), gamma=np.zeros(2), jm=np.zeros((2, n)), jb=np.zeros(2),
+        kmat=np.zeros((2, 2)), lam=np.zeros(2), vec=np.zeros((2, 2)),
+        s_grid=np.zeros((grid + 1, 2)), corner_index=payload_corners(grid),
+        alpha=np.zeros((2, n)), beta=np.zeros(2), plant_shift=np.zeros(n),
+        lowered=np.zeros(rows), weights=np.zeros(rows))
 
 
 class CbfArgs(NamedTuple):
@@ -167,81 +302,202 @@ class CbfArgs(NamedTuple):
     active: np.ndarray
     correction: np.ndarray
     infeasible: np.ndarray
+    work: CbfWork
 
 
-@njit(cache=True)
-def com_kinematics(q, v, l, lc, gravity):  # noqa: E741
-    """The last link's centre of mass c: its Jacobian J (2×n) and γ = J̇ v + g ŷ, the
-    acceleration a point mass there needs beyond J q̈ (gravity along −y)."""
-    n = q.shape[0]
-    theta = np.empty(n)
-    omega = np.empty(n)
-    t, w = 0.0, 0.0
+# The small linear algebra of a step, on n joints and 2-vectors, written out: numba's
+# np.linalg and @ allocate their results and call LAPACK/BLAS, which costs more than the
+# arithmetic at these sizes.
+
+
+@_step_jit
+def _dot(x, y):
+    total = 0.0
+    for i in range(x.shape[0]):
+        total += x[i] * y[i]
+    return total
+
+
+@_step_jit
+def _product(matrix, vector, out):
+    """out = matrix @ vector."""
+    for i in range(matrix.shape[0]):
+        out[i] = _dot(matrix[i], vector)
+
+
+@_step_jit
+def _invert(matrix, out, lu):
+    """out = matrix⁻¹ by Gauss–Jordan elimination with partial pivoting (``lu``: n×n
+    scratch). A singular matrix gives non-finite entries, which the step reports."""
+    n = matrix.shape[0]
     for i in range(n):
-        t += q[i]
-        w += v[i]
-        theta[i], omega[i] = t, w
-    jac = np.zeros((2, n))
-    gamma = np.zeros(2)
-    gamma[1] = gravity
-    for k in range(n):
-        length = lc[k] if k == n - 1 else l[k]
-        cx, cy = length * np.cos(theta[k]), length * np.sin(theta[k])
-        for j in range(k + 1):
-            jac[0, j] -= cy
-            jac[1, j] += cx
-        gamma[0] -= omega[k] ** 2 * cx
-        gamma[1] -= omega[k] ** 2 * cy
-    return jac, gamma
+        for j in range(n):
+            lu[i, j] = matrix[i, j]
+            out[i, j] = 1.0 if i == j else 0.0
+    for c in range(n):
+        pivot_row = c
+        for r in range(c + 1, n):
+            if abs(lu[r, c]) > abs(lu[pivot_row, c]):
+                pivot_row = r
+        if pivot_row != c:
+            for j in range(n):
+                lu[c, j], lu[pivot_row, j] = lu[pivot_row, j], lu[c, j]
+                out[c, j], out[pivot_row, j] = out[pivot_row, j], out[c, j]
+        pivot = lu[c, c]
+        for j in range(n):
+            lu[c, j] /= pivot
+            out[c, j] /= pivot
+        for r in range(n):
+            factor = lu[r, c]
+            if r != c and factor != 0.0:
+                for j in range(n):
+                    lu[r, j] -= factor * lu[c, j]
+                    out[r, j] -= factor * out[c, j]
+
+
+@_step_jit
+def _symmetric_eigen(kmat, lam, vec):
+    """The eigenvalues (ascending, into ``lam``) and unit eigenvectors (columns of ``vec``)
+    of a symmetric 2×2 matrix (its lower triangle), in closed form: with
+    2θ = atan2(k10, (k00 − k11)/2), (cos θ, sin θ) belongs to the larger one."""
+    mean = 0.5 * (kmat[0, 0] + kmat[1, 1])
+    half = 0.5 * (kmat[0, 0] - kmat[1, 1])
+    radius = np.hypot(half, kmat[1, 0])
+    theta = 0.5 * np.arctan2(kmat[1, 0], half)
+    c, s = np.cos(theta), np.sin(theta)
+    lam[0], lam[1] = mean - radius, mean + radius
+    vec[0, 0], vec[1, 0] = -s, c
+    vec[0, 1], vec[1, 1] = c, s
+
+
+# The nominal chain, as cosim.blocks.inertia's planar_mass_matrix and planar_bias compute it
+# (the same operations in the same order, so the same numbers: tests/test_filter_speed.py),
+# with the geometry computed once per position and no array allocated.
+
+
+@_step_jit
+def _geometry(q, l, lc, w):  # noqa: E741
+    """The chain's geometry at q into ``w`` (ChainWork)."""
+    theta, x, y = 0.0, 0.0, 0.0
+    for k in range(q.shape[0]):
+        theta += q[k]
+        c, s = np.cos(theta), np.sin(theta)
+        w.cx[k], w.cy[k] = lc[k] * c, lc[k] * s
+        w.lx[k], w.ly[k] = l[k] * c, l[k] * s
+        w.ox[k], w.oy[k] = x, y
+        x += l[k] * c
+        y += l[k] * s
+
+
+@_step_jit
+def _chain_mass(w, m, inertia, out):
+    """M of the chain whose geometry ``w`` holds, into ``out``:
+    M_ij = Σ_{k ≥ max(i, j)} [m_k (p_k − o_i)·(p_k − o_j) + I_k]."""
+    n = m.shape[0]
+    for i in range(n):
+        for j in range(i, n):
+            total = 0.0
+            for k in range(j, n):
+                px, py = w.ox[k] + w.cx[k], w.oy[k] + w.cy[k]
+                total += (m[k] * ((px - w.ox[i]) * (px - w.ox[j])
+                                  + (py - w.oy[i]) * (py - w.oy[j])) + inertia[k])
+            out[i, j] = total
+            out[j, i] = total
+
+
+@_step_jit
+def _chain_bias(w, qdot, m, gravity, out):
+    """b(q, q̇) = C(q, q̇) q̇ + G(q) of the chain whose geometry ``w`` holds, into ``out``:
+    recursive Newton–Euler with q̈ = 0 and the base accelerating upwards at ``gravity``."""
+    n = qdot.shape[0]
+    omega = 0.0
+    ax, ay = 0.0, gravity  # acceleration of joint i's origin
+    for i in range(n):
+        omega += qdot[i]
+        w2 = omega * omega  # no angular acceleration: q̈ = 0
+        w.fx[i] = m[i] * (ax - w2 * w.cx[i])
+        w.fy[i] = m[i] * (ay - w2 * w.cy[i])
+        ax -= w2 * w.lx[i]
+        ay -= w2 * w.ly[i]
+    force_x, force_y, moment = 0.0, 0.0, 0.0  # what link i+1 exerts, about joint i+1
+    for i in range(n - 1, -1, -1):
+        moment += (w.lx[i] * force_y - w.ly[i] * force_x + w.cx[i] * w.fy[i]
+                   - w.cy[i] * w.fx[i])
+        force_x += w.fx[i]
+        force_y += w.fy[i]
+        out[i] = moment
+
+
+@_step_jit
+def _velocity_forms(q, m, l, lc, w, out):  # noqa: E741
+    """Γ of the chain at q into ``out`` (n, n, n), ``w`` its ChainWork."""
+    n = q.shape[0]
+    _geometry(q, l, lc, w)
+    for j in range(n):
+        for k in range(j, n):
+            for i in range(n):
+                w.e[i] = 0.0
+            w.e[j] += 1.0
+            w.e[k] += 1.0
+            _chain_bias(w, w.e, m, 0.0, w.plus)
+            w.e[k] -= 2.0
+            _chain_bias(w, w.e, m, 0.0, w.minus)
+            for i in range(n):
+                # b_i(a + c) − b_i(a − c) = 4 aᵀΓ_i c (and e_j ± e_j = 2e_j, 0 for j = k)
+                out[i, j, k] = out[i, k, j] = (w.plus[i] - w.minus[i]) / 4.0
 
 
 @njit(cache=True)
 def velocity_forms(q, m, l, lc, inertia):  # noqa: E741
     """Γ (n, n, n): b's velocity part b_i(v) = vᵀ Γ_i v of the chain (gravity 0), by
-    polarisation of the recursive Newton–Euler bias."""
+    polarisation of the recursive Newton–Euler bias. (A link's rotational ``inertia`` adds
+    nothing to b in the plane: the argument keeps the chain's signature.)"""
     n = q.shape[0]
-    gamma = np.zeros((n, n, n))
-    plus, minus = np.zeros(n), np.zeros(n)
-    e = np.zeros(n)
-    for j in range(n):
-        for k in range(j, n):
-            e[:] = 0.0
-            e[j] += 1.0
-            e[k] += 1.0
-            planar_bias(q, e, m, l, lc, inertia, 0.0, plus)
-            e[k] -= 2.0
-            planar_bias(q, e, m, l, lc, inertia, 0.0, minus)
-            for i in range(n):
-                # b_i(a + c) − b_i(a − c) = 4 aᵀΓ_i c (and e_j ± e_j = 2e_j, 0 for j = k)
-                gamma[i, j, k] = gamma[i, k, j] = (plus[i] - minus[i]) / 4.0
-    return gamma
+    out = np.zeros((n, n, n))
+    _velocity_forms(q, m, l, lc, chain_work(n), out)
+    return out
 
 
-@njit(cache=True, inline="always")
-def acceleration_error_bound(q, v, eps, minv, a, nominal):
-    """Per joint i, a bound on |(M̂⁻¹(b(q, q̇) − b(q, v)))_i + (M̂⁻¹d)_i| for |q̇_j − v_j| ≤ ε_j
-    and a disturbance |d_l| ≤ d̄. b's velocity part is b_l(v) = vᵀΓ_l v (``nominal``, plus
-    Δm times a unit payload's), so b(v + δ) − b(v) = B δ + (δᵀΓ_l δ)_l with
-    B_lj = 2 Σ_k Γ_l,jk v_k: the linear part through M̂⁻¹B keeps its cancellations (in a
-    stretched arm most of the Coriolis force is radial: no torque), the quadratic part and
-    d̄ are bounded row by row. Affine in Δm, so the worst case is at an end of its range."""
+@_step_jit
+def _com_kinematics(q, v, l, lc, gravity, jac, gamma):  # noqa: E741
+    """The last link's centre of mass c: its Jacobian J (2×n, into ``jac``) and
+    γ = J̇ v + g ŷ (into ``gamma``), the acceleration a point mass there needs beyond J q̈
+    (gravity along −y)."""
     n = q.shape[0]
-    unit = np.zeros(n)
-    unit[n - 1] = 1.0
-    payload = velocity_forms(q, unit, a.l, a.lc, np.zeros(n))
-    size = max(abs(a.payload_low), abs(a.payload_high))
-    linear = np.zeros((2, n, n))  # B for the nominal chain plus each end of the payload range
-    quadratic = np.full(n, a.disturbance)
+    jac[:] = 0.0
+    gamma[0], gamma[1] = 0.0, gravity
+    theta, omega = 0.0, 0.0
+    for k in range(n):
+        theta += q[k]
+        omega += v[k]
+        length = lc[k] if k == n - 1 else l[k]
+        cx, cy = length * np.cos(theta), length * np.sin(theta)
+        for j in range(k + 1):
+            jac[0, j] -= cy
+            jac[1, j] += cx
+        gamma[0] -= omega**2 * cx
+        gamma[1] -= omega**2 * cy
+
+
+@_step_jit
+def _acceleration_error_bound(v, eps, minv, low, high, disturbance, nominal, payload, linear,
+                              quadratic, out):
+    """acceleration_error_bound into ``out``, with Γ of a unit payload given (``payload``)
+    and ``linear`` (2, n, n), ``quadratic`` (n,) as scratch."""
+    n = v.shape[0]
+    size = max(abs(low), abs(high))
+    linear[:] = 0.0  # B for the nominal chain plus each end of the payload range
+    quadratic[:] = disturbance
     for l in range(n):  # noqa: E741
         for j in range(n):
             for k in range(n):
                 for end in range(2):
-                    mass = a.payload_low if end == 0 else a.payload_high
+                    mass = low if end == 0 else high
                     linear[end, l, j] += 2.0 * (nominal[l, j, k] + mass * payload[l, j, k]) * v[k]
                 quadratic[l] += (abs(nominal[l, j, k]) + size * abs(payload[l, j, k])) \
                     * eps[j] * eps[k]
-    out = np.zeros(n)
     for i in range(n):
+        out[i] = 0.0
         for j in range(n):
             worst = 0.0
             for end in range(2):
@@ -252,19 +508,34 @@ def acceleration_error_bound(q, v, eps, minv, a, nominal):
             out[i] += worst * eps[j]
         for l in range(n):  # noqa: E741
             out[i] += abs(minv[i, l]) * quadratic[l]
+
+
+@njit(cache=True)
+def acceleration_error_bound(q, v, eps, minv, a, nominal):
+    """Per joint i, a bound on |(M̂⁻¹(b(q, q̇) − b(q, v)))_i + (M̂⁻¹d)_i| for |q̇_j − v_j| ≤ ε_j
+    and a disturbance |d_l| ≤ d̄. b's velocity part is b_l(v) = vᵀΓ_l v (``nominal``, plus
+    Δm times a unit payload's), so b(v + δ) − b(v) = B δ + (δᵀΓ_l δ)_l with
+    B_lj = 2 Σ_k Γ_l,jk v_k: the linear part through M̂⁻¹B keeps its cancellations (in a
+    stretched arm most of the Coriolis force is radial: no torque), the quadratic part and
+    d̄ are bounded row by row. Affine in Δm, so the worst case is at an end of its range."""
+    n = q.shape[0]
+    unit = np.zeros(n)
+    unit[n - 1] = 1.0
+    payload = np.zeros((n, n, n))
+    _velocity_forms(q, unit, a.l, a.lc, chain_work(n), payload)
+    out = np.zeros(n)
+    _acceleration_error_bound(v, eps, minv, a.payload_low, a.payload_high, a.disturbance,
+                              nominal, payload, np.zeros((2, n, n)), np.zeros(n), out)
     return out
 
 
-@njit(cache=True, inline="always")  # a's many fields are not copied per call
-def _add_row(a, count, row, limit, weight, hard, kind, joint):
-    _finish_row(a, count, limit, weight, hard, kind, joint, row)
-    return count + 1
-
-
-@njit(cache=True, inline="always")
-def _finish_row(a, count, limit, weight, hard, kind, joint, row):
-    """Row ``count`` of the QP from ``row`` (written into ``a.rows[count]`` scaled to unit
-    norm, N·m), its limit, weight and labels; no allocation (the filter adds ~200 a step)."""
+@_step_jit
+def _add_row(qp, count, row, limit, weight, hard, kind, joint):
+    """Row ``count`` of the QP from ``row`` (scaled to unit norm, N·m), its limit, weight
+    and labels, into ``qp`` = (a.rows, a.limits, a.weights, a.is_hard, a.kinds, a.joints);
+    returns the next row's index. (Not ``a`` itself: binding a tuple to an argument counts a
+    reference to each of its arrays, and a holds ~100.)"""
+    G, limits, weights, is_hard, kinds, joints = qp
     n = row.shape[0]
     norm = 0.0
     for j in range(n):
@@ -273,25 +544,72 @@ def _finish_row(a, count, limit, weight, hard, kind, joint, row):
     if norm == 0.0:  # no τ in it: a row that holds or not whatever the filter does
         norm = 1.0
     for j in range(n):
-        a.rows[count, j] = row[j] / norm
-    a.limits[count] = limit / norm
-    a.weights[count] = weight
-    a.is_hard[count] = 1.0 if hard else 0.0
-    a.kinds[count] = kind
-    a.joints[count] = joint
+        G[count, j] = row[j] / norm
+    limits[count] = limit / norm
+    weights[count] = weight
+    is_hard[count] = 1.0 if hard else 0.0
+    kinds[count] = kind
+    joints[count] = joint
+    return count + 1
 
 
-@njit(cache=True, inline="always")
-def _nominal_model(a, y, v, mass):
-    """(M̂⁻¹, b̂ = C(y, v) v + G(y) + τ_d, M̂⁻¹b̂) at (y, v), so that q̈ = M̂⁻¹τ − M̂⁻¹b̂."""
-    minv = np.linalg.inv(mass)
-    bias = np.zeros(y.shape[0])
-    planar_bias(y, v, a.m, a.l, a.lc, a.inertia, a.gravity, bias)
-    bias += a.tau_d
-    return minv, bias, minv @ bias
+@_step_inline
+def _nominal_model(a, y, v, nominal, bias):
+    """The nominal chain at (y, v): its M(y) into ``nominal`` and b̂ = C(y, v) v + G(y) + τ_d
+    into ``bias``."""
+    w = a.work.chain
+    _geometry(y, a.l, a.lc, w)
+    _chain_mass(w, a.m, a.inertia, nominal)
+    _chain_bias(w, v, a.m, a.gravity, bias)
+    for i in range(y.shape[0]):
+        bias[i] += a.tau_d[i]
 
 
-@njit(cache=True, inline="always")
+@_step_inline
+def _moved_model(a, y, v, mass, minv, base):
+    """At a predicted state (y, v): M̂⁻¹ into ``minv`` and M̂⁻¹b̂ into ``base`` (so that
+    q̈ = M̂⁻¹τ − base), with M̂ moved from row k's by the nominal chain's change."""
+    w = a.work
+    _nominal_model(a, y, v, w.nominal, w.moved_bias)
+    n = y.shape[0]
+    for i in range(n):
+        for j in range(n):
+            w.shifted[i, j] = mass[i, j] + w.nominal[i, j] - w.nominal_now[i, j]
+    _invert(w.shifted, minv, w.lu)
+    _product(minv, w.moved_bias, base)
+
+
+@_step_jit
+def _payload_structure(low, high, minv, base, w):
+    """The payload's structure (see the module docstring) at one state, into ``w``: K's
+    eigenvalues and eigenvectors, s_j(Δm) on the grid, and the α_j = v_jᵀJM̂⁻¹ and
+    β_j = v_jᵀ(γ − JM̂⁻¹b̂) a row is linear in."""
+    n = minv.shape[0]
+    jac, jm = w.jac, w.jm
+    for r in range(2):
+        for col in range(n):
+            total = 0.0
+            for l in range(n):  # noqa: E741
+                total += jac[r, l] * minv[l, col]
+            jm[r, col] = total
+        w.jb[r] = _dot(jac[r], base)
+    for r in range(2):
+        for c in range(2):
+            w.kmat[r, c] = _dot(jm[r], jac[c])
+    _symmetric_eigen(w.kmat, w.lam, w.vec)
+    grid = w.s_grid.shape[0] - 1
+    for g in range(grid + 1):
+        payload = low + (high - low) * g / grid
+        for j in range(2):
+            w.s_grid[g, j] = payload / (1.0 + payload * w.lam[j])
+    for j in range(2):
+        for col in range(n):
+            w.alpha[j, col] = w.vec[0, j] * jm[0, col] + w.vec[1, j] * jm[1, col]
+        w.beta[j] = (-(w.vec[0, j] * w.jb[0] + w.vec[1, j] * w.jb[1])
+                     + w.vec[0, j] * w.gamma[0] + w.vec[1, j] * w.gamma[1])
+
+
+@_step_inline
 def _hard_rows(a, count, k, y, v, eps, minv, base, at_end):
     """The hard rows of row k, with the model (M̂, b̂, the payload's structure, the bias
     error) evaluated at (y, v) and the barriers at row k's state. ``at_end``: the conditions
@@ -300,42 +618,32 @@ def _hard_rows(a, count, k, y, v, eps, minv, base, at_end):
     q(dt) = q + dt q̇ + ½dt² q̈ and q̇(dt) = q̇ + dt q̈, a condition at the end weighs q̈ by
     1 + k dt (velocity) or 1 + 2p dt + ½p² dt² (position) and the position's by p² dt q̇."""
     n = y.shape[0]
-    forms = velocity_forms(y, a.m, a.l, a.lc, a.inertia)
-    rows_error = acceleration_error_bound(y, v, eps, minv, a, forms)  # |M̂⁻¹(Δb + d)|
-    # the payload's structure (see the module docstring)
+    w = a.work
     robust = a.payload_high != 0.0 or a.payload_low != 0.0
-    jac, gamma = com_kinematics(y, v, a.l, a.lc, a.gravity)
+    _velocity_forms(y, a.m, a.l, a.lc, w.chain, w.forms)
+    if robust:  # else the payload's forms stay zero, as its range is
+        _velocity_forms(y, w.unit, a.l, a.lc, w.chain, w.payload_forms)
+    rows_error = w.rows_error  # |M̂⁻¹(Δb + d)|
+    _acceleration_error_bound(v, eps, minv, a.payload_low, a.payload_high, a.disturbance,
+                              w.forms, w.payload_forms, w.linear, w.quadratic, rows_error)
+    # the payload's structure (see the module docstring)
     corners = 1
-    grid = a.payload_grid
-    s_grid = np.zeros((grid + 1, 2))  # s_j(Δm) at Δm = low … high
-    corner_index = np.zeros((3 * grid + 1, 2), np.int64)  # grid points of each corner
-    alpha = np.zeros((2, n))
-    beta = np.zeros(2)
-    plant_shift = np.zeros(n)
+    s_grid, corner_index, alpha, beta = w.s_grid, w.corner_index, w.alpha, w.beta
+    plant_shift = w.plant_shift
+    plant_shift[:] = 0.0
+    if robust:
+        _com_kinematics(y, v, a.l, a.lc, a.gravity, w.jac, w.gamma)
     if robust and not a.inertia_is_plant:
-        kmat = jac @ minv @ jac.T
-        lam, vec = np.linalg.eigh(kmat)
-        for g in range(grid + 1):
-            payload = a.payload_low + (a.payload_high - a.payload_low) * g / grid
-            for j in range(2):
-                s_grid[g, j] = payload / (1.0 + payload * lam[j])
-        for j in range(2):
-            alpha[j] = vec[:, j] @ jac @ minv
-            beta[j] = -(vec[:, j] @ (jac @ base)) + vec[:, j] @ gamma
-        # s_j increases with Δm, so between two grid points (s_1, s_2) lies in their box,
-        # whose corners are (g, g), (g+1, g+1), (g, g+1), (g+1, g)
-        corners = 0
-        for g in range(grid + 1):
-            corner_index[corners, 0] = corner_index[corners, 1] = g
-            corners += 1
-            if g < grid:
-                corner_index[corners, 0], corner_index[corners, 1] = g, g + 1
-                corner_index[corners + 1, 0], corner_index[corners + 1, 1] = g + 1, g
-                corners += 2
-    elif robust:
-        plant_shift = minv @ (jac.T @ gamma)  # q̈ = u − Δm·this
+        _payload_structure(a.payload_low, a.payload_high, minv, base, w)
+        corners = corner_index.shape[0]
+    elif robust:  # q̈ = u − Δm·M̂⁻¹Jᵀγ
+        for i in range(n):
+            for col in range(n):
+                plant_shift[i] += minv[i, col] * (w.jac[0, col] * w.gamma[0]
+                                                  + w.jac[1, col] * w.gamma[1])
     y0, v0, dt = a.position[k], a.velocity[k], a.dt
-    row = np.empty(n)
+    row = w.row
+    qp = (a.rows, a.limits, a.weights, a.is_hard, a.kinds, a.joints)
     for s in range(2):
         if not a.hard[s]:
             continue
@@ -372,53 +680,69 @@ def _hard_rows(a, count, k, y, v, eps, minv, base, at_end):
                             offset += weight * beta[j]
                     for col in range(n):
                         row[col] *= scale
-                    _finish_row(a, count, limit + scale * offset, a.rho_hard, True, s, i, row)
-                    count += 1
+                    count = _add_row(qp, count, row, limit + scale * offset, a.rho_hard, True,
+                                     s, i)
     return count
 
 
-@njit(cache=True)
+@_step_jit
 def cbf_rows(k, a):
     """Fill G (``a.rows``), h (``a.limits``), the weights and the hard flags of row k's QP,
     and the braking backup (``a.backup``); returns the number of rows."""
+    return _rows(k, a)
+
+
+@_step_inline
+def _rows(k, a):
+    """cbf_rows, inlined into the step: a's many fields are not copied per call."""
     n = a.position.shape[1]
+    w = a.work
     y, v, eps = a.position[k], a.velocity[k], a.velocity_bound[k]
     mass = a.M_model[k]
-    minv, bias, base = _nominal_model(a, y, v, mass)  # u = M̂⁻¹τ − base
+    minv, bias, base = w.minv, w.bias, w.base  # u = M̂⁻¹τ − base
+    _nominal_model(a, y, v, w.nominal_now, bias)
+    _invert(mass, minv, w.lu)
+    _product(minv, bias, base)
     # the backup: brake every joint towards q̇_s
-    a.backup[:] = mass @ (-a.backup_rate * (v - a.qdot_s[k])) + bias
-    if np.isfinite(a.torque_limit):
-        a.backup[:] = np.minimum(np.maximum(a.backup, -a.torque_limit), a.torque_limit)
+    for i in range(n):
+        braking = 0.0
+        for j in range(n):
+            braking += mass[i, j] * (-a.backup_rate * (v[j] - a.qdot_s[k, j]))
+        a.backup[i] = braking + bias[i]
+        if np.isfinite(a.torque_limit):
+            a.backup[i] = np.minimum(np.maximum(a.backup[i], -a.torque_limit), a.torque_limit)
     count = _hard_rows(a, 0, k, y, v, eps, minv, base, False)
     # the hold's end, predicted with the torque of the step before (the nominal model's q̈)
     held = a.tau[k - 1] if k > 0 else a.tau_nominal[k]
-    acceleration = minv @ held - base
-    y_end = y + a.dt * v + 0.5 * a.dt * a.dt * acceleration
-    v_end = v + a.dt * acceleration
-    nominal_now, nominal_end = np.empty((n, n)), np.empty((n, n))
-    planar_mass_matrix(y, a.m, a.l, a.lc, a.inertia, nominal_now)
-    planar_mass_matrix(y_end, a.m, a.l, a.lc, a.inertia, nominal_end)
-    minv_end, _, base_end = _nominal_model(a, y_end, v_end, mass + nominal_end - nominal_now)
+    acceleration = w.acceleration
+    _product(minv, held, acceleration)
+    y_end, v_end, y_mid, v_mid = w.y_end, w.v_end, w.y_mid, w.v_mid
+    for i in range(n):
+        acceleration[i] -= base[i]
+        y_end[i] = y[i] + a.dt * v[i] + 0.5 * a.dt * a.dt * acceleration[i]
+        v_end[i] = v[i] + a.dt * acceleration[i]
+        y_mid[i] = y[i] + 0.5 * a.dt * v[i] + 0.125 * a.dt * a.dt * acceleration[i]
+        v_mid[i] = v[i] + 0.5 * a.dt * acceleration[i]
+    minv_end, base_end = w.minv_end, w.base_end
+    _moved_model(a, y_end, v_end, mass, minv_end, base_end)
     count = _hard_rows(a, count, k, y_end, v_end, eps, minv_end, base_end, True)
     # The soft rows take the plant's q̈ averaged over the hold (the midpoint rule: at the bound
     # of a set, q̈'s drift within one 1 ms hold is what would carry the state across), and
     # how v moves: the observer's drift + M̂⁻¹τ (the observer holds M̂ over the step), or the
     # plant's q̈ for the plant's q̇.
-    nominal_mid = np.empty((n, n))
-    y_mid = y + 0.5 * a.dt * v + 0.125 * a.dt * a.dt * acceleration
-    planar_mass_matrix(y_mid, a.m, a.l, a.lc, a.inertia, nominal_mid)
-    minv_mid, _, base_mid = _nominal_model(a, y_mid, v + 0.5 * a.dt * acceleration,
-                                           mass + nominal_mid - nominal_now)
-    if np.isfinite(a.drift[k, 0]):
-        rate_minv, drift = minv, a.drift[k]
-    else:
-        rate_minv, drift = minv_mid, -base_mid
-    x = np.empty((4, n))
-    x[0] = y - a.q_s[k]
-    x[1] = v - a.qdot_s[k]
-    x[2] = a.q_d[k] - y
-    x[3] = a.qdot_d[k] - v
-    rate_error = a.qdot_d[k] - v
+    minv_mid, base_mid = w.minv_mid, w.base_mid
+    _moved_model(a, y_mid, v_mid, mass, minv_mid, base_mid)
+    observed = np.isfinite(a.drift[k, 0])
+    rate_minv = minv if observed else minv_mid
+    drift, x, row = w.drift, w.x, w.row
+    qp = (a.rows, a.limits, a.weights, a.is_hard, a.kinds, a.joints)
+    for i in range(n):
+        drift[i] = a.drift[k, i] if observed else -base_mid[i]
+        x[0, i] = y[i] - a.q_s[k, i]
+        x[1, i] = v[i] - a.qdot_s[k, i]
+        x[2, i] = a.q_d[k, i] - y[i]
+        x[3, i] = a.qdot_d[k, i] - v[i]
+    rate_error = x[3]  # q̇_d − v
     for s in range(4):
         beta_s = a.bounds[s]
         tight = 0.0  # the worst case of the true state within the declared bounds
@@ -429,7 +753,8 @@ def cbf_rows(k, a):
                 tight = eps[i]
             a.h_sets[s, k, i] = beta_s - abs(x[s, i]) - tight
             a.active_sets[s, k, i] = 0.0
-        norm = np.sqrt(np.sum(x[s] ** 2))
+        xs = x[s]
+        norm = np.sqrt(_dot(xs, xs))
         a.h_norms[s, k] = beta_s - norm
         a.active_norms[s, k] = 0.0
         if a.soft[s]:
@@ -437,121 +762,205 @@ def cbf_rows(k, a):
                 for side in (1.0, -1.0):
                     h = beta_s - side * x[s, i]
                     if s == 2:  # e = q_d − y: −side·q̈_i ≤ −side q̈_d − 2p side ė + p² h
-                        row = -side * minv_mid[i]
+                        for col in range(n):
+                            row[col] = -side * minv_mid[i, col]
                         bound = (-side * a.qddot_d[k, i] - a.tracking_k1 * side * rate_error[i]
                                  + a.tracking_k0 * h - side * base_mid[i])
                     else:  # ė = q̇_d − v: −side·(M̂⁻¹τ)_i ≤ −side q̈_d + side drift_i + k h
-                        row = -side * rate_minv[i]
+                        for col in range(n):
+                            row[col] = -side * rate_minv[i, col]
                         bound = -side * a.qddot_d[k, i] + side * drift[i] + a.k_velocity * h
-                    count = _add_row(a, count, row, bound, a.rho_soft, False, s, i)
+                    count = _add_row(qp, count, row, bound, a.rho_soft, False, s, i)
         if a.soft_norms[s]:
-            xs = x[s]
             h = beta_s * beta_s - norm * norm
             if s == 2:  # ḧ = −2‖ė‖² − 2eᵀ(q̈_d − q̈), ḣ = −2eᵀė
-                row = -2.0 * (xs @ minv_mid)
-                bound = (-2.0 * np.sum(rate_error**2) - 2.0 * (xs @ a.qddot_d[k])
-                         - 2.0 * (xs @ base_mid) - 2.0 * a.tracking_k1 * (xs @ rate_error)
+                for col in range(n):
+                    row[col] = -2.0 * _dot(xs, minv_mid[:, col])
+                bound = (-2.0 * _dot(rate_error, rate_error) - 2.0 * _dot(xs, a.qddot_d[k])
+                         - 2.0 * _dot(xs, base_mid) - 2.0 * a.tracking_k1 * _dot(xs, rate_error)
                          + a.tracking_k0 * h)
             else:  # ḣ = −2ėᵀ(q̈_d − dv/dt)
-                row = -2.0 * (xs @ rate_minv)
-                bound = -2.0 * (xs @ a.qddot_d[k]) + 2.0 * (xs @ drift) + a.k_velocity * h
+                for col in range(n):
+                    row[col] = -2.0 * _dot(xs, rate_minv[:, col])
+                bound = -2.0 * _dot(xs, a.qddot_d[k]) + 2.0 * _dot(xs, drift) + a.k_velocity * h
                 # Over a hold h also loses ‖Δx‖² (the set is round, the step straight): a
                 # state sliding along the bound would leave it by that much each step, so the
                 # rate asked for is less by ‖Δx‖²/step, Δx taken from the step before.
                 if k > 0:
-                    change = xs - (a.qdot_d[k - 1] - a.velocity[k - 1])
-                    bound -= np.sum(change**2) / a.dt
-            count = _add_row(a, count, row, bound, a.rho_soft, False, 4 + s, -1)
+                    change = 0.0
+                    for i in range(n):
+                        change += (xs[i] - (a.qdot_d[k - 1, i] - a.velocity[k - 1, i])) ** 2
+                    bound -= change / a.dt
+            count = _add_row(qp, count, row, bound, a.rho_soft, False, 4 + s, -1)
     if np.isfinite(a.torque_limit):
         for i in range(n):
             for side in (1.0, -1.0):
-                row = np.zeros(n)
-                row[i] = side
-                count = _add_row(a, count, row, a.torque_limit, a.rho_hard, True, -1, i)
+                for col in range(n):
+                    row[col] = side if col == i else 0.0
+                count = _add_row(qp, count, row, a.torque_limit, a.rho_hard, True, -1, i)
     return count
 
 
-@njit(cache=True)
-def _penalty(tau, tau_nominal, G, h, weights):
-    """½‖τ − τ_nom‖² + ½Σ ρ_j (g_j τ − h_j)₊²."""
-    excess = np.maximum(G @ tau - h, 0.0)
-    return 0.5 * np.sum((tau - tau_nominal) ** 2) + 0.5 * np.sum(weights * excess**2)
+@_step_jit
+def _penalty(tau, tau_nominal, G, h, weights, count):
+    """½‖τ − τ_nom‖² + ½Σ ρ_j (g_j τ − h_j)₊² over the first ``count`` rows."""
+    own = 0.0
+    for i in range(tau.shape[0]):
+        own += (tau[i] - tau_nominal[i]) ** 2
+    rows = 0.0
+    for j in range(count):
+        rows += weights[j] * np.maximum(_dot(G[j], tau) - h[j], 0.0) ** 2
+    return 0.5 * own + 0.5 * rows
+
+
+@_step_jit
+def _piece_minimiser(tau_nominal, G, h, weights, count, w):
+    """The minimiser of ½‖τ − τ_nom‖² + ½Σ_A ρ_j (g_j τ − h_j)², A the rows flagged in
+    ``w.binding``, into ``w.direction``: the least-squares solution of [I; √ρ_A G_A] τ =
+    [τ_nom; √ρ_A h_A], its R built from I by a Givens rotation per binding row entry. Its
+    normal equations (I + Σ_A ρ_j g_jᵀ g_j) have a condition number up to 1 + ρ_hard
+    (1e10, one binding row), which costs ~1e-5 of τ; R's is the square root of that."""
+    n = tau_nominal.shape[0]
+    factor, rotated, out = w.factor, w.rotated, w.direction
+    for i in range(n):
+        for c in range(n):
+            factor[i, c] = 1.0 if i == c else 0.0
+        out[i] = tau_nominal[i]  # Qᵀ times the right-hand side, as R is built
+    for j in range(count):
+        if not w.binding[j]:
+            continue
+        root = np.sqrt(weights[j])
+        for c in range(n):
+            rotated[c] = root * G[j, c]
+        side = root * h[j]
+        for c in range(n):  # zero the row's entry c against R's row c
+            if rotated[c] == 0.0:
+                continue
+            radius = np.hypot(factor[c, c], rotated[c])
+            cs, sn = factor[c, c] / radius, rotated[c] / radius
+            for col in range(c, n):
+                upper = factor[c, col]
+                factor[c, col] = cs * upper + sn * rotated[col]
+                rotated[col] = cs * rotated[col] - sn * upper
+            upper = out[c]
+            out[c] = cs * upper + sn * side
+            side = cs * side - sn * upper
+    for c in range(n - 1, -1, -1):  # R τ = Qᵀ rhs
+        total = out[c]
+        for col in range(c + 1, n):
+            total -= factor[c, col] * out[col]
+        out[c] = total / factor[c, c]
+
+
+@_step_jit
+def _newton(tau_nominal, G, h, weights, count, iterations, tolerance, w):
+    """solve_soft_qp on the first ``count`` rows of G, h and the weights, in ``w``
+    (SolverWork): τ into ``w.tau``; returns the iterations used."""
+    n = tau_nominal.shape[0]
+    tau, trial, gradient, direction, binding = w.tau, w.trial, w.gradient, w.direction, w.binding
+    for i in range(n):
+        tau[i] = tau_nominal[i]
+    scale = 1.0 + np.sqrt(_dot(tau_nominal, tau_nominal))
+    binding[:count] = False
+    full_step = False
+    for it in range(iterations):
+        gradient[:] = 0.0
+        same = True
+        for j in range(count):
+            excess = np.maximum(_dot(G[j], tau) - h[j], 0.0)
+            now = excess > 0.0
+            same = same and now == binding[j]
+            binding[j] = now
+            for i in range(n):
+                gradient[i] += G[j, i] * (weights[j] * excess)
+        for i in range(n):
+            gradient[i] = tau[i] - tau_nominal[i] + gradient[i]
+        # Exact for this piece once a full Newton step kept the same binding rows.
+        if it > 0 and same and full_step:
+            return it
+        if np.sqrt(_dot(gradient, gradient)) <= tolerance * scale:
+            return it
+        # The piece is quadratic: the Newton step goes to its minimiser.
+        _piece_minimiser(tau_nominal, G, h, weights, count, w)
+        for i in range(n):
+            direction[i] -= tau[i]
+        if not (np.isfinite(np.sum(direction)) and np.isfinite(np.sum(gradient))):
+            for i in range(n):  # a diverging loop: the filter's step reports it
+                tau[i] = np.nan
+            return it
+        value = _penalty(tau, tau_nominal, G, h, weights, count)
+        slope = _dot(gradient, direction)
+        step = 1.0
+        while step > 1e-12:
+            for i in range(n):
+                trial[i] = tau[i] + step * direction[i]
+            if _penalty(trial, tau_nominal, G, h, weights, count) \
+                    <= value + 1e-4 * step * slope:
+                break
+            step *= 0.5
+        full_step = step == 1.0
+        for i in range(n):
+            tau[i] = tau[i] + step * direction[i]
+    return iterations
 
 
 @njit(cache=True)
 def solve_soft_qp(tau_nominal, G, h, weights, iterations, tolerance):
     """min ½‖τ − τ_nom‖² + ½Σ ρ_j s_j² s.t. Gτ − s ≤ h, by semismooth Newton on the
     equivalent ½‖τ − τ_nom‖² + ½Σ ρ_j (g_j τ − h_j)₊²: strictly convex and piecewise
-    quadratic, so with the rows violated at τ fixed one linear solve (I + Σ_A ρ_j g_jᵀ g_j)
-    is exact; repeated until the set of violated rows no longer changes, with a backtracking
-    line search. Its Hessian stays positive definite for opposing or conflicting rows, where
-    a dual method stalls. Returns (τ, iterations used)."""
-    n, m = tau_nominal.shape[0], G.shape[0]
-    tau = tau_nominal.copy()
-    scale = 1.0 + np.sqrt(np.sum(tau_nominal**2))
-    binding = np.zeros(m, np.bool_)
-    full_step = False
-    for it in range(iterations):
-        excess = np.maximum(G @ tau - h, 0.0)
-        now = excess > 0.0
-        gradient = tau - tau_nominal + G.T @ (weights * excess)
-        # Exact for this piece once a full Newton step kept the same binding rows.
-        if it > 0 and np.array_equal(now, binding) and full_step:
-            return tau, it
-        if np.sqrt(np.sum(gradient**2)) <= tolerance * scale:
-            return tau, it
-        binding = now
-        hessian = np.eye(n)
-        for j in range(m):
-            if binding[j]:
-                hessian += weights[j] * np.outer(G[j], G[j])
-        if not (np.isfinite(np.sum(hessian)) and np.isfinite(np.sum(gradient))):
-            return tau + np.nan, it  # a diverging loop: the filter's step reports it
-        direction = -np.linalg.solve(hessian, gradient)
-        value = _penalty(tau, tau_nominal, G, h, weights)
-        slope = gradient @ direction
-        step = 1.0
-        while step > 1e-12:
-            trial = tau + step * direction
-            if _penalty(trial, tau_nominal, G, h, weights) <= value + 1e-4 * step * slope:
-                break
-            step *= 0.5
-        full_step = step == 1.0
-        tau = tau + step * direction
-    return tau, iterations
+    quadratic, so with the rows violated at τ fixed one linear solve (I + Σ_A ρ_j g_jᵀ g_j,
+    in square-root form: _piece_minimiser) is exact; repeated until the set of violated rows
+    no longer changes, with a backtracking line search. Its Hessian stays positive definite
+    for opposing or conflicting rows, where a dual method stalls. Returns (τ, iterations
+    used).
+
+    (No warm start from the step before: at most steps no row is violated at τ_nom, which
+    is the answer at once, and where rows bind, one Newton step from τ_nom lands on the
+    answer's piece in all but a few steps.)"""
+    w = solver_work(tau_nominal.shape[0], G.shape[0])
+    used = _newton(tau_nominal, G, h, weights, G.shape[0], iterations, tolerance, w)
+    return w.tau, used
 
 
-@njit(cache=True)
-def _hard_violated(G, h, is_hard, tau):
-    """Whether τ violates a hard row as given (h not lowered)."""
-    excess = G @ tau - h
-    for j in range(G.shape[0]):
-        if is_hard[j] > 0.0 and excess[j] > 0.0:
+@_step_jit
+def _hard_violated(G, h, is_hard, count, tau):
+    """Whether τ violates a hard row of the first ``count`` as given (h not lowered)."""
+    for j in range(count):
+        if is_hard[j] > 0.0 and _dot(G[j], tau) - h[j] > 0.0:
             return True
     return False
 
 
-@njit(cache=True)
+@_step_jit
 def cbf_record(k, a, count, tau):
     """Row k's outputs for the torque τ the QP gave: the hard part checked against its
     limits as given (else the backup acts and the step is flagged infeasible), each
     constraint's activity, the largest soft slack."""
-    G, h = a.rows[:count], a.limits[:count]
-    infeasible = _hard_violated(G, h, a.is_hard[:count], tau)
-    if infeasible:  # the backup; a torque limit is honoured whatever else gives way
-        tau = a.backup.copy() if a.brake else np.minimum(np.maximum(
-            tau, -a.torque_limit), a.torque_limit)
-    excess = G @ tau - h
-    a.tau[k] = tau
+    return _record(k, a, count, tau)
+
+
+@_step_inline
+def _record(k, a, count, tau):
+    """cbf_record, inlined into the step. ``tau`` may be ``a.tau[k]`` itself."""
+    infeasible = _hard_violated(a.rows, a.limits, a.is_hard, count, tau)
+    for i in range(tau.shape[0]):
+        if infeasible and a.brake:  # the backup; a torque limit is honoured whatever else gives way
+            a.tau[k, i] = a.backup[i]
+        elif infeasible:
+            a.tau[k, i] = np.minimum(np.maximum(tau[i], -a.torque_limit), a.torque_limit)
+        else:
+            a.tau[k, i] = tau[i]
+    chosen = a.tau[k]
     a.infeasible[k] = 1.0 if infeasible else 0.0
     active = 0
     slack = 0.0
     for j in range(count):
+        excess = _dot(a.rows[j], chosen) - a.limits[j]
         # a hard row binds within the tolerance it was solved with; a soft one when violated
-        binds = excess[j] > -2.0 * a.hard_tolerance if a.is_hard[j] > 0.0 else excess[j] > 0.0
+        binds = excess > -2.0 * a.hard_tolerance if a.is_hard[j] > 0.0 else excess > 0.0
         a.multipliers[j] = 1.0 if binds else 0.0
         if a.is_hard[j] == 0.0:
-            slack = max(slack, excess[j])
+            slack = max(slack, excess)
         if binds:
             active += 1
             s = a.kinds[j]
@@ -561,31 +970,35 @@ def cbf_record(k, a, count, tau):
                 a.active_norms[s - 4, k] = 1.0
     a.active[k] = active
     a.slack[k] = slack
-    a.correction[k] = np.sqrt(np.sum((tau - a.tau_nominal[k]) ** 2))
-    return np.isfinite(np.sum(tau))
+    correction = 0.0
+    for i in range(chosen.shape[0]):
+        correction += (chosen[i] - a.tau_nominal[k, i]) ** 2
+    a.correction[k] = np.sqrt(correction)
+    return np.isfinite(np.sum(chosen))
 
 
-@njit(cache=True)
+@_step_jit
 def cbf_step(k, a):
-    count = cbf_rows(k, a)
-    G, given, hard = a.rows[:count], a.limits[:count], a.is_hard[:count]
-    h = given.copy()
+    count = _rows(k, a)
+    w = a.work
+    h, weights = w.lowered, w.weights
     for j in range(count):  # solve with the hard limits lowered: checked as given after
-        if hard[j] > 0.0:
-            h[j] -= a.hard_tolerance
-    weights = a.weights[:count].copy()
-    tau, _ = solve_soft_qp(a.tau_nominal[k], G, h, weights, a.iterations, a.tolerance)
+        h[j] = a.limits[j] - a.hard_tolerance if a.is_hard[j] > 0.0 else a.limits[j]
+        weights[j] = a.weights[j]
     # A hard row may slip by ~ρ_soft·(soft excess)/ρ_hard where tracking pulls hard against
     # it: re-solve with tracking weighed less, down to the hard rows alone; only when those
-    # alone cannot be met is the step infeasible (then cbf_record applies the backup).
-    for _ in range(3):
-        if not _hard_violated(G, given, hard, tau):
-            break
-        for j in range(count):
-            if hard[j] == 0.0:
-                weights[j] = weights[j] * 1e-3 if weights[j] > a.rho_soft * 1e-5 else 0.0
-        tau, _ = solve_soft_qp(a.tau_nominal[k], G, h, weights, a.iterations, a.tolerance)
-    return cbf_record(k, a, count, tau)
+    # alone cannot be met is the step infeasible (then cbf_record applies the backup). (One
+    # call site, as _newton is inlined.)
+    for attempt in range(4):
+        if attempt > 0:
+            if not _hard_violated(a.rows, a.limits, a.is_hard, count, w.solver.tau):
+                break
+            for j in range(count):
+                if a.is_hard[j] == 0.0:
+                    weights[j] = weights[j] * 1e-3 if weights[j] > a.rho_soft * 1e-5 else 0.0
+        _newton(a.tau_nominal[k], a.rows, h, weights, count, a.iterations, a.tolerance,
+                w.solver)
+    return _record(k, a, count, w.solver.tau)
 
 
 @register_block
@@ -687,7 +1100,8 @@ class CbfFilter(Block):
             *(_per_set(ports.trace, f"cbf_{{}}{suffix}", shape) for suffix, shape in
               (("", (steps, n)), ("_active", (steps, n)), ("_norm", (steps,)),
                ("_norm_active", (steps,)))),
-            out["cbf_slack"], out["cbf_active"], out["cbf_correction"], out["cbf_infeasible"])
+            out["cbf_slack"], out["cbf_active"], out["cbf_correction"], out["cbf_infeasible"],
+            cbf_work(n, rows, p.payload_grid))
 
     def step(self, k: int) -> bool:
         """With a qpsolvers solver (no kernel): the same rows, the hard ones as hard
