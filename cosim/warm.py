@@ -229,8 +229,8 @@ def warm_up(pipelines: list[Path], workers: int | None = None,
           file=stream, flush=True)
     jit_cache.use_versioned_cache()
     modules, loops, fmus = _kernel_jobs(cold)
-    print("  compiling numba kernels (once per version of their sources; cached for later "
-          "runs):", file=stream, flush=True)
+    print("  compiling the numba kernels and fused loops not cached yet (once per version of "
+          "their sources; kept for later runs):", file=stream, flush=True)
     # Modules whose kernels are all cached already need no worker (a cached kernel loads
     # in milliseconds); the others compile in parallel, the largest source first (the
     # costliest, roughly), then the fused loops, which link the cached kernels.

@@ -10,6 +10,7 @@ import os
 import signal
 import subprocess
 import sys
+import threading
 import time
 import uuid
 from collections.abc import Mapping
@@ -93,9 +94,16 @@ class Recorder:
         held until both are done."""
         if self._error is not None:
             return  # the writer is gone; close() reports why
-        # Ctrl-C or SIGTERM in the middle of a message would leave half of it in the pipe:
-        # they are held until it is written.
-        held = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+        # Ctrl-C or SIGTERM in the middle of a message would leave half of it in the pipe
+        # (a large message is written in several os.write calls, and Python runs a signal's
+        # handler between them). Blocking the signals is not enough: the kernel may deliver
+        # them to another thread (OpenBLAS's), and the main thread then runs the handler at
+        # its next bytecode. So their handlers are deferred until the message is written.
+        pending: list[int] = []
+        deferred = {}
+        if threading.current_thread() is threading.main_thread():
+            for signum in (signal.SIGINT, signal.SIGTERM):
+                deferred[signum] = signal.signal(signum, lambda s, _: pending.append(s))
         try:
             self._outbox.send(message)
             if then is not None:
@@ -104,7 +112,10 @@ class Recorder:
             kind, text = self._receive(5.0)
             self._error = text if kind == "error" else "the recording writer stopped"
         finally:
-            signal.pthread_sigmask(signal.SIG_SETMASK, held)
+            for signum, handler in deferred.items():
+                signal.signal(signum, handler)
+            for signum in pending:  # now, with the message whole
+                signal.raise_signal(signum)
 
     def _receive(self, timeout: float) -> tuple[str, str]:
         """The writer's next message, (kind, text); ("error", why) if none comes in
