@@ -37,13 +37,15 @@ b̂ = C(y, v) v + G(y) + τ_d. The plant is q̈ = M⁻¹(τ − b − τ_d), and
 Solved as min ½‖τ − τ_nom‖² + ½ρ_s‖s‖² subject to G_hard τ ≤ h_hard and
 G_soft τ ≤ h_soft + s (and |τ_i| ≤ τ_max, hard), every row scaled to unit norm (N·m). The
 compiled semismooth Newton solves the penalty form with the hard rows at weight ρ_hard and
-their limits lowered by ``hard_tolerance``; where a hard row still slips (tracking pulling
-hard against it), it re-solves with the soft weights 1e-3 and 1e-6 times, then without the
-soft rows; only if the hard rows alone are violated (as given) is the hard part infeasible
-at that step (``cbf_infeasible`` =
-1, counted), and the **backup** acts: by default the penalty form's answer itself (the
-torque that violates the hard rows least), or braking, q̈ = −k (v − q̇_s) with the nominal
-model, within the torque limit (``backup = "brake"``). Soft slack is reported apart
+their limits lowered by ``hard_tolerance`` (each Newton step a least-squares solve in
+square-root form, to ~1e-13 of τ; started from the rows that bound at the step before,
+which is the answer at once at 99.9 % of the paper's steps); where a hard row still slips
+(tracking pulling hard against it), it re-solves with the soft weights 1e-3 and 1e-6 times,
+then without the soft rows; only if the hard rows alone are violated (as given) is the hard
+part infeasible at that step (``cbf_infeasible`` = 1, counted), and the **backup** acts: by
+default the penalty form's answer itself (the torque that violates the hard rows least), or
+braking, q̈ = −k (v − q̇_s) with the nominal model, within the torque limit
+(``backup = "brake"``). Soft slack is reported apart
 (``cbf_slack``): it says how much tracking gave way, never whether safety did.
 
 Remaining assumptions (not covered by the margins): the sampled-data hold between steps
@@ -64,13 +66,16 @@ from ..schema import FiniteFloat, PipelineError, PositiveFloat, Section
 from ..signals import Signal
 from .base import Block, BlockContext, Ports, register_block
 
-# What a step runs is compiled without numba's reference counting (_nrt=False): it
-# allocates nothing (every array it works in is made at reset, and the compiler refuses an
-# allocation in such a function), and counting the references to the arrays it passes
-# around cost more than its arithmetic (numba counts one per array each time a tuple of
-# them is bound, and the filter's arguments hold ~100: measured ~1000 counting call sites in
-# the step, and a helper taking two of a's arrays 44 ns a call against 4 ns without).
-# Functions that take the arguments ``a`` are inlined, so that those are not copied per call.
+# What a step runs is compiled without numba's reference counting (_nrt=False, an option
+# numba's njit takes though it is underscored): it allocates nothing (every array it works
+# in is made at reset, and the compiler refuses an allocation in such a function), and
+# counting the references to the arrays it passes around cost more than its arithmetic
+# (numba counts one per array each time a tuple of them is bound, and the filter's arguments
+# hold ~70: measured ~1000 counting call sites in the step, and a helper taking two of a's
+# arrays 44 ns a call against 4 ns without).
+# Functions that take the arguments ``a`` are inlined, so that those are not copied per call,
+# and so are the small helpers called in loops; the larger ones, called a few times a step,
+# are not (compiling everything inlined took minutes).
 _step_jit = njit(cache=True, _nrt=False)
 _step_inline = njit(cache=True, inline="always", _nrt=False)
 
@@ -117,94 +122,50 @@ class CbfFilterParams(Section):
     tolerance: PositiveFloat = 1e-12  # on the gradient, relative to ‖τ_nom‖
 
 
-class ChainWork(NamedTuple):
-    """Scratch for the nominal chain at one position, per link: its geometry (m), the forces
-    of the recursive Newton–Euler bias (N) and the velocities of the polarisation."""
+# The filter's scratch, made once at reset (a step allocates nothing), is a few arrays with
+# named rows: the compiled loop passes a kernel's arguments by value at every step, and each
+# array in them costs (measured: a call with these arguments took 0.67 µs with the scratch as
+# 58 arrays, 0.11 µs as these 13, 80 ns without any).
 
-    cx: np.ndarray  # link i's centre-of-mass offset from its joint
-    cy: np.ndarray
-    lx: np.ndarray  # link i's vector, joint i to joint i+1
-    ly: np.ndarray
-    ox: np.ndarray  # joint i's origin
-    oy: np.ndarray
-    fx: np.ndarray  # m_i a_ci, the force link i's own motion needs
-    fy: np.ndarray
-    e: np.ndarray  # the velocity b is taken at when polarising
-    plus: np.ndarray  # b at e_j + e_k
-    minus: np.ndarray  # b at e_j − e_k
-
-
-@njit(cache=True)
-def chain_work(n):
-    return ChainWork(np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n),
-                     np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n),
-                     np.zeros(n))
-
-
-class SolverWork(NamedTuple):
-    """The semismooth Newton's scratch for n torques and up to ``rows`` rows."""
-
-    tau: np.ndarray  # (n,) the iterate, then the answer
-    trial: np.ndarray  # (n,) the line search's point
-    gradient: np.ndarray  # (n,)
-    direction: np.ndarray  # (n,)
-    factor: np.ndarray  # (n, n) R of the piece's least squares
-    rotated: np.ndarray  # (n,) a row being rotated into R
-    binding: np.ndarray  # (rows,) the rows violated at the iterate
-
-
-@njit(cache=True)
-def solver_work(n, rows):
-    return SolverWork(np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n), np.zeros((n, n)),
-                      np.zeros(n), np.zeros(rows, np.bool_))
+# Rows of CbfWork.chain (11, n): the chain's geometry at one position, per link (m), the
+# forces of the recursive Newton–Euler bias (N), and the polarisation's velocity and biases.
+CX, CY, LX, LY, OX, OY, FX, FY, E, PLUS, MINUS = range(11)
+# Of CbfWork.solver (5, n): the iterate (then the answer), the line search's point, the
+# gradient, the step, a row being rotated into R.
+TAU, TRIAL, GRADIENT, DIRECTION, ROTATED = range(5)
+# Of CbfWork.vectors (n each): b̂ at (y, v) and at a predicted state; M̂⁻¹b̂ at (y, v), at the
+# hold's end and at its midpoint; the nominal model's q̈ under the held torque; the states
+# predicted at the hold's end and midpoint; dv/dt − M̂⁻¹τ; a row before its scaling; the bias
+# error's quadratic part, and its bound on |M̂⁻¹(Δb + d)|; link masses of a unit payload (1 kg
+# on the last link); M̂⁻¹Jᵀγ when M̂ is the plant's; from X, 4 rows: each set's x, SETS order.
+(BIAS, MOVED_BIAS, BASE, BASE_END, BASE_MID, ACCELERATION, Y_END, V_END, Y_MID, V_MID, DRIFT,
+ ROW, QUADRATIC, ROWS_ERROR, UNIT, PLANT_SHIFT, X) = range(17)
+# Of CbfWork.matrices (n×n each): the nominal chain's M at y and at a predicted position, M̂
+# moved there, M̂⁻¹ at y, at the hold's end and at its midpoint, elimination scratch, and R.
+NOMINAL_NOW, NOMINAL, SHIFTED, MINV, MINV_END, MINV_MID, LU, FACTOR = range(8)
+# The payload's structure: of CbfWork.planar (2×n each) J of its point, J M̂⁻¹ and α; of
+# .pairs (2 each) γ = J̇v + g ŷ, J M̂⁻¹b̂, K's eigenvalues (ascending) and β; of .squares
+# (2×2 each) K = J M̂⁻¹ Jᵀ and its eigenvectors (columns).
+JAC, JM, ALPHA = range(3)
+GAMMA, JB, LAM, BETA = range(4)
+KMAT, VEC = range(2)
 
 
 class CbfWork(NamedTuple):
-    """Every array a step of the filter works in, allocated once at reset: a step allocates
-    nothing (each allocation costs tens of ns, and the rows took hundreds a step)."""
-
-    chain: ChainWork
-    solver: SolverWork
-    lu: np.ndarray  # (n, n) the inverses' elimination scratch
-    nominal_now: np.ndarray  # (n, n) the nominal chain's M at y
-    nominal: np.ndarray  # (n, n) ... at a predicted position
-    shifted: np.ndarray  # (n, n) M̂ moved to a predicted position
-    minv: np.ndarray  # (n, n) M̂⁻¹ at y
-    minv_end: np.ndarray  # (n, n) at the hold's end
-    minv_mid: np.ndarray  # (n, n) at its midpoint
-    bias: np.ndarray  # (n,) b̂ at (y, v)
-    moved_bias: np.ndarray  # (n,) b̂ at a predicted state
-    base: np.ndarray  # (n,) M̂⁻¹b̂ at (y, v)
-    base_end: np.ndarray  # (n,) at the hold's end
-    base_mid: np.ndarray  # (n,) at its midpoint
-    acceleration: np.ndarray  # (n,) the nominal model's q̈ under the held torque
-    y_end: np.ndarray  # (n,) the state predicted at the hold's end
-    v_end: np.ndarray
-    y_mid: np.ndarray  # (n,) and at its midpoint
-    v_mid: np.ndarray
-    x: np.ndarray  # (4, n) each set's x, SETS order
-    drift: np.ndarray  # (n,) dv/dt − M̂⁻¹τ
-    row: np.ndarray  # (n,) a row before its scaling
-    forms: np.ndarray  # (n, n, n) Γ of the nominal chain
-    payload_forms: np.ndarray  # (n, n, n) Γ of a unit payload (zero without a payload range)
-    unit: np.ndarray  # (n,) link masses of a unit payload: 1 kg on the last link
+    chain: np.ndarray  # (11, n) CX …
+    solver: np.ndarray  # (5, n) TAU …
+    vectors: np.ndarray  # (X + 4, n) BIAS …
+    matrices: np.ndarray  # (8, n, n) NOMINAL_NOW …
+    forms: np.ndarray  # (2, n, n, n) Γ of the nominal chain, of a unit payload (zero
+    # without a payload range)
     linear: np.ndarray  # (2, n, n) B at each end of the payload range
-    quadratic: np.ndarray  # (n,) the bias error's quadratic part and d̄
-    rows_error: np.ndarray  # (n,) the bound on |M̂⁻¹(Δb + d)|
-    jac: np.ndarray  # (2, n) J of the payload's point
-    gamma: np.ndarray  # (2,) γ = J̇v + g ŷ
-    jm: np.ndarray  # (2, n) J M̂⁻¹
-    jb: np.ndarray  # (2,) J M̂⁻¹b̂ (J base)
-    kmat: np.ndarray  # (2, 2) K = J M̂⁻¹ Jᵀ
-    lam: np.ndarray  # (2,) K's eigenvalues, ascending
-    vec: np.ndarray  # (2, 2) K's eigenvectors, as columns
+    planar: np.ndarray  # (3, 2, n) JAC …
+    pairs: np.ndarray  # (4, 2) GAMMA …
+    squares: np.ndarray  # (2, 2, 2) KMAT, VEC
     s_grid: np.ndarray  # (grid + 1, 2) s_j(Δm) at Δm = low … high
     corner_index: np.ndarray  # (3 grid + 1, 2) the grid points of each box corner
-    alpha: np.ndarray  # (2, n)
-    beta: np.ndarray  # (2,)
-    plant_shift: np.ndarray  # (n,) M̂⁻¹Jᵀγ when M̂ is the plant's
-    lowered: np.ndarray  # (rows,) the limits the QP is solved with
-    weights: np.ndarray  # (rows,) the weights it is solved with
+    per_row: np.ndarray  # (2, rows) the limits and the weights the QP is solved with
+    binding: np.ndarray  # (rows,) the rows violated at the solver's iterate
 
 
 def payload_corners(grid: int) -> np.ndarray:
@@ -225,22 +186,14 @@ def payload_corners(grid: int) -> np.ndarray:
 
 def cbf_work(n: int, rows: int, grid: int) -> CbfWork:
     """The scratch of a filter on n joints with at most ``rows`` rows."""
-    unit = np.zeros(n)
-    unit[n - 1] = 1.0
+    vectors = np.zeros((X + 4, n))
+    vectors[UNIT, n - 1] = 1.0
     return CbfWork(
-        chain=chain_work(n), solver=solver_work(n, rows), lu=np.zeros((n, n)),
-        nominal_now=np.zeros((n, n)), nominal=np.zeros((n, n)), shifted=np.zeros((n, n)),
-        minv=np.zeros((n, n)), minv_end=np.zeros((n, n)), minv_mid=np.zeros((n, n)),
-        bias=np.zeros(n), moved_bias=np.zeros(n), base=np.zeros(n), base_end=np.zeros(n),
-        base_mid=np.zeros(n), acceleration=np.zeros(n), y_end=np.zeros(n), v_end=np.zeros(n),
-        y_mid=np.zeros(n), v_mid=np.zeros(n), x=np.zeros((4, n)), drift=np.zeros(n),
-        row=np.zeros(n), forms=np.zeros((n, n, n)), payload_forms=np.zeros((n, n, n)),
-        unit=unit, linear=np.zeros((2, n, n)), quadratic=np.zeros(n), rows_error=np.zeros(n),
-        jac=np.zeros((2, n)), gamma=np.zeros(2), jm=np.zeros((2, n)), jb=np.zeros(2),
-        kmat=np.zeros((2, 2)), lam=np.zeros(2), vec=np.zeros((2, 2)),
+        chain=np.zeros((11, n)), solver=np.zeros((5, n)), vectors=vectors,
+        matrices=np.zeros((8, n, n)), forms=np.zeros((2, n, n, n)), linear=np.zeros((2, n, n)),
+        planar=np.zeros((3, 2, n)), pairs=np.zeros((4, 2)), squares=np.zeros((2, 2, 2)),
         s_grid=np.zeros((grid + 1, 2)), corner_index=payload_corners(grid),
-        alpha=np.zeros((2, n)), beta=np.zeros(2), plant_shift=np.zeros(n),
-        lowered=np.zeros(rows), weights=np.zeros(rows))
+        per_row=np.zeros((2, rows)), binding=np.zeros(rows, np.bool_))
 
 
 class CbfArgs(NamedTuple):
@@ -310,7 +263,7 @@ class CbfArgs(NamedTuple):
 # arithmetic at these sizes.
 
 
-@_step_jit
+@_step_inline
 def _dot(x, y):
     total = 0.0
     for i in range(x.shape[0]):
@@ -318,14 +271,14 @@ def _dot(x, y):
     return total
 
 
-@_step_jit
+@_step_inline
 def _product(matrix, vector, out):
     """out = matrix @ vector."""
     for i in range(matrix.shape[0]):
         out[i] = _dot(matrix[i], vector)
 
 
-@_step_jit
+@_step_inline
 def _invert(matrix, out, lu):
     """out = matrix⁻¹ by Gauss–Jordan elimination with partial pivoting (``lu``: n×n
     scratch). A singular matrix gives non-finite entries, which the step reports."""
@@ -355,7 +308,7 @@ def _invert(matrix, out, lu):
                     out[r, j] -= factor * out[c, j]
 
 
-@_step_jit
+@_step_inline
 def _symmetric_eigen(kmat, lam, vec):
     """The eigenvalues (ascending, into ``lam``) and unit eigenvectors (columns of ``vec``)
     of a symmetric 2×2 matrix (its lower triangle), in closed form: with
@@ -375,76 +328,78 @@ def _symmetric_eigen(kmat, lam, vec):
 # with the geometry computed once per position and no array allocated.
 
 
-@_step_jit
-def _geometry(q, l, lc, w):  # noqa: E741
-    """The chain's geometry at q into ``w`` (ChainWork)."""
+@_step_inline
+def _geometry(q, l, lc, chain):  # noqa: E741
+    """The chain's geometry at q into rows CX … OY of ``chain``."""
     theta, x, y = 0.0, 0.0, 0.0
     for k in range(q.shape[0]):
         theta += q[k]
         c, s = np.cos(theta), np.sin(theta)
-        w.cx[k], w.cy[k] = lc[k] * c, lc[k] * s
-        w.lx[k], w.ly[k] = l[k] * c, l[k] * s
-        w.ox[k], w.oy[k] = x, y
+        chain[CX, k], chain[CY, k] = lc[k] * c, lc[k] * s
+        chain[LX, k], chain[LY, k] = l[k] * c, l[k] * s
+        chain[OX, k], chain[OY, k] = x, y
         x += l[k] * c
         y += l[k] * s
 
 
-@_step_jit
-def _chain_mass(w, m, inertia, out):
-    """M of the chain whose geometry ``w`` holds, into ``out``:
+@_step_inline
+def _chain_mass(chain, m, inertia, out):
+    """M of the chain whose geometry ``chain`` holds, into ``out``:
     M_ij = Σ_{k ≥ max(i, j)} [m_k (p_k − o_i)·(p_k − o_j) + I_k]."""
     n = m.shape[0]
     for i in range(n):
         for j in range(i, n):
             total = 0.0
             for k in range(j, n):
-                px, py = w.ox[k] + w.cx[k], w.oy[k] + w.cy[k]
-                total += (m[k] * ((px - w.ox[i]) * (px - w.ox[j])
-                                  + (py - w.oy[i]) * (py - w.oy[j])) + inertia[k])
+                px, py = chain[OX, k] + chain[CX, k], chain[OY, k] + chain[CY, k]
+                total += (m[k] * ((px - chain[OX, i]) * (px - chain[OX, j])
+                                  + (py - chain[OY, i]) * (py - chain[OY, j])) + inertia[k])
             out[i, j] = total
             out[j, i] = total
 
 
-@_step_jit
-def _chain_bias(w, qdot, m, gravity, out):
-    """b(q, q̇) = C(q, q̇) q̇ + G(q) of the chain whose geometry ``w`` holds, into ``out``:
-    recursive Newton–Euler with q̈ = 0 and the base accelerating upwards at ``gravity``."""
+@_step_inline
+def _chain_bias(chain, qdot, m, gravity, out):
+    """b(q, q̇) = C(q, q̇) q̇ + G(q) of the chain whose geometry ``chain`` holds, into
+    ``out``: recursive Newton–Euler with q̈ = 0 and the base accelerating upwards at
+    ``gravity``."""
     n = qdot.shape[0]
     omega = 0.0
     ax, ay = 0.0, gravity  # acceleration of joint i's origin
     for i in range(n):
         omega += qdot[i]
         w2 = omega * omega  # no angular acceleration: q̈ = 0
-        w.fx[i] = m[i] * (ax - w2 * w.cx[i])
-        w.fy[i] = m[i] * (ay - w2 * w.cy[i])
-        ax -= w2 * w.lx[i]
-        ay -= w2 * w.ly[i]
+        chain[FX, i] = m[i] * (ax - w2 * chain[CX, i])
+        chain[FY, i] = m[i] * (ay - w2 * chain[CY, i])
+        ax -= w2 * chain[LX, i]
+        ay -= w2 * chain[LY, i]
     force_x, force_y, moment = 0.0, 0.0, 0.0  # what link i+1 exerts, about joint i+1
     for i in range(n - 1, -1, -1):
-        moment += (w.lx[i] * force_y - w.ly[i] * force_x + w.cx[i] * w.fy[i]
-                   - w.cy[i] * w.fx[i])
-        force_x += w.fx[i]
-        force_y += w.fy[i]
+        moment += (chain[LX, i] * force_y - chain[LY, i] * force_x
+                   + chain[CX, i] * chain[FY, i] - chain[CY, i] * chain[FX, i])
+        force_x += chain[FX, i]
+        force_y += chain[FY, i]
         out[i] = moment
 
 
 @_step_jit
-def _velocity_forms(q, m, l, lc, w, out):  # noqa: E741
-    """Γ of the chain at q into ``out`` (n, n, n), ``w`` its ChainWork."""
+def _velocity_forms(q, m, l, lc, chain, out):  # noqa: E741
+    """Γ of the chain at q into ``out`` (n, n, n), ``chain`` its scratch (11, n)."""
     n = q.shape[0]
-    _geometry(q, l, lc, w)
+    _geometry(q, l, lc, chain)
+    e, plus, minus = chain[E], chain[PLUS], chain[MINUS]
     for j in range(n):
         for k in range(j, n):
             for i in range(n):
-                w.e[i] = 0.0
-            w.e[j] += 1.0
-            w.e[k] += 1.0
-            _chain_bias(w, w.e, m, 0.0, w.plus)
-            w.e[k] -= 2.0
-            _chain_bias(w, w.e, m, 0.0, w.minus)
+                e[i] = 0.0
+            e[j] += 1.0
+            e[k] += 1.0
+            _chain_bias(chain, e, m, 0.0, plus)
+            e[k] -= 2.0
+            _chain_bias(chain, e, m, 0.0, minus)
             for i in range(n):
                 # b_i(a + c) − b_i(a − c) = 4 aᵀΓ_i c (and e_j ± e_j = 2e_j, 0 for j = k)
-                out[i, j, k] = out[i, k, j] = (w.plus[i] - w.minus[i]) / 4.0
+                out[i, j, k] = out[i, k, j] = (plus[i] - minus[i]) / 4.0
 
 
 @njit(cache=True)
@@ -454,7 +409,7 @@ def velocity_forms(q, m, l, lc, inertia):  # noqa: E741
     nothing to b in the plane: the argument keeps the chain's signature.)"""
     n = q.shape[0]
     out = np.zeros((n, n, n))
-    _velocity_forms(q, m, l, lc, chain_work(n), out)
+    _velocity_forms(q, m, l, lc, np.zeros((11, n)), out)
     return out
 
 
@@ -522,14 +477,14 @@ def acceleration_error_bound(q, v, eps, minv, a, nominal):
     unit = np.zeros(n)
     unit[n - 1] = 1.0
     payload = np.zeros((n, n, n))
-    _velocity_forms(q, unit, a.l, a.lc, chain_work(n), payload)
+    _velocity_forms(q, unit, a.l, a.lc, np.zeros((11, n)), payload)
     out = np.zeros(n)
     _acceleration_error_bound(v, eps, minv, a.payload_low, a.payload_high, a.disturbance,
                               nominal, payload, np.zeros((2, n, n)), np.zeros(n), out)
     return out
 
 
-@_step_jit
+@_step_inline
 def _add_row(qp, count, row, limit, weight, hard, kind, joint):
     """Row ``count`` of the QP from ``row`` (scaled to unit norm, N·m), its limit, weight
     and labels, into ``qp`` = (a.rows, a.limits, a.weights, a.is_hard, a.kinds, a.joints);
@@ -557,10 +512,10 @@ def _add_row(qp, count, row, limit, weight, hard, kind, joint):
 def _nominal_model(a, y, v, nominal, bias):
     """The nominal chain at (y, v): its M(y) into ``nominal`` and b̂ = C(y, v) v + G(y) + τ_d
     into ``bias``."""
-    w = a.work.chain
-    _geometry(y, a.l, a.lc, w)
-    _chain_mass(w, a.m, a.inertia, nominal)
-    _chain_bias(w, v, a.m, a.gravity, bias)
+    chain = a.work.chain
+    _geometry(y, a.l, a.lc, chain)
+    _chain_mass(chain, a.m, a.inertia, nominal)
+    _chain_bias(chain, v, a.m, a.gravity, bias)
     for i in range(y.shape[0]):
         bias[i] += a.tau_d[i]
 
@@ -569,44 +524,47 @@ def _nominal_model(a, y, v, nominal, bias):
 def _moved_model(a, y, v, mass, minv, base):
     """At a predicted state (y, v): M̂⁻¹ into ``minv`` and M̂⁻¹b̂ into ``base`` (so that
     q̈ = M̂⁻¹τ − base), with M̂ moved from row k's by the nominal chain's change."""
-    w = a.work
-    _nominal_model(a, y, v, w.nominal, w.moved_bias)
+    matrices, moved_bias = a.work.matrices, a.work.vectors[MOVED_BIAS]
+    nominal, shifted = matrices[NOMINAL], matrices[SHIFTED]
+    _nominal_model(a, y, v, nominal, moved_bias)
     n = y.shape[0]
     for i in range(n):
         for j in range(n):
-            w.shifted[i, j] = mass[i, j] + w.nominal[i, j] - w.nominal_now[i, j]
-    _invert(w.shifted, minv, w.lu)
-    _product(minv, w.moved_bias, base)
+            shifted[i, j] = mass[i, j] + nominal[i, j] - matrices[NOMINAL_NOW, i, j]
+    _invert(shifted, minv, matrices[LU])
+    _product(minv, moved_bias, base)
 
 
 @_step_jit
-def _payload_structure(low, high, minv, base, w):
-    """The payload's structure (see the module docstring) at one state, into ``w``: K's
-    eigenvalues and eigenvectors, s_j(Δm) on the grid, and the α_j = v_jᵀJM̂⁻¹ and
-    β_j = v_jᵀ(γ − JM̂⁻¹b̂) a row is linear in."""
+def _payload_structure(low, high, minv, base, planar, pairs, squares, s_grid):
+    """The payload's structure (see the module docstring) at one state, J and γ given (in
+    ``planar`` and ``pairs``): K's eigenvalues and eigenvectors, s_j(Δm) on the grid, and the
+    α_j = v_jᵀJM̂⁻¹ and β_j = v_jᵀ(γ − JM̂⁻¹b̂) a row is linear in."""
     n = minv.shape[0]
-    jac, jm = w.jac, w.jm
+    jac, jm, alpha = planar[JAC], planar[JM], planar[ALPHA]
+    gamma, jb, lam, beta = pairs[GAMMA], pairs[JB], pairs[LAM], pairs[BETA]
+    kmat, vec = squares[KMAT], squares[VEC]
     for r in range(2):
         for col in range(n):
             total = 0.0
             for l in range(n):  # noqa: E741
                 total += jac[r, l] * minv[l, col]
             jm[r, col] = total
-        w.jb[r] = _dot(jac[r], base)
+        jb[r] = _dot(jac[r], base)
     for r in range(2):
         for c in range(2):
-            w.kmat[r, c] = _dot(jm[r], jac[c])
-    _symmetric_eigen(w.kmat, w.lam, w.vec)
-    grid = w.s_grid.shape[0] - 1
+            kmat[r, c] = _dot(jm[r], jac[c])
+    _symmetric_eigen(kmat, lam, vec)
+    grid = s_grid.shape[0] - 1
     for g in range(grid + 1):
         payload = low + (high - low) * g / grid
         for j in range(2):
-            w.s_grid[g, j] = payload / (1.0 + payload * w.lam[j])
+            s_grid[g, j] = payload / (1.0 + payload * lam[j])
     for j in range(2):
         for col in range(n):
-            w.alpha[j, col] = w.vec[0, j] * jm[0, col] + w.vec[1, j] * jm[1, col]
-        w.beta[j] = (-(w.vec[0, j] * w.jb[0] + w.vec[1, j] * w.jb[1])
-                     + w.vec[0, j] * w.gamma[0] + w.vec[1, j] * w.gamma[1])
+            alpha[j, col] = vec[0, j] * jm[0, col] + vec[1, j] * jm[1, col]
+        beta[j] = (-(vec[0, j] * jb[0] + vec[1, j] * jb[1])
+                   + vec[0, j] * gamma[0] + vec[1, j] * gamma[1])
 
 
 @_step_inline
@@ -619,30 +577,34 @@ def _hard_rows(a, count, k, y, v, eps, minv, base, at_end):
     1 + k dt (velocity) or 1 + 2p dt + ½p² dt² (position) and the position's by p² dt q̇."""
     n = y.shape[0]
     w = a.work
+    vectors, forms = w.vectors, w.forms
     robust = a.payload_high != 0.0 or a.payload_low != 0.0
-    _velocity_forms(y, a.m, a.l, a.lc, w.chain, w.forms)
+    _velocity_forms(y, a.m, a.l, a.lc, w.chain, forms[0])
     if robust:  # else the payload's forms stay zero, as its range is
-        _velocity_forms(y, w.unit, a.l, a.lc, w.chain, w.payload_forms)
-    rows_error = w.rows_error  # |M̂⁻¹(Δb + d)|
+        _velocity_forms(y, vectors[UNIT], a.l, a.lc, w.chain, forms[1])
+    rows_error = vectors[ROWS_ERROR]  # |M̂⁻¹(Δb + d)|
     _acceleration_error_bound(v, eps, minv, a.payload_low, a.payload_high, a.disturbance,
-                              w.forms, w.payload_forms, w.linear, w.quadratic, rows_error)
+                              forms[0], forms[1], w.linear, vectors[QUADRATIC], rows_error)
     # the payload's structure (see the module docstring)
     corners = 1
-    s_grid, corner_index, alpha, beta = w.s_grid, w.corner_index, w.alpha, w.beta
-    plant_shift = w.plant_shift
+    s_grid, corner_index = w.s_grid, w.corner_index
+    alpha, beta = w.planar[ALPHA], w.pairs[BETA]
+    jac, gamma = w.planar[JAC], w.pairs[GAMMA]
+    plant_shift = vectors[PLANT_SHIFT]
     plant_shift[:] = 0.0
     if robust:
-        _com_kinematics(y, v, a.l, a.lc, a.gravity, w.jac, w.gamma)
+        _com_kinematics(y, v, a.l, a.lc, a.gravity, jac, gamma)
     if robust and not a.inertia_is_plant:
-        _payload_structure(a.payload_low, a.payload_high, minv, base, w)
+        _payload_structure(a.payload_low, a.payload_high, minv, base, w.planar, w.pairs,
+                           w.squares, s_grid)
         corners = corner_index.shape[0]
     elif robust:  # q̈ = u − Δm·M̂⁻¹Jᵀγ
         for i in range(n):
             for col in range(n):
-                plant_shift[i] += minv[i, col] * (w.jac[0, col] * w.gamma[0]
-                                                  + w.jac[1, col] * w.gamma[1])
+                plant_shift[i] += minv[i, col] * (jac[0, col] * gamma[0]
+                                                  + jac[1, col] * gamma[1])
     y0, v0, dt = a.position[k], a.velocity[k], a.dt
-    row = w.row
+    row = vectors[ROW]
     qp = (a.rows, a.limits, a.weights, a.is_hard, a.kinds, a.joints)
     for s in range(2):
         if not a.hard[s]:
@@ -696,12 +658,12 @@ def cbf_rows(k, a):
 def _rows(k, a):
     """cbf_rows, inlined into the step: a's many fields are not copied per call."""
     n = a.position.shape[1]
-    w = a.work
+    vectors, matrices = a.work.vectors, a.work.matrices
     y, v, eps = a.position[k], a.velocity[k], a.velocity_bound[k]
     mass = a.M_model[k]
-    minv, bias, base = w.minv, w.bias, w.base  # u = M̂⁻¹τ − base
-    _nominal_model(a, y, v, w.nominal_now, bias)
-    _invert(mass, minv, w.lu)
+    minv, bias, base = matrices[MINV], vectors[BIAS], vectors[BASE]  # u = M̂⁻¹τ − base
+    _nominal_model(a, y, v, matrices[NOMINAL_NOW], bias)
+    _invert(mass, minv, matrices[LU])
     _product(minv, bias, base)
     # the backup: brake every joint towards q̇_s
     for i in range(n):
@@ -714,27 +676,27 @@ def _rows(k, a):
     count = _hard_rows(a, 0, k, y, v, eps, minv, base, False)
     # the hold's end, predicted with the torque of the step before (the nominal model's q̈)
     held = a.tau[k - 1] if k > 0 else a.tau_nominal[k]
-    acceleration = w.acceleration
+    acceleration = vectors[ACCELERATION]
     _product(minv, held, acceleration)
-    y_end, v_end, y_mid, v_mid = w.y_end, w.v_end, w.y_mid, w.v_mid
+    y_end, v_end, y_mid, v_mid = vectors[Y_END], vectors[V_END], vectors[Y_MID], vectors[V_MID]
     for i in range(n):
         acceleration[i] -= base[i]
         y_end[i] = y[i] + a.dt * v[i] + 0.5 * a.dt * a.dt * acceleration[i]
         v_end[i] = v[i] + a.dt * acceleration[i]
         y_mid[i] = y[i] + 0.5 * a.dt * v[i] + 0.125 * a.dt * a.dt * acceleration[i]
         v_mid[i] = v[i] + 0.5 * a.dt * acceleration[i]
-    minv_end, base_end = w.minv_end, w.base_end
+    minv_end, base_end = matrices[MINV_END], vectors[BASE_END]
     _moved_model(a, y_end, v_end, mass, minv_end, base_end)
     count = _hard_rows(a, count, k, y_end, v_end, eps, minv_end, base_end, True)
     # The soft rows take the plant's q̈ averaged over the hold (the midpoint rule: at the bound
     # of a set, q̈'s drift within one 1 ms hold is what would carry the state across), and
     # how v moves: the observer's drift + M̂⁻¹τ (the observer holds M̂ over the step), or the
     # plant's q̈ for the plant's q̇.
-    minv_mid, base_mid = w.minv_mid, w.base_mid
+    minv_mid, base_mid = matrices[MINV_MID], vectors[BASE_MID]
     _moved_model(a, y_mid, v_mid, mass, minv_mid, base_mid)
     observed = np.isfinite(a.drift[k, 0])
     rate_minv = minv if observed else minv_mid
-    drift, x, row = w.drift, w.x, w.row
+    drift, x, row = vectors[DRIFT], vectors[X:X + 4], vectors[ROW]
     qp = (a.rows, a.limits, a.weights, a.is_hard, a.kinds, a.joints)
     for i in range(n):
         drift[i] = a.drift[k, i] if observed else -base_mid[i]
@@ -801,7 +763,7 @@ def _rows(k, a):
     return count
 
 
-@_step_jit
+@_step_inline
 def _penalty(tau, tau_nominal, G, h, weights, count):
     """½‖τ − τ_nom‖² + ½Σ ρ_j (g_j τ − h_j)₊² over the first ``count`` rows."""
     own = 0.0
@@ -813,21 +775,22 @@ def _penalty(tau, tau_nominal, G, h, weights, count):
     return 0.5 * own + 0.5 * rows
 
 
-@_step_jit
-def _piece_minimiser(tau_nominal, G, h, weights, count, w):
+@_step_inline
+def _piece_minimiser(tau_nominal, G, h, weights, count, binding, factor, rotated, out):
     """The minimiser of ½‖τ − τ_nom‖² + ½Σ_A ρ_j (g_j τ − h_j)², A the rows flagged in
-    ``w.binding``, into ``w.direction``: the least-squares solution of [I; √ρ_A G_A] τ =
-    [τ_nom; √ρ_A h_A], its R built from I by a Givens rotation per binding row entry. Its
-    normal equations (I + Σ_A ρ_j g_jᵀ g_j) have a condition number up to 1 + ρ_hard
-    (1e10, one binding row), which costs ~1e-5 of τ; R's is the square root of that."""
+    ``binding``, into ``out``: the least-squares solution of [I; √ρ_A G_A] τ =
+    [τ_nom; √ρ_A h_A], its R (``factor``) built from I by a Givens rotation per binding row
+    entry (``rotated``: the row being rotated in). Its normal equations
+    (I + Σ_A ρ_j g_jᵀ g_j) have a condition number up to 1 + ρ_hard (1e10, one binding row),
+    which cost up to ~3e-5 of τ (measured against exact arithmetic); R's is the square root
+    of that."""
     n = tau_nominal.shape[0]
-    factor, rotated, out = w.factor, w.rotated, w.direction
     for i in range(n):
         for c in range(n):
             factor[i, c] = 1.0 if i == c else 0.0
         out[i] = tau_nominal[i]  # Qᵀ times the right-hand side, as R is built
     for j in range(count):
-        if not w.binding[j]:
+        if not binding[j]:
             continue
         root = np.sqrt(weights[j])
         for c in range(n):
@@ -853,16 +816,26 @@ def _piece_minimiser(tau_nominal, G, h, weights, count, w):
 
 
 @_step_jit
-def _newton(tau_nominal, G, h, weights, count, iterations, tolerance, w):
-    """solve_soft_qp on the first ``count`` rows of G, h and the weights, in ``w``
-    (SolverWork): τ into ``w.tau``; returns the iterations used."""
+def _newton(tau_nominal, G, h, weights, count, iterations, tolerance, solver, factor,
+            binding, warm):
+    """solve_soft_qp on the first ``count`` rows of G, h and the weights, its vectors in
+    ``solver`` (5, n: TAU …), R in ``factor`` and the rows violated in ``binding``: τ into
+    ``solver[TAU]``; returns the iterations used. ``warm``: start from the minimiser of the
+    piece the rows flagged in ``binding`` make (the step before's, as the rows keep their
+    order), not from τ_nom; where the rows violated there are those, it is the answer (the
+    convex function's gradient is that piece's, zero), at no iteration."""
     n = tau_nominal.shape[0]
-    tau, trial, gradient, direction, binding = w.tau, w.trial, w.gradient, w.direction, w.binding
-    for i in range(n):
-        tau[i] = tau_nominal[i]
+    tau, trial, gradient, direction = solver[TAU], solver[TRIAL], solver[GRADIENT], \
+        solver[DIRECTION]
+    if warm:
+        _piece_minimiser(tau_nominal, G, h, weights, count, binding, factor, solver[ROTATED],
+                         tau)
+    else:
+        for i in range(n):
+            tau[i] = tau_nominal[i]
+        binding[:count] = False
     scale = 1.0 + np.sqrt(_dot(tau_nominal, tau_nominal))
-    binding[:count] = False
-    full_step = False
+    full_step = warm  # at τ, a minimiser of the piece ``binding`` flags
     for it in range(iterations):
         gradient[:] = 0.0
         same = True
@@ -875,13 +848,14 @@ def _newton(tau_nominal, G, h, weights, count, iterations, tolerance, w):
                 gradient[i] += G[j, i] * (weights[j] * excess)
         for i in range(n):
             gradient[i] = tau[i] - tau_nominal[i] + gradient[i]
-        # Exact for this piece once a full Newton step kept the same binding rows.
-        if it > 0 and same and full_step:
+        # Exact once a piece's minimiser (a full Newton step) kept the same binding rows.
+        if same and full_step:
             return it
         if np.sqrt(_dot(gradient, gradient)) <= tolerance * scale:
             return it
         # The piece is quadratic: the Newton step goes to its minimiser.
-        _piece_minimiser(tau_nominal, G, h, weights, count, w)
+        _piece_minimiser(tau_nominal, G, h, weights, count, binding, factor, solver[ROTATED],
+                         direction)
         for i in range(n):
             direction[i] -= tau[i]
         if not (np.isfinite(np.sum(direction)) and np.isfinite(np.sum(gradient))):
@@ -912,17 +886,15 @@ def solve_soft_qp(tau_nominal, G, h, weights, iterations, tolerance):
     in square-root form: _piece_minimiser) is exact; repeated until the set of violated rows
     no longer changes, with a backtracking line search. Its Hessian stays positive definite
     for opposing or conflicting rows, where a dual method stalls. Returns (τ, iterations
-    used).
-
-    (No warm start from the step before: at most steps no row is violated at τ_nom, which
-    is the answer at once, and where rows bind, one Newton step from τ_nom lands on the
-    answer's piece in all but a few steps.)"""
-    w = solver_work(tau_nominal.shape[0], G.shape[0])
-    used = _newton(tau_nominal, G, h, weights, G.shape[0], iterations, tolerance, w)
-    return w.tau, used
+    used). From τ_nom (the filter's step starts from the step before's binding rows)."""
+    n, m = tau_nominal.shape[0], G.shape[0]
+    solver = np.zeros((5, n))
+    used = _newton(tau_nominal, G, h, weights, m, iterations, tolerance, solver,
+                   np.zeros((n, n)), np.zeros(m, np.bool_), False)
+    return solver[TAU], used
 
 
-@_step_jit
+@_step_inline
 def _hard_violated(G, h, is_hard, count, tau):
     """Whether τ violates a hard row of the first ``count`` as given (h not lowered)."""
     for j in range(count):
@@ -981,24 +953,26 @@ def _record(k, a, count, tau):
 def cbf_step(k, a):
     count = _rows(k, a)
     w = a.work
-    h, weights = w.lowered, w.weights
+    h, weights, tau = w.per_row[0], w.per_row[1], w.solver[TAU]
     for j in range(count):  # solve with the hard limits lowered: checked as given after
         h[j] = a.limits[j] - a.hard_tolerance if a.is_hard[j] > 0.0 else a.limits[j]
         weights[j] = a.weights[j]
+    # Warm: from the rows that bound at the step before (w.binding keeps them; a run's rows
+    # keep their order), which most often still do.
+    _newton(a.tau_nominal[k], a.rows, h, weights, count, a.iterations, a.tolerance, w.solver,
+            w.matrices[FACTOR], w.binding, True)
     # A hard row may slip by ~ρ_soft·(soft excess)/ρ_hard where tracking pulls hard against
     # it: re-solve with tracking weighed less, down to the hard rows alone; only when those
-    # alone cannot be met is the step infeasible (then cbf_record applies the backup). (One
-    # call site, as _newton is inlined.)
-    for attempt in range(4):
-        if attempt > 0:
-            if not _hard_violated(a.rows, a.limits, a.is_hard, count, w.solver.tau):
-                break
-            for j in range(count):
-                if a.is_hard[j] == 0.0:
-                    weights[j] = weights[j] * 1e-3 if weights[j] > a.rho_soft * 1e-5 else 0.0
+    # alone cannot be met is the step infeasible (then cbf_record applies the backup).
+    for _ in range(3):
+        if not _hard_violated(a.rows, a.limits, a.is_hard, count, tau):
+            break
+        for j in range(count):
+            if a.is_hard[j] == 0.0:
+                weights[j] = weights[j] * 1e-3 if weights[j] > a.rho_soft * 1e-5 else 0.0
         _newton(a.tau_nominal[k], a.rows, h, weights, count, a.iterations, a.tolerance,
-                w.solver)
-    return _record(k, a, count, w.solver.tau)
+                w.solver, w.matrices[FACTOR], w.binding, True)
+    return _record(k, a, count, tau)
 
 
 @register_block
