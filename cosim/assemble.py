@@ -21,7 +21,8 @@ from plant_fmu import build_fmu
 from .blocks import BLOCKS, Block, BlockContext, Ports
 from .config import Pipeline, PipelineError
 from .declared import Uncertainty
-from .evaluate import Evaluator, SafeSet, evaluated_signals
+from .evaluate import Declaration, Evaluator, SafeSet, evaluated_signals
+from .evaluate.parts import select
 from .plant import PLANT_INPUT, PLANT_INPUT_ENTITY, PLANT_OUTPUTS, Plant
 from .plant.fmu import Fmu, FmuError
 from .plant.ports import traced_outputs
@@ -67,8 +68,16 @@ class RunPlan:
         return out
 
     def evaluator(self, trace: Trace) -> Evaluator:
-        return Evaluator(trace, self.safe, self.published(),
-                         frozenset(PLANT_OUTPUTS) - self.plant_outputs)
+        return Evaluator(trace, self.safe, self.published(), self._unmapped())
+
+    def _unmapped(self) -> frozenset[str]:
+        return frozenset(PLANT_OUTPUTS) - self.plant_outputs
+
+    def declarations(self) -> list[Declaration]:
+        """The check families the run's evaluators declare (those its signals and published
+        constants allow), in their order."""
+        chosen, _ = select(self.signals, self.published(), self._unmapped())
+        return [d for cls in chosen for d in cls.declarations]
 
     def entities(self) -> dict[str, tuple[str, str]]:
         """Recording entity under ``/<run>/`` -> (trace key, series-name stem), from the

@@ -22,7 +22,7 @@ from .evaluate import Evaluation
 from .evaluate.guarantee import classify, plant_payload
 from .outputs.figures import FIGURE_FILES, write_figures
 from .outputs.recording import Recorder, RunSpec
-from .outputs.recording.layout import derived_entities
+from .outputs.recording.layout import check_views, derived_entities
 from .outputs.run_folder import RunFolder, RunFolderError, jsonable
 from .outputs.table import markdown_table
 from .outputs.versions import package_versions
@@ -215,11 +215,13 @@ def _run_one(plan: RunPlan, scenario: Scenario, plant_info: dict, recorder: Reco
                 {entity: (key, stem, plan.signals[key].width(plan.links))
                  for entity, (key, stem) in entities.items()},
                 evaluator.bounds, link_lengths(plant_info, plan),
-                tuple(n for n in evaluator.barrier_values if n != "condition"), derived))
+                tuple(n for n in evaluator.barrier_values if n != "condition"), derived,
+                {n: (declared.family, joint)
+                 for n, (declared, joint) in evaluator.declared.items()}))
         # Everything evaluated that the recorder has not been given (an interrupt between
         # the two leaves it for the next call).
         start, stop = recorder.sent[name], evaluator.upto
-        recorder.send_rows(name, start, {key: trace[key][start:stop] for key in recorded},
+        recorder.send_rows(name, start, stop, {key: trace[key][start:stop] for key in recorded},
                            {n: v[start:stop] for n, v in evaluator.values.items()},
                            {n: v[start:stop] for n, v in evaluator.barrier_values.items()})
 
@@ -249,7 +251,8 @@ def _run_one(plan: RunPlan, scenario: Scenario, plant_info: dict, recorder: Reco
     metrics["guarantee"] = classify(done, plan.safe, plan.uncertainty,
                                     *plant_payload(plant_info["parameters"], chain,
                                                    rigid_chain_parameters(plan.links)),
-                                    true_velocity="qdot" in plan.plant_outputs)
+                                    true_velocity="qdot" in plan.plant_outputs,
+                                    checks=evaluation.checks)
     metrics["wall_time_s"] = wall
     metrics["steps_per_second"] = steps / wall if wall == wall and wall > 0 else None
     metrics["simulated_time_s"] = float(done.time[-1]) if done.rows_done else 0.0
@@ -283,8 +286,9 @@ def _open_recorder(out: Path, scenario: Scenario, spawn: bool,
                                                                   _present(plan)).items()
                      if stem == "qdot_err"]
               for name, plan in scenario.runs.items()}
+    checks = {name: check_views(plan.declarations()) for name, plan in scenario.runs.items()}
     return Recorder(out / "recording.rrd", title, list(pipeline.runs), spawn=spawn,
-                    connect=connect, views=views, error_views=errors)
+                    connect=connect, views=views, error_views=errors, check_views=checks)
 
 
 def _present(plan: RunPlan) -> frozenset[str]:

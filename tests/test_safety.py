@@ -56,7 +56,7 @@ def test_the_safety_table_reads_at_a_glance(compared, capsys):
     assert max(len(line) for line in text.splitlines()) <= 100
     verdicts = dict(line.split(None, 1) for line in text.split("verdict:\n")[1].splitlines())
     assert verdicts == {
-        "baseline": "UNSAFE: left error_rate_norm at 0.03 s (7.09 s out), +6 more",
+        "baseline": "UNSAFE: left error_rate_norm at 0.03 s (7.09 s out), +10 more",
         "proposed": "UNSAFE: left position_joint1 at 3.01 s (0.56 s out)",
         "baseline_matched": "UNSAFE: left position_joint1 at 3.01 s (0.52 s out)",
         "proposed_cbf": "safe: kept every attainable set",

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from ..signals import Trace
+from .checks import Check, Declaration, Kind, is_safe, kept, left_sets, safety_entries
 from .parts import (
     EVALUATORS,
     Part,
@@ -24,21 +25,19 @@ from .parts import (
     select,
 )
 from .safety import (
-    Check,
     Gains,
     SafeSet,
     barrier_condition,
     barriers,
-    safety_entries,
     theorem1,
     torque_reversals,
 )
 
 BARRIERS = ("H1", "H2", "H")
 
-__all__ = ["BARRIERS", "EVALUATORS", "Check", "Evaluation", "Evaluator", "Gains",
-           "Part", "SafeSet", "barriers", "evaluated_signals", "register_evaluator",
-           "theorem1", "torque_reversals"]
+__all__ = ["BARRIERS", "EVALUATORS", "Check", "Declaration", "Evaluation", "Evaluator",
+           "Gains", "Kind", "Part", "SafeSet", "barriers", "evaluated_signals", "is_safe",
+           "kept", "left_sets", "register_evaluator", "theorem1", "torque_reversals"]
 
 
 @dataclass
@@ -71,6 +70,8 @@ class Evaluator:
     upto: int = 0
     values: dict[str, np.ndarray] = field(default_factory=dict)
     bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
+    # check -> (its declaration, its joint or None for the norm)
+    declared: dict[str, tuple[Declaration, int | None]] = field(default_factory=dict)
     barrier_values: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -87,12 +88,20 @@ class Evaluator:
         total = self.trace.steps + 1
         checks, series = {}, {}
         for part in self.parts:
-            checks.update(part.checks(rows))
+            made = part.checks(rows)
+            for name, check in made.items():
+                if name not in self.values and check.declared not in part.declarations:
+                    raise TypeError(f"evaluator {part.name!r}: check {name!r} is not made by "
+                                    "one of its declarations (list each Declaration in the "
+                                    "evaluator's `declarations` and make its checks with "
+                                    "Declaration.joints_and_norm or Declaration.norm)")
+            checks.update(made)
             series.update(part.series(rows))
         for name, check in checks.items():
             if name not in self.values:
                 self.values[name] = np.full(total, np.nan)
                 self.bounds[name] = (check.lower, check.upper)
+                self.declared[name] = (check.declared, check.joint)
             self.values[name][start:upto] = check.value
         if "H" in series:
             previous = self.barrier_values["H"][start - 1] if start else np.nan
@@ -114,7 +123,8 @@ class Evaluator:
         references = {}
         for part in self.parts:
             references.update(part.references(done))
-        checks = {name: Check(self.values[name][:k], upper, lower, references.get(name))
+        checks = {name: Check(self.values[name][:k], upper, lower, references.get(name),
+                              *self.declared[name])
                   for name, (lower, upper) in self.bounds.items()}
         h = {name: value[:k] for name, value in self.barrier_values.items()}
         metrics = {}

@@ -17,10 +17,13 @@ Ground truth is used here, for evaluation only. SI units, radians.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+
 import numpy as np
 
 from ..declared import Uncertainty
 from ..signals import Trace
+from .checks import Check, Kind
 from .safety import SafeSet
 
 # A tolerance for comparing declared and actual parameter values (rounding in TOML, FMI).
@@ -54,25 +57,36 @@ def plant_payload(parameters: dict, chain, modelled: frozenset[str] | None = Non
     return float(parameters[f"m[{n}]"] - chain.m[n - 1]), differ
 
 
+def hard_checks(checks: Mapping[str, Check]) -> dict[str, Check]:
+    """The run's hard sets, per joint (their declarations say so), that hold values."""
+    return {name: c for name, c in checks.items()
+            if c.declared is not None and c.joint is not None
+            and c.declared.kind_of(c.joint) == Kind.HARD and np.isfinite(c.value).any()}
+
+
 def classify(trace: Trace, safe: SafeSet, uncertainty: Uncertainty,
              payload: float | None, other_parameters: list[str],
-             true_velocity: bool = True) -> dict:
+             true_velocity: bool = True, checks: Mapping[str, Check] | None = None) -> dict:
     """The run's class and outcome (module docstring); ``payload``: what the plant carries
     (None: unknown), ``other_parameters``: plant link parameters off the nominal chain;
     ``true_velocity``: whether the plant maps q̇ (if not, the velocity set cannot be judged
-    and the run is outside what the guarantee speaks for)."""
+    and the run is outside what the guarantee speaks for); ``checks``: the run's evaluated
+    checks (default: evaluated here), of which the hard ones are judged."""
     if trace.rows_done == 0:
         return {}
-    hard = {"position": (np.abs(trace["q"] - trace["q_s"]), safe.position_bound)}
-    if true_velocity:
-        hard["velocity_true"] = (np.abs(trace["qdot"] - trace["qdot_s"]), safe.velocity_bound)
-    starts_inside = all(bool(np.all(v[0] <= bound)) for v, bound in hard.values())
+    if checks is None:
+        from . import Evaluator
+
+        checks = Evaluator(trace, safe, {}).result().checks
+    hard = hard_checks(checks)
+    starts_inside = all(bool(abs(c.value[0]) <= c.upper) for c in hard.values())
     first_exit = None
-    for name, (values, bound) in hard.items():
-        rows, joints = np.nonzero(values > bound)
+    for name, check in hard.items():  # declaration order: the lowest joint first at a tie
+        rows = np.flatnonzero(check.magnitude > check.upper)
         if len(rows) and (first_exit is None or rows[0] * trace.dt < first_exit["t"]):
-            first_exit = {"set": f"{name}_joint{joints[0] + 1}", "t": float(rows[0] * trace.dt),
-                          "value": float(values[rows[0], joints[0]]), "bound": float(bound)}
+            first_exit = {"set": name, "t": float(rows[0] * trace.dt),
+                          "value": float(check.magnitude[rows[0]]),
+                          "bound": float(check.upper)}
     outside = []
     low, high = uncertainty.payload
     if payload is None:

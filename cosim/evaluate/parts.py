@@ -19,8 +19,8 @@ from typing import Any, ClassVar
 
 import numpy as np
 
+from .checks import Check, Declaration, Kind
 from .safety import (
-    Check,
     Gains,
     SafeSet,
     Signals,
@@ -42,6 +42,9 @@ class Part:
     meaning: ClassVar[str]  # what it evaluates, for the summary
     inputs: ClassVar[tuple[str, ...]]
     constants: ClassVar[tuple[str, ...]] = ()
+    # The checks it may make: each family declared once (name, quantity, unit, kind,
+    # figure); the evaluation refuses a check made by a declaration not listed here.
+    declarations: ClassVar[tuple[Declaration, ...]] = ()
 
     def __init__(self, trace: Signals, safe: SafeSet, constants: Mapping[str, Any],
                  available: frozenset[str] = frozenset()):
@@ -51,7 +54,8 @@ class Part:
         self.note: str | None = None  # what summary.json adds to "ran" (a part left out)
 
     def checks(self, rows: Signals) -> dict[str, Check]:
-        """Safety checks of these rows (joint-1 and norm values against their bounds)."""
+        """Safety checks of these rows (each joint and the norm against their bounds), each
+        made by a :class:`Declaration` (:meth:`Declaration.joints_and_norm`)."""
         return {}
 
     def references(self, trace: Signals) -> dict[str, np.ndarray]:
@@ -115,13 +119,22 @@ def _listed(what: str, names: list[str]) -> str:
     return f"the {what}{'s' * (len(names) > 1)} {quoted}"
 
 
-def _joint_and_norm(name: str, signal: np.ndarray, bound: float,
-                    reference: np.ndarray | None) -> dict[str, Check]:
-    return {f"{name}_joint1": Check(signal[:, 0], bound, -bound,
-                                    None if reference is None else reference[:, 0]),
-            f"{name}_norm": Check(np.linalg.norm(signal, axis=1), bound, 0.0,
-                                  None if reference is None else np.linalg.norm(reference,
-                                                                                axis=1))}
+# The paper's safe sets (13)-(16), every joint and the norm; the figures are the paper's
+# Figs. 2 and 3.
+POSITION = Declaration("position", "position x1 − q_s", "rad", Kind.HARD,
+                       figure="fig2_position_velocity")
+VELOCITY_ESTIMATED = Declaration("velocity_estimated", "velocity the controller used x̂2 − q̇_s",
+                                 "rad/s", Kind.SOFT, figure="fig2_position_velocity")
+VELOCITY_TRUE = Declaration("velocity_true", "true velocity q̇ − q̇_s", "rad/s", Kind.HARD)
+ERROR = Declaration("error", "position error e", "rad", Kind.SOFT, figure="fig3_errors")
+ERROR_RATE = Declaration("error_rate", "velocity error ė", "rad/s", Kind.SOFT,
+                         figure="fig3_errors")
+ERROR_RATE_TRUE = Declaration("error_rate_true", "true velocity error q̇_d − q̇", "rad/s",
+                              Kind.SOFT)
+FILTERED_ERROR = Declaration("filtered_error", "filtered error r̂ (Theorem 1's R)", "rad/s",
+                             Kind.SUFFICIENT, norm_kind=Kind.SUFFICIENT)
+OBSERVER_ERROR = Declaration("observer_error", "observer velocity error q̇ − x̂2 (ε_max of (16))",
+                             "rad/s", Kind.SOFT)
 
 
 def _estimates_velocity(constants: Mapping[str, Any]) -> bool:
@@ -141,6 +154,8 @@ class SafeSets(Part):
     # and the true velocity q̇: where the plant does not map it (NaN), the true-velocity
     # sets are reported unavailable (safety.safety_entries), never as kept
     inputs = ("q", "q_s", "qdot_s", "q_d", "qdot_d", "e", "edot")
+    declarations = (POSITION, VELOCITY_ESTIMATED, VELOCITY_TRUE, ERROR, ERROR_RATE,
+                    ERROR_RATE_TRUE)
 
     def __init__(self, trace: Signals, safe: SafeSet, constants: Mapping[str, Any],
                  available: frozenset[str] = frozenset()):
@@ -153,15 +168,15 @@ class SafeSets(Part):
         safe = self.safe
         ref_pos = rows["q_d"] - rows["q_s"]
         ref_vel = rows["qdot_d"] - rows["qdot_s"]
-        out = [("position", safe.position_bound, ref_pos),
-               ("velocity_estimated", safe.velocity_bound, ref_vel),
-               ("velocity_true", safe.velocity_bound, ref_vel),
-               ("error", safe.error_bound, None),
-               ("error_rate", safe.error_rate_bound, None)]
+        out = [(POSITION, safe.position_bound, ref_pos),
+               (VELOCITY_ESTIMATED, safe.velocity_bound, ref_vel),
+               (VELOCITY_TRUE, safe.velocity_bound, ref_vel),
+               (ERROR, safe.error_bound, None),
+               (ERROR_RATE, safe.error_rate_bound, None)]
         if _estimates_velocity(self.given):
-            out.append(("error_rate_true", safe.error_rate_bound, None))
+            out.append((ERROR_RATE_TRUE, safe.error_rate_bound, None))
         if not with_signals:
-            return [(name, None, bound, ref) for name, bound, ref in out]
+            return [(declared, None, bound, ref) for declared, bound, ref in out]
         signals = {
             "position": rows["q"] - rows["q_s"],
             # x̂2 (output feedback) or q̇ (full state): the velocity the controller used
@@ -171,20 +186,22 @@ class SafeSets(Part):
             "error_rate": rows["edot"],
             "error_rate_true": rows["qdot_d"] - rows["qdot"],
         }
-        return [(name, signals[name], bound, ref) for name, bound, ref in out]
+        return [(declared, signals[declared.family], bound, ref)
+                for declared, bound, ref in out]
 
     def checks(self, rows: Signals) -> dict[str, Check]:
         out = {}
-        for name, signal, bound, ref in self._sets(rows, True):
-            out.update(_joint_and_norm(name, signal, bound, ref))
+        for declared, signal, bound, ref in self._sets(rows, True):
+            out.update(declared.joints_and_norm(signal, bound, ref))
         return out
 
     def references(self, trace: Signals) -> dict[str, np.ndarray]:
         out = {}
-        for name, _, _, ref in self._sets(trace, False):
+        for declared, _, _, ref in self._sets(trace, False):
             if ref is not None:
-                out[f"{name}_joint1"] = ref[:, 0]
-                out[f"{name}_norm"] = np.linalg.norm(ref, axis=1)
+                for j in range(ref.shape[1]):
+                    out[declared.name(j + 1)] = ref[:, j]
+                out[declared.name(None)] = np.linalg.norm(ref, axis=1)
         return out
 
 
@@ -197,6 +214,7 @@ class FilteredError(Part):
     meaning = "Theorem 1: ‖r̂‖ ≤ R of (15)"
     inputs = ("r_hat", "q_s", "qdot_s", "q_d", "qdot_d")
     constants = ("nn_gains",)
+    declarations = (FILTERED_ERROR,)
 
     def __init__(self, trace: Signals, safe: SafeSet, constants: Mapping[str, Any],
                  available: frozenset[str] = frozenset()):
@@ -205,8 +223,8 @@ class FilteredError(Part):
         self.r_bound = theorem1(trace, safe, self.lam)["R"]
 
     def checks(self, rows: Signals) -> dict[str, Check]:
-        return {"filtered_error_norm": Check(np.linalg.norm(rows["r_hat"], axis=1),
-                                             self.r_bound, 0.0)}
+        return {FILTERED_ERROR.name(None): FILTERED_ERROR.norm(
+            np.linalg.norm(rows["r_hat"], axis=1), self.r_bound)}
 
     def metrics(self, trace: Signals, series: Mapping[str, np.ndarray]) -> dict:
         return {"theorem1": theorem1(trace, self.safe, self.lam)}
@@ -222,6 +240,7 @@ class ObserverError(Part):
     # and the true q̇: where the plant does not map it, the check is unavailable (as the
     # true-velocity sets) and the RMS is None
     inputs = ("qdot_hat",)
+    declarations = (OBSERVER_ERROR,)
 
     def __init__(self, trace: Signals, safe: SafeSet, constants: Mapping[str, Any],
                  available: frozenset[str] = frozenset()):
@@ -236,9 +255,9 @@ class ObserverError(Part):
     def checks(self, rows: Signals) -> dict[str, Check]:
         if self.given.get("velocity_source") != "observer":
             return {}
-        return {"observer_error_norm": Check(
+        return {OBSERVER_ERROR.name(None): OBSERVER_ERROR.norm(
             np.linalg.norm(rows["qdot"] - rows["qdot_hat"], axis=1),
-            self.safe.observer_error_bound, 0.0)}
+            self.safe.observer_error_bound)}
 
     def metrics(self, trace: Signals, series: Mapping[str, np.ndarray]) -> dict:
         after_1s = trace.time >= 1.0

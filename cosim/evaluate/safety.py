@@ -60,32 +60,6 @@ def theorem1(trace: Signals, safe: SafeSet, lam: np.ndarray) -> dict[str, float]
             "M_r": m_big - r_bound, "R": r_bound}
 
 
-@dataclass
-class Check:
-    """One safe-set check over rows: ``value`` must stay within [lower, upper].
-
-    A joint check's value is signed (x1,1 − q_s,1, say) with lower = −upper, so the figures
-    show the signal itself against its band; a norm check's value is ≥ 0 with lower = 0.
-    """
-
-    value: np.ndarray
-    upper: float
-    lower: float
-    reference: np.ndarray | None = None  # the same quantity for the reference trajectory
-
-    @property
-    def magnitude(self) -> np.ndarray:
-        return np.abs(self.value)
-
-
-def check_unit(name: str) -> str:
-    """The SI unit of a check's value, from its name (positions and errors in rad, velocities,
-    error rates, r̂ and the observer's velocity error in rad/s)."""
-    if name.startswith(("velocity", "error_rate", "filtered_error", "observer_error")):
-        return "rad/s"
-    return "rad"  # position_*, error_*
-
-
 # What each barrier series in a trace file is; the paper's barriers mix units (k0·ε², ‖Ŵ‖²/F,
 # rᵀMr), so they carry none.
 BARRIER_MEANINGS = {"H1": "H1 of (28): the observer's barrier (mixed units)",
@@ -130,45 +104,11 @@ def torque_reversals(tau: np.ndarray, dt: float, fraction: float = 0.01) -> np.n
     return flips.sum(axis=0) / (len(tau) * dt)
 
 
-def excursions(check: Check, dt: float) -> dict[str, float | None]:
-    """When the check is first violated (s; None if never) and for how long in all (s)."""
-    outside = (check.value > check.upper) | (check.value < check.lower)
-    first = np.flatnonzero(outside)
-    return {"first_violation_s": float(first[0] * dt) if len(first) else None,
-            "time_outside_s": float(np.count_nonzero(outside) * dt)}
-
-
 def barrier_condition(h: np.ndarray, previous: float, dt: float, alpha: float) -> np.ndarray:
     """Ḣ + α·H per row, Ḣ the backward difference (H_k − H_k−1)/h; ``previous`` is the row
     before the first (NaN at the start of a run: that row has no condition)."""
     before = np.concatenate(([previous], h[:-1]))
     return (h - before) / dt + alpha * h
-
-
-def safety_entries(checks: Mapping[str, Check], dt: float) -> dict:
-    """summary.json's ``safety``: per check its bound, worst value, whether it held, when it
-    was first left and for how long, and the reference's own worst value."""
-    safety = {}
-    for name, check in checks.items():
-        if not len(check.value):  # the run stopped at its first row: nothing is known
-            safety[name] = {"bound": float(check.upper), "worst": None, "satisfied": None,
-                            "unavailable": "the run completed no row"}
-            continue
-        if np.isnan(check.value).all():
-            # Only the ground-truth velocity can be missing: a plant without a qdot mapping.
-            safety[name] = {"bound": float(check.upper), "worst": None, "satisfied": None,
-                            "unavailable": "needs the true joint velocity: the plant maps "
-                            "no qdot"}
-            continue
-        worst = float(np.max(check.magnitude))
-        entry = {"bound": float(check.upper), "worst": worst,
-                 "satisfied": bool(worst <= check.upper), **excursions(check, dt)}
-        if check.reference is not None and len(check.reference):
-            entry["reference_worst"] = float(np.max(np.abs(check.reference)))
-            # A set the reference itself leaves cannot be kept by any controller that tracks.
-            entry["attainable"] = bool(entry["reference_worst"] <= check.upper)
-        safety[name] = entry
-    return safety
 
 
 def condition_summary(condition: np.ndarray, alpha: float) -> dict:

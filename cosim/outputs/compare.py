@@ -7,6 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ..evaluate.checks import unit
 from .run_folder import _ours_summary
 
 # Metrics that measure the machine, not the controller: shown, never called a change.
@@ -108,7 +109,9 @@ def compare(a: str | Path, b: str | Path, runs: list[str] | None = None) -> Comp
                 change = "now holds"
             both = ca and cb and ca.get("worst") is not None and cb.get("worst") is not None
             delta = f"{cb['worst'] - ca['worst']:+.4g}" if both else ""
-            rows.append([check, verdict(ca), verdict(cb), delta, change])
+            declared = unit(cb or ca)
+            rows.append([f"{check} ({declared})" if declared else check, verdict(ca),
+                         verdict(cb), delta, change])
         result.lines.extend(_table(rows))
         ma, mb = _numbers(run_a.get("metrics", {})), _numbers(run_b.get("metrics", {}))
         rows = [["metric", "A", "B", "B - A", ""]]

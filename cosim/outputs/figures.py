@@ -1,6 +1,7 @@
-"""PNG figures for reports, in the manner of the paper's Figs. 2-4: joint 1's position and
-velocity (Fig. 2) and their errors (Fig. 3) for every run on one set of axes, with the safe
-region shaded green and the unsafe region red and a zoom on the worst moment below; each
+"""PNG figures for reports, in the manner of the paper's Figs. 2-4: the checks whose
+declarations name a figure (the paper's: position and velocity in Fig. 2, their errors in
+Fig. 3), every joint, every run on one set of axes, with the safe region shaded green and
+the unsafe region red, and a zoom on the worst moment below; each
 run's torques (Fig. 4), with the torque a filter was asked for beside what it applied; the
 barriers (Fig. 5).
 """
@@ -18,16 +19,12 @@ from pathlib import Path
 import numpy as np
 
 from ..evaluate import Check
-from .recording.layout import FIGURE_CHECKS, JOINT_COLORS
+from .recording.layout import JOINT_COLORS
 
 # Run colours: the paper draws the classical controller in orange, then ours.
 RUN_COLORS = ["tab:orange", "tab:blue", "tab:green", "tab:purple", "tab:brown", "tab:olive"]
 FIGURE_FILES = ("fig2_position_velocity.png", "fig3_errors.png", "fig4_torques.png",
                 "fig5_barriers.png")
-FIGURES = {
-    "fig2_position_velocity.png": ("position_joint1", "velocity_estimated_joint1"),
-    "fig3_errors.png": ("error_joint1", "error_rate_joint1"),
-}
 
 
 def _shade(ax, lower: float, upper: float) -> None:
@@ -71,13 +68,15 @@ def figure_jobs(time: Mapping[str, np.ndarray], checks: Mapping[str, Mapping[str
     :func:`write_figures`): only the arrays it shows, so that a painter process is sent
     megabytes, not the whole evaluation."""
     jobs = []
-    for filename, pair in FIGURES.items():
+    for filename, columns in check_figures(checks).items():
+        shown = [name for names in columns for name in names]
         # The runs evaluated with these checks (a run whose chain has no error signals has
         # none); a figure no run has is not drawn.
-        runs = [run for run in checks if all(c in checks[run] for c in pair)]
+        runs = [run for run in checks if all(c in checks[run] for c in shown)]
         if runs:
-            jobs.append((filename, "pair", (pair, {r: time[r] for r in runs},
-                                            {r: {c: checks[r][c] for c in pair} for r in runs})))
+            jobs.append((filename, "checks", (columns, {r: time[r] for r in runs},
+                                              {r: {c: checks[r][c] for c in shown}
+                                               for r in runs})))
     jobs.append(("fig4_torques.png", "torques", (dict(time), dict(torques), dict(asked or {}))))
     barriers = {run: h for run, h in (barriers or {}).items() if "H" in h}
     if barriers:  # only the runs evaluated with Theorem 1's barriers
@@ -99,31 +98,61 @@ def _draw_and_save(out, name: str, kind: str, data: tuple) -> None:
         plt.close(fig)
 
 
-def _pair_figure(plt, pair: tuple[str, str], time, checks):
-    """Figs. 2 and 3: the two checks of ``pair`` for every run, the whole run above and a
-    zoom below."""
+def check_figures(checks: Mapping[str, Mapping[str, Check]]) -> dict[str, list[list[str]]]:
+    """File name → its columns: per family declared with that figure (in declaration
+    order), every joint's check, over the runs' checks."""
+    figures: dict[str, dict[str, list[str]]] = {}
+    for run_checks in checks.values():
+        for name, check in run_checks.items():
+            declared = check.declared
+            if declared is None or not declared.figure or check.joint is None:
+                continue
+            names = figures.setdefault(f"{declared.figure}.png", {}).setdefault(
+                declared.family, [])
+            if name not in names:
+                names.append(name)
+    return {name: list(columns.values()) for name, columns in figures.items()}
+
+
+def _checks_figure(plt, columns: list[list[str]], time, checks):
+    """Figs. 2 and 3: a column per family, a row per joint with every run over the whole
+    run, and below each column a zoom on the joint nearest its bound."""
     runs = list(checks)
-    # Top: the whole run. Bottom: ±1 s around the worst value of any run, where the runs
-    # differ by fractions of the bound (the reference's peaks, for the position).
-    fig, axes = plt.subplots(2, 2, figsize=(12, 7.6), constrained_layout=True,
-                             height_ratios=(1.2, 1))
-    for column, check_name in enumerate(pair):
-        first = checks[runs[0]][check_name]
-        for ax in axes[:, column]:
-            if first.reference is not None:
-                ax.plot(time[runs[0]], first.reference, color="black", lw=0.9, ls=":",
-                        label="reference")
-            for i, run in enumerate(runs):
-                ax.plot(time[run], checks[run][check_name].value, lw=1.0,
-                        color=RUN_COLORS[i % len(RUN_COLORS)], label=run)
-            ax.set_xlabel("time (s)")
-            ax.set_ylabel(FIGURE_CHECKS[check_name])
-        whole, zoom = axes[:, column]
-        _shade(whole, first.lower, first.upper)
-        whole.set_title(f"joint 1: {FIGURE_CHECKS[check_name].split(' (')[0]}")
-        whole.legend(loc="lower right", fontsize=8)
-        _zoom(zoom, time, {run: checks[run][check_name] for run in runs})
+    rows = max(map(len, columns))
+    fig, axes = plt.subplots(rows + 1, len(columns), figsize=(6 * len(columns), 2.6 * rows + 3),
+                             constrained_layout=True, squeeze=False)
+    for column, names in enumerate(columns):
+        for row, name in enumerate(names):
+            whole = axes[row, column]
+            _plot_runs(whole, time, {run: checks[run][name] for run in runs})
+            first = checks[runs[0]][name]
+            _shade(whole, first.lower, first.upper)
+            whole.set_title(f"joint {first.joint}: {first.declared.quantity}")
+            if row == 0:
+                whole.legend(loc="lower right", fontsize=8)
+        for row in range(len(names), rows):
+            axes[row, column].set_axis_off()
+        nearest = max(names, key=lambda n: max(
+            np.max(checks[r][n].magnitude, initial=-np.inf) / checks[r][n].upper for r in runs))
+        zoom = axes[rows, column]
+        _plot_runs(zoom, time, {run: checks[run][nearest] for run in runs})
+        _zoom(zoom, time, {run: checks[run][nearest] for run in runs})
     return fig
+
+
+def _plot_runs(ax, time, checks: Mapping[str, Check]) -> None:
+    """Every run's values of one check (and the reference's, dotted), labelled."""
+    runs = list(checks)
+    first = checks[runs[0]]
+    if first.reference is not None:
+        ax.plot(time[runs[0]], first.reference, color="black", lw=0.9, ls=":",
+                label="reference")
+    for i, run in enumerate(runs):
+        ax.plot(time[run], checks[run].value, lw=1.0, color=RUN_COLORS[i % len(RUN_COLORS)],
+                label=run)
+    ax.set_xlabel("time (s)")
+    where = "norm" if first.joint is None else f"joint {first.joint}"
+    ax.set_ylabel(f"{where} ({first.declared.unit})" if first.declared else "")
 
 
 def _torque_figure(plt, time, torques, asked):
@@ -227,7 +256,7 @@ def _barrier_figure(plt, time, barriers):
     return fig
 
 
-_DRAW = {"pair": _pair_figure, "torques": _torque_figure, "barriers": _barrier_figure}
+_DRAW = {"checks": _checks_figure, "torques": _torque_figure, "barriers": _barrier_figure}
 
 
 # The painter: a process that draws the figures in parallel ----------------------------------
@@ -346,7 +375,7 @@ def _paint(out, jobs: list[tuple[str, str, tuple]]) -> set[str]:
 
 # Rough relative cost of each kind of figure, measured (0.9, 0.6 and 0.25 s on 2 cores):
 # the barriers' symlog axes and the two-by-two figures lay out many more labels.
-_COST = {"barriers": 3.5, "pair": 2.4, "torques": 1.0}
+_COST = {"barriers": 3.5, "checks": 2.4, "torques": 1.0}
 
 
 def _shares(work: list, count: int) -> list[list]:

@@ -184,7 +184,7 @@ class RunFolder:
         their evaluation: ``check_<name>`` (each safety check's value) and
         ``barrier_<name>`` (H1, H2, H and the condition Ḣ + αH). ``units`` (a JSON string)
         gives each array's unit and meaning, so the file describes itself."""
-        from ..evaluate.safety import BARRIER_MEANINGS, check_unit
+        from ..evaluate.safety import BARRIER_MEANINGS
 
         extra = {}
         units = {"time": {"unit": "s", "description": "time t_k = k·step"}}
@@ -193,9 +193,10 @@ class RunFolder:
         if evaluation is not None:
             extra.update({f"check_{n}": c.value for n, c in evaluation.checks.items()})
             extra.update({f"barrier_{n}": v for n, v in evaluation.barriers.items()})
-            units.update({f"check_{n}": {"unit": check_unit(n), "description":
-                                         f"the value the {n} check bounds by {c.upper:g}"}
-                          for n, c in evaluation.checks.items()})
+            units.update({f"check_{n}": {
+                "unit": c.declared.unit if c.declared else "",
+                "description": f"{c.label or n}: the value the {n} check bounds by {c.upper:g}"}
+                for n, c in evaluation.checks.items()})
             units.update({f"barrier_{n}": {"unit": "", "description": BARRIER_MEANINGS.get(n, n)}
                           for n in evaluation.barriers})
         extra[UNITS_KEY] = np.array(json.dumps(units, ensure_ascii=False))

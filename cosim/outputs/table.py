@@ -8,14 +8,11 @@ shown again the same way.
 
 from __future__ import annotations
 
-from ..evaluate.safety import check_unit
+from ..evaluate.checks import Kind, kind, left_sets, unit
 
 KEPT, LEFT, UNATTAINABLE = "✓", "✗", "~"
 LEGEND = (f"{KEPT} kept, {LEFT} left, {UNATTAINABLE} unattainable (the reference itself leaves "
           "the set: no controller can keep it)")
-# Theorem 1's bound on ‖r̂‖ is a sufficient condition for the error sets, not a safe set: a
-# run may exceed it and keep them all. Shown, never part of the verdict.
-SUFFICIENT = {"filtered_error_norm": "Theorem 1's sufficient condition"}
 
 
 def _mark(entry: dict) -> str:
@@ -24,18 +21,10 @@ def _mark(entry: dict) -> str:
     return UNATTAINABLE if entry.get("attainable") is False else LEFT
 
 
-def violations(safety: dict) -> list[tuple[str, dict]]:
-    """The attainable safe sets a run left (not Theorem 1's condition), earliest first."""
-    left = [(name, e) for name, e in safety.items()
-            if e.get("worst") is not None and not e["satisfied"]
-            and e.get("attainable") is not False and name not in SUFFICIENT]
-    return sorted(left, key=lambda item: item[1].get("first_violation_s") or 0.0)
-
-
 def verdict(summary: dict) -> str:
     """One short line: safe, or which set it left first, when, for how long, and how many
-    more; unattainable sets and Theorem 1's condition are the table's to show."""
-    left = violations(summary.get("safety", {}))
+    more; unattainable sets and sufficient conditions are the table's to show."""
+    left = left_sets(summary.get("safety", {}))
     tail = "" if summary.get("complete", True) else " (the run did not finish)"
     if not left:
         return f"safe: kept every attainable set{tail}"
@@ -57,9 +46,9 @@ def _rows(runs: dict[str, dict]) -> tuple[list[str], list[list[str]]]:
     for check in checks:
         bounds = _bounds(runs, check)
         shared = len(bounds) == 1
-        unit = check_unit(check)
-        label = f"{check} ≤ {bounds[0]:g} {unit}".rstrip() if shared else check
-        labels.append(f"{label} (*)" if check in SUFFICIENT else label)
+        first = next(r["safety"][check] for r in runs.values() if check in r.get("safety", {}))
+        label = f"{check} ≤ {bounds[0]:g} {unit(first)}".rstrip() if shared else check
+        labels.append(f"{label} (*)" if kind(first) == Kind.SUFFICIENT else label)
         row = []
         for summary in runs.values():
             entry = summary.get("safety", {}).get(check)
@@ -129,5 +118,4 @@ def markdown_table(runs: dict[str, dict], title: str) -> str:
 
 
 def _footnote() -> str:
-    return ("Theorem 1's bound on ‖r̂‖: sufficient for the error sets, not a safe set; "
-            "not in the verdict")
+    return "a sufficient condition for other sets, not a safe set: not in the verdict"

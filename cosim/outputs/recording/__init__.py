@@ -51,14 +51,16 @@ class Recorder:
     def __init__(self, path: str | Path, name: str, run_names: list[str],
                  spawn: bool = False, connect: str | None = None, port: int = 9876,
                  views: dict[str, list] | None = None,
-                 error_views: dict[str, list] | None = None):
+                 error_views: dict[str, list] | None = None,
+                 check_views: dict[str, list] | None = None):
         self.path = Path(path)
         self.sent: dict[str, int] = {}
         self.handoff_seconds = 0.0  # time the caller spent handing rows over
         self._error: str | None = None
         self._ready = False
         header = {"name": name, "runs": run_names, "recording_id": str(uuid.uuid4()),
-                  "views": views or {}, "error_views": error_views or {}}
+                  "views": views or {}, "error_views": error_views or {},
+                  "check_views": check_views or {}}
         live = {"spawn": spawn, "connect": connect, "port": port, "viewer": None}
         if spawn:
             from ..viewer import has_display, viewer_binary
@@ -149,17 +151,17 @@ class Recorder:
         self.sent[spec.name] = 0
         self._send(("begin", spec))
 
-    def send_rows(self, run: str, start: int, rows: Mapping[str, np.ndarray],
+    def send_rows(self, run: str, start: int, stop: int, rows: Mapping[str, np.ndarray],
                   checks: Mapping[str, np.ndarray], barriers: Mapping[str, np.ndarray]) -> None:
-        """Send one chunk of a run: the recorded signals' rows from ``start``, with their
+        """Send one chunk of a run: the recorded signals' rows [start, stop), with their
         evaluated check and barrier values. Completed rows are never written again, so
         the views are sent as they are, without a copy."""
-        if not len(rows["q"]):
+        if stop <= start:
             return
         self.wait_ready()  # the first call waits (the writer imports Rerun meanwhile)
         began = time.perf_counter()
-        self._send(("rows", run, start, dict(rows), dict(checks), dict(barriers)),
-                   then=lambda: self.sent.__setitem__(run, start + len(rows["q"])))
+        self._send(("rows", run, start, stop, dict(rows), dict(checks), dict(barriers)),
+                   then=lambda: self.sent.__setitem__(run, stop))
         self.handoff_seconds += time.perf_counter() - began
 
     def end_run(self, run: str, summary: dict) -> None:

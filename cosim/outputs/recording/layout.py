@@ -6,30 +6,34 @@ Layout (one subtree per run; one timeline, ``sim_time``, in seconds; SI units, r
     /<run>/plant/tau                            the torque applied to the plant
     /<run>/observer/{q_err, qdot_err}           true minus estimate (x̃1, x̃2), beside the
                                                 estimate's own entity (observer/q_hat)
-    /<run>/safety/<check>/{value, upper, lower, violation}
+    /<run>/safety/<family>/{value, upper, lower}  a series per check: every joint, the norm
+    /<run>/safety/<family>/violation/<check>
     /<run>/barrier/{H1, H2, H}
     /<run>/barrier_condition                     Ḣ + α·H where it fails (< 0): first row
                                                 of each stretch, then every 10 ms
     /<run>/arm/{links, joints, desired}         the arm, drawn at 50 Hz
 
 Multi-joint signals are one entity with series ``<label>1``, ``<label>2``, … in the same
-colours in every run. Constant bounds are two rows (start and end of the run). ``violation``
-holds the value at the rows where it leaves its bound: its first row, then every 10 ms.
+colours in every run, and so are a check family's joints (its norm in grey). Constant bounds
+are two rows (start and end of the run). ``violation`` holds the value at the rows where it
+leaves its bound: its first row, then every 10 ms.
 """
 
 from __future__ import annotations
 
-from collections.abc import Collection, Iterator, Mapping
+from collections.abc import Collection, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from ...evaluate.checks import Declaration
 from ...signals import Signal
 
 # One colour per joint, the same in every run (matplotlib's tab10).
 JOINT_COLORS = [(31, 119, 180), (255, 127, 14), (44, 160, 44), (148, 103, 189),
                 (140, 86, 75), (227, 119, 194), (127, 127, 127)]
 BOUND_COLOR = (0, 150, 60)
+NORM_COLOR = (90, 90, 90)
 VIOLATION_COLOR = (220, 20, 20)
 REFERENCE_COLOR = (120, 120, 120)
 ARM_RATE_HZ = 50.0  # the arm drawing does not need 1 kHz
@@ -53,13 +57,13 @@ def derived_entities(signals: Mapping[str, Signal], present: Collection[str]
             out[f"{parent}/{stem}" if parent else stem] = (true, estimate, stem)
     return out
 
-# The checks the figures show (paper Figs. 2-3), with their axis labels.
-FIGURE_CHECKS = {
-    "position_joint1": "position q1 − q_s1 (rad)",
-    "velocity_estimated_joint1": "velocity x̂2,1 − q̇_s1 (rad/s)",
-    "error_joint1": "position error e1 (rad)",
-    "error_rate_joint1": "velocity error ė1 (rad/s)",
-}
+def check_views(declarations: Iterable[Declaration]) -> list[tuple[str, str]]:
+    """(view title, family) of each declared family drawn in a figure, grouped by figure
+    in declaration order: a family's entity holds every joint's check and the norm's."""
+    drawn = [d for d in declarations if d.figure]
+    figures = list(dict.fromkeys(d.figure for d in drawn))
+    return [(f"{d.quantity}, every joint and the norm ({d.unit})", d.family)
+            for figure in figures for d in drawn if d.figure == figure]
 
 
 @dataclass
@@ -76,6 +80,24 @@ class RunSpec:
     barriers: tuple[str, ...] = ()  # the barrier series evaluated (H1, H2, H; none without)
     # the derived_entities the run records (none without an observer)
     derived: dict[str, tuple[str, str, str]] = field(default_factory=dict)
+    # check -> (its family, its joint or None for the norm): a family's checks are one
+    # entity, a series each
+    check_families: dict[str, tuple[str, int | None]] = field(default_factory=dict)
+
+    def family(self, check: str) -> str:
+        return self.check_families.get(check, (check, None))[0]
+
+    def families(self) -> dict[str, list[str]]:
+        """Family -> its checks, in their order (a check without a family is its own)."""
+        out: dict[str, list[str]] = {}
+        for check in self.bounds:
+            out.setdefault(self.family(check), []).append(check)
+        return out
+
+    def color(self, check: str) -> tuple[int, int, int]:
+        """A joint's check in that joint's colour, a norm in grey."""
+        joint = self.check_families.get(check, (check, None))[1]
+        return NORM_COLOR if joint is None else JOINT_COLORS[(joint - 1) % len(JOINT_COLORS)]
 
 
 def violations(values: Mapping[str, np.ndarray], bounds: Mapping[str, tuple[float, float]],
@@ -114,8 +136,10 @@ SIDE_BY_SIDE = 2
 
 
 def blueprint(run_names: list[str], block_views: dict[str, list] | None = None,
-              error_views: dict[str, list] | None = None):
-    """Figs. 2-4 of the paper for every run, then barriers, the observer's velocity error
+              error_views: dict[str, list] | None = None,
+              checks: dict[str, list[tuple[str, str]]] | None = None):
+    """For every run: the checks drawn in figures (``checks[run]``: (title, family), from
+    :func:`check_views`), the torque, then barriers, the observer's velocity error
     where the run has one (``error_views[run]``: (entity, title)) and the arm, and the views
     the run's blocks add (``block_views[run]``: (entity, title) pairs, e.g. a CBF filter's
     barrier values and how much it corrects the torque); runs side by side up to
@@ -124,8 +148,8 @@ def blueprint(run_names: list[str], block_views: dict[str, list] | None = None,
 
     columns = []
     for run in run_names:
-        views = [rrb.TimeSeriesView(origin=f"/{run}/safety/{check}", name=f"{run}: {label}")
-                 for check, label in FIGURE_CHECKS.items()]
+        views = [rrb.TimeSeriesView(origin=f"/{run}/safety/{family}", name=f"{run}: {title}")
+                 for title, family in (checks or {}).get(run) or []]
         views.append(rrb.TimeSeriesView(origin=f"/{run}/plant/tau",
                                         name=f"{run}: torque τ (N·m)"))
         views.append(rrb.Horizontal(

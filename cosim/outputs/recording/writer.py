@@ -65,18 +65,21 @@ class _Writer:
                 names=["Ḣ + αH < 0"], colors=[VIOLATION_COLOR], markers=["cross"],
                 marker_sizes=[3.0]), static=True)
         ends = rr.TimeColumn("sim_time", duration=[0.0, spec.duration])
-        for name, (lower, upper) in spec.bounds.items():
-            base = f"{root}/safety/{name}"
+        for family, names in spec.families().items():
+            base = f"{root}/safety/{family}"
             self.rec.log(f"{base}/value", rr.SeriesLines(
-                names=[name], colors=[JOINT_COLORS[0]]), static=True)
-            self.rec.log(f"{base}/violation", rr.SeriesPoints(
-                names=["violation"], colors=[VIOLATION_COLOR], markers=["cross"],
-                marker_sizes=[3.0]), static=True)
-            for side, bound in (("upper", upper), ("lower", lower)):
+                names=names, colors=[spec.color(name) for name in names]), static=True)
+            for side, index in (("upper", 1), ("lower", 0)):
                 self.rec.log(f"{base}/{side}", rr.SeriesLines(
-                    names=[f"{side} bound"], colors=[BOUND_COLOR], widths=[2.0]), static=True)
+                    names=[f"{side} bound"] * len(names), colors=[BOUND_COLOR] * len(names),
+                    widths=[2.0] * len(names)), static=True)
+                bound = [spec.bounds[name][index] for name in names]
                 self.rec.send_columns(f"{base}/{side}", indexes=[ends],
                                       columns=rr.Scalars.columns(scalars=[bound, bound]))
+            for name in names:
+                self.rec.log(f"{base}/violation/{name}", rr.SeriesPoints(
+                    names=["violation"], colors=[VIOLATION_COLOR], markers=["cross"],
+                    marker_sizes=[3.0]), static=True)
         # Only colours and radii are static: a static strip or point would hide the
         # animated ones.
         reach = float(np.sum(spec.link_lengths))
@@ -87,12 +90,13 @@ class _Writer:
         self.rec.log(f"{root}/arm/joints", rr.Points2D.from_fields(
             colors=[JOINT_COLORS[0]], radii=[0.05 * reach]), static=True)
 
-    def rows(self, run: str, start: int, rows: dict[str, np.ndarray],
+    def rows(self, run: str, start: int, stop: int, rows: dict[str, np.ndarray],
              checks: dict[str, np.ndarray], barrier_values: dict[str, np.ndarray]) -> None:
-        """Gather a chunk of rows; write once ``batch_s`` seconds of them are here."""
+        """Gather a chunk of rows [start, stop); write once ``batch_s`` seconds of them are
+        here."""
         pending = self.pending.setdefault(run, [])
-        pending.append((start, rows, checks, barrier_values))
-        if sum(len(p[1]["q"]) for p in pending) * self.runs[run].dt >= self.batch_s:
+        pending.append((start, stop, rows, checks, barrier_values))
+        if (stop - pending[0][0]) * self.runs[run].dt >= self.batch_s:
             self.flush(run)
 
     def flush(self, run: str | None = None) -> None:
@@ -101,24 +105,24 @@ class _Writer:
             pending = self.pending.pop(name, [])
             if not pending:
                 continue
-            start = pending[0][0]
+            start, stop = pending[0][0], pending[-1][1]
             joined = [{key: np.concatenate([p[i][key] for p in pending]) for key in pending[0][i]}
-                      for i in (1, 2, 3)]
-            self._write(name, start, *joined)
+                      for i in (2, 3, 4)]
+            self._write(name, start, stop - start, *joined)
 
-    def _write(self, run: str, start: int, rows: dict[str, np.ndarray],
+    def _write(self, run: str, start: int, count: int, rows: dict[str, np.ndarray],
                checks: dict[str, np.ndarray], barrier_values: dict[str, np.ndarray]) -> None:
         import rerun as rr
 
         spec = self.runs[run]
         root = f"/{run}"
-        count = len(rows["q"])
         times = (start + np.arange(count)) * spec.dt
         index = [rr.TimeColumn("sim_time", duration=times)]
         columns = [(entity, rows[key]) for entity, (key, _, _) in spec.entities.items()]
         columns += [(entity, rows[true] - rows[estimate])
                     for entity, (true, estimate, _) in spec.derived.items()]
-        columns += [(f"safety/{name}/value", value) for name, value in checks.items()]
+        columns += [(f"safety/{family}/value", np.column_stack([checks[n] for n in names]))
+                    for family, names in spec.families().items()]
         columns += [(f"barrier/{name}", value) for name, value in barrier_values.items()
                     if name != "condition"]
         for entity, values in columns:
@@ -126,7 +130,8 @@ class _Writer:
                                   columns=rr.Scalars.columns(scalars=values))
         stride = max(1, int(round(1.0 / (VIOLATION_RATE_HZ * spec.dt))))
         for name, where, values in violations(checks, spec.bounds, start, stride):
-            self.rec.send_columns(f"{root}/safety/{name}/violation",
+            family = spec.family(name)
+            self.rec.send_columns(f"{root}/safety/{family}/violation/{name}",
                                   indexes=[rr.TimeColumn("sim_time", duration=times[where])],
                                   columns=rr.Scalars.columns(scalars=values))
         # The barrier condition where it fails, like a violation (dense in the trace file).
@@ -175,7 +180,8 @@ def _writer_main(inbox: Connection, outbox: Connection) -> None:
             sinks.append(rr.GrpcSink(f"rerun+http://127.0.0.1:{live['port']}/proxy"))
         elif live.get("connect"):
             sinks.append(rr.GrpcSink(live["connect"]))
-        layout = blueprint(header["runs"], header.get("views"), header.get("error_views"))
+        layout = blueprint(header["runs"], header.get("views"), header.get("error_views"),
+                           header.get("check_views"))
         rec.set_sinks(*sinks, default_blueprint=layout)
         rec.send_recording_name(header["name"])
         outbox.send(("ready", ""))

@@ -1,0 +1,206 @@
+"""What a safety check is, declared once, and what "safe" means: one function of it.
+
+A :class:`Declaration` names a family of checks (``position``), the quantity it bounds, its
+SI unit and its :class:`Kind`; :meth:`Declaration.joints_and_norm` makes one
+:class:`Check` per joint (``position_joint1`` … ``position_jointN``) and one of the norm
+(``position_norm``). Every reader of a run's checks (the run table and summary.md, the
+verdict, the figures and the Rerun layout, the trace's units, the sweep's columns and
+tables, ``cosim compare`` and the filter's guarantee) reads these declarations, through the
+entries :func:`safety_entries` writes into summary.json, and decides "safe" only through
+:func:`left_sets` / :func:`is_safe` / :func:`kept`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass
+from enum import StrEnum
+
+import numpy as np
+
+
+class Kind(StrEnum):
+    """What a check's set is, and so whether it counts in the verdict."""
+
+    HARD = "hard"  # a physical set on the true state, per joint: what a safety filter keeps
+    SOFT = "soft"  # a tracking or estimation set, or a norm of a physical one: reported
+    SUFFICIENT = "sufficient"  # a sufficient condition for other sets: shown, not a verdict
+
+
+# The kinds whose sets a run must keep to be called safe.
+VERDICT_KINDS = frozenset({Kind.HARD, Kind.SOFT})
+
+
+@dataclass(frozen=True)
+class Declaration:
+    """A family of checks: ``family`` (the stem of each check's name), ``quantity`` (what
+    is bounded, in words and the paper's symbols), ``unit`` (SI), the :class:`Kind` of the
+    per-joint checks and of the norm, and ``figure``: the figure and Rerun view it is drawn
+    in ("" for none; checks sharing a figure are drawn side by side, in declaration order)."""
+
+    family: str
+    quantity: str
+    unit: str
+    kind: Kind
+    norm_kind: Kind = Kind.SOFT
+    figure: str = ""
+
+    def name(self, joint: int | None) -> str:
+        """``<family>_joint<j>`` (1-based), or ``<family>_norm``."""
+        return f"{self.family}_norm" if joint is None else f"{self.family}_joint{joint}"
+
+    def joints_and_norm(self, signal: np.ndarray, bound: float,
+                        reference: np.ndarray | None = None) -> dict[str, Check]:
+        """One check per joint of ``signal`` (rows × joints, signed, within ±bound) and one
+        of its Euclidean norm (within [0, bound]); ``reference``: the same quantity for the
+        reference trajectory."""
+        out = {self.name(j + 1): Check(signal[:, j], bound, -bound,
+                                       None if reference is None else reference[:, j],
+                                       self, j + 1)
+               for j in range(signal.shape[1])}
+        out[self.name(None)] = self.norm(np.linalg.norm(signal, axis=1), bound,
+                                         None if reference is None
+                                         else np.linalg.norm(reference, axis=1))
+        return out
+
+    def norm(self, value: np.ndarray, bound: float,
+             reference: np.ndarray | None = None) -> Check:
+        """The norm check alone: ``value`` ≥ 0 within [0, bound]."""
+        return Check(value, bound, 0.0, reference, self, None)
+
+    def kind_of(self, joint: int | None) -> Kind:
+        return self.norm_kind if joint is None else self.kind
+
+
+@dataclass
+class Check:
+    """One check's values over rows: ``value`` must stay within [lower, upper]. A joint
+    check's value is signed (x1,j − q_s,j, say) with lower = −upper, so the figures show the
+    signal itself against its band; a norm check's value is ≥ 0 with lower = 0.
+    ``declared``/``joint``: what it is (every check an evaluator makes has them)."""
+
+    value: np.ndarray
+    upper: float
+    lower: float
+    reference: np.ndarray | None = None  # the same quantity for the reference trajectory
+    declared: Declaration | None = None
+    joint: int | None = None
+
+    @property
+    def magnitude(self) -> np.ndarray:
+        return np.abs(self.value)
+
+    @property
+    def label(self) -> str:
+        """The quantity with its joint or "norm" and unit, for axes and tables."""
+        if self.declared is None:
+            return ""
+        where = "norm" if self.joint is None else f"joint {self.joint}"
+        return f"{self.declared.quantity}, {where} ({self.declared.unit})"
+
+
+def excursions(check: Check, dt: float) -> dict[str, float | None]:
+    """When the check is first violated (s; None if never) and for how long in all (s)."""
+    outside = (check.value > check.upper) | (check.value < check.lower)
+    first = np.flatnonzero(outside)
+    return {"first_violation_s": float(first[0] * dt) if len(first) else None,
+            "time_outside_s": float(np.count_nonzero(outside) * dt)}
+
+
+def _declared(check: Check) -> dict:
+    """What summary.json says a check is (its declaration, and its joint or "norm")."""
+    d = check.declared
+    if d is None:
+        return {}
+    return {"quantity": d.quantity, "unit": d.unit, "kind": str(d.kind_of(check.joint)),
+            "joint": "norm" if check.joint is None else check.joint, "family": d.family,
+            "figure": d.figure}
+
+
+def safety_entries(checks: Mapping[str, Check], dt: float) -> dict:
+    """summary.json's ``safety``: per check what it is (quantity, unit, kind, joint), its
+    bound, worst value, whether it held, when it was first left and for how long, and the
+    reference's own worst value with whether the set is attainable."""
+    safety = {}
+    for name, check in checks.items():
+        entry = {**_declared(check), "bound": float(check.upper)}
+        if not len(check.value):  # the run stopped at its first row: nothing is known
+            safety[name] = {**entry, "worst": None, "satisfied": None,
+                            "unavailable": "the run completed no row"}
+            continue
+        if np.isnan(check.value).all():
+            # Only the ground-truth velocity can be missing: a plant without a qdot mapping.
+            safety[name] = {**entry, "worst": None, "satisfied": None,
+                            "unavailable": "needs the true joint velocity: the plant maps "
+                            "no qdot"}
+            continue
+        worst = float(np.max(check.magnitude))
+        entry.update(worst=worst, satisfied=bool(worst <= check.upper),
+                     **excursions(check, dt))
+        if check.reference is not None and len(check.reference):
+            entry["reference_worst"] = float(np.max(np.abs(check.reference)))
+            # A set the reference itself leaves cannot be kept by any controller that tracks.
+            entry["attainable"] = bool(entry["reference_worst"] <= check.upper)
+        safety[name] = entry
+    return safety
+
+
+# Reading summary.json's entries: the one definition of "safe" ---------------------------
+
+def kind(entry: Mapping) -> Kind:
+    """A summary entry's kind (an entry written without one is a soft set)."""
+    return Kind(entry.get("kind", Kind.SOFT))
+
+
+def unit(entry: Mapping) -> str:
+    return entry.get("unit", "")
+
+
+def is_left(entry: Mapping) -> bool:
+    """The run left this set, and some controller could have kept it (the reference
+    stays inside)."""
+    return (entry.get("worst") is not None and entry.get("satisfied") is False
+            and entry.get("attainable") is not False)
+
+
+def left_sets(safety: Mapping[str, Mapping], kinds: Iterable[Kind] = VERDICT_KINDS
+              ) -> list[tuple[str, Mapping]]:
+    """The attainable sets of ``kinds`` a run left, earliest first."""
+    kinds = frozenset(kinds)
+    left = [(name, e) for name, e in safety.items() if kind(e) in kinds and is_left(e)]
+    return sorted(left, key=lambda item: item[1].get("first_violation_s") or 0.0)
+
+
+def is_safe(safety: Mapping[str, Mapping]) -> bool:
+    """Safe: kept every attainable hard and soft set, every joint and norm (a sufficient
+    condition exceeded, or a set the reference itself leaves, does not count)."""
+    return not left_sets(safety)
+
+
+def kept(safety: Mapping[str, Mapping], kinds: Iterable[Kind]) -> bool:
+    """Kept every set of ``kinds``, attainable or not (the hard sets a filter guarantees:
+    ``kept(safety, [Kind.HARD])``)."""
+    kinds = frozenset(kinds)
+    return all(e.get("satisfied") is not False for e in safety.values() if kind(e) in kinds)
+
+
+def families(safety: Mapping[str, Mapping], kinds: Iterable[Kind] = VERDICT_KINDS
+             ) -> dict[str, list[str]]:
+    """Family → its checks' names (joints, then the norm), for the families of ``kinds``
+    (a family counts by its per-joint checks' kind, or the norm's if it has no joints)."""
+    kinds = frozenset(kinds)
+    out: dict[str, list[str]] = {}
+    for name, entry in safety.items():
+        out.setdefault(entry.get("family", name), []).append(name)
+    return {family: names for family, names in out.items()
+            if kind(_representative(safety, names)) in kinds}
+
+
+def _representative(safety: Mapping[str, Mapping], names: list[str]) -> Mapping:
+    joints = [safety[n] for n in names if safety[n].get("joint", "norm") != "norm"]
+    return joints[0] if joints else safety[names[0]]
+
+
+def family_kept(safety: Mapping[str, Mapping], names: Iterable[str]) -> bool:
+    """Whether none of these checks (a family's) was left, as :func:`is_safe` counts."""
+    return not any(is_left(safety[n]) for n in names if n in safety)

@@ -1,0 +1,184 @@
+"""A check is declared once (cosim/evaluate/checks.py) and every reader follows: the run table
+and summary.md, summary.json, the trace file's units, the recording, `cosim compare` and the
+sweep. "Safe" is one function of the declarations, and every joint is checked: a 3-link run
+whose third joint alone leaves its sets is UNSAFE everywhere. Real runs through the CLI."""
+
+from __future__ import annotations
+
+import csv
+import json
+import textwrap
+from pathlib import Path
+
+import numpy as np
+import pytest
+from cli_helpers import cosim_cli
+
+from cosim.evaluate import Declaration, Kind, is_safe, kept, left_sets
+from cosim.outputs.table import verdict
+
+# A user's evaluator, in a plugin file: one declaration, a torque check in N·m.
+TORQUE_CHECK = textwrap.dedent('''
+    from cosim.evaluate import Declaration, Kind, Part, register_evaluator
+
+    TORQUE = Declaration("torque_limit", "joint torque τ", "N·m", Kind.SOFT)
+
+
+    @register_evaluator
+    class TorqueLimit(Part):
+        name = "torque_limit"
+        meaning = "|τ| within 400 N·m"
+        inputs = ("tau",)
+        declarations = (TORQUE,)
+
+        def checks(self, rows):
+            return TORQUE.joints_and_norm(rows["tau"], 400.0)
+''')
+
+
+@pytest.fixture(scope="module")
+def declared_check(tmp_path_factory) -> Path:
+    """The paper's proposed run for 1 s with the plugin's torque check, in ``a``."""
+    root = tmp_path_factory.mktemp("declared")
+    (root / "torque_check.py").write_text(TORQUE_CHECK)
+    (root / "p.toml").write_text(f'extends = "{Path("pipelines/paper_two_link.toml").resolve()}"\n'
+                                 'plugins = ["torque_check.py"]\n')
+    result = cosim_cli("run", str(root / "p.toml"), "--out", str(root / "a"), "--run",
+                       "proposed", "--set", "simulation.duration=1", "--no-figures")
+    assert result.returncode == 0, result.stderr[-2000:]
+    return root
+
+
+def test_a_check_declared_once_appears_in_every_output(declared_check):
+    run = declared_check / "a"
+    summary = json.loads((run / "summary.json").read_text())
+    entries = summary["runs"]["proposed"]["safety"]
+    assert {n for n in entries if n.startswith("torque_limit")} == {
+        "torque_limit_joint1", "torque_limit_joint2", "torque_limit_norm"}
+    entry = entries["torque_limit_joint2"]
+    assert (entry["unit"], entry["kind"], entry["joint"], entry["family"],
+            entry["quantity"], entry["bound"]) == ("N·m", "soft", 2, "torque_limit",
+                                                   "joint torque τ", 400.0)
+    tau = np.load(run / "trace_proposed.npz")["tau"]
+    assert entry["worst"] == pytest.approx(np.max(np.abs(tau[:, 1])), rel=1e-12)
+    # the table and summary.md: the check with its unit, in the verdict
+    table = (run / "summary.md").read_text()
+    assert "| torque_limit_joint2 ≤ 400 N·m |" in table
+    if not entries["torque_limit_joint1"]["satisfied"]:
+        assert "torque_limit" in verdict(summary["runs"]["proposed"])
+    # the trace file's units
+    units = json.loads(str(np.load(run / "trace_proposed.npz")["_units"]))
+    assert units["check_torque_limit_norm"]["unit"] == "N·m"
+    assert units["check_torque_limit_norm"]["description"].startswith(
+        "joint torque τ, norm (N·m)")
+    # the recording: the family is one entity, a series per joint and the norm
+    from rerun.chunk import RrdReader
+
+    store = RrdReader(run / "recording.rrd").stream().collect()
+    paths = set(store.schema().entity_paths())
+    for side in ("value", "upper", "lower"):
+        assert f"/proposed/safety/torque_limit/{side}" in paths
+    table = store.reader("sim_time", contents="/proposed/safety/torque_limit/value"
+                         ).to_arrow_table()
+    values = np.array([v for v in table.column(
+        "/proposed/safety/torque_limit/value:Scalars:scalars").to_pylist() if v is not None])
+    np.testing.assert_array_equal(values[:, :2], tau)
+    # compare: the check, its unit, both folders' values
+    compared = cosim_cli("compare", str(run), str(run))
+    assert compared.returncode == 0, compared.stderr
+    assert any(line.split()[:2] == ["torque_limit_joint2", "(N·m)"]
+               for line in compared.stdout.splitlines())
+
+
+def test_an_evaluator_check_must_come_from_its_declarations():
+    """A Part that makes a check from a declaration it does not list is refused, naming it."""
+    from cosim.evaluate import Evaluator, Part, SafeSet
+    from cosim.evaluate.parts import EVALUATORS
+    from cosim.signals import Signal, Trace
+
+    undeclared = Declaration("stray", "a stray value", "rad", Kind.SOFT)
+
+    class Stray(Part):
+        name = "stray"
+        meaning = "a check not in its declarations"
+        inputs = ("q",)
+
+        def checks(self, rows):
+            return {"stray_norm": undeclared.norm(np.abs(rows["q"][:, 0]), 1.0)}
+
+    EVALUATORS["stray"] = Stray
+    try:
+        trace = Trace({"q": Signal("n", "rad", "q")}, 2, 3, 0.001)
+        trace.rows_done = 2
+        with pytest.raises(TypeError, match="evaluator 'stray': check 'stray_norm' is not "
+                                            "made by one of its declarations"):
+            Evaluator(trace, SafeSet(), {}).update(2)
+    finally:
+        del EVALUATORS["stray"]
+
+
+def test_safe_is_one_function_of_the_declarations():
+    """Hard and soft sets count, unattainable sets and sufficient conditions do not; the
+    guarantee's hard sets are every joint's, attainable or not."""
+    def entry(kind, satisfied, attainable=None, t=0.0):
+        out = {"kind": kind, "worst": 1.0, "satisfied": satisfied, "first_violation_s": t}
+        if attainable is not None:
+            out["attainable"] = attainable
+        return out
+
+    kept_all = {"position_joint3": entry("hard", True), "r_norm": entry("sufficient", False)}
+    assert is_safe(kept_all) and kept(kept_all, [Kind.HARD])
+    unattainable = {**kept_all, "position_joint2": entry("hard", False, attainable=False)}
+    assert is_safe(unattainable) and not kept(unattainable, [Kind.HARD])
+    soft = {**kept_all, "error_joint3": entry("soft", False, t=0.5),
+            "velocity_joint2": entry("hard", False, t=0.2)}
+    assert not is_safe(soft) and not kept(soft, [Kind.HARD])
+    assert [name for name, _ in left_sets(soft)] == ["velocity_joint2", "error_joint3"]
+    assert [name for name, _ in left_sets(soft, [Kind.SOFT])] == ["error_joint3"]
+
+
+@pytest.fixture(scope="module")
+def third_joint(tmp_path_factory) -> dict[str, Path]:
+    """The 3-link proposed run for 1 s, started on the reference's position (joint 3 0.1 rad
+    off, inside its 0.2 rad error set) and 0.3 rad off (outside it at t = 0)."""
+    root = tmp_path_factory.mktemp("third_joint")
+    out = {}
+    for label, q3 in (("inside", 0.1), ("off", 0.3)):
+        out[label] = root / label
+        result = cosim_cli("run", "pipelines/three_link.toml", "--out", str(out[label]),
+                           "--run", "proposed", "--set", "simulation.duration=1",
+                           "--set", f'plant.parameters."q0[3]"={q3}')
+        assert result.returncode == 0, result.stderr[-2000:]
+        out[f"{label}_stdout"] = result.stdout
+    return out
+
+
+def test_a_three_link_run_whose_third_joint_leaves_its_set_is_unsafe_everywhere(third_joint):
+    summary = json.loads((third_joint["off"] / "summary.json").read_text())["runs"]["proposed"]
+    safety = summary["safety"]
+    # joints 1 and 2 keep every set; joint 3 leaves its error set from the start
+    for joint in (1, 2):
+        assert all(e["satisfied"] for n, e in safety.items() if n.endswith(f"_joint{joint}"))
+    assert safety["error_joint3"]["satisfied"] is False
+    assert safety["error_joint3"]["first_violation_s"] == 0.0
+    assert not is_safe(safety)
+    line = verdict(summary)
+    assert line.startswith("UNSAFE: left error_joint3 at 0.00 s")
+    printed = [s for s in third_joint["off_stdout"].splitlines() if s.startswith("  proposed ")]
+    assert printed == [f"  proposed  {line}"]
+    assert "UNSAFE: left error_joint3" in (third_joint["off"] / "summary.md").read_text()
+    assert "error_joint3 ≤ 0.2 rad" in third_joint["off_stdout"]
+    # the figures draw joint 3 (a row per joint): taller than a two-joint figure
+    import matplotlib.image
+
+    image = matplotlib.image.imread(third_joint["off"] / "fig3_errors.png")
+    assert image.shape[0] > 1100
+    # compare: the run that started on the reference held error_joint3, this one did not
+    compared = cosim_cli("compare", str(third_joint["inside"]), str(third_joint["off"]))
+    assert compared.returncode == 1
+    assert "proposed/error_joint3: held in A" in compared.stdout
+
+
+def _rows(path: Path) -> list[dict]:
+    with open(path, newline="") as f:
+        return list(csv.DictReader(f))
