@@ -67,10 +67,10 @@ def test_the_safety_table_reads_at_a_glance(compared, capsys):
                                    "✓"]
     assert "position_norm ≤ 20 rad" in text and "20.165 ~" in text  # unattainable
     # what `cosim run` prints after the table too: the guarantee and metric lines
-    from cosim.cli import _print_summary
+    from cosim.cli.summary import print_summary
 
     capsys.readouterr()
-    _print_summary(compared)
+    print_summary(compared)
     printed = capsys.readouterr().out
     assert max(len(line) for line in printed.splitlines()) <= 100
     assert "proposed_cbf: kept every hard set; guarantee covers this run" in printed

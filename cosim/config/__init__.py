@@ -8,7 +8,11 @@ are re-exported here for a block's author.
 """
 
 from ..schema import PipelineError, Section
-from .pipeline import Pipeline, Run, apply_override, load_pipeline, pipeline_model, validate
+from .load import load_pipeline
+from .overrides import apply_override
+from .pipeline import Pipeline, pipeline_model
+from .runs import Run
+from .validation import validate
 
 __all__ = ["Pipeline", "PipelineError", "Run", "Section", "apply_override", "load_pipeline",
            "pipeline_model", "validate"]

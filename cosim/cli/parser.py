@@ -1,0 +1,23 @@
+"""The `cosim` argument parser: a sub-parser per command, each defined in its command's
+module next to its handler."""
+
+from __future__ import annotations
+
+import argparse
+
+from . import build_fmu, compare, export, inspect, params, run, sweep, view, warm_up
+
+# In the order `cosim --help` lists them. A command is a module whose add_parser(commands)
+# adds its sub-parser, with its handler as ``func``.
+COMMANDS = (build_fmu, run, sweep, warm_up, view, export, compare, params, inspect)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="cosim",
+        description="Co-simulate a robot-arm FMU with a safe adaptive output-feedback "
+        "controller. SI units, angles in radians.")
+    commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for command in COMMANDS:
+        command.add_parser(commands)
+    return parser

@@ -1,0 +1,152 @@
+"""`cosim run`: run a pipeline and write its run folder."""
+
+from __future__ import annotations
+
+import argparse
+import signal
+import sys
+from pathlib import Path
+
+from .common import UserError
+from .stopping import on_sigterm
+from .summary import print_summary
+
+
+def add_parser(commands: argparse._SubParsersAction) -> None:
+    p = commands.add_parser(
+        "run", help="run a pipeline (TOML) and write its run folder",
+        description="Run every run of a pipeline through the co-simulation master and write "
+        "the run folder: summary.json, trace_<run>.npz, recording.rrd (Rerun) and PNG "
+        "figures. SI units, radians.")
+    p.add_argument("pipeline", help="pipeline file, e.g. pipelines/paper_two_link.toml")
+    p.add_argument("--out", type=Path, default=None,
+                   help="run folder (default: a new runs/<pipeline name>/<YYYYmmdd-HHMMSS>, "
+                   "with runs/<pipeline name>/latest pointing to it)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY.PATH=VALUE",
+                   help="override a pipeline key with a TOML value, e.g. controller.kv=25 or "
+                   "'plant.fmu=\"arm.fmu\"' (repeatable)")
+    p.add_argument("--run", action="append", default=None, metavar="NAME", dest="runs",
+                   help="run only this run of the pipeline (repeatable; default: all)")
+    live = p.add_mutually_exclusive_group()
+    live.add_argument("--spawn", action="store_true",
+                      help="start a Rerun viewer that follows the runs live (needs a display)")
+    live.add_argument("--connect", metavar="URL", default=None,
+                      help="stream to a Rerun viewer already running at URL, e.g. "
+                      "rerun+http://127.0.0.1:9876/proxy")
+    p.add_argument("--no-recording", action="store_true",
+                   help="do not write recording.rrd (summary, traces and figures only)")
+    p.add_argument("--no-figures", action="store_true",
+                   help="do not write the PNG figures (Figs. 2-5)")
+    p.add_argument("--force", action="store_true",
+                   help="replace what --out holds (an existing run folder is refused without)")
+    p.add_argument("--dry-run", action="store_true",
+                   help="check everything (pipeline, plant FMU, wiring, sizes), build the FMU, "
+                   "print the resolved plan and the memory and disk it needs; run nothing")
+    p.set_defaults(func=handle)
+
+
+def handle(args: argparse.Namespace) -> None:
+    from ..config import load_pipeline
+    from ..engine import Diverged
+    from ..outputs.recording import RecordingError
+    from ..outputs.run_folder import RunFolderError
+    from ..runner import run
+
+    pipeline = load_pipeline(args.pipeline, args.set)
+    if args.runs:
+        unknown = [name for name in args.runs if name not in pipeline.runs]
+        if unknown:
+            raise UserError(f"--run {unknown[0]}: {args.pipeline} has no such run; its runs "
+                            f"are {', '.join(pipeline.runs)}; nothing was run")
+        pipeline.runs = {name: pipeline.runs[name] for name in dict.fromkeys(args.runs)}
+    out = _run_folder(pipeline.name, args.out, args.dry_run)
+    if args.dry_run:
+        _print_plan(pipeline, out, args)
+        return
+    _check_viewer(args.spawn, args.connect)
+    from ..jit_cache import announce_compiles, cache_is_cold
+
+    if cache_is_cold():  # otherwise the terminal would sit silent while numba compiles
+        print("compiling the numba kernels for this machine (the first run after installing "
+              "or updating cosim without its set-up step, `cosim warm-up`, which `make venv` "
+              "runs: ~30 s on 2 cores; cached for later runs)", file=sys.stderr)
+    if not args.no_figures:  # they import matplotlib while the runs go
+        from ..outputs.figures import start_painters
+
+        start_painters()
+    print(f"running {pipeline.name}: {', '.join(pipeline.runs)} "
+          f"({pipeline.simulation.duration:g} s at {1 / pipeline.simulation.step:g} Hz) -> {out}",
+          file=sys.stderr)
+    previous = signal.signal(signal.SIGTERM, on_sigterm)
+
+    def kept() -> str:  # the run folder is made once the plant is open
+        if (out / "summary.json").is_file():
+            return f"what was computed is kept in {out}; summary.json says what is incomplete"
+        return "nothing was written (the run had not started)"
+
+    try:
+        # A kernel edited since the last run (or the warm-up) recompiles: each module's
+        # kernels are named as they are done.
+        with announce_compiles(sys.stderr):
+            results = run(pipeline, out, record=not args.no_recording, spawn=args.spawn,
+                          connect=args.connect, figures=not args.no_figures, force=args.force)
+    except Diverged as exc:
+        raise UserError(f"{exc}; {kept()}") from None
+    except KeyboardInterrupt as exc:
+        raise UserError(f"{str(exc) or 'interrupted (Ctrl-C)'}; {kept()}") from None
+    except RecordingError as exc:
+        raise UserError(f"{exc}; {kept()}") from None
+    except RunFolderError as exc:  # "--out …" messages: the folder could not be used at all
+        raise UserError(str(exc) if str(exc).startswith("--out") else f"{exc}; {kept()}") \
+            from None
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    print_summary(results)
+    print(f"run folder: {out}")
+    if not args.no_recording:
+        print(f"review: cosim view {out}   (or: rerun {out / 'recording.rrd'})")
+
+
+def _run_folder(name: str, out: Path | None, dry_run: bool) -> Path:
+    """``--out``, else a new folder per run, runs/NAME/TIME, and runs/NAME/latest pointing to
+    it (made only if the run is to go on)."""
+    if out is not None:
+        return out
+    from ..outputs.run_folder import RunFolderError, new_run_folder, point_latest
+
+    try:
+        out = new_run_folder(Path("runs") / name, create=not dry_run)
+    except RunFolderError as exc:
+        raise UserError(str(exc)) from None
+    if not dry_run:
+        point_latest(out)
+    return out
+
+
+def _print_plan(pipeline, out: Path, args: argparse.Namespace) -> None:
+    """--dry-run: the resolved plan, and a refusal the run itself would meet."""
+    from ..outputs.run_folder import would_refuse
+    from ..plan import describe_plan
+
+    print(describe_plan(pipeline, out, record=not args.no_recording))
+    refusal = would_refuse(out, args.force)
+    if refusal:  # the run itself would stop there: say so now
+        raise UserError(f"{refusal} (--dry-run: the run would be refused here)")
+
+
+def _check_viewer(spawn: bool, connect: str | None) -> None:
+    """Before anything runs: a display for --spawn, a reachable viewer for --connect."""
+    if spawn:
+        from ..outputs.viewer import has_display
+
+        if not has_display():
+            raise UserError("--spawn needs a display (DISPLAY and WAYLAND_DISPLAY are unset): "
+                            "run without it and open the recording with `cosim view` where "
+                            "there is one, or stream to a viewer with --connect URL; nothing "
+                            "was run")
+    if connect:
+        from ..outputs.viewer import check_reachable
+
+        problem = check_reachable(connect)
+        if problem:
+            raise UserError(f"--connect {connect}: {problem}; nothing was run")

@@ -1,0 +1,79 @@
+"""Reading pipeline files: TOML, with ``extends = "other.toml"`` layering one file over
+another, and paths in a file relative to that file."""
+
+from __future__ import annotations
+
+import tomllib
+from pathlib import Path
+
+from ..schema import PipelineError
+from .overrides import merge_tables
+from .sections import PLANT_SOURCES
+
+MAX_EXTENDS = 32  # files in an `extends` chain: far more than any real layering needs
+
+
+def read_toml(path: Path, chain: tuple[Path, ...] = ()) -> dict:
+    """A pipeline file's tables, with ``extends = "other.toml"`` (relative to it) resolved:
+    the other file's tables first, this file's merged over them key by key (runs by name).
+    Paths in a file (``plant.fmu``) are relative to the file that declares them; a file that
+    names a plant (``plant.fmu`` or ``plant.builtin``) replaces the one it extends."""
+    where = f" (extended by {chain[-1]})" if chain else ""
+    if len(chain) >= MAX_EXTENDS:
+        raise PipelineError(f"{path}: the 'extends' chain is more than {MAX_EXTENDS} files "
+                            f"deep (from {chain[0]}); flatten it")
+    try:
+        resolved = path.resolve(strict=False)
+        exists = path.is_file()
+    except (OSError, RuntimeError):  # a symbolic link loop
+        raise PipelineError(f"{path}: cannot be read: a loop of symbolic links{where}") \
+            from None
+    if not exists:
+        if path.is_dir():
+            raise PipelineError(f"{path}: is a folder, not a pipeline file{where}")
+        raise PipelineError(f"{path}: no such pipeline file{where}")
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except tomllib.TOMLDecodeError as exc:
+        raise PipelineError(f"{path}: not valid TOML: {exc}") from None
+    except UnicodeDecodeError as exc:
+        raise PipelineError(f"{path}: not a UTF-8 text file ({exc.reason} at byte "
+                            f"{exc.start})") from None
+    plugins = data.get("plugins")
+    if isinstance(plugins, list):  # a .py file relative to this file; a module name as is
+        data["plugins"] = [plugin_path(p, path.parent) if isinstance(p, str) else p
+                           for p in plugins]
+    plant = data.get("plant")
+    if isinstance(plant, dict) and isinstance(plant.get("fmu"), str):
+        fmu = Path(plant["fmu"]).expanduser()
+        plant["fmu"] = str(fmu if fmu.is_absolute() else (path.parent / fmu).resolve())
+    parent = data.pop("extends", None)
+    if parent is None:
+        return data
+    if not isinstance(parent, str):
+        raise PipelineError(f"{path}: key 'extends' must be a file name (got {parent!r})")
+    parent_path = path.parent / parent
+    try:
+        parent_resolved = parent_path.resolve(strict=False)
+    except (OSError, RuntimeError):
+        raise PipelineError(f"{path}: extends {parent!r}, a loop of symbolic links") from None
+    if parent_resolved in chain or parent_resolved == resolved:
+        raise PipelineError(f"{path}: 'extends' makes a cycle through {parent_path.name}")
+    inherited = read_toml(parent_resolved, (*chain, resolved))
+    merged = merge_tables(inherited, data)
+    if isinstance(inherited.get("plugins"), list) and isinstance(plugins, list):
+        # both files' plugins, the parent's first
+        merged["plugins"] = list(dict.fromkeys([*inherited["plugins"], *data["plugins"]]))
+    if isinstance(plant, dict) and isinstance(merged.get("plant"), dict):
+        for key, other in PLANT_SOURCES.items():  # this file's plant, not the parent's too
+            if key in plant and other not in plant:
+                merged["plant"].pop(other, None)
+    return merged
+
+
+def plugin_path(name: str, folder: Path) -> str:
+    """A plugin ``.py`` file's path made absolute from ``folder``; a module name as is."""
+    if not name.endswith(".py"):
+        return name
+    path = Path(name).expanduser()
+    return str(path if path.is_absolute() else (folder / path).resolve())

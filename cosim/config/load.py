@@ -1,0 +1,46 @@
+"""Loading a pipeline: its file read, the ``--set`` overrides applied, its plugins imported
+(they add block tables to the schema), then validated."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+from ..blocks.plugins import load_plugins
+from .files import plugin_path, read_toml
+from .overrides import apply_override, shadowed
+from .pipeline import Pipeline
+from .validation import validate
+
+
+def _print_warning(text: str) -> None:
+    print(f"cosim: warning: {text}", file=sys.stderr)
+
+
+def load_pipeline(path: str | Path | None, overrides: list[str] | None = None,
+                  warn: Callable[[str], None] | None = _print_warning) -> Pipeline:
+    """Read, override (``--set`` style) and validate a pipeline file; ``None``: the defaults
+    (the paper's scenario) with the overrides. ``warn(text)`` is told of overrides that a
+    run's own key shadows (None: say nothing)."""
+    if path is None:
+        data: dict = {}
+        source, base = "--set", Path.cwd()  # plant.fmu relative to where the user is
+    else:
+        path = Path(path)
+        data = read_toml(path)
+        source, base = str(path), path.parent
+    for assignment in overrides or []:
+        data = apply_override(data, assignment)
+        for warning in shadowed(data, assignment) if warn else ():
+            warn(warning)
+    plugins = data.get("plugins")
+    if isinstance(plugins, list):  # before validating: they add block tables to the schema
+        data["plugins"] = [plugin_path(p, Path.cwd()) if isinstance(p, str) else p
+                           for p in plugins]  # from --set: relative to where the user is
+        load_plugins(data["plugins"])
+    pipeline = validate(data, source)
+    if pipeline.plant.fmu is not None:
+        fmu = Path(pipeline.plant.fmu).expanduser()
+        pipeline.plant.fmu = str(fmu if fmu.is_absolute() else (base / fmu).resolve())
+    return pipeline

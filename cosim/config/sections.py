@@ -1,0 +1,95 @@
+"""The pipeline's fixed tables: ``[simulation]`` and ``[plant]`` (a built-in arm or an FMU,
+its parameters and the mapping of its ports), and the names a pipeline and its runs may
+take. SI units, radians."""
+
+from __future__ import annotations
+
+import re
+from typing import Annotated, Literal
+
+from pydantic import Field, create_model, model_validator
+
+from plant_fmu import DEFAULT_MODEL, MODELS
+
+from ..plant.ports import PORTS
+from ..schema import FiniteFloat, PositiveFloat, Section
+
+
+class Simulation(Section):
+    duration: PositiveFloat = 20.0  # s
+    step: Annotated[float, Field(gt=0, le=0.1)] = 1e-3  # s, master rate
+    # The built-in plant integrates each step in RK4 sub-steps of at most its rk4_step
+    # parameter (1e-4 s: 10 a step). One FMU call cannot be interrupted, so the sub-steps a
+    # step may take are capped: a tiny rk4_step would otherwise run for hours unstoppably.
+    max_plant_substeps: Annotated[int, Field(ge=1)] = 1000
+
+    @model_validator(mode="after")
+    def _whole_steps(self) -> Simulation:
+        steps = self.duration / self.step
+        if steps < 1.0 - 1e-9:
+            raise ValueError(f"simulation.step = {self.step:g} s is longer than "
+                             f"simulation.duration = {self.duration:g} s: the run would have "
+                             "no step")
+        if abs(steps - round(steps)) > 1e-6 * max(1.0, steps):
+            below, above = int(steps) * self.step, (int(steps) + 1) * self.step
+            raise ValueError(f"simulation.duration = {self.duration:g} s is not a whole number "
+                             f"of steps of {self.step:g} s ({steps:.6g}); use {below:g} or "
+                             f"{above:g} s")
+        return self
+
+    @property
+    def steps(self) -> int:
+        return int(round(self.duration / self.step))
+
+
+# A run's or pipeline's name becomes a file and folder name and a recording entity path.
+SAFE_NAME = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
+
+
+def check_name(name: str, what: str) -> str:
+    if not SAFE_NAME.fullmatch(name) or ".." in name:
+        raise ValueError(f"{what} {name!r}: use up to 64 letters, digits, '_', '-' and '.', "
+                         "starting with a letter or digit (it names files and recording "
+                         "entities)")
+    return name
+
+
+class BuiltinPlant(Section):
+    # The model: plant_fmu.models.MODELS (the elastic-joint arm's motors drive the links
+    # through springs; its extra parameters are k, d, J per joint).
+    model: Literal[tuple(MODELS)] = DEFAULT_MODEL  # the rigid arm, or with elastic joints
+    links: Annotated[int, Field(ge=1, le=7)] = 2  # joints of the built-in arm
+    fmi_version: Literal[2, 3] = 2  # the FMI version it is built for
+
+
+class _VariableMapping(Section):
+    """The plant's ports in the FMU's names, one name per joint (n×n row-major for M), a
+    key per port of cosim.plant.ports.PORTS. Unset: the built-in plants' names (``tau[1]``,
+    ``q[1]``, …; an optional output only where the FMU has them); ``[]`` for an optional
+    output: not mapped."""
+
+
+VariableMapping = create_model(
+    "VariableMapping", __base__=_VariableMapping,
+    **{port.name: (list[str] | None, Field(None, description=(
+        f"{port.direction}s, {port.signal.unit}: {port.role}"
+        + ("" if port.required else " (optional)")))) for port in PORTS})
+
+
+class Plant(Section):
+    builtin: BuiltinPlant | None = None
+    fmu: str | None = None  # path relative to the pipeline file
+    parameters: dict[str, FiniteFloat] = {}  # FMU parameter and start values, by FMU name
+    variables: VariableMapping = VariableMapping()
+
+    @model_validator(mode="after")
+    def _one_source(self) -> Plant:
+        if self.builtin is not None and self.fmu is not None:
+            raise ValueError("give either plant.builtin or plant.fmu, not both")
+        if self.builtin is None and self.fmu is None:
+            self.builtin = BuiltinPlant()
+        return self
+
+
+# plant.fmu and plant.builtin are alternatives: a file or --set naming one drops the other.
+PLANT_SOURCES = {"fmu": "builtin", "builtin": "fmu"}
