@@ -94,7 +94,7 @@ def test_every_page_of_the_documentation_is_in_the_order_read():
 def test_the_readme_has_the_commands_this_test_knows():
     commands = readme_commands()
     assert len(commands) >= 20
-    for key in SKIPPED:  # a skip whose command left the README is stale
+    for key in SKIPPED:  # a skip whose command left the pages is stale
         assert any(matches(c, key) for c in commands), key
 
 

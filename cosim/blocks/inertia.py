@@ -63,7 +63,7 @@ class Chain(NamedTuple):
 
 
 def default_links(links: int) -> dict[str, list[float]]:
-    """Nominal link parameters when the pipeline gives none: the paper's arm (SPEC §2),
+    """Nominal link parameters when the pipeline gives none: the paper's arm (Lewis et al.),
     further links as the built-in plant's defaults (1 kg, 1 m, centre of mass at the tip,
     no rotational inertia)."""
     return {"m": [PAPER_MASSES[i] if i < len(PAPER_MASSES) else 1.0 for i in range(links)],
