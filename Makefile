@@ -38,8 +38,8 @@ $(VENV)/.installed: pyproject.toml
 	$(BIN)/python -m pip install --quiet -e .
 	touch $@
 
-# The test extras (pytest, ruff, Pinocchio, rerun's reader, PythonFMU) on top: `make demo`
-# installs only what cosim needs to run.
+# The test extras (pytest, ruff, Pinocchio, rerun's reader, PythonFMU, MkDocs) on top:
+# `make demo` installs only what cosim needs to run.
 $(VENV)/.installed-test: $(VENV)/.installed
 	$(BIN)/python -m pip install --quiet -e '.[test]'
 	touch $@
@@ -47,8 +47,11 @@ $(VENV)/.installed-test: $(VENV)/.installed
 demo: venv
 	$(BIN)/cosim run pipelines/paper_two_link.toml --out runs/paper --force
 
+# The documentation site into build/site, strictly: a broken link or an API reference that
+# does not resolve fails the build (~2 s).
 test: test-venv render-deps
 	$(BIN)/ruff check .
+	$(BIN)/mkdocs build --strict --quiet
 	$(BIN)/python -m pytest
 
 lint: test-venv
@@ -58,7 +61,7 @@ lint: test-venv
 mutants: test-venv
 	$(BIN)/python benchmarks/mutants.py
 
-# The README's commands in order with their real runs and sweeps (CI checks them with
-# --dry-run): ~20 min on 2 cores, most of it the 500-point Monte Carlo sweep.
+# The commands of README.md and docs/ in order with their real runs and sweeps (CI checks
+# them with --dry-run): ~20 min on 2 cores, most of it the 500-point Monte Carlo sweep.
 readme: test-venv render-deps
 	COSIM_README_FULL=1 $(BIN)/python -m pytest -q tests/test_readme.py

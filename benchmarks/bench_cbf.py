@@ -2,8 +2,8 @@
 (pipelines/paper_safety.toml):
 
 1. the fused closed loop with and without the filter against the floor, the FMU alone in
-   one compiled call (bench_cosim.fmu_only_compiled): the issue's figure is the filtered
-   loop within 2.5× of the floor;
+   one compiled call (bench_cosim.fmu_only_compiled): the target is the filtered loop
+   within 2.5× of the floor;
 2. the filter's parts per step, each in one compiled loop over every row of the finished
    run (no Python between steps): building the rows, the rows and the recording of the
    outputs — the recording is the difference — (the step's own parts inlined, as in the

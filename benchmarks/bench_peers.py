@@ -1,6 +1,6 @@
 """cosim against peer tools on the same closed loop, in one process on one machine.
 
-The plant is the paper's two-link arm (SPEC §2: a1 = a2 = 1 m, m1 = 0.8 kg, m2 = 2.3 kg,
+The plant is the paper's two-link arm (Lewis: a1 = a2 = 1 m, m1 = 0.8 kg, m2 = 2.3 kg,
 g = 9.8 m/s², point masses at the link tips, angles from the horizontal, τ_d = 0.01 N·m per
 joint, q(0) = 0.1 rad, q̇(0) = 10 rad/s), run for ``--duration`` s (default 20) at 1 kHz with
 the torque held over each 1 ms step (zero-order hold). Two closed loops:
@@ -32,7 +32,7 @@ The tools:
    1 ms communication step and output interval, recording the outputs cosim reads (q, q̇, M).
    Two figures: the whole call, and its cost per step beyond a 10-step call (instantiation
    and set-up taken out); the ratio uses the latter, the one kinder to FMPy.
-4. **A plain Python loop**: the arm's closed-form equations (SPEC §2) in scalar ``math``
+4. **A plain Python loop**: the arm's closed-form equations in scalar ``math``
    (faster in CPython than 2×2 NumPy arrays), RK4 with 10 sub-steps per 1 ms, the NN's
    matrix products in NumPy. The same functions are python-control's plant and controllers,
    so the two differ only by the framework.
@@ -71,7 +71,7 @@ PD = ROOT / "pipelines" / "pd_control.toml"
 H = 1e-3  # s, the master step (the torque's hold)
 SUBSTEPS = 10  # RK4 sub-steps per master step: 0.1 ms, the FMU's rk4_step
 
-# The paper's arm (SPEC §2); checked against the FMU's parameters in arm_from_fmu.
+# The paper's arm; checked against the FMU's parameters in arm_from_fmu.
 A1 = A2 = 1.0  # m
 M1, M2 = 0.8, 2.3  # kg
 GRAV = 9.8  # m/s²
@@ -89,7 +89,7 @@ State = tuple[float, float, float, float]  # q1, q2 (rad), q̇1, q̇2 (rad/s)
 Law = Callable[[int, State], tuple[float, float]]  # step k, state -> τ (N·m)
 
 
-# ---- the plant: SPEC §2 in closed form ---------------------------------------------------
+# ---- the plant: the paper's arm in closed form ------------------------------------------
 
 def arm_acceleration(q1: float, q2: float, w1: float, w2: float, t1: float, t2: float
                      ) -> tuple[float, float]:
@@ -134,7 +134,7 @@ def rk4_hold(x: State, t1: float, t2: float, h: float = H, substeps: int = SUBST
 
 
 def gravity(q1: float, q2: float) -> tuple[float, float]:
-    """G(q) of SPEC §2, N·m: the PD controller's compensation (nominal arm = plant)."""
+    """G(q) of the paper's arm, N·m: the PD controller's compensation (nominal arm = plant)."""
     c12 = math.cos(q1 + q2)
     return (M1 + M2) * GRAV * A1 * math.cos(q1) + M2 * GRAV * A2 * c12, M2 * GRAV * A2 * c12
 
@@ -145,7 +145,7 @@ def check_fmu_parameters(md) -> None:
     start = {v.name: float(v.start) for v in md.modelVariables if v.start is not None}
     wrong = {k: (start.get(k), v) for k, v in EXPECTED.items() if start.get(k) != v}
     if wrong:
-        raise SystemExit(f"the FMU's parameters differ from SPEC §2's arm: {wrong}")
+        raise SystemExit(f"the FMU's parameters differ from the paper's arm: {wrong}")
 
 
 # ---- the controllers, shared by the plain loop and python-control -------------------------

@@ -1,6 +1,6 @@
-"""The first run on a fresh machine, as the README's set-up leaves it: a copy of the sources
-without bytecode and empty caches (numba's kernels, the fused loops, the built FMU,
-matplotlib's font list, each in a temporary folder), then the set-up's warm-up step
+"""The first run on a fresh machine, as the set-up (`make demo`, `make test`) leaves it: a
+copy of the sources without bytecode and empty caches (numba's kernels, the fused loops, the
+built FMU, matplotlib's font list, each in a temporary folder), then the set-up's warm-up step
 (`cosim warm-up`, which `make venv` and `make test-venv` run) timed on its own, then the
 first `cosim run` of the pipeline, timed: the figure to reach is ≤ 5 s. Prints every line
 each wrote to stderr with the second it appeared.

@@ -1,5 +1,5 @@
 """What holds of the paper's controllers, the safety filter and PD control on the arm with
-elastic joints as the joints soften (pipelines/elastic_joints.toml): the README's table.
+elastic joints as the joints soften (pipelines/elastic_joints.toml): the table of docs/plants.md.
 
     .venv/bin/python benchmarks/elastic_stiffness.py [--duration 20]
 

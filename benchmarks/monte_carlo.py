@@ -1,8 +1,8 @@
-"""The robust-safety Monte Carlo (README "Safety under uncertainty"): runs `cosim sweep` on
-pipelines/monte_carlo.toml with the issue's sampled conditions, then prints the tables the
-README quotes: the hard sets by class, the broken guarantees, the tracking sets against the
-unfiltered controller, the cost of robustness and why samples fall outside the declared
-uncertainty.
+"""The robust-safety Monte Carlo (docs/sweeps.md, "Monte Carlo under declared uncertainty"):
+runs `cosim sweep` on pipelines/monte_carlo.toml with its sampled conditions, then prints the
+tables docs/sweeps.md quotes: the hard sets by class, the broken guarantees, the tracking
+sets against the unfiltered controller, the cost of robustness and why samples fall outside
+the declared uncertainty.
 
     .venv/bin/python benchmarks/monte_carlo.py --samples 1000 --out runs/mc1000
     .venv/bin/python benchmarks/monte_carlo.py --results runs/mc1000   # tables only

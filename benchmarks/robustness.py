@@ -1,5 +1,5 @@
 """Which of the paper's joint-1 sets every controller keeps, under each robustness condition
-of pipelines/robustness.toml: the README's table.
+of pipelines/robustness.toml, as a table.
 
     .venv/bin/python benchmarks/robustness.py [--duration 20]
 

@@ -30,7 +30,7 @@ from typing import TextIO
 from . import jit_cache
 
 _PACKAGE = Path(__file__).resolve().parent
-# The pipeline the first run of the README is: `make demo`'s, `cosim run`'s example.
+# The pipeline of the first run (README.md): `make demo`'s, `cosim run`'s example.
 DEFAULT_PIPELINES = ("pipelines/paper_two_link.toml",)
 # Steps each warm-up run takes: enough for every kernel and the fused loop to be called
 # with the types a full run gives them (the types do not depend on the duration).

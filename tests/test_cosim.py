@@ -48,7 +48,7 @@ def test_baseline_violates_the_safe_sets_as_in_the_paper(paper_run):
     assert not safety["velocity_true_joint1"]["satisfied"]  # |q̇1 − q̇s1| ≤ 13.5
     assert not safety["error_joint1"]["satisfied"]  # |e1| ≤ 1
     assert not safety["error_rate_joint1"]["satisfied"]  # |ė1| ≤ 5
-    # SPEC §3's independent run of this baseline: max |q̇1| ≈ 18.7, max |e1| ≈ 2.4.
+    # An independent run of the paper's baseline: max |q̇1| ≈ 18.7, max |e1| ≈ 2.4.
     assert safety["velocity_true_joint1"]["worst"] == pytest.approx(18.7, abs=0.3)
     assert safety["error_joint1"]["worst"] == pytest.approx(2.4, abs=0.1)
 
@@ -99,7 +99,7 @@ def test_error_driven_observer_converges(paper_run):
 
 
 class PythonArm:
-    """SPEC §2's closed form integrated by solve_ivp (DOP853, rtol 1e-12) each step: an
+    """The paper's arm in closed form integrated by solve_ivp (DOP853, rtol 1e-12) each step: an
     independent stand-in for the FMU (a :class:`cosim.plant.Plant`)."""
 
     links, mapped = 2, frozenset({"q", "qdot", "M"})
@@ -139,9 +139,9 @@ class PythonArm:
 
 @pytest.mark.parametrize("variant,duration", [("baseline", 2.0), ("proposed", 0.5)])
 def test_closed_loop_on_the_fmu_equals_an_independent_integration(variant, duration):
-    """Same blocks, FMU vs SPEC §2 integrated by solve_ivp. The proposed loop's high gains
-    amplify the 1e-10 difference of the two integrators after ~0.7 s (measured in the
-    README), so it is compared over 0.5 s; the full-state loop over 2 s."""
+    """Same blocks, FMU vs the paper's arm integrated by solve_ivp. The proposed loop's high
+    gains amplify the 1e-10 difference of the two integrators after ~0.7 s (measured), so it
+    is compared over 0.5 s; the full-state loop over 2 s."""
     from cosim.plant.fmu import Fmu
     from plant_fmu import build_fmu
 

@@ -271,8 +271,8 @@ def test_dry_run_checks_everything_and_writes_nothing(tmp_path):
 
 
 def test_dry_run_says_when_the_run_itself_would_be_refused(finished, tmp_path):
-    """A --dry-run into a finished run folder (the README's second command after `make
-    demo`) gives the run's own refusal, not an all-clear; with --force, the all-clear."""
+    """A --dry-run into a finished run folder (such as the runs/paper that `make demo` leaves)
+    gives the run's own refusal, not an all-clear; with --force, the all-clear."""
     before = snapshot(finished)
     message = error_line(cosim_cli("run", PAPER, "--out", str(finished), "--dry-run"))
     assert message.startswith(f"cosim: error: --out {finished}: already holds ")

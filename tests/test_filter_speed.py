@@ -112,7 +112,7 @@ def test_every_filtered_torque_is_its_steps_qp_answer(name):
     """At every step (the rows rebuilt from the run's own state): the torque in the trace is
     the minimiser of the penalty form ½‖τ − τ_nom‖² + ½Σρ_j(g_jτ − h_j)₊², solved here
     apart in exact arithmetic on the rows it violates, to 1e-12 of 1 + ‖τ_nom‖∞ (measured
-    3e-13; the filter's earlier normal-equation solve was off by up to 3e-5), and
+    3e-13; a normal-equation solve would be off by up to 3e-5), and
     DAQP's answer of the QP (hard rows as constraints, soft ones with slack) to 1e-6
     (measured 1e-9 on proposed_cbf, 8e-8 on baseline_cbf: the penalty form lets a hard row
     slip by its multiplier over ρ_hard)."""

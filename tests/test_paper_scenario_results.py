@@ -1,17 +1,18 @@
-"""The paper's scenario gives the results it gave before the kernels were rewritten for speed
-(issue 21: loops over preallocated scratch instead of numpy temporaries, BLAS and LAPACK).
+"""The paper's scenario gives its stored reference results, which numpy's arithmetic
+(temporaries, BLAS's gemv, LAPACK's solve) computed; the kernels compute them in loops over
+preallocated scratch, for speed.
 
 ``paper_scenario_reference.json`` holds both runs of pipelines/paper_two_link.toml (20 s at
-1 kHz) as the kernels before the rewrite (commit a6d3a51) computed them: the plant's
+1 kHz) as numpy's arithmetic computed them (the file's git log names the code): the plant's
 q and q̇, the observer's x̂2, k0 of (8) and ‖Ŵo‖, the torque τ and the NN controller's ‖Ŵ‖
 and ‖V̂‖, at 22 instants (0.1 s, 0.5 s, then every second) and as their peaks |·| over the
 run (552 numbers).
 
-The rewrite is the same arithmetic, but sums that BLAS's gemv and LAPACK's solve did in their
-own order (and with FMA) are now done in index order, so results differ in the last bits at
-a step and the closed loop carries those differences on. Tolerances:
+The kernels do the same arithmetic, but sums that BLAS's gemv and LAPACK's solve do in their
+own order (and with FMA) are done in index order, so results differ in the last bits at a
+step and the closed loop carries those differences on. Tolerances:
 
-- positions (q): 1e-9 rad, the issue's figure; measured ≤ 4.2e-13 rad at the stored rows
+- positions (q): 1e-9 rad; measured ≤ 4.2e-13 rad at the stored rows
   and peaks, ≤ 2.2e-12 rad over every row of the full traces;
 - everything else: 1e-9 of the signal's scale (max(1, its peak over the run)), as
   tests/test_references.py's closed forms; measured ≤ 5.6e-12 of it at the stored rows and

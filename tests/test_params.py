@@ -10,11 +10,29 @@ import re
 import subprocess
 import sys
 
+import pytest
 from cli_helpers import cosim_cli
 
 from cosim.config import load_pipeline
 
 LINE = re.compile(r"^([ *]) (\S+?)(?: = (.*?))?\s{2,}\[(.*)\](?:  # (.*))?$")
+
+# What a meaning may name as its unit, after a comma or in parentheses: an SI unit (angles in
+# radians), or, for a value that has none, what it is. "mixed units": the NN weights and
+# their bounds, whose entries carry the units of the different inputs they multiply.
+UNITS = ("s", "1/s", "Hz", "rad", "rad²", "rad/s", "rad/s²", "rad/s³", "(rad/s)²", "m",
+         "m/s²", "kg", "kg·m²", "N·m", "N·m/rad", "N·m·s/rad", "1/(N·m)",
+         "√(N·m·rad/s)")
+NO_UNIT = ("dimensionless", "mixed units", "a name", "names", "a flag", "a path", "paths",
+           "free text")
+NAMES_A_UNIT = re.compile(r"(?:, |\()(" + "|".join(
+    re.escape(unit) for unit in sorted(UNITS + NO_UNIT, key=len, reverse=True))
+    + r")(?![\w/·])")
+# Keys whose sections live in files others are restructuring (cosim/config/pipeline.py,
+# cosim/blocks/controller.py, cosim/blocks/cbf_filter.py): their meanings with units are
+# written into those files when the restructuring is merged.
+RESTRUCTURED = ("name", "description", "plugins", "simulation.", "plant.builtin.",
+                "plant.fmu", "plant.parameters", "controller.", "cbf_filter.")
 
 
 def flatten(data: dict, prefix: str = "") -> dict[str, object]:
@@ -90,3 +108,30 @@ def test_a_pipelines_values_are_marked_where_they_differ_and_dry_run_lists_them(
     assert set(only) == {k for k in rows if k.startswith("uncertainty.")}
     none = cosim_cli("params", "--grep", "no such key anywhere")
     assert none.returncode == 2 and "--grep no such key anywhere: no key" in none.stderr
+
+
+def without_a_unit(rows: dict[str, tuple[str, str, str, str]]) -> dict[str, str]:
+    """The keys whose meaning is not words (three of three letters or more, not a bare
+    symbol) naming one of UNITS or NO_UNIT."""
+    return {key: meaning for key, (_, _, _, meaning) in rows.items()
+            if len(re.findall(r"[^\W\d_]{3,}", meaning)) < 3
+            or not NAMES_A_UNIT.search(meaning)}
+
+
+def test_every_key_has_a_meaning_in_words_that_names_its_unit():
+    rows = listing()
+    assert len(rows) > 60
+    mine = {key: row for key, row in rows.items() if not key.startswith(RESTRUCTURED)}
+    assert without_a_unit(mine) == {}
+    # the rule itself: a bare symbol is refused, a meaning in words with its unit is not
+    examples = {"bare": "Kv", "worded": "gain Kv on the filtered error r̂ in (21), N·m·s/rad"}
+    assert without_a_unit({k: ("", "", "", v) for k, v in examples.items()}) == {"bare": "Kv"}
+
+
+@pytest.mark.skip(reason="name, description, plugins, simulation.*, plant.builtin.*, plant.fmu, "
+                  "plant.parameters (cosim/config/pipeline.py), controller.* "
+                  "(cosim/blocks/controller.py) and cbf_filter.* (cosim/blocks/cbf_filter.py) "
+                  "are being restructured elsewhere: their meanings with units come with it")
+def test_the_restructured_sections_keys_name_their_units_too():
+    rows = listing()
+    assert without_a_unit({k: row for k, row in rows.items() if k.startswith(RESTRUCTURED)}) == {}

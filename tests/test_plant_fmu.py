@@ -92,7 +92,7 @@ def test_dynamics_agree_with_pinocchio(plant_fmu, links, fmi_version):
 
 
 def paper_closed_form(q, qd, m1=0.8, m2=2.3, a1=1.0, a2=1.0, g=9.8):
-    """SPEC §2: Lewis's two-link arm with point masses at the tips."""
+    """The paper's arm: Lewis's two-link arm with point masses at the tips."""
     c2, s2 = np.cos(q[1]), np.sin(q[1])
     M = np.array([[(m1 + m2) * a1**2 + m2 * a2**2 + 2 * m2 * a1 * a2 * c2,
                    m2 * a2**2 + m2 * a1 * a2 * c2],
@@ -106,7 +106,8 @@ def paper_closed_form(q, qd, m1=0.8, m2=2.3, a1=1.0, a2=1.0, g=9.8):
 
 @pytest.mark.parametrize("fmi_version", VERSIONS)
 def test_default_arm_is_the_papers_closed_form(plant_fmu, fmi_version):
-    """Defaults alone (no parameters set) reproduce SPEC §2, disturbance 0.01 N·m included."""
+    """Defaults alone (no parameters set) reproduce the paper's arm, disturbance 0.01 N·m
+    included."""
     inst = FmuInstance(plant_fmu(2, fmi_version), "ModelExchange")
     rng = np.random.default_rng(7)
     try:

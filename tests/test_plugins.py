@@ -1,6 +1,6 @@
-"""Blocks from outside the package: the README's guide run as written, plugin files and
-modules named by a pipeline, the ``cosim.blocks`` entry point group, and the one clear
-message for each way a user's block can be wrong."""
+"""Blocks from outside the package: the block guide of docs/extending.md run as written,
+plugin files and modules named by a pipeline, the ``cosim.blocks`` entry point group, and
+the one clear message for each way a user's block can be wrong."""
 
 from __future__ import annotations
 
@@ -20,11 +20,11 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def readme_guide() -> tuple[dict[str, str], list[str]]:
-    """The README's custom-block section: its files (named by each block's first-line
-    comment) and its shell commands, as written."""
-    text = (ROOT / "README.md").read_text(encoding="utf-8")
-    start = text.index("### Your own block, step by step")
-    section = text[start:text.index("\n### ", start + 1)]
+    """The custom-block section of docs/extending.md: its files (named by each block's
+    first-line comment) and its shell commands, as written."""
+    text = (ROOT / "docs" / "extending.md").read_text(encoding="utf-8")
+    start = text.index("## Your own block, step by step")
+    section = text[start:text.index("\n## ", start + 1)]
     files, commands = {}, []
     for language, body in re.findall(r"```(\w+)\n(.*?)```", section, re.S):
         if language == "sh":

@@ -1,14 +1,14 @@
-"""The README's commands, in the order a newcomer meets them, as written, in a folder of their
-own (a copy of `pipelines/`): each `cosim` command must succeed.
+"""The commands of README.md and of the documentation's pages, in the order a newcomer meets
+them (README.md, then docs/ in the order of mkdocs.yml's nav), as written, in a folder of
+their own (a copy of `pipelines/`): each `cosim` command must succeed.
 
 `cosim run` and `cosim sweep` are checked with `--dry-run` (every key, point, run name and
 `--out` checked, nothing run: their real runs take minutes); `make readme` runs them for real
 (COSIM_README_FULL=1). `make demo` is stood in for by its own command at 1 s of simulated
 time, so that the commands after it have `runs/paper` to read. The benchmark scripts are run
-with `--help`, each option the README gives them checked against it. What cannot run here
-is listed in SKIPPED with the reason, and a README command that matches nothing is an error:
-a new command is tested or explicitly skipped.
-"""
+with `--help`, each option the pages give them checked against it. What cannot run here
+is listed in SKIPPED with the reason, and a command that matches nothing is an error: a new
+command is tested or explicitly skipped."""
 
 from __future__ import annotations
 
@@ -21,6 +21,7 @@ import sys
 from pathlib import Path
 
 import pytest
+import yaml
 
 from cosim.outputs.viewer import headless_renderer_available
 
@@ -51,34 +52,49 @@ def skipped(argv: list[str]) -> bool:
     return any(matches(argv, key) for key in SKIPPED)
 
 
+def documents() -> list[Path]:
+    """README.md, then every page of the documentation in the order of mkdocs.yml's nav."""
+    config = yaml.safe_load((ROOT / "mkdocs.yml").read_text(encoding="utf-8"))
+    pages = [page for entry in config["nav"] for page in entry.values()]
+    return [ROOT / "README.md", *(ROOT / config["docs_dir"] / page for page in pages)]
+
+
 def readme_commands() -> list[list[str]]:
-    """Every shell command of the README's indented code blocks as its words (continuation
-    lines joined, comments dropped); the fenced custom-block guide is test_plugins.py's."""
+    """Every shell command of the indented code blocks of README.md and the documentation's
+    pages, in order, as its words (continuation lines joined, comments dropped); the fenced
+    custom-block guide is test_plugins.py's."""
     commands, fenced, pending = [], False, ""
-    for line in (ROOT / "README.md").read_text(encoding="utf-8").splitlines():
-        if line.startswith("```"):
-            fenced = not fenced
-            continue
-        if fenced:
-            continue
-        if pending:
-            pending += " " + line.strip()
-        elif re.match(r"    (cosim|make|\.venv/bin/python) ", line):
-            pending = line.strip()
-        else:
-            continue
-        if pending.endswith("\\"):
-            pending = pending[:-1].rstrip()
-            continue
-        commands.append(shlex.split(pending, comments=True))
-        pending = ""
+    for document in documents():
+        for line in document.read_text(encoding="utf-8").splitlines():
+            if line.startswith("```"):
+                fenced = not fenced
+                continue
+            if fenced:
+                continue
+            if pending:
+                pending += " " + line.strip()
+            elif re.match(r"    (cosim|make|\.venv/bin/python) ", line):
+                pending = line.strip()
+            else:
+                continue
+            if pending.endswith("\\"):
+                pending = pending[:-1].rstrip()
+                continue
+            commands.append(shlex.split(pending, comments=True))
+            pending = ""
     return commands
+
+
+def test_every_page_of_the_documentation_is_in_the_order_read():
+    """A page left out of mkdocs.yml's nav would have its commands left out of this test."""
+    listed = {path.name for path in documents()[1:]}
+    assert listed == {path.name for path in (ROOT / "docs").glob("*.md")}
 
 
 def test_the_readme_has_the_commands_this_test_knows():
     commands = readme_commands()
     assert len(commands) >= 20
-    for key in SKIPPED:  # a skip whose command left the README is stale
+    for key in SKIPPED:  # a skip whose command left the pages is stale
         assert any(matches(c, key) for c in commands), key
 
 
@@ -121,7 +137,7 @@ def test_every_readme_command_runs_in_order_as_written(workspace):
             _check_output(workspace, args, done)
         ran.append(command)
     assert len(ran) >= 15, ran
-    print("\n".join(["README commands run:", *ran]))
+    print("\n".join(["commands run:", *ran]))
 
 
 def _make(workspace: Path, args: list[str]) -> None:

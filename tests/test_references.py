@@ -1,10 +1,10 @@
-"""Every law and bound against an independent reference (issue 22).
+"""Every law and bound against an independent reference.
 
-Each test computes the expected value here, in plain NumPy from the paper's equations (SPEC
-§2–3, README's documented choices) or with SciPy, and compares the project's implementation
-with it at many random states; nothing under test produces an expected value. The kernels
-are called with the arguments their blocks' ``reset`` builds (the blocks are constructed and
-reset on small arrays, their state then set to random values).
+Each test computes the expected value here, in plain NumPy from the paper's equations (its
+arm and laws, and the choices of docs/choices.md) or with SciPy, and compares the project's
+implementation with it at many random states; nothing under test produces an expected value.
+The kernels are called with the arguments their blocks' ``reset`` builds (the blocks are
+constructed and reset on small arrays, their state then set to random values).
 
 Tolerances, and why (each stated again where it is used):
 
@@ -63,7 +63,7 @@ def close(actual: np.ndarray, expected: np.ndarray, rtol: float = RTOL) -> bool:
 
 def two_link_closed_form(q: np.ndarray, qdot: np.ndarray, a1: float, a2: float, m1: float,
                          m2: float, g: float) -> tuple[np.ndarray, np.ndarray]:
-    """SPEC §2 (the paper's arm, Lewis): M(q) and Vm(q, q̇)q̇ + G(q), point masses at the
+    """The paper's arm (Lewis): M(q) and Vm(q, q̇)q̇ + G(q), point masses at the
     link tips, angles from the horizontal."""
     c2, s2 = math.cos(q[1]), math.sin(q[1])
     m11 = (m1 + m2) * a1**2 + m2 * a2**2 + 2 * m2 * a1 * a2 * c2
@@ -124,7 +124,7 @@ def chain_bias(q: np.ndarray, qdot: np.ndarray, m: np.ndarray, l: np.ndarray,  #
 
 def test_inertia_model_two_link_equals_the_papers_closed_form():
     """planar_mass_matrix / planar_bias with lc = l and I = 0 (point masses at the tips)
-    against SPEC §2's M(q) and Vm q̇ + G at 200 random states and arms (lengths, masses and
+    against the paper's M(q) and Vm q̇ + G at 200 random states and arms (lengths, masses and
     gravity drawn too, so no coefficient is right by accident). Tolerance RTOL of the largest
     entry (closed form against a recursion: round-off ~1e-15 relative)."""
     rng = np.random.default_rng(1)
@@ -184,8 +184,8 @@ def sigma_o(x1: np.ndarray, x2: np.ndarray, qdd: np.ndarray, lagged: bool) -> np
 
 
 def envelope(kp: float, kd: float, k0: float) -> tuple[float, float, float]:
-    """README's ε(t) ingredients for s² + (kp + kD)s + k0: (slowest decay rate, peak factor
-    of the free response, L1 norm of the impulse response), from the poles."""
+    """The ε(t) ingredients of docs/safety.md for s² + (kp + kD)s + k0: (slowest decay rate,
+    peak factor of the free response, L1 norm of the impulse response), from the poles."""
     poles = np.roots([1.0, kp + kd, k0])
     decay = float(np.min(-poles.real))
     if np.iscomplexobj(poles) and abs(poles[0].imag) > 0:
@@ -255,7 +255,7 @@ def random_mass(rng: np.random.Generator, n: int) -> np.ndarray:
 def random_weights(rng: np.random.Generator, n_o: int, n: int, lagged: bool) -> np.ndarray:
     """Ŵo (No × n) of a few units; the rows on q̂̈ ("lagged") small: q̂̈ is x̂2's difference
     quotient, so those rows feed it back with gain ~‖Ŵo,q̂̈‖ per sub-step, and a gain above 1
-    diverges within a step (README: the reason the default drops q̂̈), which would compare
+    diverges within a step (docs/choices.md: the reason the default drops q̂̈), which would compare
     1e30-sized numbers."""
     w = rng.normal(size=(n_o, n)) * rng.uniform(0, 3)
     if lagged:
@@ -422,7 +422,7 @@ def test_the_observer_step_converges_to_the_continuous_observer_ode(law):
 def robust_terms(e: np.ndarray, r: np.ndarray, z_norm: float, p: ControllerParams,
                  proposed: bool) -> dict[str, np.ndarray]:
     """The robust term's parts: the baseline's v = −Kz(‖Ẑ‖_F + Z_B) r (Lewis 1999); the
-    proposed controller's v_c of (27) with its scalar middle term multiplying r̂ (SPEC §3):
+    proposed controller's v_c of (27) with its scalar middle term multiplying r̂ (a smooth sign):
     −Kz(‖Ẑ‖_F + Z_Wc) r̂ − [κ(Z_Wc + C1/κ)²/4 + C0] r̂/√(δ + ‖r̂‖²) − e − ψ_B² r̂/(δ + ‖r̂‖²)."""
     if not proposed:
         return {"Kz": -p.kz * (z_norm + p.z_b) * r}
@@ -580,7 +580,7 @@ CENTRE, VELOCITY_CENTRE = np.array([0.7, -1.3]), np.array([0.4, -0.9])  # q_s, q
 
 
 def r_of_theorem1(lam: np.ndarray, e1: float, e2: float) -> float:
-    """R, the bound on ‖r̂‖ of (15) under README's reading of Theorem 1: r̂ = ė + Λe with
+    """R, the bound on ‖r̂‖ of (15) under docs/choices.md's reading of Theorem 1: r̂ = ė + Λe with
     ‖r̂‖ ≤ R keeps ‖e‖ ≤ R/λmin (d/dt ½‖e‖² ≤ −λmin‖e‖² + R‖e‖), and then
     ‖ė‖ = ‖r̂ − Λe‖ ≤ R(1 + λmax/λmin); both within E1, E2 iff R ≤ this."""
     lmin, lmax = float(np.min(lam)), float(np.max(lam))
@@ -629,7 +629,7 @@ def evaluation_case(rng: np.random.Generator, output_feedback: bool, plant_mass:
 
 
 def expected_checks(raw: dict, output_feedback: bool, r_bound: float) -> dict:
-    """Each set of README's list computed from the primary arrays: name -> (signed value per
+    """Each set of docs/safety.md's list computed from the primary arrays: name -> (signed value per
     row, lower, upper, the reference trajectory's own value or None). Joint checks are
     signed (x − centre), every joint's, norms by hypot."""
     def joint_and_norm(stem: str, x: np.ndarray, bound: float, ref: np.ndarray | None) -> dict:

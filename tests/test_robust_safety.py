@@ -2,7 +2,7 @@
 of the plant, its margins against brute force, the observer's error bound and drift, the
 classification of runs, the safe set's centre, infeasibility, and the Monte Carlo's figures
 on a small sample. Real FMU; the independent model is the paper's closed-form two-link arm
-(SPEC §2), written in tests/test_references.py apart from the code under test."""
+(Lewis), written in tests/test_references.py apart from the code under test."""
 
 from __future__ import annotations
 
@@ -27,14 +27,14 @@ M1, M2, GRAVITY = 0.8, 2.3, 9.8
 
 
 def closed_form(q, qdot, m2):
-    """The paper's arm (SPEC §2): M(q) and Vm(q, q̇)q̇ + G(q), point masses at the tips."""
+    """The paper's arm (Lewis): M(q) and Vm(q, q̇)q̇ + G(q), point masses at the tips."""
     return two_link_closed_form(q, qdot, A1, A2, M1, m2, GRAVITY)
 
 
 def worst_condition(qddot, x, qdot, v, p, k_v, alpha_q, alpha_v) -> float:
     """The least of both hard sets' continuous-time conditions, both sides, per joint:
     position ḧ + 2p ḣ + p² h and velocity ḣ + k·max(h, 0) (past the bound, within the hold's
-    margin, "do not move further out": README, "How the margins follow"); x = q − q_s,
+    margin, "do not move further out": docs/safety.md, "How the margins follow"); x = q − q_s,
     v = q̇ − q̇_s."""
     worst = np.inf
     for side in (1.0, -1.0):
@@ -65,7 +65,7 @@ def test_the_hard_rows_hold_for_every_payload_in_the_declared_range():
     range, with the true acceleration from the closed-form arm (not the filter's model).
     (The filter's true state is exact here: baseline_cbf reads the plant's q̇, ε = 0.)"""
     # No sensor noise: M̂ is evaluated at the measured position, a first-order effect of the
-    # noise the filter does not cover (README); measured −0.003 rad/s² here at 1e-4 rad.
+    # noise the filter does not cover (docs/safety.md); measured −0.003 rad/s² here at 1e-4 rad.
     pipeline, plan, trace = simulated(['plant.parameters."m[2]"=2.9', "sensor.noise_std=0",
                                        'plant.parameters."qdot0[1]"=13.3'], "baseline_cbf")
     f = pipeline.runs["baseline_cbf"].cbf_filter
@@ -92,7 +92,7 @@ def test_the_hard_rows_hold_for_every_state_the_estimate_allows():
     keeps both hard sets' continuous-time conditions for every true state the filter cannot
     rule out — position y ± n̄, velocity x̂2 ± ε(t) per joint (the corners), payload on a
     grid of the range — with the closed-form arm's acceleration. M and b are taken at y, the
-    one approximation the README declares (first order in n̄); h and ḣ at the corner."""
+    one approximation docs/safety.md declares (first order in n̄); h and ḣ at the corner."""
     pipeline, plan, trace = simulated(['plant.parameters."m[2]"=2.9',
                                        'plant.parameters."qdot0[1]"=13.0',
                                        'plant.parameters."qdot0[2]"=6.0'], "proposed_cbf", 4.0)
@@ -170,7 +170,7 @@ def test_each_hard_constraint_is_sound_at_arbitrary_states_with_wide_margins():
                 for dv in signs * eps:
                     qdot = v + dv
                     mass, bias = closed_form(y, qdot, M2 + payload)
-                    qddot = np.linalg.solve(mass, tau - bias - 0.01)[i]  # τ_d = 0.01 (SPEC §2)
+                    qddot = np.linalg.solve(mass, tau - bias - 0.01)[i]  # the paper's τ_d, N·m
                     if s == 0:
                         for dq in (noise, -noise):
                             x = y[i] + dq - centre_q[i]
@@ -299,10 +299,10 @@ def test_the_error_envelope_matches_a_numerical_impulse_response():
 def test_the_modelled_derivative_of_the_velocity_estimate_matches_its_finite_difference():
     """What the filter's rows on x̂2 take for dx̂2/dt, the published drift + M̂⁻¹τ plus the
     kp(ẏ − x̂2) term the filter bounds by kp·ε, against x̂2's finite difference in the trace,
-    from q̇1(0) = 14 with x̂2(0) = 10 (the issue's audit: x̂2 moves at ~3000 rad/s² there, the
+    from q̇1(0) = 14 with x̂2(0) = 10 (measured: x̂2 moves at ~3000 rad/s² there, the
     plant at ~−800). At a 10 µs step the observer's stiff output injection (k0 ~ 1e5 1/s²)
     is resolved, so the continuous law must agree to within discretisation; the plant's own
-    q̈ (the old model) must not."""
+    q̈ (a model that ignores the injection) must not."""
     _, plan, trace = simulated(["simulation.step=1e-5", "sensor.noise_std=0",
                                     'plant.parameters."qdot0[1]"=14'], "proposed", 0.05)
     kp = plan.block("observer").params.kp
@@ -422,8 +422,8 @@ def test_monte_carlo_tracking_against_the_unfiltered_controller(monte_carlo):
     error norm at least as often as the unfiltered proposed controller, at no more RMS error
     (+10 %). (The error-rate sets are left for a few ms at start-up: on N = 1000 the true
     ė ≤ 5 is kept more often with the filter, 87.6 % against 81.2 %, but on these 40 samples
-    of 10 s less, 77.5 % against 87.5 %; ‖ė̂‖ 20.9 % against 35.3 % on N = 1000, README
-    "Monte Carlo". That part of the issue's figure is not reached, so it is not asserted.)"""
+    of 10 s less, 77.5 % against 87.5 %; ‖ė̂‖ 20.9 % against 35.3 % on N = 1000, docs/sweeps.md,
+    "Monte Carlo". That part is not reached on 40 samples, so it is not asserted.)"""
     rows, _, _ = monte_carlo
 
     def kept(name: str, check: str) -> float:

@@ -36,13 +36,18 @@ class InertiaModelParams(Section):
     when mapped, else nominal). Per link; unset: the paper's arm (m = 0.8, 2.3 kg, l = lc =
     1 m, I = 0), further links 1 kg, 1 m, like the built-in plant's defaults."""
 
-    # where M̂(q) comes from: the FMU's M outputs, the nominal chain (m, l, lc, I), or auto
+    # where the inertia model M̂(q) comes from (a name): "fmu", the FMU's M outputs;
+    # "nominal", the nominal chain (m, l, lc, I); "auto", the FMU's when mapped, else nominal
     source: Literal["auto", "fmu", "nominal"] = "auto"
-    m: list[PositiveFloat] | None = None  # kg
-    l: list[PositiveFloat] | None = None  # m, joint i to joint i+1  # noqa: E741
-    lc: list[FiniteFloat] | None = None  # m, joint i to the link's centre of mass
-    I: list[NonNegativeFloat] | None = None  # kg·m², about the centre of mass  # noqa: E741
-    gravity: FiniteFloat = 9.8  # m/s², of the nominal chain's bias b̂ = C q̇ + G
+    m: list[PositiveFloat] | None = None  # the nominal chain's mass of each link, kg
+    # the nominal chain's length of each link, joint i to joint i+1, m
+    l: list[PositiveFloat] | None = None  # noqa: E741
+    # the nominal chain's distance from joint i to link i's centre of mass, m
+    lc: list[FiniteFloat] | None = None
+    # the nominal chain's rotational inertia of each link about its centre of mass, kg·m²
+    I: list[NonNegativeFloat] | None = None  # noqa: E741
+    # gravitational acceleration of the nominal chain's bias b̂ = C q̇ + G, m/s²
+    gravity: FiniteFloat = 9.8
 
 
 class Chain(NamedTuple):
@@ -58,7 +63,7 @@ class Chain(NamedTuple):
 
 
 def default_links(links: int) -> dict[str, list[float]]:
-    """Nominal link parameters when the pipeline gives none: the paper's arm (SPEC §2),
+    """Nominal link parameters when the pipeline gives none: the paper's arm (Lewis et al.),
     further links as the built-in plant's defaults (1 kg, 1 m, centre of mass at the tip,
     no rotational inertia)."""
     return {"m": [PAPER_MASSES[i] if i < len(PAPER_MASSES) else 1.0 for i in range(links)],

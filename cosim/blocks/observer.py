@@ -38,21 +38,35 @@ BASES = {"lagged": 0, "no_acceleration": 1}
 class ObserverParams(Section):
     """Gains of (5)–(10) and (24); see the module docstring for ``law`` and ``basis``."""
 
-    kp: PositiveFloat = 100.0  # kp, 1/s
-    kd: PositiveFloat = 100.0  # kD, 1/s
-    nu: PositiveFloat = 5e-4  # ν of (8)
-    z_wo: NonNegativeFloat = 10.0  # Z_Wo, bound on ‖Wo‖
-    eps_om: NonNegativeFloat = 1.0  # ε_oM
-    zeta_om: NonNegativeFloat = 1.0  # ζ_oM
-    fo: PositiveFloat = 1.0  # Fo (scalar × I)
-    kappa_o: NonNegativeFloat = 6.0  # κo
-    # the weight law: (24) as printed, or Kim & Lewis's error-driven one
+    # gain kp of the output injection into the velocity estimate, x̂2 = ẑ2 + kp x̃1, 1/s
+    kp: PositiveFloat = 100.0
+    # gain kD of the output injection into the position estimate, x̂1' = x̂2 + kD x̃1, 1/s
+    kd: PositiveFloat = 100.0
+    # ν in the denominator of the gain k0 of (8), beside ‖x̃1‖²: the smaller, the larger k0
+    # near x̃1 = 0, rad²
+    nu: PositiveFloat = 5e-4
+    # bound Z_Wo on the FLNN's ideal weights ‖Wo‖ (Assumption 4), in k0 of (8), mixed units
+    z_wo: NonNegativeFloat = 10.0
+    # bound ε_oM on the FLNN's approximation error, in k0 of (8), rad/s²
+    eps_om: NonNegativeFloat = 1.0
+    zeta_om: NonNegativeFloat = 1.0  # bound ζ_oM on the disturbance, in k0 of (8), rad/s²
+    # learning rate Fo of the observer's weight law (24), a scalar times I, mixed units
+    fo: PositiveFloat = 1.0
+    # κo of the weight law: the value (24) draws Ŵo's entries to, or the factor of the
+    # error-driven law's decay rate κo Fo ‖x̃1‖, mixed units
+    kappa_o: NonNegativeFloat = 6.0
+    # the weight law (a name): "paper", (24) as printed, or "error_driven", Kim & Lewis's
     law: Literal["paper", "error_driven"] = "error_driven"
-    # σo's q̂̈: from the previous sub-step ("lagged"), or dropped
+    # the basis σo's acceleration q̂̈ (a name): "lagged", from the previous sub-step, or
+    # "no_acceleration", dropped
     basis: Literal["lagged", "no_acceleration"] = "no_acceleration"
-    substeps: Annotated[int, Field(ge=1, le=1000)] = 10  # per master step
-    tau_d: FiniteFloat | list[FiniteFloat] = 0.01  # N·m, the disturbance (7) assumes known
-    initial_velocity: Literal["desired", "zero"] | list[FiniteFloat] = "desired"  # rad/s
+    # sub-steps of the observer's integration per master step, dimensionless (a count)
+    substeps: Annotated[int, Field(ge=1, le=1000)] = 10
+    # the disturbance torque τ_d that (7) assumes known, per joint or one for all, N·m
+    tau_d: FiniteFloat | list[FiniteFloat] = 0.01
+    # the initial velocity estimate x̂2(0): "desired", the reference's q̇_d(0), "zero", or
+    # one value per joint, rad/s
+    initial_velocity: Literal["desired", "zero"] | list[FiniteFloat] = "desired"
 
 
 def basis_size(links: int, basis: str) -> int:

@@ -28,11 +28,15 @@ class PdControllerParams(Section):
     whether the nominal chain's gravity torque is added (needs an inertia_model block
     before this one)."""
 
-    kp: GainVector = 200.0  # Kp, N·m/rad
-    kd: NonNegativeFloat | list[NonNegativeFloat] = 40.0  # Kd, N·m·s/rad
-    # where ė comes from: the plant's true q̇, or the measured position's backward difference
+    # proportional gain Kp on the position error e, per joint or one for all, N·m/rad
+    kp: GainVector = 200.0
+    # derivative gain Kd on the error rate ė, per joint or one for all, N·m·s/rad
+    kd: NonNegativeFloat | list[NonNegativeFloat] = 40.0
+    # where ė comes from (a name): "plant", the true q̇, or "finite_difference", the
+    # measured position's backward difference
     velocity: Literal["plant", "finite_difference"] = "plant"
-    gravity_compensation: bool = True  # add the nominal chain's gravity torque Ĝ(q)
+    # whether the nominal chain's gravity torque Ĝ(q) is added to τ (a flag)
+    gravity_compensation: bool = True
 
 
 class PdArgs(NamedTuple):

@@ -16,16 +16,23 @@ from .base import Block, BlockContext, Ports, register_block
 class ReferenceParams(Section):
     """q_d,i(t) = offset_i + Σ_j amplitude_ij sin(frequency_ij t + phase_ij)."""
 
-    offset: list[FiniteFloat] = [0.0, 0.0]  # rad
-    amplitude: list[list[FiniteFloat]] = [[20.0], [10.0]]  # rad
-    frequency: list[list[NonNegativeFloat]] = [[0.5], [1.0]]  # rad/s
-    phase: list[list[FiniteFloat]] | None = None  # rad, default 0
-    safe_case: Literal["tracking", "midpoint"] = "midpoint"  # Remark 1 case i / ii
-    # Case ii's centres: (max + min)/2 of q_d and q̇_d over [0, safe_horizon] (s), whatever
-    # simulation.duration is, so a shorter run is judged against the same sets; or given.
-    safe_horizon: PositiveFloat = 20.0  # s (the paper's scenario)
-    safe_centre: list[FiniteFloat] | None = None  # q_s, rad (instead of the midpoint)
-    safe_velocity_centre: list[FiniteFloat] | None = None  # q̇_s, rad/s
+    offset: list[FiniteFloat] = [0.0, 0.0]  # constant part offset_i of each joint's q_d, rad
+    # amplitude_ij of each joint's sine terms, one list per joint, rad
+    amplitude: list[list[FiniteFloat]] = [[20.0], [10.0]]
+    # angular frequency_ij of each joint's sine terms, one list per joint, rad/s
+    frequency: list[list[NonNegativeFloat]] = [[0.5], [1.0]]
+    # phase_ij of each joint's sine terms, one list per joint (unset: all 0), rad
+    phase: list[list[FiniteFloat]] | None = None
+    # the safe sets' centres q_s, q̇_s (a name): "tracking", Remark 1's case i, the reference
+    # itself; "midpoint", case ii, constant midpoints of the reference
+    safe_case: Literal["tracking", "midpoint"] = "midpoint"
+    # the time over which case ii's centres are (max + min)/2 of q_d and q̇_d, whatever
+    # simulation.duration is, so a shorter run is judged against the same sets, s
+    safe_horizon: PositiveFloat = 20.0
+    # the position set's centre q_s per joint, given instead of the midpoint, rad
+    safe_centre: list[FiniteFloat] | None = None
+    # the velocity set's centre q̇_s per joint, given instead of the midpoint, rad/s
+    safe_velocity_centre: list[FiniteFloat] | None = None
 
     @model_validator(mode="after")
     def _shapes(self) -> ReferenceParams:

@@ -14,9 +14,11 @@ from .base import Block, BlockContext, Ports, register_block
 
 
 class SensorParams(Section):
-    noise_std: NonNegativeFloat = 0.0  # rad, white Gaussian per sample
-    resolution: NonNegativeFloat = 0.0  # rad, quantisation step (0: none)
-    seed: Seed = 0  # of the noise
+    # standard deviation of the white Gaussian noise added to each position sample, rad
+    noise_std: NonNegativeFloat = 0.0
+    # quantisation step of the measured position (0: none), rad
+    resolution: NonNegativeFloat = 0.0
+    seed: Seed = 0  # seed of the noise's random generator, dimensionless
 
 
 class SensorArgs(NamedTuple):

@@ -1,11 +1,13 @@
 """`cosim params`: every pipeline key with its default, what values it takes and what it
 means, generated from the schema the pipeline is validated with (so always current).
 
-The meaning of a key is its comment in the section's source: the comment after the field,
-or the comment lines just above it, or its entry in the section docstring's ``name``: list;
-for a field built from a table (``plant.variables``, from the plant's ports), its
-description.
-Units are part of that text (SI, radians).
+The meaning of a key is its comment in the section's source: the comment after the field
+(a linter's ``# noqa`` directive left out), or the comment lines just above it, or its entry
+in the section docstring's ``name``: list; for a field built from a table
+(``plant.variables``, from the plant's ports), its description. Each names its unit after a
+comma or in parentheses: SI, radians, "dimensionless", "mixed units" (the NN weights'), or
+what the value is when it has none (a name, a flag, a path); tests/test_params.py holds
+the list.
 """
 
 from __future__ import annotations
@@ -59,7 +61,7 @@ def _comments(cls: type) -> dict[str, str]:
         match = field.match(line)
         if match and not stripped.startswith(("def ", "class ", "@", "return")):
             comment = trailing.get(number, "")
-            text = comment.lstrip("#").split("# noqa")[0].strip() if comment else ""
+            text = re.sub(r"#\s*noqa\b.*", "", comment).lstrip("#").strip()
             out.setdefault(match.group(1), text or " ".join(above))
         above = []
     doc = inspect.getdoc(cls) or ""
@@ -138,7 +140,8 @@ def parameters(model: type[BaseModel], values: BaseModel | None = None,
         if name == "runs":
             out.append(Param(f"{key}.NAME", None, "table per run: blocks = [...] and any "
                              "block table, merged over the top level's",
-                             "the runs to compare (default: one run, 'default')"))
+                             "the runs to compare, each under its own name (default: one run, "
+                             "'default'), names"))
             continue
         table = _section(field.annotation)
         default = field.get_default(call_default_factory=True)

@@ -1,7 +1,7 @@
 """The paper's two-link arm as a PythonFMU (FMI 2.0 Co-Simulation) under other names.
 
 A plant from a different exporter for the plant-swapping tests: the same equations as the
-built-in FMU (Lewis's arm, SPEC §2, in closed form rather than by CRBA/RNEA), integrated by
+built-in FMU (Lewis's arm, in closed form rather than by CRBA/RNEA), integrated by
 the same fixed-step RK4 (sub-steps of at most ``rk4_step``), but with its own variable
 names and no inertia-matrix outputs. ``fail_at`` makes doStep return an error from that
 time on (seconds), ``crash_at`` kill the process that runs it (SIGSEGV, as a broken

@@ -20,7 +20,7 @@ MODEL_IDENTIFIER = "PlanarArm"
 MAX_LINKS = 7
 COMMON = Path(__file__).parent.parent / "common"
 
-# Paper's arm (Lewis et al., SPEC §2) for links 1 and 2; extra links get 1 kg.
+# The paper's arm (Lewis et al.) for links 1 and 2; extra links get 1 kg.
 PAPER_MASSES = (0.8, 2.3)
 
 TIME = VariableFamily("time", "", "independent", "continuous", "s", "Simulation time")
