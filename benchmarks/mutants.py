@@ -107,9 +107,9 @@ MUTANTS = [
      "            if problem:\n                raise OSError(f\"the written file is {problem}\")\n",
      "", FOLDER),
     # the sweep's statistics
-    ("sweep-wilson-variance", "cosim/sweep.py",
+    ("sweep-wilson-variance", "cosim/sweep/tables.py",
      "math.sqrt(p * (1 - p) / trials", "math.sqrt(p * (1 - p) / (trials + 1)", SWEEP),
-    ("sweep-failed-counted", "cosim/sweep.py",
+    ("sweep-failed-counted", "cosim/sweep/tables.py",
      'low, high = wilson(kept, len(ok))', 'low, high = wilson(kept, len(mine))', SWEEP),
     # export and compare (the gate a user's CI relies on)
     ("compare-regression", "cosim/outputs/compare.py",

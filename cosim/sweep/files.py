@@ -1,0 +1,121 @@
+"""A sweep's files: results.parquet and results.csv (one row per point and run), sweep.json
+(the spec, the resolved pipeline, the tables) and sweep_safety.png."""
+
+from __future__ import annotations
+
+import json
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..config import load_pipeline
+from .checks import margin
+from .spec import SweepSpec
+from .tables import guarantee_table, safety_by_value
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+
+    from ..outputs.run_folder import RunFolder
+
+
+def _listed(entry: dict) -> dict:
+    """A table entry for JSON: its tuples (rate, low, high) as lists."""
+    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in entry.items()}
+
+
+def write_results(folder: RunFolder, spec: SweepSpec, rows: list[dict], table: list[dict],
+                  interrupted: bool, total_points: int) -> None:
+    """results.parquet and results.csv (one row per point and run), sweep.json (the spec,
+    the resolved pipeline, the safety table), and sweep_safety.png."""
+    import pyarrow as pa
+    import pyarrow.csv as pacsv
+    import pyarrow.parquet as pq
+
+    columns = list(dict.fromkeys(k for r in rows for k in r))
+    arrow = pa.Table.from_pylist([{c: r.get(c) for c in columns} for r in rows])
+    folder.write("results.parquet", lambda tmp: pq.write_table(arrow, tmp))
+    folder.write("results.csv", lambda tmp: pacsv.write_csv(arrow, tmp))
+    resolved = load_pipeline(spec.pipeline, spec.base, warn=None).model_dump(by_alias=True)
+    document = {"pipeline_file": spec.pipeline, "base_sets": spec.base,
+                "grid": {a.key: a.values for a in spec.grid},
+                "samples": {a.key: list(a.distribution) for a in spec.samples},
+                "samples_per_grid_point": spec.count, "seed": spec.seed, "runs": spec.runs,
+                "points": total_points, "rows": len(rows), "interrupted": interrupted,
+                "safety": [_listed(e) for e in table],
+                "guarantee": [_listed(e) for e in guarantee_table(rows)],
+                "safety_by_value": {key: [_listed(e) for e in entries]
+                                    for key, entries in safety_by_value(rows, spec).items()},
+                "resolved_pipeline": resolved}
+    from ..outputs.run_folder import jsonable
+
+    text = json.dumps(jsonable(document), indent=2, default=str) + "\n"
+    folder.write("sweep.json", lambda tmp: tmp.write_text(text))
+    if rows and spec.keys:
+        write_safety_plot(folder, spec, rows)
+
+
+def write_safety_plot(folder: RunFolder, spec: SweepSpec, rows: list[dict]) -> None:
+    """One row of panels per run (each with its own scale), one column per varied key: each
+    point's worst joint-1 check relative to its bound (≤ 1: every set kept), and on the
+    right axis the share of points keeping every joint-1 set, per value of a grid key or
+    per bin of a sampled one (about 20 points a bin). Failed points are left out."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    runs = list(dict.fromkeys(r["run"] for r in rows))
+    keys = spec.keys
+    fig, axes = plt.subplots(len(runs), len(keys), figsize=(5.5 * len(keys), 3.2 * len(runs)),
+                             squeeze=False, constrained_layout=True)
+    for panels, run in zip(axes, runs, strict=True):
+        mine = [r for r in rows if r["run"] == run]
+        ok = [r for r in mine if r["status"] == "ok"]
+        for ax, key in zip(panels, keys, strict=True):
+            _safety_panel(ax, key, ok, sampled=key not in {a.key for a in spec.grid})
+            ax.set_title(f"{run}: {len(ok)} point(s) completed"
+                         + (f", {len(mine) - len(ok)} failed (not drawn)"
+                            if len(mine) > len(ok) else ""), fontsize=9)
+    folder.write("sweep_safety.png", lambda tmp: fig.savefig(tmp, dpi=100, format="png"))
+    plt.close(fig)
+
+
+def _safety_panel(ax: Axes, key: str, ok: list[dict], sampled: bool) -> None:
+    values = [r[f"set:{key}"] for r in ok]
+    numeric = all(isinstance(v, int | float) and not isinstance(v, bool) for v in values)
+    if numeric:
+        x = np.array(values, float)
+    else:  # strings, booleans, lists: one position per distinct value, labelled
+        labels = list(dict.fromkeys(str(v) for v in values))
+        x = np.array([labels.index(str(v)) for v in values], float)
+        ax.set_xticks(range(len(labels)), labels, rotation=20, fontsize=7)
+    worst = np.array([margin(r) for r in ok])
+    kept = np.array([bool(r.get("safe")) for r in ok])
+    ax.scatter(x, worst, s=8, alpha=0.5, label="worst / bound (left)")
+    ax.axhline(1.0, color="darkred", lw=0.8, ls="--")
+    ax.set_xlabel(key)
+    ax.set_ylabel("max over joint-1 sets of\nworst / bound (≤ 1 safe)", fontsize=8)
+    if not len(x):
+        return
+    centres, rates = kept_share(x, kept, binned=sampled and numeric)
+    rate_ax = ax.twinx()
+    rate_ax.plot(centres, rates, "o-" if numeric else "o", color="tab:green", ms=3, lw=1,
+                 label="every joint-1 set kept (right)")
+    rate_ax.set_ylim(-5, 105)
+    rate_ax.set_ylabel("points keeping every set (%)", fontsize=8, color="tab:green")
+    handles = ax.get_legend_handles_labels()[0] + rate_ax.get_legend_handles_labels()[0]
+    ax.legend(handles=handles, fontsize=7, loc="best")
+
+
+def kept_share(x: np.ndarray, kept: np.ndarray, binned: bool
+               ) -> tuple[list[float], list[float]]:
+    """(positions, % kept): per distinct value of ``x``, or, ``binned``, per group of about
+    20 consecutive points in x's order (at the group's mean x)."""
+    if binned:
+        groups = [g for g in np.array_split(np.argsort(x, kind="stable"),
+                                            max(1, len(x) // 20)) if len(g)]
+        return [float(x[g].mean()) for g in groups], [100 * float(kept[g].mean())
+                                                      for g in groups]
+    centres = sorted(set(x.tolist()))
+    return centres, [100 * float(kept[x == c].mean()) for c in centres]

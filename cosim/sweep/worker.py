@@ -1,0 +1,102 @@
+"""What a Dask worker runs: a task's points one after another, each run of a point on its own,
+one row per (point, run). A worker process keeps one open plant FMU per file and mapping.
+Dask finds these functions on a worker by their module path (cosim.sweep.worker)."""
+
+from __future__ import annotations
+
+import json
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from ..config import Pipeline, PipelineError, load_pipeline
+from .checks import hard_sets_kept, row_is_safe
+
+if TYPE_CHECKING:
+    from ..runner import RunResult
+
+_PLANTS: dict[tuple[str, str], object] = {}  # per worker process: one open FMU per file+mapping
+
+
+def _plant_for(pipeline: Pipeline) -> object:
+    """This process's open plant for the pipeline's FMU and mapping (created once)."""
+    from ..assemble import open_plant, plant_path
+
+    mapping = pipeline.plant.variables.model_dump()
+    key = (str(plant_path(pipeline)), json.dumps(mapping, sort_keys=True))
+    if key not in _PLANTS:
+        _PLANTS[key] = open_plant(pipeline)
+    return _PLANTS[key]
+
+
+def point_row(index: int, point: dict, run: str) -> dict:
+    """A row's first columns: the point's index, its values (``set:KEY``), the run."""
+    return {"point": index, **{f"set:{k}": _cell(v) for k, v in point.items()}, "run": run}
+
+
+def _cell(value: object) -> object:
+    return json.dumps(value) if isinstance(value, list) else value
+
+
+def run_point(pipeline_path: str, sets: list[str], runs: list[str] | None, index: int,
+              point: dict) -> list[dict]:
+    """One point, every run on its own (a diverging run does not stop the others): one row
+    per run."""
+    from ..engine import Diverged
+    from ..runner import run
+
+    rows = []
+    pipeline = load_pipeline(pipeline_path, sets, warn=None)
+    for name in runs or list(pipeline.runs):
+        # The point's pipeline with this run alone: a shallow copy (a run reads its tables,
+        # never writes them), not a second read and validation of the file per run.
+        single = pipeline.model_copy(update={"runs": {name: pipeline.runs[name]}})
+        row = point_row(index, point, name)
+        try:
+            result = run(single, None, progress=False, plant=_plant_for(single))[name]
+            row.update(status="ok", error="", **result_columns(result))
+        except (Diverged, PipelineError) as exc:
+            row.update(status="failed", error=str(exc))
+        rows.append(row)
+    return rows
+
+
+def run_points(pipeline_path: str, runs: list[str] | None,
+               jobs: list[tuple[int, list[str], dict]]) -> list[dict]:
+    """Several points (index, --set assignments, point), one after another in one task:
+    their rows."""
+    rows = []
+    for index, sets, point in jobs:
+        rows.extend(run_point(pipeline_path, sets, runs, index, point))
+    return rows
+
+
+def result_columns(result: RunResult) -> dict:
+    """A run's checks (worst, satisfied, time outside) and metrics, flat."""
+    out = {}
+    for check, entry in result.safety.items():
+        out[f"{check}.bound"] = entry["bound"]
+        out[f"{check}.worst"] = entry["worst"]
+        out[f"{check}.satisfied"] = entry["satisfied"]
+        out[f"{check}.time_outside_s"] = entry.get("time_outside_s")
+    out["safe"] = row_is_safe(result.safety)
+    m = result.metrics
+    for key in ("peak_torque", "rms_error", "torque_reversals_per_s"):
+        for j, value in enumerate(m.get(key) or []):
+            out[f"{key}.{j + 1}"] = value
+    out["hard_joint1_kept"] = hard_sets_kept(result.safety)
+    for key, value in (m.get("guarantee") or {}).items():
+        if key == "outside":
+            value = "; ".join(value)
+        elif key == "first_exit":
+            value = value["set"] if value else ""
+        out[f"guarantee.{key}"] = value
+    if "cbf_active" in result.trace:
+        out["filter_active_fraction"] = float(np.mean(result.trace["cbf_active"] > 0))
+    gain = m.get("feedback_gain") or {}
+    out["feedback_gain.median"] = gain.get("median")
+    out["barrier_condition.fraction_failing"] = (m.get("barrier_condition")
+                                                 or {}).get("fraction_failing")
+    out["simulated_time_s"] = m["simulated_time_s"]
+    out["wall_time_s"] = m["wall_time_s"]
+    return out
