@@ -18,6 +18,7 @@ import numpy as np
 
 from plant_fmu import build_fmu
 
+from . import interface as io
 from .blocks import BLOCKS, Block, BlockContext, Ports
 from .config import Pipeline, PipelineError
 from .declared import Uncertainty
@@ -67,8 +68,12 @@ class RunPlan:
             out.update(block.publishes)
         return out
 
-    def evaluator(self, trace: Trace) -> Evaluator:
-        return Evaluator(trace, self.safe, self.published(), self._unmapped())
+    def evaluator(self, trace: Trace, facts: dict | None = None) -> Evaluator:
+        """The run's evaluation; ``facts``: what the framework gives every evaluator beside
+        the blocks' constants (:mod:`cosim.interface`: the plant's parameters, the declared
+        uncertainty)."""
+        return Evaluator(trace, self.safe, {**(facts or {}), **self.published()},
+                         self._unmapped())
 
     def _unmapped(self) -> frozenset[str]:
         return frozenset(PLANT_OUTPUTS) - self.plant_outputs
@@ -401,5 +406,5 @@ def link_lengths(plant_info: dict, plan: RunPlan) -> np.ndarray:
     names = [f"l[{i}]" for i in range(1, plan.links + 1)]
     if all(n in params for n in names):
         return np.array([params[n] for n in names])
-    chain = plan.published().get("nominal_chain")
+    chain = plan.published().get(io.PLANT_MODEL)
     return np.array(chain.l, float) if chain is not None else np.ones(plan.links)

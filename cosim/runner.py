@@ -12,14 +12,11 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from plant_fmu.models.planar_arm import MAX_LINKS
-from plant_fmu.models.planar_arm import variables as rigid_arm_variables
-
+from . import interface as io
 from .assemble import RunPlan, Scenario, assemble, link_lengths
 from .config import Pipeline, PipelineError
 from .engine import Diverged, simulate
 from .evaluate import Evaluation
-from .evaluate.guarantee import classify, plant_payload
 from .outputs.figures import FIGURE_FILES, write_figures
 from .outputs.recording import Recorder, RunSpec
 from .outputs.recording.layout import check_views, derived_entities
@@ -205,7 +202,8 @@ def _run_one(plan: RunPlan, scenario: Scenario, plant_info: dict, recorder: Reco
         nonlocal evaluator
         first = evaluator is None
         if first:  # after the blocks' reset: the reference, and so every bound, is known
-            evaluator = plan.evaluator(trace)
+            evaluator = plan.evaluator(trace, {io.PLANT_PARAMETERS: plant_info["parameters"],
+                                               io.UNCERTAINTY: plan.uncertainty})
         evaluator.update(trace.rows_done)
         if recorder is None:
             return
@@ -215,7 +213,7 @@ def _run_one(plan: RunPlan, scenario: Scenario, plant_info: dict, recorder: Reco
                 {entity: (key, stem, plan.signals[key].width(plan.links))
                  for entity, (key, stem) in entities.items()},
                 evaluator.bounds, link_lengths(plant_info, plan),
-                tuple(n for n in evaluator.barrier_values if n != "condition"), derived,
+                tuple(n for n in evaluator.barrier_values if n != io.BARRIER_CONDITION), derived,
                 {n: (declared.family, joint)
                  for n, (declared, joint) in evaluator.declared.items()}))
         # Everything evaluated that the recorder has not been given (an interrupt between
@@ -244,15 +242,9 @@ def _run_one(plan: RunPlan, scenario: Scenario, plant_info: dict, recorder: Reco
     evaluation = evaluator.result()
     done = trace.completed()
     metrics = evaluation.metrics
-    # The run's model of the plant: the block publishing the nominal chain (summary.json
-    # says which source and links it used).
-    model = plan.publisher("nominal_chain")
-    chain = model.publishes["nominal_chain"] if model is not None else None
-    metrics["guarantee"] = classify(done, plan.safe, plan.uncertainty,
-                                    *plant_payload(plant_info["parameters"], chain,
-                                                   rigid_chain_parameters(plan.links)),
-                                    true_velocity="qdot" in plan.plant_outputs,
-                                    checks=evaluation.checks)
+    # The run's model of the plant: the block publishing it (summary.json says which
+    # source and links it used).
+    model = plan.publisher(io.PLANT_MODEL)
     metrics["wall_time_s"] = wall
     metrics["steps_per_second"] = steps / wall if wall == wall and wall > 0 else None
     metrics["simulated_time_s"] = float(done.time[-1]) if done.rows_done else 0.0
@@ -267,24 +259,16 @@ def _run_one(plan: RunPlan, scenario: Scenario, plant_info: dict, recorder: Reco
     return result
 
 
-def rigid_chain_parameters(links: int) -> frozenset[str] | None:
-    """The parameter names of the rigid arm's FMU: the model the filter's guarantee
-    assumes (None beyond the built-in arm's link count)."""
-    if links > MAX_LINKS:
-        return None
-    return frozenset(v.name for v in rigid_arm_variables(links) if v.causality == "parameter")
-
-
 def _open_recorder(out: Path, scenario: Scenario, spawn: bool,
                    connect: str | None) -> Recorder:
     pipeline, sim = scenario.pipeline, scenario.pipeline.simulation
     title = (f"{pipeline.name}: {' vs '.join(pipeline.runs)} "
              f"({sim.duration:g} s at {1 / sim.step:g} Hz)")
     views = {name: plan.views() for name, plan in scenario.runs.items()}
-    errors = {name: [(entity, "observer error q̇ − x̂2 (rad/s)")
-                     for entity, (_, _, stem) in derived_entities(plan.signals,
-                                                                  _present(plan)).items()
-                     if stem == "qdot_err"]
+    errors = {name: [(entity, f"estimation error {true} − {estimate} "
+                              f"({plan.signals[estimate].unit})")
+                     for entity, (true, estimate, _) in derived_entities(
+                         plan.signals, _present(plan)).items()]
               for name, plan in scenario.runs.items()}
     checks = {name: check_views(plan.declarations()) for name, plan in scenario.runs.items()}
     return Recorder(out / "recording.rrd", title, list(pipeline.runs), spawn=spawn,

@@ -27,7 +27,9 @@ class Signal:
     the reason in the declaring block); ``label`` the series-name stem there (joint j of a
     per-joint signal is ``label`` + j). ``kept``: an unrecorded signal that stays in the
     trace files even when no block reads it (an offer to later blocks, like the observer's
-    error bound), rather than being refused as unused.
+    error bound), rather than being refused as unused. ``estimates``: the signal (a plant
+    output) this one is an estimate of; the recording shows the estimation error, true
+    minus estimate, beside it.
     """
 
     shape: str  # one of SHAPES
@@ -36,6 +38,7 @@ class Signal:
     entity: str | None = None
     label: str | None = None
     kept: bool = False
+    estimates: str | None = None
 
     def __post_init__(self) -> None:
         if self.shape not in SHAPES:

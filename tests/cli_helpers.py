@@ -13,7 +13,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from cosim.evaluate import Gains
+from cosim.paper.theorem import Gains
 
 PAPER = "pipelines/paper_two_link.toml"
 

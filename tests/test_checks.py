@@ -5,12 +5,12 @@ whose third joint alone leaves its sets is UNSAFE everywhere. Real runs through 
 
 from __future__ import annotations
 
-import csv
 import json
 import textwrap
 from pathlib import Path
 
 import numpy as np
+import pyarrow.parquet as pq
 import pytest
 from cli_helpers import cosim_cli
 
@@ -179,6 +179,28 @@ def test_a_three_link_run_whose_third_joint_leaves_its_set_is_unsafe_everywhere(
     assert "proposed/error_joint3: held in A" in compared.stdout
 
 
-def _rows(path: Path) -> list[dict]:
-    with open(path, newline="") as f:
-        return list(csv.DictReader(f))
+def test_the_sweep_judges_safe_as_the_run_does(third_joint, tmp_path):
+    """The same two starts as a sweep: each row's safe column and per-check columns are the
+    run's verdict and entries, and the table's rates follow (the third joint's error set
+    kept in one of two points)."""
+    out = tmp_path / "sweep"
+    done = cosim_cli("sweep", "pipelines/three_link.toml", "--runs", "proposed", "--grid",
+                     'plant.parameters."q0[3]"=0.1,0.3', "--set", "simulation.duration=1",
+                     "--out", str(out), "--workers", "1", "--quiet")
+    assert done.returncode == 0, done.stderr[-2000:]
+    rows = {r['set:plant.parameters."q0[3]"']: r
+            for r in pq.read_table(out / "results.parquet").to_pylist()}
+    for q3, label in ((0.1, "inside"), (0.3, "off")):
+        run = json.loads((third_joint[label] / "summary.json").read_text())["runs"]["proposed"]
+        row = rows[q3]
+        assert row["safe"] is is_safe(run["safety"])
+        assert row["hard_sets_kept"] is kept(run["safety"], [Kind.HARD])
+        for check, entry in run["safety"].items():
+            assert row[f"{check}.satisfied"] is entry["satisfied"], check
+            assert row[f"{check}.kind"] == entry["kind"], check
+    assert rows[0.3]["safe"] is False
+    table = json.loads((out / "sweep.json").read_text())["safety"][0]
+    assert table["error"][0] == 0.5 and table["position"][0] == 1.0
+    assert table["all sets"][0] == [r["safe"] for r in rows.values()].count(True) / 2
+    tables = [line for line in done.stdout.splitlines() if str(out) not in line]
+    assert max(len(line) for line in tables) <= 100  # paged by family

@@ -54,15 +54,16 @@ def test_pd_torque_is_kp_e_plus_kd_edot_plus_the_nominal_gravity(pd_runs, name):
 
 
 def test_a_run_without_an_observer_is_evaluated_by_what_it_has(pd_runs):
-    """Safe sets, tracking and torque are evaluated; the observer's check, Theorem 1's R and
-    barriers and the NN's gain are reported as not run, naming what they miss."""
+    """Safe sets, tracking, torque and the filter's guarantee (which speaks of every run) are
+    evaluated; the observer's check, Theorem 1's R and barriers and the NN's gain are
+    reported as not run, naming what they miss."""
     _, results, out = pd_runs
     summary = json.loads((out / "summary.json").read_text())
     for name, result in results.items():
         said = summary["runs"][name]["evaluators"]
         assert list(said) == list(EVALUATORS)
         ran = {n for n, text in said.items() if text == "ran"}
-        assert ran == {"safe_sets", "tracking", "torque"}, said
+        assert ran == {"safe_sets", "tracking", "torque", "guarantee"}, said
         assert said["barriers"] == (
             "not run: needs the signals 'q_hat', 'qdot_hat', 'k0', 'W_o_norm', 'r_hat', "
             "'W_norm', 'V_norm', which no block in the chain produces; needs the constants "

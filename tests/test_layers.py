@@ -12,9 +12,9 @@ ROOT = Path(__file__).resolve().parent.parent
 # Low to high; a module may import its own layer and those before it.
 LAYERS = (
     ("cosim.schema", "cosim.declared", "cosim.signals", "cosim.jit_cache", "cosim.progress",
-     "plant_fmu"),
+     "cosim.interface", "plant_fmu"),
     ("cosim.plant", "cosim.evaluate"),
-    ("cosim.blocks",),
+    ("cosim.blocks", "cosim.paper"),
     ("cosim.config", "cosim.engine"),
     ("cosim.assemble",),
     ("cosim.outputs", "cosim.plan", "cosim.runner"),

@@ -17,7 +17,6 @@ from rerun.chunk import RrdReader
 from cosim.assemble import assemble_run, safe_set
 from cosim.config import load_pipeline
 from cosim.engine import Diverged
-from cosim.evaluate import BARRIERS, barriers
 from cosim.outputs.recording.layout import (
     BOUND_COLOR,
     JOINT_COLORS,
@@ -32,6 +31,7 @@ from cosim.outputs.viewer import (
     viewer_binary,
     wait_for_recording,
 )
+from cosim.paper.theorem import BARRIERS, barriers
 
 STEPS = 20_000  # the paper's 20 s at 1 kHz
 RUNS = ("baseline", "proposed")

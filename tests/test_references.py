@@ -41,8 +41,9 @@ from cosim.blocks.controller import ControllerParams, NnController, NnGains, con
 from cosim.blocks.inertia import planar_bias, planar_mass_matrix
 from cosim.blocks.observer import FlnnObserver, ObserverParams, _gain, observer_step
 from cosim.declared import Uncertainty
-from cosim.evaluate import Evaluator, SafeSet, theorem1
-from cosim.evaluate.guarantee import classify
+from cosim.evaluate import Evaluator, SafeSet
+from cosim.paper.guarantee import classify
+from cosim.paper.theorem import theorem1
 from cosim.signals import Signal, Trace
 from cosim.sweep import wilson
 
@@ -712,7 +713,7 @@ def test_every_safety_check_against_the_trace_arrays(output_feedback):
 
 
 def test_the_guarantees_hard_sets_against_the_trace_arrays():
-    """cosim/evaluate/guarantee.py's classify on 12 random traces (non-zero centres, joint 1
+    """cosim/paper/guarantee.py's classify on 12 random traces (non-zero centres, joint 1
     crossing both bounds): "starts_inside" (every joint's |q − q_s| ≤ α_q and true
     |q̇ − q̇_s| ≤ α_v at t = 0), "starts_inside_observer_set" (‖q̇(0) − x̂2(0)‖ ≤ ε_max),
     "hard_kept" and "first_exit" (the earliest row, position before velocity at a tie, the

@@ -409,9 +409,9 @@ def test_monte_carlo_no_broken_guarantee_and_the_hard_sets_kept(monte_carlo):
         assert by_run[name]["broken"] == 0
         inside = [r for r in rows if r["run"] == name and r["guarantee.starts_inside"]]
         assert len(inside) >= 20  # ~72 %: both joints' q̇(0) ≤ 13.5 of 5..15 rad/s
-        assert all(r["hard_joint1_kept"] for r in inside), name
+        assert all(r["hard_sets_kept"] for r in inside), name
     # the unfiltered controller, for contrast, leaves the position set at the peaks
-    assert not any(r["hard_joint1_kept"] for r in rows if r["run"] == "proposed")
+    assert not any(r["hard_sets_kept"] for r in rows if r["run"] == "proposed")
     # starting outside is its own class, never pooled with the filter's results
     outside = [r for r in rows if r["guarantee.starts_inside"] is False]
     assert outside and all(not r["guarantee.broken"] for r in outside)

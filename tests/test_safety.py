@@ -10,7 +10,7 @@ from cli_helpers import table_gains
 
 from cosim.blocks.cbf_filter import cbf_rows, solve_soft_qp
 from cosim.config import load_pipeline
-from cosim.evaluate import barriers
+from cosim.paper.theorem import barriers
 from cosim.runner import run
 
 SAFETY = "pipelines/paper_safety.toml"

@@ -34,28 +34,52 @@ class ControllerParams(Section):
     """Kv [N·m·s/rad], Λ [1/s], F, G (scalars × I), κ, Kz, Z_B or Z_Wc, C0, C1, δ, ψ_B,
     hidden width. Vectors may be given per joint or as one scalar."""
 
-    variant: Literal["baseline", "proposed"] = "proposed"  # the paper's, or Lewis's baseline
-    kv: GainVector = 20.0  # Kv
-    lam: GainVector = Field(5.0, alias="lambda")  # Λ
-    f: PositiveFloat = 10.0  # F
-    g: PositiveFloat = 12.0  # G
-    kappa: PositiveFloat = 0.1  # κ
-    kz: NonNegativeFloat = 5.0  # Kz
-    z_b: NonNegativeFloat = 10.0  # Z_B, the baseline's bound on ‖Z‖ (Lewis)
-    z_wc: NonNegativeFloat = 10.0  # Z_Wc in (27), the proposed controller's
-    c0: NonNegativeFloat = 150.0  # C0
-    c1: NonNegativeFloat = 0.1  # C1
-    delta: PositiveFloat = 1.0  # δ
-    psi_b: NonNegativeFloat = 20.0  # ψ_B
-    hidden: Annotated[int, Field(ge=1, le=200)] = 10  # NN hidden-layer width
-    # Where ė comes from: "auto" is the true q̇ for the baseline (Lewis's full state) and
-    # the observer's x̂2 for the proposed controller; "finite_difference" is the backward
-    # difference of the measured position, (y_k − y_k−1)/h, which amplifies sensor noise.
+    # the controller (a name): "proposed", the paper's output-feedback controller, or
+    # "baseline", Lewis's full-state one
+    variant: Literal["baseline", "proposed"] = "proposed"
+    # gain Kv on the filtered error r̂ in (22), per joint or one for all, N·m·s/rad
+    kv: GainVector = 20.0
+    # gain Λ of the filtered error r̂ = ė + Λe, per joint or one for all, 1/s
+    lam: GainVector = Field(5.0, alias="lambda")
+    # learning rate F of the output weights Ŵ in (25), a scalar times I, N·m/rad
+    f: PositiveFloat = 10.0
+    # learning rate G of the hidden weights V̂ in (26), a scalar times I, mixed units
+    g: PositiveFloat = 12.0
+    # κ of the weights' decay κ‖r̂‖ in (25)–(26) and of (27)'s middle term, 1/(N·m)
+    kappa: PositiveFloat = 0.1
+    # gain Kz of the robust term v = −Kz(‖Ẑ‖_F + Z)r̂ in (27) (and Lewis's), mixed units
+    # (s/rad with the weights' norm in N·m)
+    kz: NonNegativeFloat = 5.0
+    # bound Z_B on the ideal weights' norm ‖Z‖ in the baseline's robust term (Lewis), mixed
+    # units
+    z_b: NonNegativeFloat = 10.0
+    # bound Z_Wc on the ideal weights' norm in the proposed controller's v_c of (27), mixed
+    # units
+    z_wc: NonNegativeFloat = 10.0
+    # constant C0 of Lemma 1's bound on the NN's error w_c, in (27)'s middle term, N·m
+    c0: NonNegativeFloat = 150.0
+    # constant C1 of Lemma 1's bound on the NN's error w_c, ‖w_c‖ ≤ C0 + C1‖Z̃‖ + …, in
+    # (27)'s middle term, mixed units
+    c1: NonNegativeFloat = 0.1
+    # δ in (27)'s denominators √(δ + ‖r̂‖²) and δ + ‖r̂‖²: near r̂ = 0 the last term is a
+    # gain ψ_B²/δ, (rad/s)²
+    delta: PositiveFloat = 1.0
+    # ψ_B of (27)'s last term −ψ_B² r̂/(δ + ‖r̂‖²) (Remark 4), √(N·m·rad/s)
+    psi_b: NonNegativeFloat = 20.0
+    # width of the NN's hidden layer, dimensionless (a count)
+    hidden: Annotated[int, Field(ge=1, le=200)] = 10
+    # where ė comes from (a name): "auto", the true q̇ for the baseline (Lewis's full state)
+    # and the observer's x̂2 for the proposed controller; "plant"; "observer";
+    # "finite_difference", the backward difference of the measured position,
+    # (y_k − y_k−1)/h, which amplifies sensor noise
     velocity: Literal["auto", "plant", "observer", "finite_difference"] = "auto"
-    # Initial weights: Ŵ starts at zero; V̂ at zero, or (Lewis) uniform in ±init_scale, seeded.
+    # the initial weights (a name): Ŵ starts at zero; V̂ at zero ("zero") or, as Lewis does,
+    # uniform in ±init_scale, seeded ("random")
     init: Literal["zero", "random"] = "zero"
-    init_scale: NonNegativeFloat = 0.1  # half-width of V̂'s random initial weights
-    seed: Seed = 0  # of the random initial weights
+    # half-width of V̂'s random initial weights, mixed units
+    init_scale: NonNegativeFloat = 0.1
+    # seed of the random initial weights, dimensionless
+    seed: Seed = 0
 
 
 class NnGains(NamedTuple):
@@ -108,8 +132,9 @@ class ControllerArgs(NamedTuple):
 
 @njit(cache=True)
 def controller_step(k, a):
-    # Loops over scratch arrays rather than numpy expressions: at n = 2 and 10 hidden units
-    # the temporaries and BLAS calls cost more than the arithmetic.
+    """One step of the NN controller (21)–(27) in one body, which its speed needs: loops
+    over scratch arrays rather than numpy expressions (at n = 2 and 10 hidden units the
+    temporaries and BLAS calls cost more than the arithmetic)."""
     n = a.position.shape[1]
     hidden = a.hidden
     n_in = 1 + 5 * n

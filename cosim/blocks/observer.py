@@ -206,6 +206,9 @@ def _solve(M, b, lu, out):
 
 @njit(cache=True)
 def observer_step(k, a):
+    """One step of the observer (5)–(10), (24): its sub-steps, gain and weight law in one
+    body, which its speed needs (the sub-step loop shares its scratch and hoisted
+    constants; split, numba passes them through calls it does not inline)."""
     n = a.q_meas.shape[1]
     n_basis = a.n_basis
     kp = a.kp
@@ -327,8 +330,10 @@ class FlnnObserver(Block):
         self.inputs = ("q_meas", "M_model", "q_d", "qdot_d")
         self.delayed = ("tau",)  # τ held over the previous step
         self.outputs = {
-            "q_hat": Signal("n", "rad", "position estimate x̂1", "observer/q_hat"),
-            "qdot_hat": Signal("n", "rad/s", "velocity estimate x̂2", "observer/qdot_hat"),
+            "q_hat": Signal("n", "rad", "position estimate x̂1", "observer/q_hat",
+                            estimates="q"),
+            "qdot_hat": Signal("n", "rad/s", "velocity estimate x̂2", "observer/qdot_hat",
+                               estimates="qdot"),
             "k0": Signal("1", "1/s²", "observer gain k0 of (8)", "observer/k0"),
             "W_o_norm": Signal("1", "-", "FLNN weight norm ‖Ŵo‖", "observer/W_norm", "‖Ŵo‖"),
             # For the safety filter and the evaluation; in the trace files, not recorded

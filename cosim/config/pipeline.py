@@ -22,10 +22,13 @@ class Pipeline(Section):
     """The fixed tables; the block tables are added from the registry by
     :func:`pipeline_model`."""
 
-    name: str = "pipeline"  # names the run folder (runs/NAME) and the recording
-    description: str = ""  # free text, kept in summary.json
-    # Modules of the user's own blocks, imported before the pipeline is validated: a .py file
-    # (relative to the pipeline file naming it) or an importable module name.
+    # the pipeline's name, naming its run folder (runs/NAME) and its recording, a name
+    name: str = "pipeline"
+    # what the pipeline is for, kept in summary.json and the recording, free text
+    description: str = ""
+    # modules of the user's own blocks and evaluators, imported (their code run) before the
+    # pipeline is validated: .py files relative to the pipeline file naming them, or
+    # importable module names, paths or names
     plugins: list[str] = []
     simulation: Simulation = Simulation()
     plant: Plant = Plant()

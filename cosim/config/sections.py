@@ -16,11 +16,12 @@ from ..schema import FiniteFloat, PositiveFloat, Section
 
 
 class Simulation(Section):
-    duration: PositiveFloat = 20.0  # s
-    step: Annotated[float, Field(gt=0, le=0.1)] = 1e-3  # s, master rate
-    # The built-in plant integrates each step in RK4 sub-steps of at most its rk4_step
-    # parameter (1e-4 s: 10 a step). One FMU call cannot be interrupted, so the sub-steps a
-    # step may take are capped: a tiny rk4_step would otherwise run for hours unstoppably.
+    duration: PositiveFloat = 20.0  # simulated time of each run, s
+    # master step, the controller's sample time and the plant's communication step, s
+    step: Annotated[float, Field(gt=0, le=0.1)] = 1e-3
+    # cap on the built-in plant's RK4 sub-steps per master step (simulation.step /
+    # plant.parameters.rk4_step): one FMU call cannot be interrupted, so a tiny rk4_step
+    # would otherwise run for hours unstoppably, dimensionless (a count)
     max_plant_substeps: Annotated[int, Field(ge=1)] = 1000
 
     @model_validator(mode="after")
@@ -57,9 +58,12 @@ def check_name(name: str, what: str) -> str:
 class BuiltinPlant(Section):
     # The model: plant_fmu.models.MODELS (the elastic-joint arm's motors drive the links
     # through springs; its extra parameters are k, d, J per joint).
-    model: Literal[tuple(MODELS)] = DEFAULT_MODEL  # the rigid arm, or with elastic joints
-    links: Annotated[int, Field(ge=1, le=7)] = 2  # joints of the built-in arm
-    fmi_version: Literal[2, 3] = 2  # the FMI version it is built for
+    # the built-in plant model (a name): "planar_arm", the rigid arm, or "elastic_joints",
+    # the arm whose motors drive the links through springs (extra parameters k, d, J per
+    # joint)
+    model: Literal[tuple(MODELS)] = DEFAULT_MODEL
+    links: Annotated[int, Field(ge=1, le=7)] = 2  # number of joints, dimensionless (a count)
+    fmi_version: Literal[2, 3] = 2  # the FMI version it is built for, 2 or 3 (a name)
 
 
 class _VariableMapping(Section):
@@ -78,8 +82,10 @@ VariableMapping = create_model(
 
 class Plant(Section):
     builtin: BuiltinPlant | None = None
-    fmu: str | None = None  # path relative to the pipeline file
-    parameters: dict[str, FiniteFloat] = {}  # FMU parameter and start values, by FMU name
+    fmu: str | None = None  # the plant FMU's file, relative to the pipeline file, a path
+    # FMU parameter and start values by the FMU's variable name, each in that variable's own
+    # unit (cosim inspect lists them), mixed units
+    parameters: dict[str, FiniteFloat] = {}
     variables: VariableMapping = VariableMapping()
 
     @model_validator(mode="after")

@@ -1,10 +1,12 @@
-"""Evaluation of a run: safety checks, barrier values and metrics, computed once.
+"""Evaluation of a run: safety checks, series and metrics, computed once.
 
 The evaluation is made of evaluators (:mod:`.parts`), each declaring the signals and block
 constants it reads; a run is evaluated by those whose inputs it has, and its summary says
-why each other one did not run. The :class:`Evaluator` fills each check's and barrier's
-values as rows complete (so a recording can stream them), and :meth:`Evaluator.result`
-gives the :class:`Evaluation` that summary.json, the recording and the figures all read.
+why each other one did not run. The framework's own (:mod:`.sets`) read the plant's ports
+and the declared interface (:mod:`cosim.interface`); others register like a user's plugin.
+The :class:`Evaluator` fills each check's and series' values as rows complete (so a
+recording can stream them), and :meth:`Evaluator.result` gives the :class:`Evaluation`
+that summary.json, the recording and the figures all read.
 """
 
 from __future__ import annotations
@@ -16,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from ..signals import Trace
+from . import sets  # noqa: F401  (the framework's own evaluators register on import)
 from .checks import Check, Declaration, Kind, is_safe, kept, left_sets, safety_entries
 from .parts import (
     EVALUATORS,
@@ -23,34 +26,29 @@ from .parts import (
     evaluated_signals,
     register_evaluator,
     select,
+    series_names,
 )
-from .safety import (
-    Gains,
-    SafeSet,
-    barrier_condition,
-    barriers,
-    theorem1,
-    torque_reversals,
-)
+from .safety import SafeSet, torque_reversals
 
-BARRIERS = ("H1", "H2", "H")
-
-__all__ = ["BARRIERS", "EVALUATORS", "Check", "Declaration", "Evaluation", "Evaluator",
-           "Gains", "Kind", "Part", "SafeSet", "barriers", "evaluated_signals", "is_safe",
-           "kept", "left_sets", "register_evaluator", "theorem1", "torque_reversals"]
+__all__ = ["EVALUATORS", "Check", "Declaration", "Evaluation", "Evaluator", "Kind", "Part",
+           "SafeSet", "evaluated_signals", "is_safe", "kept", "left_sets",
+           "register_evaluator", "series_names", "torque_reversals"]
 
 
 @dataclass
 class Evaluation:
     """A run's completed rows evaluated: every check (values per row, bounds, reference),
-    the barriers per row (none when that evaluator did not run), what summary.json says of
-    them, and per evaluator whether it ran (or why not)."""
+    the evaluators' series per row (barrier functions, their conditions), what summary.json
+    says of them, per evaluator whether it ran (or why not), and the lines to print."""
 
     checks: dict[str, Check]
-    barriers: dict[str, np.ndarray]
+    barriers: dict[str, np.ndarray]  # the evaluators' series per row, by name
     metrics: dict
     safety: dict
     evaluators: dict[str, str] = field(default_factory=dict)
+    # what `cosim run` prints: headlines of their own, then lines beside each other
+    headlines: list[str] = field(default_factory=list)
+    lines: list[str] = field(default_factory=list)
 
 
 @dataclass
@@ -103,10 +101,6 @@ class Evaluator:
                 self.bounds[name] = (check.lower, check.upper)
                 self.declared[name] = (check.declared, check.joint)
             self.values[name][start:upto] = check.value
-        if "H" in series:
-            previous = self.barrier_values["H"][start - 1] if start else np.nan
-            series["condition"] = barrier_condition(series["H"], previous, self.trace.dt,
-                                                    self.safe.barrier_alpha)
         for name, value in series.items():
             if name not in self.barrier_values:
                 self.barrier_values[name] = np.full(total, np.nan)
@@ -131,9 +125,17 @@ class Evaluator:
         if k:  # a run stopped at its first row (a block raised there): nothing to sum up
             for part in self.parts:
                 metrics.update(part.metrics(done, h))
+            for part in self.parts:
+                metrics.update(part.conclude(done, checks))
+        headlines, lines = [], []
+        for part in self.parts:
+            headline, more = part.report(metrics) if k else (None, [])
+            headlines += [headline] if headline else []
+            lines += more
         ran = {part.name for part in self.parts}
         notes = {part.name: part.note for part in self.parts if part.note}
         said = {name: ("ran" + (f" ({notes[name]})" if name in notes else "")) if name in ran
                 else f"not run: {self.skipped[name]}"
                 for name in EVALUATORS if name in ran or name in self.skipped}
-        return Evaluation(checks, h, metrics, safety_entries(checks, self.trace.dt), said)
+        return Evaluation(checks, h, metrics, safety_entries(checks, self.trace.dt), said,
+                          headlines, lines)

@@ -72,6 +72,15 @@ class Declaration:
         return self.norm_kind if joint is None else self.kind
 
 
+def family_of(check: str) -> str:
+    """The family of a check named by :meth:`Declaration.name` (``position_joint2`` ->
+    ``position``)."""
+    stem, joint, number = check.rpartition("_joint")
+    if joint and number.isdigit():
+        return stem
+    return check.removesuffix("_norm")
+
+
 @dataclass
 class Check:
     """One check's values over rows: ``value`` must stay within [lower, upper]. A joint

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .. import interface as io
 from ..evaluate import Check
 from .recording.layout import JOINT_COLORS
 
@@ -78,7 +79,7 @@ def figure_jobs(time: Mapping[str, np.ndarray], checks: Mapping[str, Mapping[str
                                               {r: {c: checks[r][c] for c in shown}
                                                for r in runs})))
     jobs.append(("fig4_torques.png", "torques", (dict(time), dict(torques), dict(asked or {}))))
-    barriers = {run: h for run, h in (barriers or {}).items() if "H" in h}
+    barriers = {run: h for run, h in (barriers or {}).items() if io.BARRIER_CONDITION in h}
     if barriers:  # only the runs evaluated with Theorem 1's barriers
         jobs.append(("fig5_barriers.png", "barriers", ({r: time[r] for r in barriers},
                                                        barriers)))
@@ -226,22 +227,24 @@ def _save(out, name: str, fig, drawn: Path | None = None) -> None:
 
 
 def _barrier_figure(plt, time, barriers):
-    """Fig. 5, per run: H1 (28), H2 (29) and H, and the barrier condition Ḣ + αH (must stay
-    ≥ 0), on symmetric-log axes (H1 is ~10⁴ where H2 is ~10²)."""
+    """Fig. 5, per run: the evaluators' barrier functions (the paper's H1 (28), H2 (29) and
+    H), and their condition (Ḣ + αH, must stay ≥ 0), on symmetric-log axes (H1 is ~10⁴ where
+    H2 is ~10²)."""
     runs = list(barriers)
     fig, axes = plt.subplots(len(runs), 2, figsize=(12, 2.6 * len(runs)), sharex=True,
                              constrained_layout=True, squeeze=False)
     for (left, right), run in zip(axes, runs, strict=True):
         h = barriers[run]
-        for i, name in enumerate(("H1", "H2", "H")):
+        names = [name for name in h if name != io.BARRIER_CONDITION]
+        for i, name in enumerate(names):
             left.plot(time[run], h[name], lw=0.8, label=name,
                       color=RUN_COLORS[(i + 1) % len(RUN_COLORS)])
         left.set_yscale("symlog", linthresh=10.0)
         left.axhline(0.0, color="darkred", lw=0.8, ls="--")
-        left.set_title(f"{run}: barriers (H ≥ 0 inside)")
-        left.set_ylabel("H1, H2, H (mixed units)")  # k0·ε², ‖Ŵ‖²/F, rᵀMr: no one unit
+        left.set_title(f"{run}: barrier functions (≥ 0 inside)")
+        left.set_ylabel(f"{', '.join(names)} (mixed units)")  # k0·ε², ‖Ŵ‖²/F, rᵀMr
         left.legend(loc="upper right", fontsize=8)
-        condition = h["condition"]
+        condition = h[io.BARRIER_CONDITION]
         right.plot(time[run], condition, lw=0.6, color="tab:purple")
         right.fill_between(time[run], np.minimum(condition, 0.0), 0.0, color="tab:red",
                            alpha=0.3, lw=0)

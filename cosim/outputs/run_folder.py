@@ -184,7 +184,9 @@ class RunFolder:
         their evaluation: ``check_<name>`` (each safety check's value) and
         ``barrier_<name>`` (H1, H2, H and the condition Ḣ + αH). ``units`` (a JSON string)
         gives each array's unit and meaning, so the file describes itself."""
-        from ..evaluate.safety import BARRIER_MEANINGS
+        from ..evaluate.parts import EVALUATORS
+
+        meanings = {n: m for cls in EVALUATORS.values() for n, m in cls.series_meanings.items()}
 
         extra = {}
         units = {"time": {"unit": "s", "description": "time t_k = k·step"}}
@@ -197,7 +199,7 @@ class RunFolder:
                 "unit": c.declared.unit if c.declared else "",
                 "description": f"{c.label or n}: the value the {n} check bounds by {c.upper:g}"}
                 for n, c in evaluation.checks.items()})
-            units.update({f"barrier_{n}": {"unit": "", "description": BARRIER_MEANINGS.get(n, n)}
+            units.update({f"barrier_{n}": {"unit": "", "description": meanings.get(n, n)}
                           for n in evaluation.barriers})
         extra[UNITS_KEY] = np.array(json.dumps(units, ensure_ascii=False))
 

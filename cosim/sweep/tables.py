@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import math
 
-from .checks import table_checks
+from .checks import family_kept, table_checks
 from .spec import SweepSpec, toml_value
 
 
@@ -25,16 +25,19 @@ def wilson(successes: int, trials: int, z: float = 1.96) -> tuple[float, float]:
 
 
 def safety_table(rows: list[dict]) -> list[dict]:
-    """Per run: points, failed, and the rate at which every joint-1 set and each one is
-    kept, with Wilson 95 % intervals (over the points that completed)."""
+    """Per run: points, failed, and the rate at which every set is kept (as the run's
+    verdict counts them) and each family (its every joint and norm), with Wilson 95 %
+    intervals (over the points that completed)."""
     table = []
     for run in dict.fromkeys(r["run"] for r in rows):
         mine = [r for r in rows if r["run"] == run]
         ok = [r for r in mine if r["status"] == "ok"]
         entry = {"run": run, "points": len(mine), "failed": len(mine) - len(ok)}
-        for name, key in [("all sets", "safe"),
-                          *[(column, f"{check}.satisfied") for column, check in table_checks()]]:
-            kept = sum(bool(r.get(key)) for r in ok)
+        columns = [("all sets", lambda r: bool(r.get("safe"))),
+                   *[(family, lambda r, checks=checks: family_kept(r, checks))
+                     for family, checks in table_checks(ok or mine)]]
+        for name, kept_in in columns:
+            kept = sum(kept_in(r) for r in ok)
             low, high = wilson(kept, len(ok))
             entry[name] = (kept / len(ok) if ok else math.nan, low, high)
         table.append(entry)
@@ -71,8 +74,8 @@ CLASSES = (
 
 def guarantee_table(rows: list[dict]) -> list[dict]:
     """Per run and class (:data:`CLASSES`; a run may be in several, "covered" is the one the
-    guarantee speaks for): how many, the share keeping joint 1's hard sets (position, true
-    velocity) with its Wilson 95 % interval, and the broken guarantees (left a hard set while
+    guarantee speaks for): how many, the share keeping every joint's hard sets (position,
+    true velocity) with its Wilson 95 % interval, and the broken guarantees (left a hard set while
     covered). Failed points are counted apart, never as unsafe."""
     table = []
     for run in dict.fromkeys(r["run"] for r in rows):
@@ -84,7 +87,7 @@ def guarantee_table(rows: list[dict]) -> list[dict]:
                  "broken": sum(bool(r.get("guarantee.broken")) for r in ok)}
         for name, member in CLASSES:
             rows_in = [r for r in ok if member(r)]
-            kept = sum(bool(r.get("hard_joint1_kept")) for r in rows_in)
+            kept = sum(bool(r.get("hard_sets_kept")) for r in rows_in)
             low, high = wilson(kept, len(rows_in))
             entry[name] = (len(rows_in), kept / len(rows_in) if rows_in else math.nan, low,
                            high)
@@ -92,34 +95,46 @@ def guarantee_table(rows: list[dict]) -> list[dict]:
     return table
 
 
-def format_guarantee_table(table: list[dict]) -> str:
-    """:func:`guarantee_table` as text: one line per run, one column per class."""
+def format_guarantee_table(table: list[dict], width: int = 100) -> str:
+    """:func:`guarantee_table` as text: one line per run, one column per class, the classes
+    paged into groups so that no line is wider than ``width``."""
     names = [name for name, _ in CLASSES]
-    lines = ["joint-1 hard sets (position, true velocity) kept, by class (Wilson 95 %); "
+    lines = ["every joint's hard sets (position, true velocity) kept, by class (Wilson 95 %);",
              "covered = starts inside, hard QP feasible throughout, within the declared "
-             "uncertainty",
-             f"{'run':<16}{'broken':>7}  " + "  ".join(f"{n:<25}" for n in names)]
-    for e in table:
-        cells = [f"{count:>4}: {100 * rate:5.1f} % [{100 * lo:5.1f},{100 * hi:6.1f}]"
-                 if count else f"{0:>4}: -" for count, rate, lo, hi in (e[n] for n in names)]
-        lines.append(f"{e['run']:<16}{e['broken']:>7}  " + "  ".join(f"{c:<25}" for c in cells))
+             "uncertainty"]
+    per_line = max(1, (width - 25) // 27)
+    for group in (names[i:i + per_line] for i in range(0, len(names), per_line)):
+        lines.append(f"{'run':<16}{'broken':>7}  " + "  ".join(f"{n:<25}" for n in group)
+                     .rstrip())
+        for e in table:
+            cells = [f"{count:>4}: {100 * rate:5.1f} % [{100 * lo:5.1f},{100 * hi:6.1f}]"
+                     if count else f"{0:>4}: -" for count, rate, lo, hi in (e[n] for n in group)]
+            lines.append(f"{e['run']:<16}{e['broken']:>7}  "
+                         + "  ".join(f"{c:<25}" for c in cells).rstrip())
     return "\n".join(lines)
 
 
-def format_table(table: list[dict], key: str | None = None) -> str:
+def format_table(table: list[dict], key: str | None = None, width: int = 100) -> str:
     """The safety-rate table; ``key``: a per-value table of that grid key (a first column
-    holds the value)."""
-    names = ["all sets", *[column for column, _ in table_checks()]]
-    title = "safety rate per run (joint-1 sets kept; Wilson 95 % interval)"
-    width = max([len(key or ""), *(len(toml_value(e["value"])) for e in table if "value" in e)])
-    first = f"{key:<{width}}  " if key else ""
-    lines = [f"{title[:-1]}; by {key})" if key else title,
-             f"{first}{'run':<18}{'points':>7}{'failed':>7}  "
-             + "  ".join(f"{n:<22}" for n in names)]
-    for entry in table:
-        cells = [f"{100 * r:5.1f} % [{100 * lo:5.1f}, {100 * hi:5.1f}]"
-                 if not math.isnan(r) else "-" for r, lo, hi in (entry[n] for n in names)]
-        value = f"{toml_value(entry['value']):<{width}}  " if key else ""
-        lines.append(f"{value}{entry['run']:<18}{entry['points']:>7}{entry['failed']:>7}  "
-                     + "  ".join(f"{c:<22}" for c in cells))
+    holds the value). Its columns are "all sets" and each family of checks, paged into
+    groups so that no line is wider than ``width``."""
+    names = ["all sets", *dict.fromkeys(n for e in table for n in e
+                                         if isinstance(e[n], tuple) and n != "all sets")]
+    title = "safety rate per run (every joint's sets kept; Wilson 95 % interval)"
+    value_width = max([len(key or ""), *(len(toml_value(e["value"])) for e in table
+                                         if "value" in e)])
+    first = f"{key:<{value_width}}  " if key else ""
+    lead = len(first) + 32
+    per_line = max(1, (width - lead) // 24)
+    lines = [f"{title[:-1]}; by {key})" if key else title]
+    for group in (names[i:i + per_line] for i in range(0, len(names), per_line)):
+        lines.append(f"{first}{'run':<18}{'points':>7}{'failed':>7}  "
+                     + "  ".join(f"{n:<22}" for n in group).rstrip())
+        for entry in table:
+            cells = [f"{100 * r:5.1f} % [{100 * lo:5.1f}, {100 * hi:5.1f}]"
+                     if n in entry and not math.isnan(r) else "-"
+                     for n in group for r, lo, hi in [entry.get(n, (math.nan,) * 3)]]
+            value = f"{toml_value(entry['value']):<{value_width}}  " if key else ""
+            lines.append(f"{value}{entry['run']:<18}{entry['points']:>7}{entry['failed']:>7}  "
+                         + "  ".join(f"{c:<22}" for c in cells).rstrip())
     return "\n".join(lines)

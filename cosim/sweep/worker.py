@@ -7,10 +7,9 @@ from __future__ import annotations
 import json
 from typing import TYPE_CHECKING
 
-import numpy as np
-
 from ..config import Pipeline, PipelineError, load_pipeline
-from .checks import hard_sets_kept, row_is_safe
+from ..outputs.compare import TIMING
+from .checks import check_columns, hard_sets_kept, row_is_safe
 
 if TYPE_CHECKING:
     from ..runner import RunResult
@@ -72,31 +71,32 @@ def run_points(pipeline_path: str, runs: list[str] | None,
 
 
 def result_columns(result: RunResult) -> dict:
-    """A run's checks (worst, satisfied, time outside) and metrics, flat."""
+    """A run's checks (what each is, its bound, worst value, whether it held, time outside),
+    whether it is safe and kept its hard sets, and every metric, flat (per joint
+    ``name.j``)."""
     out = {}
     for check, entry in result.safety.items():
-        out[f"{check}.bound"] = entry["bound"]
-        out[f"{check}.worst"] = entry["worst"]
-        out[f"{check}.satisfied"] = entry["satisfied"]
-        out[f"{check}.time_outside_s"] = entry.get("time_outside_s")
+        out.update(check_columns(check, entry))
     out["safe"] = row_is_safe(result.safety)
-    m = result.metrics
-    for key in ("peak_torque", "rms_error", "torque_reversals_per_s"):
-        for j, value in enumerate(m.get(key) or []):
-            out[f"{key}.{j + 1}"] = value
-    out["hard_joint1_kept"] = hard_sets_kept(result.safety)
-    for key, value in (m.get("guarantee") or {}).items():
-        if key == "outside":
-            value = "; ".join(value)
-        elif key == "first_exit":
-            value = value["set"] if value else ""
-        out[f"guarantee.{key}"] = value
-    if "cbf_active" in result.trace:
-        out["filter_active_fraction"] = float(np.mean(result.trace["cbf_active"] > 0))
-    gain = m.get("feedback_gain") or {}
-    out["feedback_gain.median"] = gain.get("median")
-    out["barrier_condition.fraction_failing"] = (m.get("barrier_condition")
-                                                 or {}).get("fraction_failing")
-    out["simulated_time_s"] = m["simulated_time_s"]
-    out["wall_time_s"] = m["wall_time_s"]
+    out["hard_sets_kept"] = hard_sets_kept(result.safety)
+    # What measures the machine stays out of a row, but for the point's wall time.
+    out.update(flat({key: value for key, value in result.metrics.items()
+                     if key not in TIMING or key == "wall_time_s"}))
+    return out
+
+
+def flat(metrics: dict, prefix: str = "") -> dict:
+    """The leaves of a metrics tree by dotted name: per-joint lists as ``name.j``, lists of
+    text joined by "; ", an absent sub-tree (None) as one empty cell."""
+    out: dict = {}
+    for key, value in metrics.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, dict):
+            out.update(flat(value, f"{name}."))
+        elif isinstance(value, list) and all(isinstance(v, str) for v in value):
+            out[name] = "; ".join(value)
+        elif isinstance(value, list):
+            out.update({f"{name}.{j + 1}": v for j, v in enumerate(value)})
+        else:
+            out[name] = value
     return out

@@ -4,8 +4,9 @@ Layout (one subtree per run; one timeline, ``sim_time``, in seconds; SI units, r
 
     /<run>/<entity of each declared signal>      e.g. plant/q, observer/qdot_hat, controller/e
     /<run>/plant/tau                            the torque applied to the plant
-    /<run>/observer/{q_err, qdot_err}           true minus estimate (x̃1, x̃2), beside the
-                                                estimate's own entity (observer/q_hat)
+    /<run>/<parent>/<true>_err                  true minus estimate for a signal that
+                                                estimates another, beside the estimate's
+                                                own entity (observer/q_hat -> observer/q_err)
     /<run>/safety/<family>/{value, upper, lower}  a series per check: every joint, the norm
     /<run>/safety/<family>/violation/<check>
     /<run>/barrier/{H1, H2, H}
@@ -39,23 +40,21 @@ REFERENCE_COLOR = (120, 120, 120)
 ARM_RATE_HZ = 50.0  # the arm drawing does not need 1 kHz
 VIOLATION_RATE_HZ = 100.0
 
-# Estimation errors, true minus estimate (x̃1, x̃2 of the paper): (true, estimate, stem), each
-# recorded beside the estimate's own entity (observer/q_hat -> observer/q_err).
-ESTIMATION_ERRORS = (("q", "q_hat", "q_err"), ("qdot", "qdot_hat", "qdot_err"))
-
-
 def derived_entities(signals: Mapping[str, Signal], present: Collection[str]
                      ) -> dict[str, tuple[str, str, str]]:
-    """entity -> (true, estimate, stem) of the estimation errors a run can record: both
-    signals ``present`` (produced, or a plant output the plant maps) and the estimate
-    recorded."""
+    """entity -> (true, estimate, stem) of the estimation errors a run can record: for each
+    recorded signal that ``estimates`` another, both ``present`` (produced, or a plant
+    output the plant maps), the error true − estimate beside the estimate's own entity
+    (observer/q_hat -> observer/q_err)."""
     out = {}
-    for true, estimate, stem in ESTIMATION_ERRORS:
-        entity = signals[estimate].entity if estimate in signals else None
-        if entity and true in present and estimate in present:
-            parent = entity.rpartition("/")[0]
+    for estimate, signal in signals.items():
+        true = signal.estimates
+        if signal.entity and true and true in present and estimate in present:
+            parent = signal.entity.rpartition("/")[0]
+            stem = f"{true}_err"
             out[f"{parent}/{stem}" if parent else stem] = (true, estimate, stem)
     return out
+
 
 def check_views(declarations: Iterable[Declaration]) -> list[tuple[str, str]]:
     """(view title, family) of each declared family drawn in a figure, grouped by figure

@@ -18,6 +18,7 @@ from multiprocessing.connection import Connection
 
 import numpy as np
 
+from ... import interface as io
 from .layout import (
     ARM_RATE_HZ,
     BOUND_COLOR,
@@ -124,7 +125,7 @@ class _Writer:
         columns += [(f"safety/{family}/value", np.column_stack([checks[n] for n in names]))
                     for family, names in spec.families().items()]
         columns += [(f"barrier/{name}", value) for name, value in barrier_values.items()
-                    if name != "condition"]
+                    if name != io.BARRIER_CONDITION]
         for entity, values in columns:
             self.rec.send_columns(f"{root}/{entity}", indexes=index,
                                   columns=rr.Scalars.columns(scalars=values))
@@ -135,8 +136,10 @@ class _Writer:
                                   indexes=[rr.TimeColumn("sim_time", duration=times[where])],
                                   columns=rr.Scalars.columns(scalars=values))
         # The barrier condition where it fails, like a violation (dense in the trace file).
-        failing = {"condition": barrier_values["condition"]} if spec.barriers else {}
-        for _, where, values in violations(failing, {"condition": (0.0, np.inf)}, start,
+        condition = io.BARRIER_CONDITION
+        failing = ({condition: barrier_values[condition]}
+                   if spec.barriers and condition in barrier_values else {})
+        for _, where, values in violations(failing, {condition: (0.0, np.inf)}, start,
                                            stride):
             self.rec.send_columns(f"{root}/barrier_condition",
                                   indexes=[rr.TimeColumn("sim_time", duration=times[where])],

@@ -18,16 +18,30 @@ Ground truth is used here, for evaluation only. SI units, radians.
 from __future__ import annotations
 
 from collections.abc import Mapping
+from typing import Any
 
 import numpy as np
 
+from plant_fmu.models.planar_arm import MAX_LINKS
+from plant_fmu.models.planar_arm import variables as rigid_arm_variables
+
+from .. import interface as io
 from ..declared import Uncertainty
+from ..evaluate import Check, Kind, Part, register_evaluator
+from ..evaluate.safety import SafeSet, Signals
 from ..signals import Trace
-from .checks import Check, Kind
-from .safety import SafeSet
 
 # A tolerance for comparing declared and actual parameter values (rounding in TOML, FMI).
 PARAMETER_TOLERANCE = 1e-9
+INFEASIBLE = "cbf_infeasible"  # the filter's flag: its hard QP was infeasible at this step
+
+
+def rigid_chain_parameters(links: int) -> frozenset[str] | None:
+    """The parameter names of the rigid arm's FMU: the model the filter's guarantee
+    assumes (None beyond the built-in arm's link count)."""
+    if links > MAX_LINKS:
+        return None
+    return frozenset(v.name for v in rigid_arm_variables(links) if v.causality == "parameter")
 
 
 def plant_payload(parameters: dict, chain, modelled: frozenset[str] | None = None
@@ -75,7 +89,7 @@ def classify(trace: Trace, safe: SafeSet, uncertainty: Uncertainty,
     if trace.rows_done == 0:
         return {}
     if checks is None:
-        from . import Evaluator
+        from ..evaluate import Evaluator
 
         checks = Evaluator(trace, safe, {}).result().checks
     hard = hard_checks(checks)
@@ -118,8 +132,8 @@ def classify(trace: Trace, safe: SafeSet, uncertainty: Uncertainty,
                                f"t = {rows[0] * trace.dt:.4g} s): the declared "
                                "observer_residual_rate was exceeded")
     feasible = None
-    if "cbf_infeasible" in trace:
-        steps = int(np.sum(trace["cbf_infeasible"] > 0))
+    if INFEASIBLE in trace:
+        steps = int(np.sum(trace[INFEASIBLE] > 0))
         feasible = steps == 0
         out["infeasible_steps"] = steps
     out.update(feasible=feasible, within_bounds=not outside, outside=outside,
@@ -127,3 +141,38 @@ def classify(trace: Trace, safe: SafeSet, uncertainty: Uncertainty,
     out["broken"] = bool(starts_inside and feasible is True and not outside
                          and first_exit is not None)
     return out
+
+
+@register_evaluator
+class Guarantee(Part):
+    """The filter's guarantee on a run (:func:`classify`), from its evaluated hard sets, the
+    plant's parameters against the nominal chain a block publishes, and the declared
+    uncertainty; and the line `cosim run` prints of it for a filtered run."""
+
+    name = "guarantee"
+    meaning = "whether the safety filter's guarantee covers the run, and whether it held"
+    inputs = ("q",)
+    constants = (io.PLANT_PARAMETERS, io.UNCERTAINTY)
+
+    def conclude(self, trace: Signals, checks: Mapping[str, Check]) -> dict:
+        chain = self.given.get(io.PLANT_MODEL)
+        payload, other = plant_payload(self.given[io.PLANT_PARAMETERS], chain,
+                                       rigid_chain_parameters(trace.links))
+        return {"guarantee": classify(trace, self.safe, self.given[io.UNCERTAINTY], payload,
+                                      other, true_velocity="qdot" in self.available,
+                                      checks=checks)}
+
+    def report(self, metrics: Mapping[str, Any]) -> tuple[str | None, list[str]]:
+        g = metrics.get("guarantee") or {}
+        if g.get("feasible") is None:  # not a filtered run: nothing to say
+            return None, []
+        covered = g["starts_inside"] and g["feasible"] and g["within_bounds"]
+        exit_text = (f"left {g['first_exit']['set']} at {g['first_exit']['t']:.3f} s"
+                     if g["first_exit"] else "kept every hard set")
+        why = [*(["started outside"] if not g["starts_inside"] else []),
+               *([f"{g['infeasible_steps']} infeasible step(s)"] if not g["feasible"] else []),
+               *g["outside"]]
+        return (f"{exit_text}; guarantee "
+                + ("covers this run" if covered else "does not cover this run: "
+                   + "; ".join(why))
+                + (" — BROKEN" if g["broken"] else "")), []
