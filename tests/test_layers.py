@@ -11,8 +11,8 @@ ROOT = Path(__file__).resolve().parent.parent
 
 # Low to high; a module may import its own layer and those before it.
 LAYERS = (
-    ("cosim.schema", "cosim.declared", "cosim.signals", "cosim.jit_cache", "cosim.progress",
-     "plant_fmu"),
+    ("cosim.schema", "cosim.declared", "cosim.signals", "cosim.numba_compat", "cosim.jit_cache",
+     "cosim.progress", "plant_fmu"),
     ("cosim.plant", "cosim.evaluate"),
     ("cosim.blocks",),
     ("cosim.config", "cosim.engine"),
