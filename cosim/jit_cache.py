@@ -2,12 +2,12 @@
 sources, so that an edited kernel recompiles only the kernels it can change.
 
 Numba checks a cached function against its own file only, not against the jitted functions
-it calls in other files (a kernel calling ``inertia.planar_bias``, the fused loop calling
+it calls in other files (a kernel calling ``inertia.chain_bias``, the fused loop calling
 every kernel of its chain), nor against the constants it froze in from other modules, so an
 edited callee would leave stale machine code. Every function of a module of ours is
 therefore cached in ``<cache>/<module>-<digest>``, the digest taken over the module's
 source and, recursively, the source of every *kernel module* it imports (one that imports
-numba), plus the plain values (numbers, strings, tuples, arrays) it imports from the
+numba or cosim.numba_compat), plus the plain values (numbers, strings, tuples, arrays) it imports from the
 project's other modules. Editing ``observer.py`` recompiles the observer's kernels and the
 fused loops that call them; the sensor's, the controller's and the filter's stay cached.
 Modules outside the project (numba's own, a library's) keep numba's own locators.
