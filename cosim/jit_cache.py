@@ -7,9 +7,10 @@ every kernel of its chain), nor against the constants it froze in from other mod
 edited callee would leave stale machine code. Every function of a module of ours is
 therefore cached in ``<cache>/<module>-<digest>``, the digest taken over the module's
 source and, recursively, the source of every *kernel module* it imports (one that imports
-numba or cosim.numba_compat), plus the plain values (numbers, strings, tuples, arrays) it imports from the
-project's other modules. Editing ``observer.py`` recompiles the observer's kernels and the
-fused loops that call them; the sensor's, the controller's and the filter's stay cached.
+numba or cosim.numba_compat), plus the plain values (numbers, strings, tuples, arrays) it
+imports from the project's other modules. Editing ``observer.py`` recompiles the observer's
+kernels and the fused loops that call them; the sensor's, the controller's and the
+filter's stay cached.
 Modules outside the project (numba's own, a library's) keep numba's own locators.
 
 ``$NUMBA_CACHE_DIR`` (else ``~/.cache/cosim/numba``) holds the folders.

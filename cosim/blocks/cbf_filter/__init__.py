@@ -68,12 +68,11 @@ those are not copied per call, and so are the small helpers called in loops; the
 ones, called a few times a step, are not (compiling everything inlined took minutes).
 """
 
-from .block import CbfFilter, CbfFilterParams, cbf_record, cbf_step
+from .block import CbfFilter, CbfFilterParams, cbf_step
 from .model import acceleration_error_bound, velocity_forms
 from .rows import cbf_rows
-from .scratch import SETS, CbfArgs, CbfWork
+from .scratch import CbfArgs
 from .solver import solve_soft_qp
 
-__all__ = ["SETS", "CbfArgs", "CbfFilter", "CbfFilterParams", "CbfWork",
-           "acceleration_error_bound", "cbf_record", "cbf_rows", "cbf_step", "solve_soft_qp",
-           "velocity_forms"]
+__all__ = ["CbfArgs", "CbfFilter", "CbfFilterParams", "acceleration_error_bound", "cbf_rows",
+           "cbf_step", "solve_soft_qp", "velocity_forms"]
