@@ -34,34 +34,37 @@ from bench_cosim import fmu_only_compiled
 from numba import njit
 
 from cosim.assemble import assemble
-from cosim.blocks.cbf_filter import _record, _rows, cbf_rows, cbf_step, solve_soft_qp
+from cosim.blocks.cbf_filter import cbf_rows, cbf_step, solve_soft_qp
+from cosim.blocks.cbf_filter.block import record_inline
+from cosim.blocks.cbf_filter.rows import rows_inline
 from cosim.config import load_pipeline
 from cosim.engine import simulate
+from cosim.numba_compat import no_refcount_jit
 
 PIPELINE = Path(__file__).resolve().parent.parent / "pipelines" / "paper_safety.toml"
 
 
-# Compiled as the step is (without reference counting, cbf_filter._step_jit), its inlined
-# parts called as cbf_step calls them.
+# Compiled as the step is (without reference counting), its inlined parts called as cbf_step
+# calls them.
 
 
-@njit(_nrt=False)
+@no_refcount_jit()
 def rows_only(a, steps: int) -> float:
     """The rows at every row; returns a sum of the counts so that none is optimised away."""
     total = 0.0
     for k in range(steps + 1):
-        total += _rows(k, a)
+        total += rows_inline(k, a)
     return total
 
 
-@njit(_nrt=False)
+@no_refcount_jit()
 def rows_and_record(a, steps: int) -> float:
     """The rows, then the record of the torque the run chose (the QP's own answer: the
     outputs are rewritten as they were)."""
     total = 0.0
     for k in range(steps + 1):
-        count = _rows(k, a)
-        total += _record(k, a, count, a.tau[k])
+        count = rows_inline(k, a)
+        total += record_inline(k, a, count, a.tau[k])
     return total
 
 

@@ -2,14 +2,15 @@
 sources, so that an edited kernel recompiles only the kernels it can change.
 
 Numba checks a cached function against its own file only, not against the jitted functions
-it calls in other files (a kernel calling ``inertia.planar_bias``, the fused loop calling
+it calls in other files (a kernel calling ``inertia.chain_bias``, the fused loop calling
 every kernel of its chain), nor against the constants it froze in from other modules, so an
 edited callee would leave stale machine code. Every function of a module of ours is
 therefore cached in ``<cache>/<module>-<digest>``, the digest taken over the module's
 source and, recursively, the source of every *kernel module* it imports (one that imports
-numba), plus the plain values (numbers, strings, tuples, arrays) it imports from the
-project's other modules. Editing ``observer.py`` recompiles the observer's kernels and the
-fused loops that call them; the sensor's, the controller's and the filter's stay cached.
+numba or cosim.numba_compat), plus the plain values (numbers, strings, tuples, arrays) it
+imports from the project's other modules. Editing ``observer.py`` recompiles the observer's
+kernels and the fused loops that call them; the sensor's, the controller's and the
+filter's stay cached.
 Modules outside the project (numba's own, a library's) keep numba's own locators.
 
 ``$NUMBA_CACHE_DIR`` (else ``~/.cache/cosim/numba``) holds the folders.
@@ -31,10 +32,14 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import TextIO
 
+from .numba_compat import cache_locator_base, prepend_cache_locator
+
 _PACKAGE = Path(__file__).parent
 _PROJECT = ("cosim", "plant_fmu")  # top-level packages whose imports the digest follows
-# A module whose source imports numba holds kernels (or helpers kernels call).
-_IMPORTS_NUMBA = re.compile(rb"^[ \t]*(from[ \t]+numba\b|import[ \t]+numba\b)", re.M)
+# A module whose source imports numba, or cosim's fence around it (numba_compat), holds
+# kernels (or helpers kernels call).
+_IMPORTS_NUMBA = re.compile(
+    rb"^[ \t]*(from[ \t]+numba\b|import[ \t]+numba\b|from[ \t]+[.\w]*numba_compat\b)", re.M)
 # Installed code (the standard library, site-packages) is not ours to version: numba's own
 # locators cache it as before. cosim itself is ours wherever it is installed.
 _INSTALLED = tuple(sorted({str(Path(p).resolve()) for key in ("stdlib", "platstdlib",
@@ -224,9 +229,8 @@ def _imports_project(module: str, path: Path) -> bool:
 
 def _locator_class():
     """numba's cache locator for our modules (made on first use: numba loads lazily)."""
-    from numba.core.caching import _CacheLocator
 
-    class KernelModuleLocator(_CacheLocator):
+    class KernelModuleLocator(cache_locator_base()):
         """Caches a function of ours in ``<base>/<module>-<digest>``; its source stamp is
         that digest, so only a change of what it depends on makes it stale (not a touched
         file or a fresh checkout)."""
@@ -269,24 +273,24 @@ def use_versioned_cache() -> Path:
     each of our modules' kernels in a folder of its own there. Called before any kernel is
     compiled or loaded (cosim.blocks does it on import). Returns the base folder."""
     import numba
-    from numba.core.caching import CacheImpl
 
     base = default_base()
     numba.config.CACHE_DIR = str(base)
-    if not any(getattr(c, "__name__", "") == "KernelModuleLocator"
-               for c in CacheImpl._locator_classes):
-        CacheImpl._locator_classes.insert(0, _locator_class())
+    prepend_cache_locator(_locator_class())
     return base
 
 
 def kernel_modules() -> list[tuple[str, Path]]:
-    """cosim's own kernel modules (name, file): the blocks' and the engine's."""
+    """cosim's own kernel modules (name, file): the blocks' and the engine's, also those
+    of their subpackages."""
     found = []
     for folder in ("blocks", "engine"):
-        for path in sorted((_PACKAGE / folder).glob("*.py")):
+        for path in sorted((_PACKAGE / folder).rglob("*.py")):
             if _is_kernel_module(path):
-                stem = "" if path.stem == "__init__" else f".{path.stem}"
-                found.append((f"cosim.{folder}{stem}", path))
+                parts = path.relative_to(_PACKAGE).with_suffix("").parts
+                if parts[-1] == "__init__":
+                    parts = parts[:-1]
+                found.append((".".join(("cosim", *parts)), path))
     return found
 
 

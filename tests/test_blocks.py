@@ -185,3 +185,22 @@ def test_a_published_constant_is_checked_against_its_declared_type():
     with pytest.raises(PipelineError, match=r"^run 'proposed': the bad_gain_publisher block "
                        r"publishes 'undeclared' not declared in its PUBLISHES$"):
         assemble_run(pipeline, "proposed", TwoLinkArm())
+
+
+def test_kernel_arguments_are_built_by_name_and_refused_missing_or_unknown():
+    """A block's kernel arguments (a NamedTuple) are built by field name, so that no two
+    fields of one type can be swapped silently: a field left out, or one the record has
+    not, is refused, named."""
+    from cosim.blocks import kernel_args
+    from cosim.blocks.sensor import SensorArgs
+
+    rows = np.zeros((2, 2))
+    built = kernel_args(SensorArgs, q=rows, noise=rows, resolution=0.0, q_meas=rows)
+    assert built.resolution == 0.0 and built.q_meas is rows
+    with pytest.raises(TypeError, match=r"SensorArgs: missing resolution \(its fields"):
+        kernel_args(SensorArgs, q=rows, noise=rows, q_meas=rows)
+    with pytest.raises(TypeError, match="SensorArgs: unknown resolutoin"):
+        kernel_args(SensorArgs, q=rows, noise=rows, resolutoin=0.0, resolution=0.0,
+                    q_meas=rows)
+    with pytest.raises(TypeError, match="missing resolution; unknown resolutoin"):
+        kernel_args(SensorArgs, q=rows, noise=rows, resolutoin=0.0, q_meas=rows)

@@ -16,9 +16,11 @@ use_versioned_cache()
 # The built-in blocks register themselves on import.
 from . import (  # noqa: E402, F401, I001
     cbf_filter, controller, inertia, observer, pd_controller, reference, sensor)
-from .base import BLOCKS, Block, BlockContext, Ports, register_block  # noqa: E402
+from .base import (  # noqa: E402
+    BLOCKS, Block, BlockContext, Ports, kernel_args, register_block)
 
 # The chain a run steps when its pipeline names none: the order data flows in.
 DEFAULT_CHAIN = ("reference", "sensor", "inertia_model", "observer", "controller")
 
-__all__ = ["BLOCKS", "DEFAULT_CHAIN", "Block", "BlockContext", "Ports", "register_block"]
+__all__ = ["BLOCKS", "DEFAULT_CHAIN", "Block", "BlockContext", "Ports", "kernel_args",
+           "register_block"]

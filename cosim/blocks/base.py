@@ -18,21 +18,39 @@ trace as ``<signal>_<producer kind>``).
 
 Stepping: ``reset(ports)`` binds the trace arrays and sets the initial state;
 ``step(k)`` computes row k and returns False if an output is not finite. A block whose
-work is a numba kernel ``kernel(k, args) -> bool`` (``args``: a NamedTuple set by reset)
-gets ``step`` for free, and the master can fuse it with the others into one compiled loop.
+work is a numba kernel ``kernel(k, args) -> bool`` (``args``: a NamedTuple set by reset,
+built with :func:`kernel_args`) gets ``step`` for free, and the master can fuse it with the
+others into one compiled loop.
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import ClassVar
+from typing import ClassVar, TypeVar
 
 import numpy as np
 
 from ..declared import Safety, Uncertainty
 from ..schema import Section
 from ..signals import Signal, Trace
+
+Record = TypeVar("Record", bound=tuple)
+
+
+def kernel_args(record: type[Record], **fields: object) -> Record:
+    """``record`` (a NamedTuple class: a kernel's arguments, a published model) built from
+    its fields by name, every one given: built by position, two swapped fields of one type
+    would run silently. A missing or an unknown field is refused, named, when the block is
+    reset."""
+    missing = [name for name in record._fields if name not in fields]
+    unknown = [name for name in fields if name not in record._fields]
+    if missing or unknown:
+        problems = [f"{label} {', '.join(names)}" for label, names in
+                    (("missing", missing), ("unknown", unknown)) if names]
+        raise TypeError(f"{record.__name__}: {'; '.join(problems)} (its fields: "
+                        f"{', '.join(record._fields)})")
+    return record(**fields)
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,7 @@ from pydantic import Field
 
 from ..schema import GainVector, NonNegativeFloat, PipelineError, PositiveFloat, Section, Seed
 from ..signals import Signal
-from .base import Block, BlockContext, Ports, register_block
+from .base import Block, BlockContext, Ports, kernel_args, register_block
 
 VARIANTS = ("baseline", "proposed")
 
@@ -256,9 +256,10 @@ class NnController(Block):
                 f"{context.plant_file} has no qdot mapping (no outputs qdot[1]..qdot[{n}]); map "
                 "them with plant.variables.qdot = [...] or drop the run")
         self.velocity_source = velocity
-        self.publishes = {"nn_gains": NnGains(
-            np.broadcast_to(np.asarray(params.lam, float), (context.links,)).copy(),
-            params.f, params.g), "velocity_source": velocity}
+        self.publishes = {"nn_gains": kernel_args(
+            NnGains, Lambda=np.broadcast_to(np.asarray(params.lam, float),
+                                            (context.links,)).copy(),
+            F=params.f, G=params.g), "velocity_source": velocity}
         # Full state reads the plant's true q, q̇; output feedback only the sensor (and the
         # observer, or its own difference quotient).
         self.position, self.velocity = {"plant": ("q", "qdot"),
@@ -292,14 +293,17 @@ class NnController(Block):
             rng = np.random.default_rng(p.seed)
             weights[(p.hidden + 1) * n:] = rng.uniform(-p.init_scale, p.init_scale,
                                                        n_in * p.hidden)
-        self.args = ControllerArgs(
-            self.context.dt, p.variant == "proposed", self.velocity_source == "finite_difference",
-            p.f, p.g, p.kappa, p.kz,
-            p.z_b if p.variant == "baseline" else p.z_wc, p.c0, p.c1, p.delta, p.psi_b,
-            p.hidden, np.broadcast_to(np.asarray(p.lam, float), (n,)).copy(),
-            np.broadcast_to(np.asarray(p.kv, float), (n,)).copy(),
-            weights,
-            inp[self.position], inp[self.velocity], inp["q_d"], inp["qdot_d"], inp["qddot_d"],
-            out["tau"], out["e"], out["edot"], out["r_hat"], out["nn_output"], out["v_c"],
-            out["W_norm"], out["V_norm"], out["feedback_gain"], np.empty(n_in),
-            np.empty(p.hidden), np.empty(p.hidden + 1), np.empty(p.hidden))
+        self.args = kernel_args(
+            ControllerArgs, dt=self.context.dt, proposed=p.variant == "proposed",
+            finite_difference=self.velocity_source == "finite_difference",
+            f=p.f, g=p.g, kappa=p.kappa, kz=p.kz,
+            z_w=p.z_b if p.variant == "baseline" else p.z_wc, c0=p.c0, c1=p.c1,
+            delta=p.delta, psi_b=p.psi_b, hidden=p.hidden,
+            lam=np.broadcast_to(np.asarray(p.lam, float), (n,)).copy(),
+            kv=np.broadcast_to(np.asarray(p.kv, float), (n,)).copy(),
+            state=weights, position=inp[self.position], velocity=inp[self.velocity],
+            q_d=inp["q_d"], qdot_d=inp["qdot_d"], qddot_d=inp["qddot_d"],
+            **{name: out[name] for name in ("tau", "e", "edot", "r_hat", "nn_output", "v_c",
+                                            "W_norm", "V_norm", "feedback_gain")},
+            xi=np.empty(n_in), act=np.empty(p.hidden), sig_hat=np.empty(p.hidden + 1),
+            back=np.empty(p.hidden))

@@ -27,7 +27,7 @@ from plant_fmu.models.planar_arm import PAPER_MASSES
 
 from ..schema import FiniteFloat, NonNegativeFloat, PipelineError, PositiveFloat, Section
 from ..signals import Signal
-from .base import Block, BlockContext, Ports, register_block
+from .base import Block, BlockContext, Ports, kernel_args, register_block
 
 
 class InertiaModelParams(Section):
@@ -70,73 +70,86 @@ def default_links(links: int) -> dict[str, list[float]]:
             "l": [1.0] * links, "lc": [1.0] * links, "I": [0.0] * links}
 
 
-@njit(cache=True)
-def planar_mass_matrix(q, m, l, lc, inertia, out):  # noqa: E741
-    """M(q) of a planar serial chain into ``out`` (n×n)."""
-    n = q.shape[0]
-    _mass_matrix(q, m, l, lc, inertia, out, np.empty((4, n)))
+# The chain's geometry at one position and the forces of its bias, per link: the rows of a
+# (CHAIN_ROWS, n) scratch array, so that a kernel evaluating the chain every step allocates
+# nothing. Joint i's centre-of-mass offset (CX, CY) and link vector (LX, LY), its origin
+# (OX, OY), and m_i a_ci, the force link i's own motion needs (FX, FY).
+CX, CY, LX, LY, OX, OY, FX, FY = range(8)
+CHAIN_ROWS = 8
 
 
-@njit(cache=True)
-def _mass_matrix(q, m, l, lc, inertia, out, points):  # noqa: E741
-    """planar_mass_matrix with its joint origins and centres of mass in ``points`` (4×n
-    scratch), so that a kernel calling it every step allocates nothing."""
-    n = q.shape[0]
-    ox, oy, px, py = points[0], points[1], points[2], points[3]
-    theta = 0.0
-    x = 0.0
-    y = 0.0
-    for k in range(n):
+@njit(cache=True, inline="always")
+def chain_geometry(q, l, lc, chain):  # noqa: E741
+    """The chain's geometry at q into rows CX … OY of ``chain``."""
+    theta, x, y = 0.0, 0.0, 0.0
+    for k in range(q.shape[0]):
         theta += q[k]
         c, s = np.cos(theta), np.sin(theta)
-        ox[k], oy[k] = x, y
-        px[k], py[k] = x + lc[k] * c, y + lc[k] * s
+        chain[CX, k], chain[CY, k] = lc[k] * c, lc[k] * s
+        chain[LX, k], chain[LY, k] = l[k] * c, l[k] * s
+        chain[OX, k], chain[OY, k] = x, y
         x += l[k] * c
         y += l[k] * s
+
+
+@njit(cache=True, inline="always")
+def chain_mass(chain, m, inertia, out):
+    """M of the chain whose geometry ``chain`` holds, into ``out`` (n×n):
+    M_ij = Σ_{k ≥ max(i, j)} [m_k (p_k − o_i)·(p_k − o_j) + I_k]."""
+    n = m.shape[0]
     for i in range(n):
         for j in range(i, n):
             total = 0.0
             for k in range(j, n):
-                total += (m[k] * ((px[k] - ox[i]) * (px[k] - ox[j])
-                                  + (py[k] - oy[i]) * (py[k] - oy[j])) + inertia[k])
+                px, py = chain[OX, k] + chain[CX, k], chain[OY, k] + chain[CY, k]
+                total += (m[k] * ((px - chain[OX, i]) * (px - chain[OX, j])
+                                  + (py - chain[OY, i]) * (py - chain[OY, j])) + inertia[k])
             out[i, j] = total
             out[j, i] = total
 
 
-@njit(cache=True)
-def planar_bias(q, qdot, m, l, lc, inertia, gravity, out):  # noqa: E741
-    """b(q, q̇) = C(q, q̇) q̇ + G(q) of the same chain into ``out`` (n,): recursive
-    Newton–Euler with q̈ = 0 and the base accelerating upwards at ``gravity`` (m/s²), link 1
-    from the horizontal, gravity along −y."""
-    n = q.shape[0]
-    theta = 0.0
+@njit(cache=True, inline="always")
+def chain_bias(chain, qdot, m, gravity, out):
+    """b(q, q̇) = C(q, q̇) q̇ + G(q) of the chain whose geometry ``chain`` holds, into
+    ``out`` (n,): recursive Newton–Euler with q̈ = 0 and the base accelerating upwards at
+    ``gravity`` (m/s²), link 1 from the horizontal, gravity along −y."""
+    n = qdot.shape[0]
     omega = 0.0
     ax, ay = 0.0, gravity  # acceleration of joint i's origin
-    cx = np.empty(n)  # link i's centre-of-mass offset from its joint, and link vector
-    cy = np.empty(n)
-    lx = np.empty(n)
-    ly = np.empty(n)
-    fx = np.empty(n)  # m_i a_ci, the force link i's own motion needs
-    fy = np.empty(n)
     for i in range(n):
-        theta += q[i]
         omega += qdot[i]
-        c, s = np.cos(theta), np.sin(theta)
-        cx[i], cy[i] = lc[i] * c, lc[i] * s
-        lx[i], ly[i] = l[i] * c, l[i] * s
         w2 = omega * omega  # no angular acceleration: q̈ = 0
-        fx[i] = m[i] * (ax - w2 * cx[i])
-        fy[i] = m[i] * (ay - w2 * cy[i])
-        ax -= w2 * lx[i]
-        ay -= w2 * ly[i]
+        chain[FX, i] = m[i] * (ax - w2 * chain[CX, i])
+        chain[FY, i] = m[i] * (ay - w2 * chain[CY, i])
+        ax -= w2 * chain[LX, i]
+        ay -= w2 * chain[LY, i]
     force_x, force_y, moment = 0.0, 0.0, 0.0  # what link i+1 exerts, about joint i+1
     for i in range(n - 1, -1, -1):
         # moment about joint i: the next link's moment, its force at the link's end, and
         # this link's own inertial force at its centre of mass (I α = 0)
-        moment += lx[i] * force_y - ly[i] * force_x + cx[i] * fy[i] - cy[i] * fx[i]
-        force_x += fx[i]
-        force_y += fy[i]
+        moment += (chain[LX, i] * force_y - chain[LY, i] * force_x
+                   + chain[CX, i] * chain[FY, i] - chain[CY, i] * chain[FX, i])
+        force_x += chain[FX, i]
+        force_y += chain[FY, i]
         out[i] = moment
+
+
+@njit(cache=True)
+def planar_mass_matrix(q, m, l, lc, inertia, out):  # noqa: E741
+    """M(q) of a planar serial chain into ``out`` (n×n), its scratch allocated here."""
+    chain = np.empty((CHAIN_ROWS, q.shape[0]))
+    chain_geometry(q, l, lc, chain)
+    chain_mass(chain, m, inertia, out)
+
+
+@njit(cache=True)
+def planar_bias(q, qdot, m, l, lc, inertia, gravity, out):  # noqa: E741
+    """b(q, q̇) = C(q, q̇) q̇ + G(q) of the same chain into ``out`` (n,), its scratch
+    allocated here. (A link's rotational ``inertia`` adds nothing to b in the plane: the
+    argument keeps the chain's signature.)"""
+    chain = np.empty((CHAIN_ROWS, q.shape[0]))
+    chain_geometry(q, l, lc, chain)
+    chain_bias(chain, qdot, m, gravity, out)
 
 
 class NominalArgs(NamedTuple):
@@ -146,12 +159,13 @@ class NominalArgs(NamedTuple):
     lc: np.ndarray  # m
     inertia: np.ndarray  # kg·m²
     M_model: np.ndarray
-    points: np.ndarray  # (4, n) scratch of _mass_matrix
+    chain: np.ndarray  # (CHAIN_ROWS, n) scratch
 
 
 @njit(cache=True)
 def nominal_step(k, a):
-    _mass_matrix(a.q_meas[k], a.m, a.l, a.lc, a.inertia, a.M_model[k], a.points)
+    chain_geometry(a.q_meas[k], a.l, a.lc, a.chain)
+    chain_mass(a.chain, a.m, a.inertia, a.M_model[k])
     return True  # a non-finite M̂ makes the observer's output non-finite: caught there
 
 
@@ -190,14 +204,20 @@ class InertiaModel(Block):
             self.kernel = nominal_step
         links = self.nominal_links()
         self.publishes = {
-            "nominal_chain": Chain(*(np.asarray(links[key], float)
-                                     for key in ("m", "l", "lc", "I")), params.gravity),
+            "nominal_chain": kernel_args(Chain, **self.chain_arrays(links),
+                                         gravity=params.gravity),
             "inertia_is_plant": source == "fmu"}
 
     def nominal_links(self) -> dict[str, list[float]]:
         """The nominal chain as used: given values, else the defaults."""
         return {key: getattr(self.params, key) or value
                 for key, value in default_links(self.context.links).items()}
+
+    @staticmethod
+    def chain_arrays(links: dict[str, list[float]]) -> dict[str, np.ndarray]:
+        """The chain's per-link parameters as the kernels' arrays, by field name."""
+        return {"m": np.asarray(links["m"], float), "l": np.asarray(links["l"], float),
+                "lc": np.asarray(links["lc"], float), "inertia": np.asarray(links["I"], float)}
 
     def reset(self, ports: Ports) -> None:
         if self.source == "fmu":
@@ -206,9 +226,9 @@ class InertiaModel(Block):
             ports.trace.arrays["M_model"] = ports.inputs["M"]
             return
         links = self.nominal_links()
-        self.args = NominalArgs(ports.inputs["q_meas"],
-                                *(np.asarray(links[key], float) for key in ("m", "l", "lc", "I")),
-                                ports.outputs["M_model"], np.empty((4, self.context.links)))
+        self.args = kernel_args(
+            NominalArgs, q_meas=ports.inputs["q_meas"], **self.chain_arrays(links),
+            M_model=ports.outputs["M_model"], chain=np.empty((CHAIN_ROWS, self.context.links)))
 
     def describe(self) -> dict:
         return ({"source": "nominal", **self.nominal_links()} if self.source == "nominal"

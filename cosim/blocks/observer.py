@@ -29,7 +29,7 @@ from pydantic import Field
 
 from ..schema import FiniteFloat, NonNegativeFloat, PositiveFloat, Section
 from ..signals import Signal
-from .base import Block, BlockContext, Ports, register_block
+from .base import Block, BlockContext, Ports, kernel_args, register_block
 
 LAWS = {"paper": 0, "error_driven": 1}
 BASES = {"lagged": 0, "no_acceleration": 1}
@@ -357,14 +357,18 @@ class FlnnObserver(Block):
         else:
             v0 = np.asarray(p.initial_velocity, float)
         inp, out = ports.inputs, ports.outputs
-        self.args = ObserverArgs(
-            self.context.dt, p.substeps, LAWS[p.law], BASES[p.basis], p.kp, p.kd, p.nu,
-            p.z_wo, p.eps_om + p.zeta_om, p.kp * p.kd, math.sqrt(n_basis),
-            2.0 * math.sqrt(p.kp * p.kd), p.fo, p.kappa_o, n_basis,
-            np.broadcast_to(np.asarray(p.tau_d, float), (n,)).copy(), np.array(v0, float),
-            u.noise_bound, u.initial_velocity_error, u.observer_residual_rate,
-            np.zeros(3 * n + n_basis * n + 1),  # weights start at 0
-            inp["q_meas"], inp["tau"], inp["M_model"], inp["q_d"],
-            out["q_hat"], out["qdot_hat"], out["k0"], out["W_o_norm"], out["qdot_hat_bound"],
-            out["qdot_hat_drift"], np.empty(n_basis), *(np.empty(n) for _ in range(5)),
-            np.empty((n, n)))
+        self.args = kernel_args(
+            ObserverArgs, dt=self.context.dt, substeps=p.substeps, law=LAWS[p.law],
+            basis=BASES[p.basis], kp=p.kp, kd=p.kd, nu=p.nu, z_wo=p.z_wo,
+            eps_sum=p.eps_om + p.zeta_om, kp_kd=p.kp * p.kd, sqrt_basis=math.sqrt(n_basis),
+            den_scale=2.0 * math.sqrt(p.kp * p.kd), fo=p.fo, kappa_o=p.kappa_o,
+            n_basis=n_basis, tau_d=np.broadcast_to(np.asarray(p.tau_d, float), (n,)).copy(),
+            initial_velocity=np.array(v0, float), noise_bound=u.noise_bound,
+            initial_error=u.initial_velocity_error, residual_rate=u.observer_residual_rate,
+            state=np.zeros(3 * n + n_basis * n + 1),  # weights start at 0
+            q_meas=inp["q_meas"], tau=inp["tau"], M_model=inp["M_model"], q_d=inp["q_d"],
+            q_hat=out["q_hat"], qdot_hat=out["qdot_hat"], k0=out["k0"],
+            W_o_norm=out["W_o_norm"], error_bound=out["qdot_hat_bound"],
+            drift=out["qdot_hat_drift"], sigma=np.empty(n_basis),
+            **{name: np.empty(n) for name in ("y", "x1_err", "x2", "g", "torque_term")},
+            lu=np.empty((n, n)))

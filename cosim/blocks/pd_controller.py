@@ -19,8 +19,8 @@ from numba import njit
 
 from ..schema import GainVector, NonNegativeFloat, Section
 from ..signals import Signal
-from .base import Block, BlockContext, Ports, register_block
-from .inertia import planar_bias
+from .base import Block, BlockContext, Ports, kernel_args, register_block
+from .inertia import CHAIN_ROWS, Chain, chain_bias, chain_geometry
 
 
 class PdControllerParams(Section):
@@ -51,6 +51,7 @@ class PdArgs(NamedTuple):
     inertia: np.ndarray
     gravity: float
     gravity_torque: np.ndarray  # scratch (n,)
+    chain: np.ndarray  # scratch (CHAIN_ROWS, n)
     zero_velocity: np.ndarray  # (n,) zeros: Ĝ is the bias at q̇ = 0
     position: np.ndarray  # q (plant) or q_meas (finite difference)
     velocity: np.ndarray  # q̇ (plant); unused for the finite difference
@@ -74,8 +75,8 @@ def pd_step(k, a):
     a.edot[k] = edot
     a.tau[k] = a.kp * e + a.kd * edot
     if a.gravity_compensation:
-        planar_bias(q, a.zero_velocity, a.m, a.l, a.lc, a.inertia, a.gravity,
-                    a.gravity_torque)
+        chain_geometry(q, a.l, a.lc, a.chain)
+        chain_bias(a.chain, a.zero_velocity, a.m, a.gravity, a.gravity_torque)
         a.tau[k] += a.gravity_torque
     return np.isfinite(np.sum(a.tau[k]))
 
@@ -107,12 +108,16 @@ class PdController(Block):
         chain = ports.constants.get("nominal_chain")
         if chain is None:  # no gravity compensation: the chain is never read
             zeros = np.zeros(n)
-            chain = (zeros, zeros, zeros, zeros, 0.0)
+            chain = kernel_args(Chain, m=zeros, l=zeros, lc=zeros, inertia=zeros, gravity=0.0)
         inp, out = ports.inputs, ports.outputs
-        self.args = PdArgs(
-            self.context.dt, p.velocity == "finite_difference", p.gravity_compensation,
-            np.broadcast_to(np.asarray(p.kp, float), (n,)).copy(),
-            np.broadcast_to(np.asarray(p.kd, float), (n,)).copy(),
-            *(np.asarray(x, float) for x in chain[:4]), float(chain[4]), np.zeros(n),
-            np.zeros(n), inp[self.position], inp[self.velocity], inp["q_d"], inp["qdot_d"],
-            out["tau"], out["e"], out["edot"])
+        self.args = kernel_args(
+            PdArgs, dt=self.context.dt, finite_difference=p.velocity == "finite_difference",
+            gravity_compensation=p.gravity_compensation,
+            kp=np.broadcast_to(np.asarray(p.kp, float), (n,)).copy(),
+            kd=np.broadcast_to(np.asarray(p.kd, float), (n,)).copy(),
+            m=np.asarray(chain.m, float), l=np.asarray(chain.l, float),
+            lc=np.asarray(chain.lc, float), inertia=np.asarray(chain.inertia, float),
+            gravity=float(chain.gravity), gravity_torque=np.zeros(n),
+            chain=np.zeros((CHAIN_ROWS, n)), zero_velocity=np.zeros(n),
+            position=inp[self.position], velocity=inp[self.velocity], q_d=inp["q_d"],
+            qdot_d=inp["qdot_d"], tau=out["tau"], e=out["e"], edot=out["edot"])

@@ -10,7 +10,7 @@ from numba import njit
 
 from ..schema import NonNegativeFloat, Section, Seed
 from ..signals import Signal
-from .base import Block, BlockContext, Ports, register_block
+from .base import Block, BlockContext, Ports, kernel_args, register_block
 
 
 class SensorParams(Section):
@@ -54,4 +54,5 @@ class PositionSensor(Block):
         p = self.params
         rng = np.random.default_rng(p.seed)
         noise = rng.normal(0.0, p.noise_std, q.shape) if p.noise_std else np.zeros(q.shape)
-        self.args = SensorArgs(q, noise, float(p.resolution), ports.outputs["q_meas"])
+        self.args = kernel_args(SensorArgs, q=q, noise=noise, resolution=float(p.resolution),
+                                q_meas=ports.outputs["q_meas"])

@@ -19,6 +19,7 @@ from numba import typeof, types
 
 from ..blocks import Block
 from ..blocks.plugins import describe_exception
+from ..numba_compat import compiled_entry_point
 from ..plant.mapping import FmuError
 from ..plant.ports import OUTPUT_PORTS
 from ..schema import PipelineError
@@ -103,9 +104,8 @@ def _stepper(block) -> Callable[[int], bool]:
     kernel, when it has one, is its step."""
     if block.kernel is None:
         return block.step
-    signature = (types.int64, typeof(block.args))
-    block.kernel.compile(signature)
-    entry, args = block.kernel.overloads[signature].entry_point, block.args
+    entry = compiled_entry_point(block.kernel, (types.int64, typeof(block.args)))
+    args = block.args
     return lambda k: entry(k, args)
 
 

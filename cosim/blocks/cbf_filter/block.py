@@ -1,0 +1,290 @@
+"""The filter as a block: its parameters, its signals, the arguments its step is given at
+reset, and the step itself: the rows, the solve, and the record of what it chose."""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+import numpy as np
+from pydantic import Field
+
+from ...numba_compat import no_refcount_jit
+from ...schema import FiniteFloat, PipelineError, PositiveFloat, Section
+from ...signals import Signal
+from ..base import Block, BlockContext, Ports, kernel_args, register_block
+from .linalg import dot
+from .rows import cbf_rows, rows_inline
+from .scratch import FACTOR, SETS, TAU, CbfArgs, cbf_work
+from .solver import newton
+
+HardSet = Literal["position", "velocity"]
+SoftSet = Literal["error", "error_rate"]
+
+
+class CbfFilterParams(Section):
+    hard: list[HardSet] = ["position", "velocity"]  # physical sets, per joint, guaranteed
+    soft: list[SoftSet] = ["error", "error_rate"]  # tracking sets, per joint, weighted
+    soft_norms: list[SoftSet] = ["error", "error_rate"]  # tracking sets as norms, weighted
+    # p of the hard degree-2 (position) conditions (k1 = 2p, k0 = p²), 1/s. A model error D
+    # (rad/s²) keeps the joint D/p² from its bound and the velocity error ε keeps it 2ε/p:
+    # a fast p costs less tracking where the reference runs along a bound; p·step ≪ 1.
+    position_rate: PositiveFloat = 30.0
+    # p of the soft error rows (degree 2), 1/s. A slow p also caps how fast an error may
+    # shrink (ḧ ≥ −2p ḣ − p² h on the far side of the set), which holds a fast tracking
+    # controller back: the tracking rows are as fast as the controller they watch.
+    tracking_rate: PositiveFloat = 100.0
+    # k of degree-1 conditions, 1/s: under a model error D (rad/s²) a velocity set keeps a
+    # margin D/k, so a fast rate costs little; k·step ≪ 1 for the 1 ms hold.
+    velocity_rate: PositiveFloat = 100.0
+    velocity: Literal["observer", "plant"] = "observer"  # x̂2 (with its ε), or the true q̇
+    # A fraction of every bound kept for the sampled-data hold between steps (1 ms).
+    bound_margin: Annotated[float, Field(ge=0, lt=1)] = 0.002
+    torque_limit: PositiveFloat | None = None  # |τ_i| ≤ this, N·m (hard)
+    # ρ_s: the cost of 1 N·m of soft violation, squared, against τ's: high, so that tracking
+    # gives way only where it conflicts with a hard row (ρ_hard is 1e4 times more)
+    tracking_weight: PositiveFloat = 1e6
+    hard_weight: PositiveFloat = 1e10  # ρ_hard of the penalty form (then checked exactly)
+    hard_tolerance: PositiveFloat = 1e-4  # N·m: the hard limits are lowered by this
+    # When the hard part is infeasible: "least_violation", the penalty form's answer (the
+    # torque that violates the hard rows least, in least squares, then tracks), or "brake",
+    # q̈ = −k (v − q̇_s) with the nominal model and k = backup_rate, within the torque limit.
+    backup: Literal["least_violation", "brake"] = "least_violation"
+    backup_rate: PositiveFloat = 20.0  # 1/s
+    # The payload's worst case is taken over the corners of `payload_grid` boxes that cover
+    # the curve (s_1(Δm), s_2(Δm)): exact as it grows, conservative by a box's size.
+    payload_grid: Annotated[int, Field(ge=1, le=32)] = 4
+    tau_d: FiniteFloat | list[FiniteFloat] | None = None  # N·m; None: the observer's model
+    solver: str = "newton"  # or a qpsolvers solver: daqp, osqp, clarabel, proxqp, quadprog
+    iterations: Annotated[int, Field(ge=1, le=1000)] = 50  # Newton steps at most
+    tolerance: PositiveFloat = 1e-12  # on the gradient, relative to ‖τ_nom‖
+
+
+@no_refcount_jit(cache=True, inline="always")
+def hard_violated(G, h, is_hard, count, tau):
+    """Whether τ violates a hard row of the first ``count`` as given (h not lowered)."""
+    for j in range(count):
+        if is_hard[j] > 0.0 and dot(G[j], tau) - h[j] > 0.0:
+            return True
+    return False
+
+
+@no_refcount_jit(cache=True)
+def cbf_record(k, a, count, tau):
+    """Row k's outputs for the torque τ the QP gave: the hard part checked against its
+    limits as given (else the backup acts and the step is flagged infeasible), each
+    constraint's activity, the largest soft slack."""
+    return record_inline(k, a, count, tau)
+
+
+@no_refcount_jit(cache=True, inline="always")
+def record_inline(k, a, count, tau):
+    """cbf_record, inlined into the step. ``tau`` may be ``a.tau[k]`` itself."""
+    infeasible = hard_violated(a.rows, a.limits, a.is_hard, count, tau)
+    for i in range(tau.shape[0]):
+        if infeasible and a.brake:  # the backup; a torque limit is honoured whatever else gives way
+            a.tau[k, i] = a.backup[i]
+        elif infeasible:
+            a.tau[k, i] = np.minimum(np.maximum(tau[i], -a.torque_limit), a.torque_limit)
+        else:
+            a.tau[k, i] = tau[i]
+    chosen = a.tau[k]
+    a.infeasible[k] = 1.0 if infeasible else 0.0
+    active = 0
+    slack = 0.0
+    for j in range(count):
+        excess = dot(a.rows[j], chosen) - a.limits[j]
+        # a hard row binds within the tolerance it was solved with; a soft one when violated
+        binds = excess > -2.0 * a.hard_tolerance if a.is_hard[j] > 0.0 else excess > 0.0
+        if a.is_hard[j] == 0.0:
+            slack = max(slack, excess)
+        if binds:
+            active += 1
+            s = a.kinds[j]
+            if 0 <= s < 4:
+                a.active_sets[s, k, a.joints[j]] = 1.0
+            elif s >= 4:
+                a.active_norms[s - 4, k] = 1.0
+    a.active[k] = active
+    a.slack[k] = slack
+    correction = 0.0
+    for i in range(chosen.shape[0]):
+        correction += (chosen[i] - a.tau_nominal[k, i]) ** 2
+    a.correction[k] = np.sqrt(correction)
+    return np.isfinite(np.sum(chosen))
+
+
+@no_refcount_jit(cache=True)
+def cbf_step(k, a):
+    count = rows_inline(k, a)
+    w = a.work
+    h, weights, tau = w.per_row[0], w.per_row[1], w.solver[TAU]
+    for j in range(count):  # solve with the hard limits lowered: checked as given after
+        h[j] = a.limits[j] - a.hard_tolerance if a.is_hard[j] > 0.0 else a.limits[j]
+        weights[j] = a.weights[j]
+    # Warm: from the rows that bound at the step before (w.binding keeps them; a run's rows
+    # keep their order), which most often still do.
+    newton(a.tau_nominal[k], a.rows, h, weights, count, a.iterations, a.tolerance, w.solver,
+           w.matrices[FACTOR], w.binding, True)
+    # A hard row may slip by ~ρ_soft·(soft excess)/ρ_hard where tracking pulls hard against
+    # it: re-solve with tracking weighed less, down to the hard rows alone; only when those
+    # alone cannot be met is the step infeasible (then cbf_record applies the backup).
+    for _ in range(3):
+        if not hard_violated(a.rows, a.limits, a.is_hard, count, tau):
+            break
+        for j in range(count):
+            if a.is_hard[j] == 0.0:
+                weights[j] = weights[j] * 1e-3 if weights[j] > a.rho_soft * 1e-5 else 0.0
+        newton(a.tau_nominal[k], a.rows, h, weights, count, a.iterations, a.tolerance,
+               w.solver, w.matrices[FACTOR], w.binding, True)
+    return record_inline(k, a, count, tau)
+
+
+@register_block
+class CbfFilter(Block):
+    kind = "cbf_filter"
+    Params = CbfFilterParams
+    per_joint = ("tau_d",)
+    views = (("h", "CBF barrier values β − |x| (≥ 0 inside)"),
+             ("correction", "‖τ − τ_nom‖ (N·m)"))
+
+    def __init__(self, params: CbfFilterParams, context: BlockContext):
+        super().__init__(params, context)
+        observer = params.velocity == "observer"
+        self.position = "q_meas" if observer else "q"
+        self.velocity = "qdot_hat" if observer else "qdot"
+        extra = ("qdot_hat_bound", "qdot_hat_drift") if observer else ()
+        self.inputs = (self.position, self.velocity, *extra, "q_s", "qdot_s", "q_d", "qdot_d",
+                       "qddot_d", "M_model", "tau")
+        self.requires = ("nominal_chain", "inertia_is_plant",
+                         *(("tau_d_model",) if params.tau_d is None else ()))
+        self.outputs = {"tau": Signal("n", "N·m", "filtered torque τ", "cbf_filter/tau")}
+        for name in SETS:
+            self.outputs[f"cbf_{name}"] = Signal(
+                "n", "SI", f"{name} set: β − |x_i| − its uncertainty (≥ 0 inside for every "
+                "state the declared bounds allow)", f"cbf_filter/h/{name}", f"h_{name}")
+            self.outputs[f"cbf_{name}_active"] = Signal(
+                "n", "-", f"{name} set: a constraint of joint i active (1)",
+                f"cbf_filter/active/{name}", f"active_{name}")
+            self.outputs[f"cbf_{name}_norm"] = Signal(
+                "1", "SI", f"{name} set as a norm: β − ‖x‖", f"cbf_filter/h/{name}_norm",
+                f"h_{name}_norm")
+            self.outputs[f"cbf_{name}_norm_active"] = Signal(
+                "1", "-", f"{name} norm constraint active (1)",
+                f"cbf_filter/active/{name}_norm", f"active_{name}_norm")
+        self.outputs.update({
+            "cbf_slack": Signal("1", "N·m", "largest slack of a soft (tracking) row",
+                                "cbf_filter/slack"),
+            "cbf_active": Signal("1", "-", "number of active constraints",
+                                 "cbf_filter/active_count"),
+            "cbf_correction": Signal("1", "N·m", "‖τ − τ_nom‖", "cbf_filter/correction"),
+            "cbf_infeasible": Signal("1", "-", "1 where the hard part was infeasible and the "
+                                     "braking backup acted", "cbf_filter/infeasible"),
+        })
+        if params.solver == "newton":
+            self.kernel = cbf_step
+        else:
+            self._check_solver(params.solver)
+
+    @staticmethod
+    def _check_solver(name: str) -> None:
+        try:
+            import qpsolvers
+        except ImportError:
+            raise PipelineError(f"cbf_filter.solver = {name!r} needs qpsolvers (pip install "
+                                "'qpsolvers[daqp]'); or use solver = \"newton\"") from None
+        if name not in qpsolvers.available_solvers:
+            raise PipelineError(f"cbf_filter.solver = {name!r} is not an installed QP solver "
+                                f"(installed: newton, {', '.join(qpsolvers.available_solvers)})")
+
+    def reset(self, ports: Ports) -> None:
+        for centre in ("q_s", "qdot_s"):
+            values = ports.inputs[centre]
+            moving = np.ptp(values, axis=0) if len(values) else np.zeros(1)
+            if np.any(moving > 0.0):
+                raise PipelineError(
+                    f"run '{self.context.run}': the cbf_filter block needs constant safe-set "
+                    f"centres, but {centre} moves (by up to {float(np.max(moving)):.3g}); use "
+                    "reference.safe_case = \"midpoint\" or drop the filter")
+        self.args = self._arguments(ports)
+
+    def _arguments(self, ports: Ports) -> CbfArgs:
+        """The step's arguments: the parameters, the declared bounds, the trace's arrays it
+        reads and writes, and its scratch."""
+        p, n = self.params, self.context.links
+        safety, uncertainty = self.context.safety, self.context.uncertainty
+        inp, out, const = ports.inputs, ports.outputs, ports.constants
+        chain = const["nominal_chain"]
+        tau_d = const["tau_d_model"] if p.tau_d is None else p.tau_d
+        bounds = np.array([safety.position_bound, safety.velocity_bound, safety.error_bound,
+                           safety.error_rate_bound]) * (1.0 - p.bound_margin)
+        corners = 3 * p.payload_grid + 1 if any(uncertainty.payload) else 1
+        rows = 2 * (2 * n * 2 * corners) + 2 * n * 2 + 4 + 2 * n
+        steps = len(ports.trace.time)
+        if p.velocity == "observer":
+            velocity_bound, drift = inp["qdot_hat_bound"], inp["qdot_hat_drift"]
+        else:
+            velocity_bound, drift = np.zeros((steps, n)), np.full((steps, n), np.nan)
+        payload_low, payload_high = map(float, uncertainty.payload)
+        return kernel_args(
+            CbfArgs,
+            **{name: np.array([float(s in getattr(p, name)) for s in SETS])
+               for name in ("hard", "soft", "soft_norms")},
+            bounds=bounds, k1=2.0 * p.position_rate, k0=p.position_rate**2,
+            tracking_k1=2.0 * p.tracking_rate, tracking_k0=p.tracking_rate**2,
+            k_velocity=p.velocity_rate, dt=self.context.dt,
+            torque_limit=p.torque_limit or np.inf, rho_soft=p.tracking_weight,
+            rho_hard=p.hard_weight, hard_tolerance=p.hard_tolerance,
+            brake=p.backup == "brake", backup_rate=p.backup_rate,
+            payload_grid=p.payload_grid, iterations=p.iterations, tolerance=p.tolerance,
+            noise_bound=uncertainty.noise_bound, payload_low=payload_low,
+            payload_high=payload_high, disturbance=uncertainty.disturbance,
+            inertia_is_plant=bool(const["inertia_is_plant"]),
+            m=chain.m, l=chain.l, lc=chain.lc, inertia=chain.inertia,
+            gravity=float(chain.gravity),
+            tau_d=np.broadcast_to(np.asarray(tau_d, float), (n,)).copy(),
+            rows=np.zeros((rows, n)), limits=np.zeros(rows), weights=np.zeros(rows),
+            is_hard=np.zeros(rows), kinds=np.zeros(rows, np.int64),
+            joints=np.zeros(rows, np.int64), backup=np.zeros(n),
+            position=inp[self.position], velocity=inp[self.velocity],
+            velocity_bound=velocity_bound, drift=drift,
+            **{name: inp[name] for name in ("q_s", "qdot_s", "q_d", "qdot_d", "qddot_d",
+                                            "M_model")},
+            tau_nominal=inp["tau"], tau=out["tau"],
+            **{field: _per_set(ports.trace, f"cbf_{{}}{suffix}", shape)
+               for field, suffix, shape in (("h_sets", "", (steps, n)),
+                                            ("active_sets", "_active", (steps, n)),
+                                            ("h_norms", "_norm", (steps,)),
+                                            ("active_norms", "_norm_active", (steps,)))},
+            slack=out["cbf_slack"], active=out["cbf_active"],
+            correction=out["cbf_correction"], infeasible=out["cbf_infeasible"],
+            work=cbf_work(n, rows, p.payload_grid))
+
+    def step(self, k: int) -> bool:
+        """With a qpsolvers solver (no kernel): the same rows, the hard ones as hard
+        constraints and the soft ones with an explicit slack, solved in Python."""
+        import qpsolvers
+
+        a = self.args
+        count = cbf_rows(k, a)
+        G, h = a.rows[:count], a.limits[:count]
+        hard = a.is_hard[:count] > 0
+        soft = ~hard
+        n, m = G.shape[1], int(soft.sum())
+        # variables [τ, s]: ½‖τ − τ_nom‖² + ½ρ_s‖s‖²; G_h τ ≤ h_h; G_s τ − s ≤ h_s; s ≥ 0
+        P = np.diag(np.concatenate([np.ones(n), a.weights[:count][soft]]))
+        q = np.concatenate([-a.tau_nominal[k], np.zeros(m)])
+        G_full = np.block([[G[hard], np.zeros((int(hard.sum()), m))],
+                           [G[soft], -np.eye(m)], [np.zeros((m, n)), -np.eye(m)]])
+        h_full = np.concatenate([h[hard] - a.hard_tolerance, h[soft], np.zeros(m)])
+        x = qpsolvers.solve_qp(P, q, G_full, h_full, solver=self.params.solver)
+        tau = a.backup.copy() if x is None else x[:n]
+        return cbf_record(k, a, count, tau)
+
+
+def _per_set(trace, pattern: str, shape: tuple[int, ...]) -> np.ndarray:
+    """One array (4, *shape) for the four sets' outputs named ``pattern.format(set)``, the
+    kernel's to index by set; the trace's arrays become views of it."""
+    stacked = np.full((len(SETS), *shape), np.nan)
+    for i, name in enumerate(SETS):
+        trace.arrays[pattern.format(name)] = stacked[i]
+    return stacked

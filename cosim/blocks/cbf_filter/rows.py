@@ -1,0 +1,287 @@
+"""The rows of one step's QP: G τ ≤ h, each scaled to unit norm, with its weight, kind and
+joint; the hard rows robust to the declared uncertainty (see the package docstring), the
+soft (tracking) rows, and the torque limits; and the barrier values the step reports."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...numba_compat import no_refcount_jit
+from .linalg import dot, invert, product
+from .model import moved_model, nominal_model, robust_model
+from .scratch import (
+    ACCELERATION,
+    ALPHA,
+    BASE,
+    BASE_END,
+    BASE_MID,
+    BETA,
+    BIAS,
+    DRIFT,
+    LU,
+    MINV,
+    MINV_END,
+    MINV_MID,
+    NOMINAL_NOW,
+    PLANT_SHIFT,
+    ROW,
+    ROWS_ERROR,
+    V_END,
+    V_MID,
+    Y_END,
+    Y_MID,
+    X,
+)
+
+
+@no_refcount_jit(cache=True, inline="always")
+def add_row(qp, count, row, limit, weight, hard, kind, joint):
+    """Row ``count`` of the QP from ``row`` (scaled to unit norm, N·m), its limit, weight
+    and labels, into ``qp`` = (a.rows, a.limits, a.weights, a.is_hard, a.kinds, a.joints);
+    returns the next row's index. (Not ``a`` itself: binding a tuple to an argument counts a
+    reference to each of its arrays, and a holds ~100.)"""
+    G, limits, weights, is_hard, kinds, joints = qp
+    n = row.shape[0]
+    norm = 0.0
+    for j in range(n):
+        norm += row[j] * row[j]
+    norm = np.sqrt(norm)
+    if norm == 0.0:  # no τ in it: a row that holds or not whatever the filter does
+        norm = 1.0
+    for j in range(n):
+        G[count, j] = row[j] / norm
+    limits[count] = limit / norm
+    weights[count] = weight
+    is_hard[count] = 1.0 if hard else 0.0
+    kinds[count] = kind
+    joints[count] = joint
+    return count + 1
+
+@no_refcount_jit(cache=True, inline="always")
+def hard_rows(a, count, k, y, v, eps, minv, base, at_end):
+    """The hard rows of row k, with the model (M̂, b̂, the payload's structure, the bias
+    error) evaluated at (y, v) and the barriers at row k's state. ``at_end``: the conditions
+    at the end of the hold instead, at a predicted (y, v): a held τ must keep them there
+    too, and q̈ drifts over a hold fast where M̂ is ill-conditioned and τ large. With
+    q(dt) = q + dt q̇ + ½dt² q̈ and q̇(dt) = q̇ + dt q̈, a condition at the end weighs q̈ by
+    1 + k dt (velocity) or 1 + 2p dt + ½p² dt² (position) and the position's by p² dt q̇."""
+    n = y.shape[0]
+    w = a.work
+    vectors = w.vectors
+    corners = robust_model(a, y, v, eps, minv, base)
+    rows_error, plant_shift = vectors[ROWS_ERROR], vectors[PLANT_SHIFT]
+    s_grid, corner_index = w.s_grid, w.corner_index
+    alpha, beta = w.planar[ALPHA], w.pairs[BETA]
+    y0, v0, dt = a.position[k], a.velocity[k], a.dt
+    row = vectors[ROW]
+    qp = (a.rows, a.limits, a.weights, a.is_hard, a.kinds, a.joints)
+    for s in range(2):
+        if not a.hard[s]:
+            continue
+        for i in range(n):
+            for side in (1.0, -1.0):
+                # side·q̈_i ≤ limit for every q, q̇ within the bounds
+                if s == 0:
+                    h = a.bounds[0] - side * (y0[i] - a.q_s[k, i])
+                    limit = a.k0 * (h - a.noise_bound) - a.k1 * (side * v0[i] + eps[i])
+                    scale = 1.0 + a.k1 * dt + 0.5 * a.k0 * dt * dt if at_end else 1.0
+                    if at_end:
+                        limit -= a.k0 * dt * side * v0[i]
+                else:
+                    # The true h is ≥ 0 until the set is first left (by induction) and at
+                    # least h − ε: its worst case is max(h − ε, 0), not h − ε. So an estimate
+                    # that may lie outside asks only "do not approach", not recovery at rate
+                    # k from a state the plant may not be in.
+                    h = a.bounds[1] - side * (v0[i] - a.qdot_s[k, i])
+                    limit = a.k_velocity * max(h - eps[i], 0.0)
+                    scale = 1.0 + a.k_velocity * dt if at_end else 1.0
+                limit -= scale * rows_error[i]
+                if corners == 1:
+                    limit -= scale * max(-a.payload_low * side * plant_shift[i],
+                                         -a.payload_high * side * plant_shift[i])
+                for corner in range(corners):
+                    offset = side * base[i]
+                    for col in range(n):
+                        row[col] = side * minv[i, col]
+                    if corners > 1:
+                        for j in range(2):
+                            weight = s_grid[corner_index[corner, j], j] * side * alpha[j, i]
+                            for col in range(n):
+                                row[col] -= weight * alpha[j, col]
+                            offset += weight * beta[j]
+                    for col in range(n):
+                        row[col] *= scale
+                    count = add_row(qp, count, row, limit + scale * offset, a.rho_hard, True,
+                                    s, i)
+    return count
+
+
+@no_refcount_jit(cache=True)
+def cbf_rows(k, a):
+    """Fill G (``a.rows``), h (``a.limits``), the weights and the hard flags of row k's QP,
+    and the braking backup (``a.backup``); returns the number of rows."""
+    return rows_inline(k, a)
+
+
+@no_refcount_jit(cache=True, inline="always")
+def rows_inline(k, a):
+    """cbf_rows, inlined into the step (a's many fields are not copied per call), and its
+    parts inlined into it."""
+    vectors, matrices = a.work.vectors, a.work.matrices
+    y, v, eps = a.position[k], a.velocity[k], a.velocity_bound[k]
+    mass = a.M_model[k]
+    minv, bias, base = matrices[MINV], vectors[BIAS], vectors[BASE]  # u = M̂⁻¹τ − base
+    nominal_model(a, y, v, matrices[NOMINAL_NOW], bias)
+    invert(mass, minv, matrices[LU])
+    product(minv, bias, base)
+    _braking_backup(k, a, v, mass, bias)
+    count = hard_rows(a, 0, k, y, v, eps, minv, base, False)
+    _predict_hold(k, a, y, v, minv, base)
+    y_end, v_end = vectors[Y_END], vectors[V_END]
+    minv_end, base_end = matrices[MINV_END], vectors[BASE_END]
+    moved_model(a, y_end, v_end, mass, minv_end, base_end)
+    count = hard_rows(a, count, k, y_end, v_end, eps, minv_end, base_end, True)
+    # The soft rows take the plant's q̈ averaged over the hold (the midpoint rule: at the bound
+    # of a set, q̈'s drift within one 1 ms hold is what would carry the state across), and
+    # how v moves: the observer's drift + M̂⁻¹τ (the observer holds M̂ over the step), or the
+    # plant's q̈ for the plant's q̇.
+    minv_mid, base_mid = matrices[MINV_MID], vectors[BASE_MID]
+    moved_model(a, vectors[Y_MID], vectors[V_MID], mass, minv_mid, base_mid)
+    observed = np.isfinite(a.drift[k, 0])
+    rate_minv = minv if observed else minv_mid
+    _set_states(k, a, y, v, observed, base_mid)
+    _barrier_values(k, a, eps)
+    for s in range(4):
+        count = _soft_rows(k, a, count, s, rate_minv, minv_mid, base_mid)
+    if np.isfinite(a.torque_limit):
+        count = _torque_rows(a, count)
+    return count
+
+
+@no_refcount_jit(cache=True, inline="always")
+def _braking_backup(k, a, v, mass, bias):
+    """The backup into ``a.backup``: brake every joint towards q̇_s, within the torque
+    limit."""
+    n = v.shape[0]
+    for i in range(n):
+        braking = 0.0
+        for j in range(n):
+            braking += mass[i, j] * (-a.backup_rate * (v[j] - a.qdot_s[k, j]))
+        a.backup[i] = braking + bias[i]
+        if np.isfinite(a.torque_limit):
+            a.backup[i] = np.minimum(np.maximum(a.backup[i], -a.torque_limit), a.torque_limit)
+
+
+@no_refcount_jit(cache=True, inline="always")
+def _predict_hold(k, a, y, v, minv, base):
+    """The states at the hold's end and midpoint (Y_END … V_MID of the work vectors),
+    predicted with the torque of the step before (the nominal model's q̈)."""
+    vectors = a.work.vectors
+    held = a.tau[k - 1] if k > 0 else a.tau_nominal[k]
+    acceleration = vectors[ACCELERATION]
+    product(minv, held, acceleration)
+    y_end, v_end, y_mid, v_mid = vectors[Y_END], vectors[V_END], vectors[Y_MID], vectors[V_MID]
+    for i in range(y.shape[0]):
+        acceleration[i] -= base[i]
+        y_end[i] = y[i] + a.dt * v[i] + 0.5 * a.dt * a.dt * acceleration[i]
+        v_end[i] = v[i] + a.dt * acceleration[i]
+        y_mid[i] = y[i] + 0.5 * a.dt * v[i] + 0.125 * a.dt * a.dt * acceleration[i]
+        v_mid[i] = v[i] + 0.5 * a.dt * acceleration[i]
+
+
+@no_refcount_jit(cache=True, inline="always")
+def _set_states(k, a, y, v, observed, base_mid):
+    """Each set's x (rows X … of the work vectors, SETS order) and how v moves (DRIFT):
+    the observer's drift, else the plant's q̈ less M̂⁻¹τ at the hold's midpoint."""
+    vectors = a.work.vectors
+    drift, x = vectors[DRIFT], vectors[X:X + 4]
+    for i in range(y.shape[0]):
+        drift[i] = a.drift[k, i] if observed else -base_mid[i]
+        x[0, i] = y[i] - a.q_s[k, i]
+        x[1, i] = v[i] - a.qdot_s[k, i]
+        x[2, i] = a.q_d[k, i] - y[i]
+        x[3, i] = a.qdot_d[k, i] - v[i]
+
+
+@no_refcount_jit(cache=True, inline="always")
+def _barrier_values(k, a, eps):
+    """Row k's barrier values per set and joint (robust: the worst case of the true state
+    within the declared bounds) and as norms, their activity cleared for the record."""
+    x = a.work.vectors[X:X + 4]
+    for s in range(4):
+        beta_s = a.bounds[s]
+        tight = 0.0  # the worst case of the true state within the declared bounds
+        for i in range(x.shape[1]):
+            if s == 0:
+                tight = a.noise_bound
+            elif s == 1:
+                tight = eps[i]
+            a.h_sets[s, k, i] = beta_s - abs(x[s, i]) - tight
+            a.active_sets[s, k, i] = 0.0
+        xs = x[s]
+        a.h_norms[s, k] = beta_s - np.sqrt(dot(xs, xs))
+        a.active_norms[s, k] = 0.0
+
+
+@no_refcount_jit(cache=True, inline="always")
+def _soft_rows(k, a, count, s, rate_minv, minv_mid, base_mid):
+    """The soft rows of set s: per joint and side (if ``a.soft[s]``), then as a norm,
+    h = β² − ‖x‖² (if ``a.soft_norms[s]``); returns the next row's index."""
+    vectors = a.work.vectors
+    drift, x, row = vectors[DRIFT], vectors[X:X + 4], vectors[ROW]
+    qp = (a.rows, a.limits, a.weights, a.is_hard, a.kinds, a.joints)
+    rate_error = x[3]  # q̇_d − v
+    beta_s = a.bounds[s]
+    n = row.shape[0]
+    if a.soft[s]:
+        for i in range(n):
+            for side in (1.0, -1.0):
+                h = beta_s - side * x[s, i]
+                if s == 2:  # e = q_d − y: −side·q̈_i ≤ −side q̈_d − 2p side ė + p² h
+                    for col in range(n):
+                        row[col] = -side * minv_mid[i, col]
+                    bound = (-side * a.qddot_d[k, i] - a.tracking_k1 * side * rate_error[i]
+                             + a.tracking_k0 * h - side * base_mid[i])
+                else:  # ė = q̇_d − v: −side·(M̂⁻¹τ)_i ≤ −side q̈_d + side drift_i + k h
+                    for col in range(n):
+                        row[col] = -side * rate_minv[i, col]
+                    bound = -side * a.qddot_d[k, i] + side * drift[i] + a.k_velocity * h
+                count = add_row(qp, count, row, bound, a.rho_soft, False, s, i)
+    if not a.soft_norms[s]:
+        return count
+    xs = x[s]
+    norm = np.sqrt(dot(xs, xs))
+    h = beta_s * beta_s - norm * norm
+    if s == 2:  # ḧ = −2‖ė‖² − 2eᵀ(q̈_d − q̈), ḣ = −2eᵀė
+        for col in range(n):
+            row[col] = -2.0 * dot(xs, minv_mid[:, col])
+        bound = (-2.0 * dot(rate_error, rate_error) - 2.0 * dot(xs, a.qddot_d[k])
+                 - 2.0 * dot(xs, base_mid) - 2.0 * a.tracking_k1 * dot(xs, rate_error)
+                 + a.tracking_k0 * h)
+    else:  # ḣ = −2ėᵀ(q̈_d − dv/dt)
+        for col in range(n):
+            row[col] = -2.0 * dot(xs, rate_minv[:, col])
+        bound = -2.0 * dot(xs, a.qddot_d[k]) + 2.0 * dot(xs, drift) + a.k_velocity * h
+        # Over a hold h also loses ‖Δx‖² (the set is round, the step straight): a
+        # state sliding along the bound would leave it by that much each step, so the
+        # rate asked for is less by ‖Δx‖²/step, Δx taken from the step before.
+        if k > 0:
+            change = 0.0
+            for i in range(n):
+                change += (xs[i] - (a.qdot_d[k - 1, i] - a.velocity[k - 1, i])) ** 2
+            bound -= change / a.dt
+    return add_row(qp, count, row, bound, a.rho_soft, False, 4 + s, -1)
+
+
+@no_refcount_jit(cache=True, inline="always")
+def _torque_rows(a, count):
+    """The torque limits |τ_i| ≤ τ_max as hard rows; returns the next row's index."""
+    row = a.work.vectors[ROW]
+    qp = (a.rows, a.limits, a.weights, a.is_hard, a.kinds, a.joints)
+    n = row.shape[0]
+    for i in range(n):
+        for side in (1.0, -1.0):
+            for col in range(n):
+                row[col] = side if col == i else 0.0
+            count = add_row(qp, count, row, a.torque_limit, a.rho_hard, True, -1, i)
+    return count
