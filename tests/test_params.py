@@ -10,7 +10,6 @@ import re
 import subprocess
 import sys
 
-import pytest
 from cli_helpers import cosim_cli
 
 from cosim.config import load_pipeline
@@ -87,7 +86,8 @@ def test_every_key_is_listed_with_a_value_set_takes_back_and_a_meaning():
             == defaults[key], key
     described = [key for key, row in rows.items() if row[3]]
     assert len(described) == len(rows), sorted(set(rows) - set(described))
-    assert rows["simulation.duration"][3] == "simulated time of each run, s" and "rad" in rows["sensor.noise_std"][3]
+    assert rows["simulation.duration"][3] == "simulated time of each run, s" \
+        and "rad" in rows["sensor.noise_std"][3]
     assert rows["controller.kv"][2] == "number > 0 or list of number > 0"
     assert rows["cbf_filter.backup"][2] == 'one of "least_violation", "brake"'
     assert rows["simulation.step"][2] == "number > 0, ≤ 0.1"
@@ -128,10 +128,6 @@ def test_every_key_has_a_meaning_in_words_that_names_its_unit():
     assert without_a_unit({k: ("", "", "", v) for k, v in examples.items()}) == {"bare": "Kv"}
 
 
-@pytest.mark.skip(reason="name, description, plugins, simulation.*, plant.builtin.*, plant.fmu, "
-                  "plant.parameters (cosim/config/pipeline.py), controller.* "
-                  "(cosim/blocks/controller.py) and cbf_filter.* (cosim/blocks/cbf_filter.py) "
-                  "are being restructured elsewhere: their meanings with units come with it")
 def test_the_restructured_sections_keys_name_their_units_too():
     rows = listing()
     assert without_a_unit({k: row for k, row in rows.items() if k.startswith(RESTRUCTURED)}) == {}

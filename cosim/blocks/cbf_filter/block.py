@@ -22,9 +22,13 @@ SoftSet = Literal["error", "error_rate"]
 
 
 class CbfFilterParams(Section):
-    hard: list[HardSet] = ["position", "velocity"]  # physical sets, per joint, guaranteed
-    soft: list[SoftSet] = ["error", "error_rate"]  # tracking sets, per joint, weighted
-    soft_norms: list[SoftSet] = ["error", "error_rate"]  # tracking sets as norms, weighted
+    # the physical sets guaranteed per joint, "position" and true "velocity", names
+    hard: list[HardSet] = ["position", "velocity"]
+    # the tracking sets kept per joint where the hard ones allow, weighted, "error" and
+    # "error_rate", names
+    soft: list[SoftSet] = ["error", "error_rate"]
+    # the tracking sets kept as norms, weighted, names
+    soft_norms: list[SoftSet] = ["error", "error_rate"]
     # p of the hard degree-2 (position) conditions (k1 = 2p, k0 = p²), 1/s. A model error D
     # (rad/s²) keeps the joint D/p² from its bound and the velocity error ε keeps it 2ε/p:
     # a fast p costs less tracking where the reference runs along a bound; p·step ≪ 1.
@@ -36,28 +40,44 @@ class CbfFilterParams(Section):
     # k of degree-1 conditions, 1/s: under a model error D (rad/s²) a velocity set keeps a
     # margin D/k, so a fast rate costs little; k·step ≪ 1 for the 1 ms hold.
     velocity_rate: PositiveFloat = 100.0
-    velocity: Literal["observer", "plant"] = "observer"  # x̂2 (with its ε), or the true q̇
-    # A fraction of every bound kept for the sampled-data hold between steps (1 ms).
+    # the velocity the filter is given (a name): "observer", x̂2 with its bound ε, or
+    # "plant", the true q̇
+    velocity: Literal["observer", "plant"] = "observer"
+    # the fraction of every bound kept for the sampled-data hold between steps (1 ms),
+    # dimensionless
     bound_margin: Annotated[float, Field(ge=0, lt=1)] = 0.002
-    torque_limit: PositiveFloat | None = None  # |τ_i| ≤ this, N·m (hard)
-    # ρ_s: the cost of 1 N·m of soft violation, squared, against τ's: high, so that tracking
-    # gives way only where it conflicts with a hard row (ρ_hard is 1e4 times more)
+    # hard limit on each joint's torque |τ_i| (unset: none), N·m
+    torque_limit: PositiveFloat | None = None
+    # weight ρ_s of a soft row's squared violation against τ's: high, so that tracking gives
+    # way only where it conflicts with a hard row (ρ_hard is 1e4 times more), dimensionless
     tracking_weight: PositiveFloat = 1e6
-    hard_weight: PositiveFloat = 1e10  # ρ_hard of the penalty form (then checked exactly)
-    hard_tolerance: PositiveFloat = 1e-4  # N·m: the hard limits are lowered by this
-    # When the hard part is infeasible: "least_violation", the penalty form's answer (the
-    # torque that violates the hard rows least, in least squares, then tracks), or "brake",
-    # q̈ = −k (v − q̇_s) with the nominal model and k = backup_rate, within the torque limit.
+    # weight ρ_hard of a hard row's squared violation in the penalty form (then checked
+    # exactly), dimensionless
+    hard_weight: PositiveFloat = 1e10
+    # how far the hard limits are lowered, N·m
+    hard_tolerance: PositiveFloat = 1e-4
+    # when the hard part is infeasible (a name): "least_violation", the penalty form's
+    # answer (the torque that violates the hard rows least, in least squares, then tracks),
+    # or "brake", q̈ = −k (v − q̇_s) with the nominal model and k = backup_rate, within the
+    # torque limit
     backup: Literal["least_violation", "brake"] = "least_violation"
-    backup_rate: PositiveFloat = 20.0  # 1/s
-    # The payload's worst case is taken over the corners of `payload_grid` boxes that cover
-    # the curve (s_1(Δm), s_2(Δm)): exact as it grows, conservative by a box's size.
+    # rate k of the braking backup q̈ = −k (v − q̇_s), 1/s
+    backup_rate: PositiveFloat = 20.0
+    # boxes over which the payload's worst case is taken, at their corners, covering the
+    # curve (s_1(Δm), s_2(Δm)): exact as it grows, conservative by a box's size,
+    # dimensionless (a count)
     payload_grid: Annotated[int, Field(ge=1, le=32)] = 4
-    tau_d: FiniteFloat | list[FiniteFloat] | None = None  # N·m; None: the observer's model
-    solver: str = "newton"  # or a qpsolvers solver: daqp, osqp, clarabel, proxqp, quadprog
-    iterations: Annotated[int, Field(ge=1, le=1000)] = 50  # Newton steps at most
-    tolerance: PositiveFloat = 1e-12  # on the gradient, relative to ‖τ_nom‖
-
+    # the disturbance torque τ_d of the filter's model, per joint or one for all (unset:
+    # the observer's), N·m
+    tau_d: FiniteFloat | list[FiniteFloat] | None = None
+    # the QP solver (a name): "newton", the compiled semismooth Newton, or a qpsolvers
+    # solver: daqp, osqp, clarabel, proxqp, quadprog
+    solver: str = "newton"
+    # Newton steps at most per control step, dimensionless (a count)
+    iterations: Annotated[int, Field(ge=1, le=1000)] = 50
+    # the Newton solver's stopping tolerance on the gradient, relative to ‖τ_nom‖,
+    # dimensionless
+    tolerance: PositiveFloat = 1e-12
 
 @no_refcount_jit(cache=True, inline="always")
 def hard_violated(G, h, is_hard, count, tau):
