@@ -34,12 +34,12 @@ from bench_cosim import fmu_only_compiled
 from numba import njit
 
 from cosim.assemble import assemble
-from cosim.blocks.cbf_filter import cbf_rows, cbf_step, solve_soft_qp
-from cosim.blocks.cbf_filter.block import record_inline
-from cosim.blocks.cbf_filter.rows import rows_inline
 from cosim.config import load_pipeline
 from cosim.engine import simulate
 from cosim.numba_compat import no_refcount_jit
+from cosim.paper.cbf_filter import cbf_rows, cbf_step, solve_soft_qp
+from cosim.paper.cbf_filter.block import record_inline
+from cosim.paper.cbf_filter.rows import rows_inline
 
 PIPELINE = Path(__file__).resolve().parent.parent / "pipelines" / "paper_safety.toml"
 

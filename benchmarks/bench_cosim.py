@@ -39,10 +39,10 @@ from numba import njit
 
 from cosim.assemble import assemble_run, open_plant
 from cosim.blocks import Ports
-from cosim.blocks.inertia import InertiaModel, InertiaModelParams
 from cosim.config import load_pipeline
 from cosim.engine import simulate
 from cosim.engine.fused import fused_loop
+from cosim.paper.inertia import InertiaModel, InertiaModelParams
 from cosim.plant.ports import OUTPUT_PORTS
 from cosim.runner import run
 

@@ -192,7 +192,7 @@ def test_kernel_arguments_are_built_by_name_and_refused_missing_or_unknown():
     fields of one type can be swapped silently: a field left out, or one the record has
     not, is refused, named."""
     from cosim.blocks import kernel_args
-    from cosim.blocks.sensor import SensorArgs
+    from cosim.paper.sensor import SensorArgs
 
     rows = np.zeros((2, 2))
     built = kernel_args(SensorArgs, q=rows, noise=rows, resolution=0.0, q_meas=rows)

@@ -788,7 +788,7 @@ def test_a_cold_kernel_cache_is_announced_not_silent(tmp_path):
     env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
     probe = ("import sys, numpy as np, cosim.blocks, cosim.jit_cache as j; "
              "print(j.cache_is_cold());"
-             "from cosim.blocks.inertia import planar_mass_matrix as f;"
+             "from cosim.paper.inertia import planar_mass_matrix as f;"
              "out = np.empty((2, 2)); f(np.zeros(2), np.ones(2), np.ones(2), np.ones(2),"
              " np.zeros(2), out) if 'compile' in sys.argv else None")
     cold = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True,

@@ -13,16 +13,16 @@ import pytest
 
 from cosim.assemble import assemble
 from cosim.blocks import cbf_filter as cf
-from cosim.blocks.cbf_filter.scratch import CHAIN_SCRATCH_ROWS
-from cosim.blocks.inertia import (
+from cosim.config import load_pipeline
+from cosim.engine import simulate
+from cosim.paper.cbf_filter.scratch import CHAIN_SCRATCH_ROWS
+from cosim.paper.inertia import (
     chain_bias,
     chain_geometry,
     chain_mass,
     planar_bias,
     planar_mass_matrix,
 )
-from cosim.config import load_pipeline
-from cosim.engine import simulate
 
 SAFETY = "pipelines/paper_safety.toml"
 

@@ -36,8 +36,8 @@ def first_entry(q):
 # how many of its signatures were loaded from the cache and how many compiled.
 COMPILE = """
 import json, numpy as np
-from cosim.blocks.sensor import SensorArgs, sensor_step
-from cosim.blocks.inertia import planar_mass_matrix
+from cosim.paper.sensor import SensorArgs, sensor_step
+from cosim.paper.inertia import planar_mass_matrix
 from cosim.blocks.cache_probe import first_entry
 q = np.zeros((2, 2))
 sensor_step(0, SensorArgs(q, np.zeros((2, 2)), 0.0, np.zeros((2, 2))))
@@ -48,7 +48,7 @@ print(json.dumps({f.py_func.__module__: [f.stats.cache_path, sum(f.stats.cache_h
                                         sum(f.stats.cache_misses.values())]
                   for f in (sensor_step, planar_mass_matrix, first_entry)}))
 """
-SENSOR, INERTIA, CALLER_MODULE = "cosim.blocks.sensor", "cosim.blocks.inertia", \
+SENSOR, INERTIA, CALLER_MODULE = "cosim.paper.sensor", "cosim.paper.inertia", \
     "cosim.blocks.cache_probe"
 
 
@@ -125,26 +125,26 @@ def test_a_fused_loop_is_versioned_by_the_kernels_it_calls(tmp_path, monkeypatch
 
     loop = tmp_path / "cosim_fused_probe.py"
     loop.write_text("from numba import njit\n\n"
-                    "from cosim.blocks.sensor import sensor_step as kernel_0\n"
-                    "from cosim.blocks.pd_controller import pd_step as kernel_1\n")
+                    "from cosim.paper.sensor import sensor_step as kernel_0\n"
+                    "from cosim.paper.pd_controller import pd_step as kernel_1\n")
     monkeypatch.setattr(jit_cache, "_closures", {})
     monkeypatch.setattr(jit_cache, "_digests", {})
     closure = jit_cache._closure("cosim_fused_probe", loop)
     # pd_controller calls the inertia model's kernels: they are part of the loop's code
-    assert closure == ("cosim.blocks.inertia", "cosim.blocks.pd_controller",
-                       "cosim.blocks.sensor", "cosim_fused_probe")
+    assert closure == ("cosim.paper.inertia", "cosim.paper.pd_controller",
+                       "cosim.paper.sensor", "cosim_fused_probe")
     digest = jit_cache.module_digest("cosim_fused_probe", loop)
     assert jit_cache._ours("cosim_fused_probe", str(loop))
     import numpy
 
     assert not jit_cache._ours("numpy.linalg", numpy.__file__)  # installed: numba's own way
     # a kernel module's digest changes with a callee's source, and with nothing else
-    sensor = jit_cache.module_digest("cosim.blocks.sensor")
+    sensor = jit_cache.module_digest("cosim.paper.sensor")
     monkeypatch.setattr(jit_cache, "_digests", {})
     real = jit_cache.module_file
     copy = tmp_path / "inertia.py"
-    copy.write_text(real("cosim.blocks.inertia").read_text() + "\n# an edit\n")
+    copy.write_text(real("cosim.paper.inertia").read_text() + "\n# an edit\n")
     monkeypatch.setattr(jit_cache, "module_file",
-                        lambda name: copy if name == "cosim.blocks.inertia" else real(name))
+                        lambda name: copy if name == "cosim.paper.inertia" else real(name))
     assert jit_cache.module_digest("cosim_fused_probe", loop) != digest
-    assert jit_cache.module_digest("cosim.blocks.sensor") == sensor
+    assert jit_cache.module_digest("cosim.paper.sensor") == sensor

@@ -28,7 +28,7 @@ NAMES_A_UNIT = re.compile(r"(?:, |\()(" + "|".join(
     re.escape(unit) for unit in sorted(UNITS + NO_UNIT, key=len, reverse=True))
     + r")(?![\w/·])")
 # Keys whose sections live in files others are restructuring (cosim/config/pipeline.py,
-# cosim/blocks/controller.py, cosim/blocks/cbf_filter.py): their meanings with units are
+# cosim/paper/controller.py, cosim/paper/cbf_filter.py): their meanings with units are
 # written into those files when the restructuring is merged.
 RESTRUCTURED = ("name", "description", "plugins", "simulation.", "plant.builtin.",
                 "plant.fmu", "plant.parameters", "controller.", "cbf_filter.")

@@ -20,9 +20,9 @@ from cli_helpers import PAPER, cosim_cli
 from fmu_helpers import FmuInstance, fmu_parameters
 
 from cosim import linearize  # the public, importable function
-from cosim.blocks.inertia import planar_mass_matrix
 from cosim.cli import main
 from cosim.config import load_pipeline
+from cosim.paper.inertia import planar_mass_matrix
 from cosim.plant.fmu import Fmu
 from cosim.plant.inspection import inspect_fmu
 from cosim.plant.linearization import linearize_at_start
@@ -99,7 +99,7 @@ def test_pythonfmu_arm_under_other_names_matches_the_builtin_plant(foreign_fmu, 
 
 EXIT_SCRIPT = """
 import sys
-import cosim.blocks.controller  # numba, numpy's Fortran runtime: what made the heap matter
+import cosim.paper.controller  # numba, numpy's Fortran runtime: what made the heap matter
 from cosim.plant.fmu import Fmu
 plant = Fmu(sys.argv[1], {"tau": ["shoulder_torque", "elbow_torque"],
                           "q": ["shoulder", "elbow"]})

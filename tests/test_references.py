@@ -37,12 +37,12 @@ import pytest
 from scipy import integrate, linalg, special, stats
 
 from cosim.blocks import BlockContext, Ports
-from cosim.blocks.controller import ControllerParams, NnController, NnGains, controller_step
-from cosim.blocks.inertia import planar_bias, planar_mass_matrix
-from cosim.blocks.observer import FlnnObserver, ObserverParams, _gain, observer_step
 from cosim.declared import Uncertainty
 from cosim.evaluate import Evaluator, SafeSet
+from cosim.paper.controller import ControllerParams, NnController, NnGains, controller_step
 from cosim.paper.guarantee import classify
+from cosim.paper.inertia import planar_bias, planar_mass_matrix
+from cosim.paper.observer import FlnnObserver, ObserverParams, _gain, observer_step
 from cosim.paper.theorem import theorem1
 from cosim.signals import Signal, Trace
 from cosim.sweep import wilson

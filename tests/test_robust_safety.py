@@ -15,10 +15,10 @@ from cli_helpers import cosim_cli
 from test_references import two_link_closed_form
 
 from cosim.assemble import assemble
-from cosim.blocks.cbf_filter import acceleration_error_bound, velocity_forms
-from cosim.blocks.observer import error_envelope
 from cosim.config import load_pipeline
 from cosim.engine import simulate
+from cosim.paper.cbf_filter import acceleration_error_bound, velocity_forms
+from cosim.paper.observer import error_envelope
 from cosim.runner import run
 
 MC = "pipelines/monte_carlo.toml"
@@ -132,7 +132,7 @@ def test_each_hard_constraint_is_sound_at_arbitrary_states_with_wide_margins():
     one margin (n̄, ε in either set, the bias error) lets some such torque through."""
     from scipy.optimize import linprog
 
-    from cosim.blocks.cbf_filter import cbf_rows
+    from cosim.paper.cbf_filter import cbf_rows
 
     pipeline, plan, _ = simulated([], "proposed_cbf", duration=0.01)
     f = pipeline.runs["proposed_cbf"].cbf_filter
@@ -211,7 +211,7 @@ def test_the_payload_rows_hold_between_their_corners():
     keeps its condition for every payload on a fine grid of the declared range (101 values,
     most between the filter's grid points), with the closed-form arm's acceleration. The
     polygon's vertices are where the constraint is tightest, so this checks all of it."""
-    from cosim.blocks.cbf_filter import cbf_rows
+    from cosim.paper.cbf_filter import cbf_rows
 
     pipeline, plan, _ = simulated(["sensor.noise_std=0"], "proposed_cbf", duration=0.01)
     f = pipeline.runs["proposed_cbf"].cbf_filter
@@ -366,7 +366,7 @@ def test_an_infeasible_hard_part_raises_the_flag_and_the_backup_brakes():
     a = plan.block("cbf_filter").args
     for k in flagged[:50]:  # the braking torque, recomputed from the signals
         mass, v = trace["M_model"][k], trace["qdot_hat"][k]
-        from cosim.blocks.inertia import planar_bias
+        from cosim.paper.inertia import planar_bias
 
         bias = np.zeros(2)
         planar_bias(trace["q_meas"][k], v, a.m, a.l, a.lc, a.inertia, 9.8, bias)

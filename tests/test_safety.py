@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from cli_helpers import table_gains
 
-from cosim.blocks.cbf_filter import cbf_rows, solve_soft_qp
 from cosim.config import load_pipeline
+from cosim.paper.cbf_filter import cbf_rows, solve_soft_qp
 from cosim.paper.theorem import barriers
 from cosim.runner import run
 

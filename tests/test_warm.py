@@ -30,7 +30,7 @@ def test_after_the_warm_up_a_first_run_compiles_nothing(tmp_path):
     warm = cosim(["warm-up", PD, "--workers", "2"], env)
     assert warm.returncode == 0, warm.stderr[-3000:]
     # what it compiled, module by module, and the fused loop of the runs' chain
-    assert "    cosim.blocks.pd_controller: " in warm.stderr, warm.stderr
+    assert "    cosim.paper.pd_controller: " in warm.stderr, warm.stderr
     assert "    the fused loop of " in warm.stderr, warm.stderr
     assert "cosim warm-up: done in " in warm.stderr
     assert list((tmp_path / "fmus").rglob("*.fmu")) and list((tmp_path / "engine").glob("*.py"))

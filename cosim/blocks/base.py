@@ -145,3 +145,22 @@ def register_block(cls: type[Block]) -> type[Block]:
                          f"({BLOCKS[kind].__module__}.{BLOCKS[kind].__name__})")
     BLOCKS[kind] = cls
     return cls
+
+
+# The chain a run steps when its pipeline names none, in the order data flows: set by the
+# package that provides a whole controller (the paper's, cosim.paper).
+_DEFAULT_CHAIN: list[str] = []
+
+
+def set_default_chain(kinds: list[str] | tuple[str, ...]) -> None:
+    """Make ``kinds`` (registered block kinds) the chain of a run whose pipeline names none."""
+    missing = [kind for kind in kinds if kind not in BLOCKS]
+    if missing:
+        raise ValueError(f"default chain: no block of kind {', '.join(map(repr, missing))} is "
+                         "registered")
+    _DEFAULT_CHAIN[:] = kinds
+
+
+def default_chain() -> list[str]:
+    """The chain of a run whose pipeline names none (empty: every run must name one)."""
+    return list(_DEFAULT_CHAIN)

@@ -1,13 +1,14 @@
 """A pipeline's runs: each names its chain of blocks (``blocks = [...]``, default
-:data:`DEFAULT_CHAIN`), ``"kind as name"`` for a named instance with a table of its own."""
+:func:`~cosim.blocks.default_chain`), ``"kind as name"`` for a named instance with a table
+of its own."""
 
 from __future__ import annotations
 
 from typing import Any
 
-from pydantic import ValidationError, model_validator
+from pydantic import Field, ValidationError, model_validator
 
-from ..blocks import BLOCKS, DEFAULT_CHAIN
+from ..blocks import BLOCKS, default_chain
 from ..schema import Section
 
 
@@ -27,7 +28,7 @@ class Run(Section):
     ``"kind as name"`` adds an instance of ``kind`` named ``name``, with its own table
     ``[runs.RUN.name]`` merged over the top-level ``[kind]`` (``instances`` holds them)."""
 
-    blocks: list[str] = list(DEFAULT_CHAIN)
+    blocks: list[str] = Field(default_factory=default_chain)
     instances: dict[str, dict] = {}  # named instances' tables, from [runs.RUN.NAME]
 
     @model_validator(mode="before")

@@ -169,15 +169,3 @@ class FeedbackGain(Part):
             return None, []
         return None, [f"effective gain on r̂ (median) {gain['median']:.1f} N·m·s/rad"]
 
-
-@register_evaluator
-class FilterActivity(Part):
-    """How often the safety filter changed the torque it was asked for."""
-
-    name = "filter_activity"
-    meaning = "the share of steps in which the CBF filter changed the torque"
-    inputs = ("cbf_active",)
-
-    def metrics(self, trace: Signals, series: Mapping[str, np.ndarray]) -> dict:
-        active = trace["cbf_active"]
-        return {"filter_active_fraction": float(np.mean(active > 0)) if len(active) else None}

@@ -34,6 +34,7 @@ from ..signals import Trace
 # A tolerance for comparing declared and actual parameter values (rounding in TOML, FMI).
 PARAMETER_TOLERANCE = 1e-9
 INFEASIBLE = "cbf_infeasible"  # the filter's flag: its hard QP was infeasible at this step
+ACTIVE = "cbf_active"  # the filter's flag: it changed the torque at this step
 
 
 def rigid_chain_parameters(links: int) -> frozenset[str] | None:
@@ -147,12 +148,18 @@ def classify(trace: Trace, safe: SafeSet, uncertainty: Uncertainty,
 class Guarantee(Part):
     """The filter's guarantee on a run (:func:`classify`), from its evaluated hard sets, the
     plant's parameters against the nominal chain a block publishes, and the declared
-    uncertainty; and the line `cosim run` prints of it for a filtered run."""
+    uncertainty; the line `cosim run` prints of it for a filtered run; and how often the
+    filter changed the torque."""
 
     name = "guarantee"
     meaning = "whether the safety filter's guarantee covers the run, and whether it held"
     inputs = ("q",)
     constants = (io.PLANT_PARAMETERS, io.UNCERTAINTY)
+
+    def metrics(self, trace: Signals, series: Mapping[str, np.ndarray]) -> dict:
+        if ACTIVE not in trace or not len(trace[ACTIVE]):
+            return {}
+        return {"filter_active_fraction": float(np.mean(trace[ACTIVE] > 0))}
 
     def conclude(self, trace: Signals, checks: Mapping[str, Check]) -> dict:
         chain = self.given.get(io.PLANT_MODEL)

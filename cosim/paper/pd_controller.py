@@ -17,9 +17,9 @@ from typing import Literal, NamedTuple
 import numpy as np
 from numba import njit
 
+from ..blocks.base import Block, BlockContext, Ports, kernel_args, register_block
 from ..schema import GainVector, NonNegativeFloat, Section
 from ..signals import Signal
-from .base import Block, BlockContext, Ports, kernel_args, register_block
 from .inertia import CHAIN_ROWS, Chain, chain_bias, chain_geometry
 
 

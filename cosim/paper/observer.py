@@ -27,9 +27,9 @@ import numpy as np
 from numba import njit
 from pydantic import Field
 
+from ..blocks.base import Block, BlockContext, Ports, kernel_args, register_block
 from ..schema import FiniteFloat, NonNegativeFloat, PositiveFloat, Section
 from ..signals import Signal
-from .base import Block, BlockContext, Ports, kernel_args, register_block
 
 LAWS = {"paper": 0, "error_driven": 1}
 BASES = {"lagged": 0, "no_acceleration": 1}

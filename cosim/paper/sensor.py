@@ -8,9 +8,9 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
+from ..blocks.base import Block, BlockContext, Ports, kernel_args, register_block
 from ..schema import NonNegativeFloat, Section, Seed
 from ..signals import Signal
-from .base import Block, BlockContext, Ports, kernel_args, register_block
 
 
 class SensorParams(Section):

@@ -8,7 +8,7 @@ from ...numba_compat import no_refcount_jit
 
 # The small linear algebra of a step, on n joints and 2-vectors, written out: numba's
 # np.linalg and @ allocate their results and call LAPACK/BLAS, which costs more than the
-# arithmetic at these sizes. (The observer's solve, cosim.blocks.observer._solve, is another
+# arithmetic at these sizes. (The observer's solve, cosim.paper.observer._solve, is another
 # elimination, forward only, on one right-hand side: the two round differently, and each
 # block's numbers are kept as they are.)
 

@@ -8,10 +8,10 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import Field
 
+from ...blocks.base import Block, BlockContext, Ports, kernel_args, register_block
 from ...numba_compat import no_refcount_jit
 from ...schema import FiniteFloat, PipelineError, PositiveFloat, Section
 from ...signals import Signal
-from ..base import Block, BlockContext, Ports, kernel_args, register_block
 from .linalg import dot
 from .rows import cbf_rows, rows_inline
 from .scratch import FACTOR, SETS, TAU, CbfArgs, cbf_work

@@ -25,9 +25,9 @@ from numba import njit
 
 from plant_fmu.models.planar_arm import PAPER_MASSES
 
+from ..blocks.base import Block, BlockContext, Ports, kernel_args, register_block
 from ..schema import FiniteFloat, NonNegativeFloat, PipelineError, PositiveFloat, Section
 from ..signals import Signal
-from .base import Block, BlockContext, Ports, kernel_args, register_block
 
 
 class InertiaModelParams(Section):

@@ -1,5 +1,5 @@
 """The filter's model of the plant at one state: the nominal chain's M̂ and b̂ (by
-cosim.blocks.inertia's chain kernels), b's velocity part and the bound on its error, the
+cosim.paper.inertia's chain kernels), b's velocity part and the bound on its error, the
 payload's Jacobian and structure (see the package docstring)."""
 
 from __future__ import annotations

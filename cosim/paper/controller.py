@@ -23,9 +23,9 @@ import numpy as np
 from numba import njit
 from pydantic import Field
 
+from ..blocks.base import Block, BlockContext, Ports, kernel_args, register_block
 from ..schema import GainVector, NonNegativeFloat, PipelineError, PositiveFloat, Section, Seed
 from ..signals import Signal
-from .base import Block, BlockContext, Ports, kernel_args, register_block
 
 VARIANTS = ("baseline", "proposed")
 

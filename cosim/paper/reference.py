@@ -8,9 +8,9 @@ from typing import Literal
 import numpy as np
 from pydantic import model_validator
 
+from ..blocks.base import Block, BlockContext, Ports, register_block
 from ..schema import FiniteFloat, NonNegativeFloat, PipelineError, PositiveFloat, Section
 from ..signals import Signal
-from .base import Block, BlockContext, Ports, register_block
 
 
 class ReferenceParams(Section):

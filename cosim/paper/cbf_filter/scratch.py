@@ -7,7 +7,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ..base import kernel_args
+from ...blocks.base import kernel_args
 from ..inertia import CHAIN_ROWS
 
 SETS = ("position", "velocity", "error", "error_rate")
@@ -18,7 +18,7 @@ SETS = ("position", "velocity", "error", "error_rate")
 # 58 arrays, 0.11 µs as these 13, 80 ns without any).
 
 # Rows of CbfWork.chain (CHAIN_ROWS + 3, n): the chain's geometry at one position, per link
-# (m), and the forces of the recursive Newton–Euler bias (N), cosim.blocks.inertia's rows;
+# (m), and the forces of the recursive Newton–Euler bias (N), cosim.paper.inertia's rows;
 # then the polarisation's velocity and biases.
 E, PLUS, MINUS = range(CHAIN_ROWS, CHAIN_ROWS + 3)
 CHAIN_SCRATCH_ROWS = CHAIN_ROWS + 3
