@@ -41,7 +41,7 @@ _PROJECT = ("cosim", "plant_fmu")  # top-level packages whose imports the digest
 _IMPORTS_NUMBA = re.compile(
     rb"^[ \t]*(from[ \t]+numba\b|import[ \t]+numba\b|from[ \t]+[.\w]*numba_compat\b)", re.M)
 # Installed code (the standard library, site-packages) is not ours to version: numba's own
-# locators cache it as before. cosim itself is ours wherever it is installed.
+# locators cache it. cosim itself is ours wherever it is installed.
 _INSTALLED = tuple(sorted({str(Path(p).resolve()) for key in ("stdlib", "platstdlib",
                                                                "purelib", "platlib")
                            if (p := sysconfig.get_paths().get(key))}))

@@ -38,7 +38,7 @@ COMPILE = """
 import json, numpy as np
 from cosim.paper.sensor import SensorArgs, sensor_step
 from cosim.paper.inertia import planar_mass_matrix
-from cosim.blocks.cache_probe import first_entry
+from cosim.paper.cache_probe import first_entry
 q = np.zeros((2, 2))
 sensor_step(0, SensorArgs(q, np.zeros((2, 2)), 0.0, np.zeros((2, 2))))
 planar_mass_matrix(np.zeros(2), np.ones(2), np.ones(2), np.ones(2), np.zeros(2),
@@ -49,7 +49,7 @@ print(json.dumps({f.py_func.__module__: [f.stats.cache_path, sum(f.stats.cache_h
                   for f in (sensor_step, planar_mass_matrix, first_entry)}))
 """
 SENSOR, INERTIA, CALLER_MODULE = "cosim.paper.sensor", "cosim.paper.inertia", \
-    "cosim.blocks.cache_probe"
+    "cosim.paper.cache_probe"
 
 
 def compile_in_fresh_process(source: Path, cache: Path) -> dict[str, tuple[Path, int, int]]:
@@ -77,7 +77,7 @@ def test_a_changed_kernel_source_recompiles_only_its_kernels_in_a_fresh_process(
     ignore = shutil.ignore_patterns("__pycache__")
     for package in ("cosim", "plant_fmu"):
         shutil.copytree(ROOT / package, source / package, ignore=ignore)
-    (source / "cosim" / "blocks" / "cache_probe.py").write_text(CALLER)
+    (source / "cosim" / "paper" / "cache_probe.py").write_text(CALLER)
 
     first = compile_in_fresh_process(source, cache)
     for module, (folder, hits, misses) in first.items():
@@ -97,7 +97,7 @@ def test_a_changed_kernel_source_recompiles_only_its_kernels_in_a_fresh_process(
     assert {p: t for folder in folders for p, t in entries(folder).items()} == before
 
     # The sensor's source changes: only its kernel compiles, into a new folder.
-    edit(source / "cosim" / "blocks" / "sensor.py")
+    edit(source / "cosim" / "paper" / "sensor.py")
     third = compile_in_fresh_process(source, cache)
     assert third[SENSOR][0] != first[SENSOR][0] and third[SENSOR][0].parent == cache
     assert third[SENSOR][2] >= 1 and entries(third[SENSOR][0])  # compiled anew
@@ -108,7 +108,7 @@ def test_a_changed_kernel_source_recompiles_only_its_kernels_in_a_fresh_process(
 
     # The inertia model's source changes: its kernels and its caller's compile anew (the
     # caller's machine code holds the callee's), the sensor's loads.
-    edit(source / "cosim" / "blocks" / "inertia.py")
+    edit(source / "cosim" / "paper" / "inertia.py")
     fourth = compile_in_fresh_process(source, cache)
     for module in (INERTIA, CALLER_MODULE):
         assert fourth[module][0] not in (first[module][0], third[module][0]), (module, fourth)

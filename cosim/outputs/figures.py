@@ -271,7 +271,7 @@ _DRAW = {"checks": _checks_figure, "torques": _torque_figure, "barriers": _barri
 # and draws a first small figure (fonts, the log axes' mathtext) while the runs go. Given
 # the figures, it forks once per further idle core, and the forks, warm already, draw their
 # share side by side with it. It pays only with idle cores: on a machine already busy none
-# is started, and this process draws as before. A plain child interpreter (not
+# is started, and this process draws them itself. A plain child interpreter (not
 # multiprocessing), as for the recording's writer, so that a script calling run() without a
 # __main__ guard works. A painter never given work reads the end of its input and exits;
 # what it could not draw, this process draws.

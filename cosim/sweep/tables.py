@@ -59,7 +59,7 @@ def safety_by_value(rows: list[dict], spec: SweepSpec) -> dict[str, list[dict]]:
     return out
 
 
-# The classes of the robust-safety issue: which runs the filter's guarantee speaks for.
+# The classes of the robust-safety evaluation: which runs the filter's guarantee speaks for.
 CLASSES = (
     ("starts inside", lambda r: r.get("guarantee.starts_inside") is True),
     ("covered", lambda r: r.get("guarantee.starts_inside") is True

@@ -1,6 +1,6 @@
 """A robust output-feedback CBF-QP safety filter: after any nominal controller, the torque
 closest to the nominal one that keeps the *true* state in the physical sets, for every plant
-and state the declared uncertainty allows (SPEC §7, README "The safety filter").
+and state the declared uncertainty allows (docs/safety.md, "The robust safety filter").
 
 Sets, per joint i, each side of |x_i| ≤ β a barrier h = β − side·x_i:
 
