@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from cosim.assemble import assemble
-from cosim.blocks import cbf_filter as cf
+from cosim.paper import cbf_filter as cf
 from cosim.config import load_pipeline
 from cosim.engine import simulate
 from cosim.paper.cbf_filter.scratch import CHAIN_SCRATCH_ROWS
