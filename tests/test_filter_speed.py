@@ -12,9 +12,9 @@ import numpy as np
 import pytest
 
 from cosim.assemble import assemble
-from cosim.paper import cbf_filter as cf
 from cosim.config import load_pipeline
 from cosim.engine import simulate
+from cosim.paper import cbf_filter as cf
 from cosim.paper.cbf_filter.scratch import CHAIN_SCRATCH_ROWS
 from cosim.paper.inertia import (
     chain_bias,

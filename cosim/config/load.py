@@ -7,7 +7,7 @@ import sys
 from collections.abc import Callable
 from pathlib import Path
 
-from ..blocks.plugins import load_plugins
+from ..blocks.plugins import load_entry_points, load_plugins
 from .files import plugin_path, read_toml
 from .overrides import apply_override, shadowed
 from .pipeline import Pipeline
@@ -23,6 +23,7 @@ def load_pipeline(path: str | Path | None, overrides: list[str] | None = None,
     """Read, override (``--set`` style) and validate a pipeline file; ``None``: the defaults
     (the paper's scenario) with the overrides. ``warn(text)`` is told of overrides that a
     run's own key shadows (None: say nothing)."""
+    load_entry_points()  # installed packages' blocks (the paper's too), before any key is read
     if path is None:
         data: dict = {}
         source, base = "--set", Path.cwd()  # plant.fmu relative to where the user is
