@@ -184,3 +184,16 @@ def test_compare_gates_a_regression_by_its_exit_status(folders):
     assert max(len(line) for line in worse.stdout.splitlines()) <= 100
     missing = cosim_cli("compare", str(a), str(a.parent))
     assert missing.returncode == 2 and "not a cosim run folder" in missing.stderr
+
+
+def test_every_export_format_has_its_writer_and_is_offered_by_the_command():
+    """The formats are listed once (cosim/outputs/formats.py): each has a writer, the
+    command offers each, and the run folder counts each export file as its own."""
+    from cosim.outputs.export import WRITERS
+    from cosim.outputs.formats import EXPORT_FORMATS
+    from cosim.outputs.run_folder import OUR_PATTERNS
+
+    assert set(WRITERS) == set(EXPORT_FORMATS)
+    offered = cosim_cli("export", "--help").stdout
+    assert all(name in offered for name in EXPORT_FORMATS)
+    assert {f"export_*{suffix}" for suffix in EXPORT_FORMATS.values()} <= set(OUR_PATTERNS)

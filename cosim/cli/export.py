@@ -17,7 +17,9 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "arrays with 'units' and 'descriptions'. Per-joint signals are q[1], q[2], ...; n×n "
         "ones M[1,1], M[1,2], ... (1-based). SI units, radians. Prints the files written.")
     p.add_argument("run_dir", metavar="RUN_DIR", type=Path, help="a run folder")
-    p.add_argument("--format", default="parquet", choices=("parquet", "csv", "mat"),
+    from ..outputs.formats import EXPORT_FORMATS
+
+    p.add_argument("--format", default="parquet", choices=tuple(EXPORT_FORMATS),
                    help="file format (default parquet)")
     p.add_argument("--run", action="append", default=None, metavar="NAME", dest="runs",
                    help="a run to export (repeatable; default: all)")

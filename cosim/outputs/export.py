@@ -16,10 +16,11 @@ from pathlib import Path
 
 import numpy as np
 
+from .formats import EXPORT_FORMATS
 from .run_folder import UNITS_KEY, _ours_summary
 
-FORMATS = ("parquet", "csv", "mat")
-SUFFIX = {"parquet": ".parquet", "csv": ".csv", "mat": ".mat"}
+FORMATS = tuple(EXPORT_FORMATS)
+SUFFIX = EXPORT_FORMATS
 
 
 class ExportError(Exception):
@@ -155,12 +156,7 @@ def export(folder: str | Path, fmt: str = "parquet", runs: list[str] | None = No
                  "units": "SI, angles in radians"}
         tmp = path.with_name(f".{path.name}.tmp")
         try:
-            if fmt == "parquet":
-                _parquet(tmp, columns(arrays, units), about)
-            elif fmt == "csv":
-                _csv(tmp, columns(arrays, units), about)
-            else:
-                _mat(tmp, arrays, units, about)
+            WRITERS[fmt](tmp, arrays, units, about)
             tmp.replace(path)
         except OSError as exc:
             tmp.unlink(missing_ok=True)
@@ -170,3 +166,9 @@ def export(folder: str | Path, fmt: str = "parquet", runs: list[str] | None = No
             raise
     return paths
 
+
+# How each format is written: (file, arrays, units, what the file says of itself).
+WRITERS = {"parquet": lambda path, arrays, units, about:
+           _parquet(path, columns(arrays, units), about),
+           "csv": lambda path, arrays, units, about: _csv(path, columns(arrays, units), about),
+           "mat": _mat}

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
+from .formats import EXPORT_FORMATS
 from .versions import package_versions
 
 LOCK = ".cosim.lock"
@@ -261,8 +262,8 @@ UNITS_KEY = "_units"  # the trace file's array of units and meanings (a JSON str
 # temporaries it may leave behind when killed.
 OUR_NAMES = ("summary.json", "summary.md", "recording.rrd", "results.parquet", "results.csv",
              "sweep.json", "sweep_safety.png")
-OUR_PATTERNS = ("trace_*.npz", "fig*.png", ".*.tmp", "export_*.parquet", "export_*.csv",
-                "export_*.mat")
+OUR_PATTERNS = ("trace_*.npz", "fig*.png", ".*.tmp",
+                *(f"export_*{suffix}" for suffix in EXPORT_FORMATS.values()))
 
 
 def _ours_summary(path: Path) -> dict | None:
