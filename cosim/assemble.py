@@ -393,10 +393,8 @@ def check_sizes(run, name: str, plant) -> None:
 
 
 def safe_set(pipeline: Pipeline) -> SafeSet:
-    s = pipeline.safety
-    return SafeSet(s.position_bound, s.velocity_bound, s.error_bound, s.error_rate_bound,
-                   s.observer_error_bound, s.z_wo_tilde, s.z_wc_tilde, s.z_vc_tilde,
-                   s.barrier_alpha)
+    """The safe sets' bounds the run is evaluated against: the pipeline's [safety]."""
+    return pipeline.safety
 
 
 def link_lengths(plant_info: dict, plan: RunPlan) -> np.ndarray:

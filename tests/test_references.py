@@ -574,7 +574,7 @@ SIGNALS = {name: Signal(shape, "SI", name) for name, shape in [
     ("M_model", "nn"), ("tau", "n"), ("e", "n"), ("edot", "n"), ("r_hat", "n"),
     ("W_norm", "1"), ("V_norm", "1")]}
 SAFE = SafeSet(position_bound=2.0, velocity_bound=3.0, error_bound=0.5, error_rate_bound=1.5,
-               observer_error_bound=0.4, Z_Wo_tilde=20.0, Z_Wc_tilde=50.0, Z_Vc_tilde=40.0,
+               observer_error_bound=0.4, z_wo_tilde=20.0, z_wc_tilde=50.0, z_vc_tilde=40.0,
                barrier_alpha=0.7)
 LAMBDA = np.array([4.0, 7.0])
 CENTRE, VELOCITY_CENTRE = np.array([0.7, -1.3]), np.array([0.4, -0.9])  # q_s, q̇_s: not 0
@@ -773,15 +773,15 @@ def test_barriers_and_the_barrier_condition_are_28_and_29(plant_mass):
     k0 = raw["k0"]
     h1 = 0.5 * ((k0 * eps**2 - k0 * np.einsum("ki,ki->k", x1_err, x1_err))
                 + (eps**2 - np.einsum("ki,ki->k", x2_err, x2_err))
-                + weight_term(SAFE.Z_Wo_tilde, gains["Fo"], raw["W_o"]))
+                + weight_term(SAFE.z_wo_tilde, gains["Fo"], raw["W_o"]))
     mass = raw["M_plant"] if plant_mass else raw["M_model"]
     r = raw["r_hat"]
     r_bound = r_of_theorem1(LAMBDA, SAFE.error_bound, SAFE.error_rate_bound)
     h2 = 0.5 * ((SAFE.error_bound**2 - np.einsum("ki,ki->k", raw["e"], raw["e"]))
                 + (np.linalg.svd(mass, compute_uv=False)[:, 0] * r_bound**2
                    - np.einsum("ki,kij,kj->k", r, mass, r))
-                + weight_term(SAFE.Z_Wc_tilde, gains["F"], raw["W_c"])
-                + weight_term(SAFE.Z_Vc_tilde, gains["G"], raw["V_c"]))
+                + weight_term(SAFE.z_wc_tilde, gains["F"], raw["W_c"])
+                + weight_term(SAFE.z_vc_tilde, gains["G"], raw["V_c"]))
     h = h1 + h2
     condition = np.concatenate(([np.nan], np.diff(h) / DT + SAFE.barrier_alpha * h[1:]))
     for name, value in {"H1": h1, "H2": h2, "H": h, "condition": condition}.items():

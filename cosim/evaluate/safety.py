@@ -4,10 +4,10 @@
 from __future__ import annotations
 
 from collections.abc import Mapping
-from dataclasses import dataclass
 
 import numpy as np
 
+from ..declared import Safety
 from ..signals import Trace
 
 # What the checks and barriers read: a Trace, or any mapping of signal name -> rows (the
@@ -15,19 +15,8 @@ from ..signals import Trace
 Signals = Trace | Mapping[str, np.ndarray]
 
 
-@dataclass
-class SafeSet:
-    """Bounds, SI units. The paper's Sec. IV values are the defaults."""
-
-    position_bound: float = 20.0  # α_max of ‖x1 − q_s‖, rad
-    velocity_bound: float = 13.5  # α_max of ‖x̂2 − q̇_s‖, rad/s
-    error_bound: float = 1.0  # E1 of ‖e‖, rad
-    error_rate_bound: float = 5.0  # E2 of ‖ė‖, rad/s
-    observer_error_bound: float = 1.0  # ε_max of (16), rad/s and rad
-    Z_Wo_tilde: float = 20.0  # bounds of (17)-(18) used in H1, H2
-    Z_Wc_tilde: float = 50.0
-    Z_Vc_tilde: float = 50.0
-    barrier_alpha: float = 1.0  # α of Ḣ + α·H ≥ 0, 1/s
+# The safe sets' bounds are the pipeline's [safety] section, declared once.
+SafeSet = Safety
 
 
 def torque_reversals(tau: np.ndarray, dt: float, fraction: float = 0.01) -> np.ndarray:

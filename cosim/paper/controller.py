@@ -27,8 +27,6 @@ from ..blocks.base import Block, BlockContext, Ports, kernel_args, register_bloc
 from ..schema import GainVector, NonNegativeFloat, PipelineError, PositiveFloat, Section, Seed
 from ..signals import Signal
 
-VARIANTS = ("baseline", "proposed")
-
 
 class ControllerParams(Section):
     """Kv [N·m·s/rad], Λ [1/s], F, G (scalars × I), κ, Kz, Z_B or Z_Wc, C0, C1, δ, ψ_B,

@@ -60,7 +60,7 @@ def barriers(trace: Signals, safe: SafeSet, gains: Gains,
     x2_err = np.sum((trace["qdot"] - trace["qdot_hat"]) ** 2, axis=1)
     k0 = trace["k0"]
     h1 = 0.5 * ((k0 * eps**2 - k0 * x1_err) + (eps**2 - x2_err)
-                + (safe.Z_Wo_tilde**2 - trace["W_o_norm"] ** 2) / gains.Fo)
+                + (safe.z_wo_tilde**2 - trace["W_o_norm"] ** 2) / gains.Fo)
     r = trace["r_hat"]
     # The plant's own M(q) when its FMU outputs it, else the controller's model of it.
     mass = trace["M"] if np.isfinite(trace["M"]).all() else trace["M_model"]
@@ -70,8 +70,8 @@ def barriers(trace: Signals, safe: SafeSet, gains: Gains,
         r_bound = theorem1(trace, safe, gains.Lambda)["R"]
     h2 = 0.5 * ((safe.error_bound**2 - np.sum(trace["e"] ** 2, axis=1))
                 + (sigma_max * r_bound**2 - r_m_r)
-                + (safe.Z_Wc_tilde**2 - trace["W_norm"] ** 2) / gains.F
-                + (safe.Z_Vc_tilde**2 - trace["V_norm"] ** 2) / gains.G)
+                + (safe.z_wc_tilde**2 - trace["W_norm"] ** 2) / gains.F
+                + (safe.z_vc_tilde**2 - trace["V_norm"] ** 2) / gains.G)
     return {"H1": h1, "H2": h2, "H": h1 + h2}
 
 

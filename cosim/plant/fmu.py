@@ -76,11 +76,6 @@ class Fmu:
         refs = [self.by_name[n].valueReference for n in names]
         return (ctypes.c_uint32 * len(refs))(*refs)
 
-    @property
-    def messages(self):
-        """The FMU's latest log messages (logging is on, so a failure's reason is here)."""
-        return self._fmi.messages if self._fmi is not None else []
-
     # Life cycle ---------------------------------------------------------------------------
 
     def start(self, start_time: float = 0.0) -> None:
