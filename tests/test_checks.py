@@ -88,6 +88,19 @@ def test_a_check_declared_once_appears_in_every_output(declared_check):
     assert compared.returncode == 0, compared.stderr
     assert any(line.split()[:2] == ["torque_limit_joint2", "(N·m)"]
                for line in compared.stdout.splitlines())
+    # the sweep: the check's columns in every row, its family a column of the rate table
+    out = declared_check / "sweep"
+    done = cosim_cli("sweep", str(declared_check / "p.toml"), "--runs", "proposed", "--grid",
+                     "controller.kv=20", "--set", "simulation.duration=0.2", "--out", str(out),
+                     "--workers", "1", "--quiet")
+    assert done.returncode == 0, done.stderr[-2000:]
+    row = pq.read_table(out / "results.parquet").to_pylist()[0]
+    assert (row["torque_limit_joint2.unit"], row["torque_limit_joint2.kind"],
+            row["torque_limit_joint2.bound"]) == ("N·m", "soft", 400.0)
+    table = json.loads((out / "sweep.json").read_text())["safety"][0]
+    assert table["torque_limit"][0] == float(row["torque_limit_joint1.satisfied"]
+                                             and row["torque_limit_joint2.satisfied"]
+                                             and row["torque_limit_norm.satisfied"])
 
 
 def test_an_evaluator_check_must_come_from_its_declarations():
@@ -177,6 +190,11 @@ def test_a_three_link_run_whose_third_joint_leaves_its_set_is_unsafe_everywhere(
     compared = cosim_cli("compare", str(third_joint["inside"]), str(third_joint["off"]))
     assert compared.returncode == 1
     assert "proposed/error_joint3: held in A" in compared.stdout
+    # a sufficient condition is shown, never a regression, as in the verdict
+    regressions = compared.stdout.split("regression(s):")[1]
+    assert "filtered_error_norm" not in regressions
+    assert not any("REGRESSED" in line for line in compared.stdout.splitlines()
+                   if line.strip().startswith("filtered_error_norm"))
 
 
 def test_the_sweep_judges_safe_as_the_run_does(third_joint, tmp_path):

@@ -1,13 +1,15 @@
 """Two run folders side by side (`cosim compare A B`): every safety check's worst value and
 verdict, and every numeric metric, with the difference; a check that held in A and fails in
-B is a regression, so a controller change can be gated in a user's CI (exit status 1)."""
+B is a regression, so a controller change can be gated in a user's CI (exit status 1).
+A regression is judged as the runs' verdicts are (:mod:`cosim.evaluate.checks`): a
+sufficient condition, or a set the reference itself leaves in B, is shown, not counted."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..evaluate.checks import unit
+from ..evaluate.checks import VERDICT_KINDS, Kind, kind, unit
 from .run_folder import _ours_summary
 
 # Metrics that measure the machine, not the controller: shown, never called a change.
@@ -101,7 +103,12 @@ def compare(a: str | Path, b: str | Path, runs: list[str] | None = None) -> Comp
             held_a = bool(ca and ca.get("satisfied"))
             held_b = bool(cb and cb.get("satisfied"))
             change = ""
-            if held_a and not held_b:
+            counts = held_a and kind(ca) in VERDICT_KINDS \
+                and not (cb and cb.get("attainable") is False)
+            if held_a and not held_b and not counts:  # as the runs' verdicts count it
+                change = ("not held (not a safe set)" if kind(ca) == Kind.SUFFICIENT
+                          else "unattainable in B")
+            elif held_a and not held_b:
                 change = "REGRESSED"
                 result.regressions.append(f"{name}/{check}: held in A ({verdict(ca)}), not in "
                                           f"B ({verdict(cb)})")

@@ -57,9 +57,10 @@ def write_results(folder: RunFolder, spec: SweepSpec, rows: list[dict], table: l
 
 def write_safety_plot(folder: RunFolder, spec: SweepSpec, rows: list[dict]) -> None:
     """One row of panels per run (each with its own scale), one column per varied key: each
-    point's worst joint-1 check relative to its bound (≤ 1: every set kept), and on the
-    right axis the share of points keeping every joint-1 set, per value of a grid key or
-    per bin of a sampled one (about 20 points a bin). Failed points are left out."""
+    point's worst check, every joint, relative to its bound (≤ 1: every set kept), and on
+    the right axis the share of points keeping every set (as the run's verdict counts
+    them), per value of a grid key or per bin of a sampled one (about 20 points a bin).
+    Failed points are left out."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -95,13 +96,13 @@ def _safety_panel(ax: Axes, key: str, ok: list[dict], sampled: bool) -> None:
     ax.scatter(x, worst, s=8, alpha=0.5, label="worst / bound (left)")
     ax.axhline(1.0, color="darkred", lw=0.8, ls="--")
     ax.set_xlabel(key)
-    ax.set_ylabel("max over joint-1 sets of\nworst / bound (≤ 1 safe)", fontsize=8)
+    ax.set_ylabel("max over every joint's sets of\nworst / bound (≤ 1 safe)", fontsize=8)
     if not len(x):
         return
     centres, rates = kept_share(x, kept, binned=sampled and numeric)
     rate_ax = ax.twinx()
     rate_ax.plot(centres, rates, "o-" if numeric else "o", color="tab:green", ms=3, lw=1,
-                 label="every joint-1 set kept (right)")
+                 label="every set kept (right)")
     rate_ax.set_ylim(-5, 105)
     rate_ax.set_ylabel("points keeping every set (%)", fontsize=8, color="tab:green")
     handles = ax.get_legend_handles_labels()[0] + rate_ax.get_legend_handles_labels()[0]

@@ -102,15 +102,15 @@ def format_guarantee_table(table: list[dict], width: int = 100) -> str:
     lines = ["every joint's hard sets (position, true velocity) kept, by class (Wilson 95 %);",
              "covered = starts inside, hard QP feasible throughout, within the declared "
              "uncertainty"]
-    per_line = max(1, (width - 25) // 27)
+    per_line = max(1, (width - 25) // 30)
     for group in (names[i:i + per_line] for i in range(0, len(names), per_line)):
-        lines.append(f"{'run':<16}{'broken':>7}  " + "  ".join(f"{n:<25}" for n in group)
+        lines.append(f"{'run':<16}{'broken':>7}  " + "  ".join(f"{n:<28}" for n in group)
                      .rstrip())
         for e in table:
             cells = [f"{count:>4}: {100 * rate:5.1f} % [{100 * lo:5.1f},{100 * hi:6.1f}]"
                      if count else f"{0:>4}: -" for count, rate, lo, hi in (e[n] for n in group)]
             lines.append(f"{e['run']:<16}{e['broken']:>7}  "
-                         + "  ".join(f"{c:<25}" for c in cells).rstrip())
+                         + "  ".join(f"{c:<28}" for c in cells).rstrip())
     return "\n".join(lines)
 
 

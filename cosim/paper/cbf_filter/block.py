@@ -14,7 +14,7 @@ from ...schema import FiniteFloat, PipelineError, PositiveFloat, Section
 from ...signals import Signal
 from .linalg import dot
 from .rows import cbf_rows, rows_inline
-from .scratch import FACTOR, SETS, TAU, CbfArgs, cbf_work
+from .scratch import FACTOR, SET_UNITS, SETS, TAU, CbfArgs, cbf_work
 from .solver import newton
 
 HardSet = Literal["position", "velocity"]
@@ -179,14 +179,15 @@ class CbfFilter(Block):
                          *(("tau_d_model",) if params.tau_d is None else ()))
         self.outputs = {"tau": Signal("n", "N·m", "filtered torque τ", "cbf_filter/tau")}
         for name in SETS:
+            unit = SET_UNITS[name]
             self.outputs[f"cbf_{name}"] = Signal(
-                "n", "SI", f"{name} set: β − |x_i| − its uncertainty (≥ 0 inside for every "
+                "n", unit, f"{name} set: β − |x_i| − its uncertainty (≥ 0 inside for every "
                 "state the declared bounds allow)", f"cbf_filter/h/{name}", f"h_{name}")
             self.outputs[f"cbf_{name}_active"] = Signal(
                 "n", "-", f"{name} set: a constraint of joint i active (1)",
                 f"cbf_filter/active/{name}", f"active_{name}")
             self.outputs[f"cbf_{name}_norm"] = Signal(
-                "1", "SI", f"{name} set as a norm: β − ‖x‖", f"cbf_filter/h/{name}_norm",
+                "1", unit, f"{name} set as a norm: β − ‖x‖", f"cbf_filter/h/{name}_norm",
                 f"h_{name}_norm")
             self.outputs[f"cbf_{name}_norm_active"] = Signal(
                 "1", "-", f"{name} norm constraint active (1)",
@@ -198,7 +199,8 @@ class CbfFilter(Block):
                                  "cbf_filter/active_count"),
             "cbf_correction": Signal("1", "N·m", "‖τ − τ_nom‖", "cbf_filter/correction"),
             "cbf_infeasible": Signal("1", "-", "1 where the hard part was infeasible and the "
-                                     "braking backup acted", "cbf_filter/infeasible"),
+                                     "backup (cbf_filter.backup) acted",
+                                     "cbf_filter/infeasible"),
         })
         if params.solver == "newton":
             self.kernel = cbf_step

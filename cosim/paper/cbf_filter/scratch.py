@@ -11,6 +11,7 @@ from ...blocks.base import kernel_args
 from ..inertia import CHAIN_ROWS
 
 SETS = ("position", "velocity", "error", "error_rate")
+SET_UNITS = {"position": "rad", "velocity": "rad/s", "error": "rad", "error_rate": "rad/s"}
 
 # The filter's scratch, made once at reset (a step allocates nothing), is a few arrays with
 # named rows: the compiled loop passes a kernel's arguments by value at every step, and each
