@@ -24,6 +24,7 @@ from .config import Pipeline, PipelineError
 from .declared import Uncertainty
 from .evaluate import Declaration, Evaluator, SafeSet, evaluated_signals
 from .evaluate.parts import select
+from .memory import check_memory
 from .plant import PLANT_INPUT, PLANT_INPUT_ENTITY, PLANT_OUTPUTS, Plant
 from .plant.fmu import Fmu, FmuError
 from .plant.ports import traced_outputs
@@ -184,43 +185,6 @@ def assemble(pipeline: Pipeline, plant: Fmu | None = None) -> Scenario:
         if owns:
             plant.close()
         raise PipelineError(str(exc)) from None
-
-
-def trace_bytes(plan: RunPlan, steps: int) -> int:
-    """What one run's trace takes: every declared signal, 8 bytes a value, steps + 1 rows."""
-    return sum(s.width(plan.links) for s in plan.signals.values()) * 8 * (steps + 1)
-
-
-def available_memory() -> int | None:
-    """Bytes of memory available now (Linux: MemAvailable), or None if unknown."""
-    try:
-        for line in Path("/proc/meminfo").read_text().splitlines():
-            if line.startswith("MemAvailable:"):
-                return int(line.split()[1]) * 1024
-    except (OSError, ValueError, IndexError):
-        pass
-    return None
-
-
-def check_memory(scenario: Scenario, share: float = 0.8) -> None:
-    """Every run's trace is kept until the end (summary, figures): refuse before allocating
-    when together they would need more than ``share`` of the memory available."""
-    steps = scenario.steps
-    needed = sum(trace_bytes(plan, steps) for plan in scenario.runs.values())
-    available = available_memory()
-    if available is not None and needed > share * available:
-        sim = scenario.pipeline.simulation
-        raise PipelineError(
-            f"the traces would need {needed / 1e9:.3g} GB ({len(scenario.runs)} run(s) × "
-            f"{steps + 1:,} rows of {simulation_width(scenario)} values × 8 B) but "
-            f"{available / 1e9:.3g} GB of memory is available (at most {share:.0%} is used); "
-            f"shorten simulation.duration ({sim.duration:g} s) or lengthen simulation.step "
-            f"({sim.step:g} s)")
-
-
-def simulation_width(scenario: Scenario) -> int:
-    plan = next(iter(scenario.runs.values()))
-    return sum(s.width(plan.links) for s in plan.signals.values())
 
 
 def plant_outputs(plant: Plant) -> frozenset[str]:

@@ -5,9 +5,10 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from .assemble import assemble, available_memory, trace_bytes
+from .assemble import assemble
 from .config import Pipeline
 from .config.params import changed
+from .memory import available_memory, trace_bytes
 
 # Measured on the paper pipeline: recording.rrd ≈ 0.98 MB per run per simulated second at
 # 1 kHz (39.2 MB for 2 × 20 s), trace_NAME.npz ≈ 0.45 of the trace's raw bytes.

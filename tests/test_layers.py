@@ -16,7 +16,7 @@ LAYERS = (
     ("cosim.plant", "cosim.evaluate"),
     ("cosim.blocks", "cosim.paper"),
     ("cosim.config", "cosim.engine"),
-    ("cosim.assemble",),
+    ("cosim.memory", "cosim.assemble"),
     ("cosim.outputs", "cosim.plan", "cosim.runner"),
     ("cosim.sweep", "cosim.warm"),
     ("cosim.cli", "cosim"),
