@@ -16,6 +16,7 @@ from cli_helpers import cosim_cli
 
 from cosim.evaluate import Declaration, Kind, is_safe, kept, left_sets
 from cosim.outputs.table import verdict
+from cosim.schema import PipelineError
 
 # A user's evaluator, in a plugin file: one declaration, a torque check in N·m.
 TORQUE_CHECK = textwrap.dedent('''
@@ -123,11 +124,37 @@ def test_an_evaluator_check_must_come_from_its_declarations():
     try:
         trace = Trace({"q": Signal("n", "rad", "q")}, 2, 3, 0.001)
         trace.rows_done = 2
-        with pytest.raises(TypeError, match="evaluator 'stray': check 'stray_norm' is not "
-                                            "made by one of its declarations"):
+        with pytest.raises(PipelineError, match="evaluator 'stray': check 'stray_norm' is not "
+                                                "made by one of its declarations"):
             Evaluator(trace, SafeSet(), {}).update(2)
     finally:
         del EVALUATORS["stray"]
+
+
+def test_a_plugin_cannot_replace_a_built_in_check():
+    """An evaluator declaring a family another one declares (a plugin's "error" with zeros
+    for values) is refused naming both, not merged over the built-in check."""
+    from cosim.evaluate import Evaluator, Part, SafeSet
+    from cosim.evaluate.parts import EVALUATORS
+    from cosim.signals import Signal, Trace
+
+    class Shadow(Part):
+        name = "shadow"
+        meaning = "declares the built-in error family again"
+        inputs = ("q",)
+        declarations = (Declaration("error", "nothing", "N·m", Kind.SUFFICIENT),)
+
+    class Again(Shadow):
+        name = "again"
+
+    EVALUATORS.update(shadow=Shadow, again=Again)
+    try:
+        trace = Trace({"q": Signal("n", "rad", "q")}, 2, 3, 0.001)
+        with pytest.raises(PipelineError, match="evaluators 'shadow' and 'again' both declare "
+                                                "'error'"):
+            Evaluator(trace, SafeSet(), {})
+    finally:
+        del EVALUATORS["shadow"], EVALUATORS["again"]
 
 
 def test_safe_is_one_function_of_the_declarations():
@@ -222,3 +249,21 @@ def test_the_sweep_judges_safe_as_the_run_does(third_joint, tmp_path):
     assert table["all sets"][0] == [r["safe"] for r in rows.values()].count(True) / 2
     tables = [line for line in done.stdout.splitlines() if str(out) not in line]
     assert max(len(line) for line in tables) <= 100  # paged by family
+
+
+def test_an_entry_is_kept_exactly_when_no_row_is_outside_its_bounds():
+    """One test of [lower, upper] for "satisfied", the excursions and the verdict, also for
+    a one-sided set; rows without a value (NaN) are counted apart, not turned into NaN."""
+    from cosim.evaluate import Check
+    from cosim.evaluate.checks import safety_entries
+
+    positive = Declaration("tau_positive", "torque τ ≥ 0", "N·m", Kind.SOFT)
+    left = Check(np.array([1.0, np.nan, -0.5, 2.0]), 5.0, 0.0, None, positive, 1)
+    entry = safety_entries({"tau_positive_joint1": left}, 0.5)["tau_positive_joint1"]
+    assert (entry["satisfied"], entry["first_violation_s"], entry["time_outside_s"],
+            entry["worst"], entry["rows_unknown"]) == (False, 1.0, 0.5, 2.0, 1)
+    assert verdict({"safety": {"tau_positive_joint1": entry}}).startswith(
+        "UNSAFE: left tau_positive_joint1 at 1.00 s (0.50 s out)")
+    kept_ = Check(np.array([1.0, np.nan, 0.5]), 5.0, 0.0, None, positive, 1)
+    entry = safety_entries({"c": kept_}, 0.5)["c"]
+    assert entry["satisfied"] is True and entry["first_violation_s"] is None

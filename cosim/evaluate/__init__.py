@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from ..schema import PipelineError
 from ..signals import Trace
 from . import sets  # noqa: F401  (the framework's own evaluators register on import)
 from .checks import Check, Declaration, Kind, is_safe, kept, left_sets, safety_entries
@@ -77,6 +78,7 @@ class Evaluator:
         available = frozenset(self.trace.arrays) - self.unmapped
         self.parts: list[Part] = [cls(self.trace, self.safe, self.constants, available)
                                   for cls in chosen]
+        _refuse_shared(self.parts)
 
     def update(self, upto: int) -> tuple[int, dict[str, np.ndarray], dict[str, np.ndarray]]:
         """Evaluate rows [previous ``upto``, ``upto``). Returns (first row, check values,
@@ -89,7 +91,7 @@ class Evaluator:
             made = part.checks(rows)
             for name, check in made.items():
                 if name not in self.values and check.declared not in part.declarations:
-                    raise TypeError(f"evaluator {part.name!r}: check {name!r} is not made by "
+                    raise PipelineError(f"evaluator {part.name!r}: check {name!r} is not made by "
                                     "one of its declarations (list each Declaration in the "
                                     "evaluator's `declarations` and make its checks with "
                                     "Declaration.joints_and_norm or Declaration.norm)")
@@ -139,3 +141,16 @@ class Evaluator:
                 for name in EVALUATORS if name in ran or name in self.skipped}
         return Evaluation(checks, h, metrics, safety_entries(checks, self.trace.dt), said,
                           headlines, lines)
+
+
+def _refuse_shared(parts: list[Part]) -> None:
+    """Two evaluators may not declare the same family of checks, nor give the same series:
+    one would silently replace the other's values (a plugin's check passing for a built-in
+    one)."""
+    owner: dict[str, str] = {}
+    for part in parts:
+        for name in [d.family for d in part.declarations] + list(part.series_meanings):
+            if name in owner and owner[name] != part.name:
+                raise PipelineError(f"evaluators {owner[name]!r} and {part.name!r} both declare "
+                                f"{name!r}: give one of them another name")
+            owner[name] = part.name

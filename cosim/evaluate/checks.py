@@ -100,6 +100,12 @@ class Check:
         return np.abs(self.value)
 
     @property
+    def outside(self) -> np.ndarray:
+        """Per row, whether the value is outside [lower, upper] (a NaN row is not known to
+        be)."""
+        return (self.value > self.upper) | (self.value < self.lower)
+
+    @property
     def label(self) -> str:
         """The quantity with its joint or "norm" and unit, for axes and tables."""
         if self.declared is None:
@@ -110,7 +116,7 @@ class Check:
 
 def excursions(check: Check, dt: float) -> dict[str, float | None]:
     """When the check is first violated (s; None if never) and for how long in all (s)."""
-    outside = (check.value > check.upper) | (check.value < check.lower)
+    outside = check.outside
     first = np.flatnonzero(outside)
     return {"first_violation_s": float(first[0] * dt) if len(first) else None,
             "time_outside_s": float(np.count_nonzero(outside) * dt)}
@@ -143,13 +149,20 @@ def safety_entries(checks: Mapping[str, Check], dt: float) -> dict:
                             "unavailable": "needs the true joint velocity: the plant maps "
                             "no qdot"}
             continue
-        worst = float(np.max(check.magnitude))
-        entry.update(worst=worst, satisfied=bool(worst <= check.upper),
+        # worst: the largest |value| over the rows that hold one; kept: no row outside
+        # [lower, upper] (one test, that the excursions and the recording share)
+        known = np.isfinite(check.value)
+        worst = float(np.max(check.magnitude[known]))
+        entry.update(worst=worst, satisfied=not bool(check.outside.any()),
                      **excursions(check, dt))
+        if not known.all():
+            entry["rows_unknown"] = int(np.count_nonzero(~known))
         if check.reference is not None and len(check.reference):
             entry["reference_worst"] = float(np.max(np.abs(check.reference)))
             # A set the reference itself leaves cannot be kept by any controller that tracks.
-            entry["attainable"] = bool(entry["reference_worst"] <= check.upper)
+            reference = check.reference
+            entry["attainable"] = not bool(((reference > check.upper)
+                                            | (reference < check.lower)).any())
         safety[name] = entry
     return safety
 
@@ -191,25 +204,3 @@ def kept(safety: Mapping[str, Mapping], kinds: Iterable[Kind]) -> bool:
     ``kept(safety, [Kind.HARD])``)."""
     kinds = frozenset(kinds)
     return all(e.get("satisfied") is not False for e in safety.values() if kind(e) in kinds)
-
-
-def families(safety: Mapping[str, Mapping], kinds: Iterable[Kind] = VERDICT_KINDS
-             ) -> dict[str, list[str]]:
-    """Family → its checks' names (joints, then the norm), for the families of ``kinds``
-    (a family counts by its per-joint checks' kind, or the norm's if it has no joints)."""
-    kinds = frozenset(kinds)
-    out: dict[str, list[str]] = {}
-    for name, entry in safety.items():
-        out.setdefault(entry.get("family", name), []).append(name)
-    return {family: names for family, names in out.items()
-            if kind(_representative(safety, names)) in kinds}
-
-
-def _representative(safety: Mapping[str, Mapping], names: list[str]) -> Mapping:
-    joints = [safety[n] for n in names if safety[n].get("joint", "norm") != "norm"]
-    return joints[0] if joints else safety[names[0]]
-
-
-def family_kept(safety: Mapping[str, Mapping], names: Iterable[str]) -> bool:
-    """Whether none of these checks (a family's) was left, as :func:`is_safe` counts."""
-    return not any(is_left(safety[n]) for n in names if n in safety)

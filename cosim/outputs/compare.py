@@ -103,11 +103,12 @@ def compare(a: str | Path, b: str | Path, runs: list[str] | None = None) -> Comp
             held_a = bool(ca and ca.get("satisfied"))
             held_b = bool(cb and cb.get("satisfied"))
             change = ""
-            counts = held_a and kind(ca) in VERDICT_KINDS \
+            unknown_b = cb is not None and cb.get("satisfied") is None
+            counts = held_a and kind(ca) in VERDICT_KINDS and not unknown_b \
                 and not (cb and cb.get("attainable") is False)
             if held_a and not held_b and not counts:  # as the runs' verdicts count it
                 change = ("not held (not a safe set)" if kind(ca) == Kind.SUFFICIENT
-                          else "unattainable in B")
+                          else "unknown in B" if unknown_b else "unattainable in B")
             elif held_a and not held_b:
                 change = "REGRESSED"
                 result.regressions.append(f"{name}/{check}: held in A ({verdict(ca)}), not in "

@@ -94,10 +94,10 @@ def classify(trace: Trace, safe: SafeSet, uncertainty: Uncertainty,
 
         checks = Evaluator(trace, safe, {}).result().checks
     hard = hard_checks(checks)
-    starts_inside = all(bool(abs(c.value[0]) <= c.upper) for c in hard.values())
+    starts_inside = not any(bool(c.outside[0]) for c in hard.values())
     first_exit = None
     for name, check in hard.items():  # declaration order: the lowest joint first at a tie
-        rows = np.flatnonzero(check.magnitude > check.upper)
+        rows = np.flatnonzero(check.outside)
         if len(rows) and (first_exit is None or rows[0] * trace.dt < first_exit["t"]):
             first_exit = {"set": name, "t": float(rows[0] * trace.dt),
                           "value": float(check.magnitude[rows[0]]),
