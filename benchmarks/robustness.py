@@ -44,8 +44,8 @@ SETS = {"position": "P", "velocity_true": "V", "error": "E", "error_rate": "Ė"}
 def cell(result) -> str:
     if not result.complete:
         return f"diverged at {result.metrics['simulated_time_s']:.2f} s"
-    families = {entry["family"] for _, entry in left_sets(result.safety)}  # every joint
-    left = [short for family, short in SETS.items() if family in families]
+    families = dict.fromkeys(entry["family"] for _, entry in left_sets(result.safety))
+    left = [SETS.get(family, family) for family in families]  # every joint, every set
     chatter = max(result.metrics["torque_reversals_per_s"])
     peak = max(result.metrics["peak_torque"])
     text = "all kept" if not left else "left: " + " ".join(left)

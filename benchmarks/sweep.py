@@ -1,5 +1,6 @@
-"""Sweep pipeline keys over a grid for one run and print its safety checks, peak torque and
-torque reversals (chattering) per point: how the paper pipeline's gains were chosen.
+"""Sweep pipeline keys over a grid for one run and print its safety checks (every joint),
+verdict, peak torque and torque reversals (chattering) per point: how the paper pipeline's
+gains were chosen.
 
     .venv/bin/python benchmarks/sweep.py pipelines/paper_two_link.toml proposed \\
         --grid runs.proposed.controller.delta=1,4,6 --grid runs.proposed.controller.psi_b=20,25
@@ -15,10 +16,23 @@ import itertools
 
 from cosim.config import PipelineError, load_pipeline
 from cosim.engine import Diverged
+from cosim.evaluate import is_safe
+from cosim.evaluate.checks import is_left
 from cosim.runner import run
 
-CHECKS = ("position_joint1", "velocity_estimated_joint1", "velocity_true_joint1",
-          "error_joint1", "error_rate_joint1")
+# The check families shown; each cell is the family's worst value relative to its bound
+# over every joint and the norm, with "!" where the run left one of its sets (as its
+# verdict counts them).
+FAMILIES = ("position", "velocity_estimated", "velocity_true", "error", "error_rate")
+
+
+def cell(safety: dict, family: str) -> str:
+    mine = {n: e for n, e in safety.items() if e.get("family") == family
+            and e.get("worst") is not None}
+    if not mine:
+        return "-"
+    ratio = max(e["worst"] / e["bound"] for e in mine.values())
+    return f"{ratio:.3f}{'!' if any(is_left(e) for e in mine.values()) else ''}"
 
 
 def main() -> None:
@@ -40,7 +54,8 @@ def main() -> None:
     if args.run not in pipeline.runs:
         parser.exit(2, f"sweep: error: no run {args.run!r} in {args.pipeline} (its runs: "
                     f"{', '.join(pipeline.runs)})\n")
-    print("point | " + " | ".join(CHECKS) + " | peak torque (N·m) | reversals/s")
+    print("point | " + " | ".join(f"{f} (worst/bound)" for f in FAMILIES)
+          + " | verdict | peak torque (N·m) | reversals/s")
     for point in itertools.product(*axes):
         try:
             pipeline = load_pipeline(args.pipeline, list(point))
@@ -53,10 +68,10 @@ def main() -> None:
         except Diverged as exc:
             print(f"{label} | diverged: {exc}")
             continue
-        cells = [f"{result.safety[c]['worst']:.3f}{'' if result.safety[c]['satisfied'] else '!'}"
-                 for c in CHECKS]
+        cells = [cell(result.safety, family) for family in FAMILIES]
         m = result.metrics
         print(f"{label} | " + " | ".join(cells)
+              + f" | {'safe' if is_safe(result.safety) else 'UNSAFE'}"
               + f" | {'/'.join(f'{x:.0f}' for x in m['peak_torque'])}"
               + f" | {'/'.join(f'{x:.1f}' for x in m['torque_reversals_per_s'])}", flush=True)
 

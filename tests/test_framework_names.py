@@ -22,8 +22,8 @@ from cosim.config import load_pipeline
 from cosim.plant.ports import PORTS
 
 ROOT = Path(__file__).resolve().parents[1] / "cosim"
-# The framework: everything but the paper's package and the blocks' implementations.
-NOT_FRAMEWORK = ("paper", "blocks", "interface.py")
+# The framework: everything but the paper's package and the interface's declarations.
+NOT_FRAMEWORK = ("paper", "interface.py")
 PIPELINES = ("pipelines/paper_safety.toml", "pipelines/pd_control.toml")
 
 
@@ -33,11 +33,15 @@ def framework_files() -> list[Path]:
 
 
 def paper_names() -> set[str]:
-    """Every signal, published constant and evaluator series of the paper's runs, less the
-    plant's ports and the declared interface."""
+    """Every signal, published constant and evaluator series of the paper's runs, and the
+    names and check families of the paper's evaluators (a check is named after its
+    family), less the plant's ports and the declared interface."""
     from cosim.evaluate import EVALUATORS
 
     names: set[str] = set()
+    for cls in EVALUATORS.values():
+        if cls.__module__.startswith("cosim.paper."):
+            names |= {cls.name, *(d.family for d in cls.declarations)}
     for path in PIPELINES:
         pipeline = load_pipeline(path)
         for run in pipeline.runs:

@@ -130,7 +130,7 @@ def paint(out, jobs: list[tuple[str, str, tuple]], save) -> set[str]:
 
 # Rough relative cost of each kind of figure, measured (0.9, 0.6 and 0.25 s on 2 cores):
 # the barriers' symlog axes and the two-by-two figures lay out many more labels.
-_COST = {"barriers": 3.5, "checks": 2.4, "torques": 1.0}
+_COST = {"series": 3.5, "checks": 2.4, "torques": 1.0}
 
 
 def _shares(work: list, count: int) -> list[list]:

@@ -12,7 +12,7 @@ from ..evaluate.checks import Kind, kind, left_sets, unit
 
 KEPT, LEFT, UNATTAINABLE = "✓", "✗", "~"
 LEGEND = (f"{KEPT} kept, {LEFT} left, {UNATTAINABLE} unattainable (the reference itself leaves "
-          "the set: no controller can keep it)")
+          "the set: none can keep it)")
 
 
 def _mark(entry: dict) -> str:
@@ -78,8 +78,9 @@ def text_table(runs: dict[str, dict], width: int = 100) -> str:
         current.append(i)
         used += 2 + w
     groups.append(current)
-    lines = ["safety: each check's worst value against its bound",
-             f"  {LEGEND}", f"  (*) {_footnote()}"]
+    lines = ["safety: each check's worst value against its bound", f"  {LEGEND}"]
+    if any(label.endswith("(*)") for label in labels):
+        lines.append(f"  (*) {_footnote()}")
     for group in groups:
         lines.append("  ".join(["check (bound, SI units)".ljust(first),
                                 *(names[i].ljust(widths[i]) for i in group)]).rstrip())

@@ -18,6 +18,7 @@ from . import (  # noqa: F401  (they register on import)
     pd_controller,
     reference,
     sensor,
+    sweep_report,
 )
 from .theorem import BARRIERS, Gains, barriers, theorem1
 

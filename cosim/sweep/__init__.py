@@ -18,6 +18,7 @@ safe), :mod:`.tables` (rates, Wilson intervals, their text), :mod:`.files` (resu
 the plot), :mod:`.command` (``cosim sweep`` itself).
 """
 
+from ..evaluate.reports import wilson
 from .command import main
 from .execution import (
     MAX_POINTS_PER_TASK,
@@ -28,10 +29,10 @@ from .execution import (
 )
 from .files import kept_share, write_safety_plot
 from .spec import SweepError, SweepSpec, assignments, parse_grid, parse_sample, points
-from .tables import format_guarantee_table, guarantee_table, safety_table, wilson
+from .tables import safety_table
 from .worker import run_point
 
 __all__ = ["MAX_POINTS_PER_TASK", "STEPS_PER_TASK", "SweepError", "SweepSpec", "assignments",
-           "cluster_client", "execute", "format_guarantee_table", "guarantee_table",
+           "cluster_client", "execute",
            "kept_share", "main", "parse_grid", "parse_sample", "points", "points_per_task",
            "run_point", "safety_table", "wilson", "write_safety_plot"]

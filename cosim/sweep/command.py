@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..config import load_pipeline
+from ..evaluate.reports import SWEEP_REPORTS
 from ..progress import phase
 from .checks import margin
 from .execution import cluster_client, execute
@@ -27,13 +28,7 @@ from .spec import (
     points,
     validate,
 )
-from .tables import (
-    format_guarantee_table,
-    format_table,
-    guarantee_table,
-    safety_by_value,
-    safety_table,
-)
+from .tables import format_table, safety_by_value, safety_table
 
 if TYPE_CHECKING:
     import argparse
@@ -209,9 +204,10 @@ def _report(folder: RunFolder, spec: SweepSpec, rows: list[dict], interrupted: b
     print(format_table(table))
     for key, entries in safety_by_value(rows, spec).items():
         print(format_table(entries, key))
-    classes = guarantee_table(rows)
-    if classes:
-        print(format_guarantee_table(classes))
+    for report in SWEEP_REPORTS.values():
+        entries = report.table(rows)
+        if entries:
+            print(report.text(entries))
     print(f"{len(rows)} row(s) in {out / 'results.parquet'} and results.csv"
           + (f"; {failed} failed (see their error column)" if failed else ""))
 

@@ -9,9 +9,10 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from ..config import load_pipeline
+from ..evaluate.reports import SWEEP_REPORTS
 from .checks import margin
 from .spec import SweepSpec
-from .tables import guarantee_table, safety_by_value
+from .tables import safety_by_value
 
 if TYPE_CHECKING:
     from matplotlib.axes import Axes
@@ -43,7 +44,8 @@ def write_results(folder: RunFolder, spec: SweepSpec, rows: list[dict], table: l
                 "samples_per_grid_point": spec.count, "seed": spec.seed, "runs": spec.runs,
                 "points": total_points, "rows": len(rows), "interrupted": interrupted,
                 "safety": [_listed(e) for e in table],
-                "guarantee": [_listed(e) for e in guarantee_table(rows)],
+                **{key: [_listed(e) for e in report.table(rows)]
+                   for key, report in SWEEP_REPORTS.items()},
                 "safety_by_value": {key: [_listed(e) for e in entries]
                                     for key, entries in safety_by_value(rows, spec).items()},
                 "resolved_pipeline": resolved}

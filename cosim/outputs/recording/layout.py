@@ -152,9 +152,9 @@ def blueprint(run_names: list[str], block_views: dict[str, list] | None = None,
         views.append(rrb.TimeSeriesView(origin=f"/{run}/plant/tau",
                                         name=f"{run}: torque τ (N·m)"))
         views.append(rrb.Horizontal(
-            rrb.TimeSeriesView(origin=f"/{run}/barrier", name=f"{run}: barriers H1, H2, H"),
+            rrb.TimeSeriesView(origin=f"/{run}/barrier", name=f"{run}: barrier functions"),
             rrb.TimeSeriesView(origin=f"/{run}/barrier_condition",
-                               name=f"{run}: barrier condition Ḣ + αH ≥ 0"),
+                               name=f"{run}: barrier condition (≥ 0 where it holds)"),
             *(rrb.TimeSeriesView(origin=f"/{run}/{entity}", name=f"{run}: {title}")
               for entity, title in (error_views or {}).get(run) or []),
             rrb.Spatial2DView(origin=f"/{run}/arm", name=f"{run}: arm (m)"),

@@ -63,7 +63,7 @@ class _Writer:
                 names=[name], colors=[JOINT_COLORS[i]]), static=True)
         if spec.barriers:
             self.rec.log(f"{root}/barrier_condition", rr.SeriesPoints(
-                names=["Ḣ + αH < 0"], colors=[VIOLATION_COLOR], markers=["cross"],
+                names=["condition < 0"], colors=[VIOLATION_COLOR], markers=["cross"],
                 marker_sizes=[3.0]), static=True)
         ends = rr.TimeColumn("sim_time", duration=[0.0, spec.duration])
         for family, names in spec.families().items():
