@@ -56,8 +56,6 @@ def check_name(name: str, what: str) -> str:
 
 
 class BuiltinPlant(Section):
-    # The model: plant_fmu.models.MODELS (the elastic-joint arm's motors drive the links
-    # through springs; its extra parameters are k, d, J per joint).
     # the built-in plant model (a name): "planar_arm", the rigid arm, or "elastic_joints",
     # the arm whose motors drive the links through springs (extra parameters k, d, J per
     # joint)
