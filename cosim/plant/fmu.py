@@ -17,7 +17,7 @@ from fmpy.model_description import ModelDescription
 
 from .lifecycle import STATUS, FmiInstance, open_instance
 from .mapping import FmuError, PlantVariables, check_parameters, check_plant_fmu
-from .native import FusedIo, function_pointer
+from .native import FmiFunctions, FmiHandles, FusedIo, function_pointer
 from .ports import OUTPUT_PORTS, output_buffers
 
 
@@ -149,13 +149,15 @@ class Fmu:
     def fused_io(self) -> FusedIo:
         """The per-step FMI functions and handles for the fused loop (after :meth:`start`)."""
         version = self.fmi_version
-        functions = tuple(function_pointer(f, version, role) for f, role in
-                          ((self._set, "set"), (self._do_step, "step"), (self._get, "get")))
-        handles = (ctypes.cast(self._component, ctypes.c_void_p).value,
-                   np.array(self._vr_tau, dtype=np.uint32),
-                   np.array(self._vr_out, dtype=np.uint32), self._outputs,
-                   np.array(self._layout, dtype=np.int64), self._flags)
-        return FusedIo(version, functions, handles)
+        functions = FmiFunctions(set=function_pointer(self._set, version, "set"),
+                                 step=function_pointer(self._do_step, version, "step"),
+                                 get=function_pointer(self._get, version, "get"))
+        handles = FmiHandles(instance=ctypes.cast(self._component, ctypes.c_void_p).value,
+                             vr_tau=np.array(self._vr_tau, dtype=np.uint32),
+                             vr_out=np.array(self._vr_out, dtype=np.uint32),
+                             outputs=self._outputs,
+                             starts=np.array(self._layout, dtype=np.int64), flags=self._flags)
+        return FusedIo(fmi_version=version, functions=functions, handles=handles)
 
     def describe_failure(self, call: int, status: int, t: float) -> str:
         """The message for a failed per-step call: ``call`` 0, 1, 2 for set (tau), doStep,

@@ -21,15 +21,33 @@ PROTOTYPES = {
 }
 
 
+class FmiFunctions(NamedTuple):
+    """The per-step FMI functions, ctypes function pointers of PROTOTYPES."""
+
+    set: object  # fmi2SetReal / fmi3SetFloat64
+    step: object  # fmi2DoStep / fmi3DoStep
+    get: object  # fmi2GetReal / fmi3GetFloat64
+
+
+class FmiHandles(NamedTuple):
+    """What the per-step functions take."""
+
+    instance: int  # the FMU instance's address
+    vr_tau: object  # value references of the torque inputs (uint32)
+    vr_out: object  # value references of the outputs read each step (uint32)
+    outputs: object  # their buffer (float64)
+    starts: object  # where each output port starts in outputs (-1: not mapped; int64)
+    flags: object  # fmi3DoStep's output flags
+
+
 class FusedIo(NamedTuple):
     """What the fused loop needs of a plant: its FMI version, the three per-step functions
-    (set, doStep, get) and the handles they take (instance, value references, buffers)."""
+    (set, doStep, get) and the handles they take (instance, value references, buffers),
+    each record built by field name."""
 
     fmi_version: int
-    functions: tuple  # (set, step, get): ctypes function pointers of PROTOTYPES
-    # (instance, vr_tau, vr_out, outputs, where each output port starts in outputs (-1: not
-    # mapped), fmi3 flags)
-    handles: tuple
+    functions: FmiFunctions
+    handles: FmiHandles
 
 
 def function_pointer(function, fmi_version: int, role: str):
