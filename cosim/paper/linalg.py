@@ -54,11 +54,13 @@ def solve(matrix, out, lu):
             for j in range(m):
                 out[i, j] -= factor * out[col, j]
     for i in range(n - 1, -1, -1):
+        for c in range(i + 1, n):
+            factor = lu[i, c]
+            for j in range(m):
+                out[i, j] -= factor * out[c, j]
+        inverse = 1.0 / lu[i, i]
         for j in range(m):
-            total = out[i, j]
-            for c in range(i + 1, n):
-                total -= lu[i, c] * out[c, j]
-            out[i, j] = total / lu[i, i]
+            out[i, j] *= inverse
 
 
 @no_refcount_jit(cache=True, inline="always")
