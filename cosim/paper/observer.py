@@ -30,6 +30,7 @@ from pydantic import Field
 from ..blocks.base import Block, BlockContext, Ports, kernel_args, register_block
 from ..schema import FiniteFloat, NonNegativeFloat, PositiveFloat, Section
 from ..signals import Signal
+from .linalg import solve
 
 LAWS = {"paper": 0, "error_driven": 1}
 BASES = {"lagged": 0, "no_acceleration": 1}
@@ -105,8 +106,8 @@ class ObserverArgs(NamedTuple):
     W_o_norm: np.ndarray
     error_bound: np.ndarray  # ε(t) per joint
     drift: np.ndarray  # dx̂2/dt − M̂⁻¹τ
-    # scratch, so that a step allocates nothing: σo (n_basis), y, x̃1, x̂2, Ŵoᵀσo (+ M̂⁻¹τ),
-    # M̂⁻¹(τ − τ_d) (n each), M̂'s elimination (n × n)
+    # scratch, so that a step allocates nothing: σo (n_basis), y, x̃1, x̂2, Ŵoᵀσo (+ M̂⁻¹τ)
+    # (n each), M̂⁻¹(τ − τ_d) (n × 1, the solve's right-hand side), M̂'s elimination (n × n)
     sigma: np.ndarray
     y: np.ndarray
     x1_err: np.ndarray
@@ -175,36 +176,6 @@ def _weights_times(W, sigma, out):
 
 
 @njit(cache=True)
-def _solve(M, b, lu, out):
-    """out = M⁻¹b by Gaussian elimination with partial pivoting in ``lu`` (n×n scratch): the
-    n ≤ 9 joints' M̂ is too small for LAPACK's call and checks to pay."""
-    n = b.shape[0]
-    for i in range(n):
-        out[i] = b[i]
-        for j in range(n):
-            lu[i, j] = M[i, j]
-    for col in range(n):
-        pivot = col
-        for i in range(col + 1, n):
-            if abs(lu[i, col]) > abs(lu[pivot, col]):
-                pivot = i
-        if pivot != col:
-            for j in range(col, n):
-                lu[col, j], lu[pivot, j] = lu[pivot, j], lu[col, j]
-            out[col], out[pivot] = out[pivot], out[col]
-        for i in range(col + 1, n):
-            factor = lu[i, col] / lu[col, col]
-            for j in range(col + 1, n):
-                lu[i, j] -= factor * lu[col, j]
-            out[i] -= factor * out[col]
-    for i in range(n - 1, -1, -1):
-        total = out[i]
-        for j in range(i + 1, n):
-            total -= lu[i, j] * out[j]
-        out[i] = total / lu[i, i]
-
-
-@njit(cache=True)
 def observer_step(k, a):
     """One step of the observer (5)–(10), (24): its sub-steps, gain and weight law in one
     body, which its speed needs (the sub-step loop shares its scratch and hoisted
@@ -230,10 +201,10 @@ def observer_step(k, a):
     else:  # integrate over [t_{k-1}, t_k] under the torque held over that interval
         y0 = a.q_meas[k - 1]
         y1 = a.q_meas[k]
-        for i in range(n):
-            g[i] = a.tau[k - 1, i] - a.tau_d[i]
         torque_term = a.torque_term
-        _solve(a.M_model[k - 1], g, a.lu, torque_term)  # M̂⁻¹(τ − τ_d), held over the step
+        for i in range(n):
+            torque_term[i, 0] = a.tau[k - 1, i] - a.tau_d[i]
+        solve(a.M_model[k - 1], torque_term, a.lu)  # M̂⁻¹(τ − τ_d), held over the step
         e_norm = _distance(a.q_d[k - 1], y0)
         h = a.dt / a.substeps
         # What no sub-step changes, once: the implicit part's coefficients h(kp + kD), h², and
@@ -260,7 +231,7 @@ def observer_step(k, a):
             denom = 1.0 + hc + hh * k0
             gain_y = hc + hh * k0
             for i in range(n):
-                g[i] += torque_term[i]
+                g[i] += torque_term[i, 0]
                 x1_new = (x1[i] + h * z2[i] + hh * g[i] + gain_y * y[i]) / denom
                 z2_new = z2[i] + h * (g[i] + k0 * (y[i] - x1_new))
                 qdd[i] = (z2_new + kp * (y[i] - x1_new) - x2[i]) / h
@@ -306,10 +277,12 @@ def observer_step(k, a):
     _basis(x1, qdot_hat, qdd, a.basis, sigma)
     _weights_times(W, sigma, g)
     disturbance = a.torque_term  # the step's M̂⁻¹(τ − τ_d) is spent: its array is free
-    _solve(a.M_model[k], a.tau_d, a.lu, disturbance)
+    for i in range(n):
+        disturbance[i, 0] = a.tau_d[i]
+    solve(a.M_model[k], disturbance, a.lu)  # M̂⁻¹τ_d
     finite = 0.0
     for i in range(n):
-        a.drift[k, i] = g[i] - disturbance[i] + (k0 - kp * a.kd) * x1_err[i]
+        a.drift[k, i] = g[i] - disturbance[i, 0] + (k0 - kp * a.kd) * x1_err[i]
         finite += qdot_hat[i] + x1[i]
     return np.isfinite(finite + w_norm)
 
@@ -370,5 +343,5 @@ class FlnnObserver(Block):
             q_hat=out["q_hat"], qdot_hat=out["qdot_hat"], k0=out["k0"],
             W_o_norm=out["W_o_norm"], error_bound=out["qdot_hat_bound"],
             drift=out["qdot_hat_drift"], sigma=np.empty(n_basis),
-            **{name: np.empty(n) for name in ("y", "x1_err", "x2", "g", "torque_term")},
-            lu=np.empty((n, n)))
+            **{name: np.empty(n) for name in ("y", "x1_err", "x2", "g")},
+            torque_term=np.empty((n, 1)), lu=np.empty((n, n)))

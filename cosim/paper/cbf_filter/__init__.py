@@ -53,9 +53,10 @@ Remaining assumptions (not covered by the margins): the sampled-data hold betwee
 q (first order in n̄). The safe centres q_s, q̇_s must be constant (Remark 1, case ii): a
 moving centre is refused.
 
-The package: ``scratch`` (the work arrays and the step's arguments), ``linalg`` (the small
-linear algebra), ``model`` (M̂, b̂, the bias error, the payload), ``rows`` (the QP's rows),
-``solver`` (the semismooth Newton), ``block`` (the block, its step and record).
+The package: ``scratch`` (the work arrays and the step's arguments), ``model`` (M̂, b̂, the
+bias error, the payload), ``rows`` (the QP's rows), ``solver`` (the semismooth Newton),
+``block`` (the block, its step and record); the small linear algebra is
+:mod:`cosim.paper.linalg`, shared with the observer.
 
 What a step runs is compiled without numba's reference counting
 (:func:`cosim.numba_compat.no_refcount_jit`): it allocates nothing (every array it works in

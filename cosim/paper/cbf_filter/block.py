@@ -12,7 +12,7 @@ from ...blocks.base import Block, BlockContext, Ports, kernel_args, register_blo
 from ...numba_compat import no_refcount_jit
 from ...schema import FiniteFloat, PipelineError, PositiveFloat, Section
 from ...signals import Signal
-from .linalg import dot
+from ..linalg import dot
 from .rows import cbf_rows, rows_inline
 from .scratch import FACTOR, SET_UNITS, SETS, TAU, CbfArgs, cbf_work
 from .solver import newton

@@ -9,7 +9,7 @@ from numba import njit
 
 from ...numba_compat import no_refcount_jit
 from ..inertia import chain_bias, chain_geometry, chain_mass
-from .linalg import dot, invert, product, symmetric_eigen
+from ..linalg import dot, invert, product, symmetric_eigen
 from .scratch import (
     ALPHA,
     BETA,

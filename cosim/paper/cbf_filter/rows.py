@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 
 from ...numba_compat import no_refcount_jit
-from .linalg import dot, invert, product
+from ..linalg import dot, invert, product
 from .model import moved_model, nominal_model, robust_model
 from .scratch import (
     ACCELERATION,

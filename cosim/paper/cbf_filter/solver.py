@@ -7,7 +7,7 @@ import numpy as np
 from numba import njit
 
 from ...numba_compat import no_refcount_jit
-from .linalg import dot
+from ..linalg import dot
 from .scratch import DIRECTION, GRADIENT, ROTATED, TAU, TRIAL
 
 

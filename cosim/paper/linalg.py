@@ -1,0 +1,89 @@
+"""The small dense linear algebra of the paper's kernels (the observer's and the filter's
+step), on n joints and 2-vectors, written out: numba's np.linalg and @ allocate their
+results and call LAPACK/BLAS, which costs more than the arithmetic at these sizes. Every
+function writes into arrays passed in and allocates nothing; each is inlined into its
+caller."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..numba_compat import no_refcount_jit
+
+
+@no_refcount_jit(cache=True, inline="always")
+def dot(x, y):
+    total = 0.0
+    for i in range(x.shape[0]):
+        total += x[i] * y[i]
+    return total
+
+
+@no_refcount_jit(cache=True, inline="always")
+def product(matrix, vector, out):
+    """out = matrix @ vector."""
+    for i in range(matrix.shape[0]):
+        out[i] = dot(matrix[i], vector)
+
+
+@no_refcount_jit(cache=True, inline="always")
+def solve(matrix, out, lu):
+    """out ← matrix⁻¹ out: the n×n ``matrix`` (left as it is) solved for the n×m right-hand
+    sides in ``out``, all columns at once, by Gaussian elimination with partial pivoting in
+    ``lu`` (n×n scratch; it ends holding the upper triangle) and back substitution. A nearly
+    singular matrix gives huge or non-finite entries; an exactly zero pivot raises
+    ZeroDivisionError (numba's Python error model)."""
+    n, m = out.shape
+    for i in range(n):
+        for j in range(n):
+            lu[i, j] = matrix[i, j]
+    for col in range(n):
+        pivot = col
+        for i in range(col + 1, n):
+            if abs(lu[i, col]) > abs(lu[pivot, col]):
+                pivot = i
+        if pivot != col:
+            for j in range(col, n):
+                lu[col, j], lu[pivot, j] = lu[pivot, j], lu[col, j]
+            for j in range(m):
+                out[col, j], out[pivot, j] = out[pivot, j], out[col, j]
+        for i in range(col + 1, n):
+            factor = lu[i, col] / lu[col, col]
+            for j in range(col + 1, n):
+                lu[i, j] -= factor * lu[col, j]
+            for j in range(m):
+                out[i, j] -= factor * out[col, j]
+    for i in range(n - 1, -1, -1):
+        for c in range(i + 1, n):
+            factor = lu[i, c]
+            for j in range(m):
+                out[i, j] -= factor * out[c, j]
+        inverse = 1.0 / lu[i, i]
+        for j in range(m):
+            out[i, j] *= inverse
+
+
+@no_refcount_jit(cache=True, inline="always")
+def invert(matrix, out, lu):
+    """out = matrix⁻¹: :func:`solve` on the identity's columns (``lu``: n×n scratch)."""
+    n = matrix.shape[0]
+    for i in range(n):
+        for j in range(n):
+            out[i, j] = 1.0 if i == j else 0.0
+    solve(matrix, out, lu)
+
+
+@no_refcount_jit(cache=True, inline="always")
+def symmetric_eigen(kmat, lam, vec):
+    """The eigenvalues (ascending, into ``lam``) and unit eigenvectors (columns of ``vec``)
+    of a symmetric 2×2 matrix (its lower triangle), in closed form: with
+    2θ = atan2(k10, (k00 − k11)/2), (cos θ, sin θ) belongs to the larger one."""
+    mean = 0.5 * (kmat[0, 0] + kmat[1, 1])
+    half = 0.5 * (kmat[0, 0] - kmat[1, 1])
+    radius = np.hypot(half, kmat[1, 0])
+    theta = 0.5 * np.arctan2(kmat[1, 0], half)
+    c, s = np.cos(theta), np.sin(theta)
+    lam[0], lam[1] = mean - radius, mean + radius
+    vec[0, 0], vec[1, 0] = -s, c
+    vec[0, 1], vec[1, 1] = c, s
+
