@@ -22,7 +22,8 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 
-from cosim.sweep import format_guarantee_table, guarantee_table, wilson
+from cosim.paper.sweep_report import format_guarantee_table, guarantee_table
+from cosim.sweep import wilson
 from cosim.sweep.checks import family_kept, table_checks
 
 SAMPLES = ['plant.parameters."q0[1]"=uniform(-0.4,0.6)',
