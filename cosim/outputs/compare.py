@@ -9,7 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ..evaluate.checks import VERDICT_KINDS, Kind, kind, unit
+from ..evaluate.checks import VERDICT_KINDS, Kind, is_left, kind, unit
 from .run_folder import _ours_summary
 
 # Metrics that measure the machine, not the controller: shown, never called a change.
@@ -103,12 +103,12 @@ def compare(a: str | Path, b: str | Path, runs: list[str] | None = None) -> Comp
             held_a = bool(ca and ca.get("satisfied"))
             held_b = bool(cb and cb.get("satisfied"))
             change = ""
-            unknown_b = cb is not None and cb.get("satisfied") is None
-            counts = held_a and kind(ca) in VERDICT_KINDS and not unknown_b \
-                and not (cb and cb.get("attainable") is False)
-            if held_a and not held_b and not counts:  # as the runs' verdicts count it
+            # a regression as the runs' verdicts count one: left in B (or gone from it)
+            counts = held_a and kind(ca) in VERDICT_KINDS and (cb is None or is_left(cb))
+            if held_a and not held_b and not counts:
                 change = ("not held (not a safe set)" if kind(ca) == Kind.SUFFICIENT
-                          else "unknown in B" if unknown_b else "unattainable in B")
+                          else "unknown in B" if cb.get("satisfied") is None
+                          else "unattainable in B")
             elif held_a and not held_b:
                 change = "REGRESSED"
                 result.regressions.append(f"{name}/{check}: held in A ({verdict(ca)}), not in "
