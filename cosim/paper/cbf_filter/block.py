@@ -13,9 +13,19 @@ from ...numba_compat import no_refcount_jit
 from ...schema import FiniteFloat, PipelineError, PositiveFloat, Section
 from ...signals import Signal
 from ..linalg import dot
+from .assumptions import BACKUP, FILTER_ASSUMES, VIABLE, FilterAssumptions
+from .backup import backup_at, predict_interval, verified
 from .rows import cbf_rows, rows_inline
-from .scratch import FACTOR, SET_UNITS, SETS, TAU, CbfArgs, cbf_work
+from .scratch import FACTOR, R_CANDIDATE, R_CENTRE, R_HALF, SET_UNITS, SETS, TAU, CbfArgs, cbf_work
 from .solver import newton
+
+# Bisections of the blend between the QP's torque and the backup's, where the QP's alone is
+# not verified: the blend found is within 2⁻⁴ of the largest verified one.
+BISECTIONS = 4
+# The backup's policies tried (cosim.paper.cbf_filter.backup.backup_torque): every joint
+# alike, then the joints near their position bound first. A torque is verified if the backup
+# can follow it under either: each is a way back, so either keeps the state viable.
+POLICIES = 2
 
 HardSet = Literal["position", "velocity"]
 SoftSet = Literal["error", "error_rate"]
@@ -46,8 +56,9 @@ class CbfFilterParams(Section):
     # the fraction of every bound kept for the sampled-data hold between steps (1 ms),
     # dimensionless
     bound_margin: Annotated[float, Field(ge=0, lt=1)] = 0.002
-    # hard limit on each joint's torque |τ_i| (unset: none), N·m
-    torque_limit: PositiveFloat | None = None
+    # the actuators' limits |τ_i| ≤ τ_max,i, per joint or one for all (unset: none), N·m:
+    # never exceeded, the backup's torque included
+    torque_limit: PositiveFloat | list[PositiveFloat] | None = None
     # weight ρ_s of a soft row's squared violation against τ's: high, so that tracking gives
     # way only where it conflicts with a hard row (ρ_hard is 1e4 times more), dimensionless
     tracking_weight: PositiveFloat = 1e6
@@ -56,13 +67,22 @@ class CbfFilterParams(Section):
     hard_weight: PositiveFloat = 1e10
     # how far the hard limits are lowered, N·m
     hard_tolerance: PositiveFloat = 1e-4
-    # when the hard part is infeasible (a name): "least_violation", the penalty form's
-    # answer (the torque that violates the hard rows least, in least squares, then tracks),
-    # or "brake", q̈ = −k (v − q̇_s) with the nominal model and k = backup_rate, within the
-    # torque limit
-    backup: Literal["least_violation", "brake"] = "least_violation"
-    # rate k of the braking backup q̈ = −k (v − q̇_s), 1/s
-    backup_rate: PositiveFloat = 20.0
+    # what makes the hard sets hold (a name): "verified", every torque checked against the
+    # braking backup (applied only if the backup can still keep every hard set after it,
+    # for every state and plant the declared uncertainty allows; else blended towards it),
+    # or "least_violation", the QP's answer alone (its hard rows assume unbounded torque)
+    backup: Literal["verified", "least_violation"] = "verified"
+    # rate k_b of the braking backup q̈ = k_b (w − (v − q̇_s)), 1/s
+    backup_rate: PositiveFloat = 50.0
+    # speed w at which the backup steers a joint outside its position set back in, rad/s
+    recovery_speed: PositiveFloat = 2.0
+    # rate at which a set already left must be regained in the backup's check: the excess
+    # allowed decays as e^{−rate·t}, 1/s
+    recovery_rate: PositiveFloat = 1.0
+    # step of the backup's rollout (its first step is the control step), s
+    backup_step: PositiveFloat = 0.002
+    # longest the backup may take to stop every joint, s
+    backup_horizon: PositiveFloat = 1.0
     # boxes over which the payload's worst case is taken, at their corners, covering the
     # curve (s_1(Δm), s_2(Δm)): exact as it grows, conservative by a box's size,
     # dimensionless (a count)
@@ -88,27 +108,69 @@ def hard_violated(G, h, is_hard, count, tau):
     return False
 
 
+@no_refcount_jit(cache=True, inline="always")
+def choose(k, a, count, tau):
+    """The torque to apply, into ``tau`` (the QP's answer, clipped to the torque limits):
+    itself if the backup can still keep every hard set after it (:func:`.backup.verified`),
+    else the verified blend τ_b + λ(τ − τ_b) with the largest λ found by bisection, else
+    (no verified torque: the state is not viable as seen) the backup τ_b, each backup policy
+    tried in turn. Returns
+    (viable, the backup's share 1 − λ). Without ``verify``: the QP's answer, viable where
+    its hard rows hold as given."""
+    n = tau.shape[0]
+    for i in range(n):
+        tau[i] = min(max(tau[i], -a.torque_limit[i]), a.torque_limit[i])
+    if not a.verify:
+        return not hard_violated(a.rows, a.limits, a.is_hard, count, tau), 0.0
+    y, v, eps = a.position[k], a.work.rollout[R_CENTRE], a.work.rollout[R_HALF]
+    for policy in range(POLICIES):
+        if verified(k, a, y, v, eps, tau, True, policy):
+            return True, 0.0
+    backup = a.backup
+    found = -1
+    for policy in range(POLICIES):
+        backup_at(k, a, policy, backup)
+        if verified(k, a, y, v, eps, backup, True, policy):
+            found = policy
+            break
+    if found < 0:  # not viable as seen: the backup, even-handed, all the same
+        backup_at(k, a, 0, backup)
+        for i in range(n):
+            tau[i] = backup[i]
+        return False, 1.0
+    candidate = a.work.rollout[R_CANDIDATE]
+    low, high = 0.0, 1.0  # λ = low is verified
+    for _ in range(BISECTIONS):
+        middle = 0.5 * (low + high)
+        for i in range(n):
+            candidate[i] = backup[i] + middle * (tau[i] - backup[i])
+        if verified(k, a, y, v, eps, candidate, True, found):
+            low = middle
+        else:
+            high = middle
+    for i in range(n):
+        tau[i] = backup[i] + low * (tau[i] - backup[i])
+    return True, 1.0 - low
+
+
 @no_refcount_jit(cache=True)
 def cbf_record(k, a, count, tau):
-    """Row k's outputs for the torque τ the QP gave: the hard part checked against its
-    limits as given (else the backup acts and the step is flagged infeasible), each
-    constraint's activity, the largest soft slack."""
+    """Row k's outputs for the torque τ the QP gave (:func:`choose`, then each
+    constraint's activity, the largest soft slack)."""
     return record_inline(k, a, count, tau)
 
 
 @no_refcount_jit(cache=True, inline="always")
 def record_inline(k, a, count, tau):
-    """cbf_record, inlined into the step. ``tau`` may be ``a.tau[k]`` itself."""
-    infeasible = hard_violated(a.rows, a.limits, a.is_hard, count, tau)
+    """cbf_record, inlined into the step. ``tau`` is the solver's, changed in place."""
+    viable, share = choose(k, a, count, tau)
     for i in range(tau.shape[0]):
-        if infeasible and a.brake:  # the backup; a torque limit is honoured whatever else gives way
-            a.tau[k, i] = a.backup[i]
-        elif infeasible:
-            a.tau[k, i] = np.minimum(np.maximum(tau[i], -a.torque_limit), a.torque_limit)
-        else:
-            a.tau[k, i] = tau[i]
+        a.tau[k, i] = tau[i]
+    predict_interval(k, a, tau)
     chosen = a.tau[k]
-    a.infeasible[k] = 1.0 if infeasible else 0.0
+    a.viable[k] = 1.0 if viable else 0.0
+    a.infeasible[k] = 0.0 if viable else 1.0
+    a.backup_share[k] = share
     active = 0
     slack = 0.0
     for j in range(count):
@@ -146,8 +208,8 @@ def cbf_step(k, a):
     newton(a.tau_nominal[k], a.rows, h, weights, count, a.iterations, a.tolerance, w.solver,
            w.matrices[FACTOR], w.binding, True)
     # A hard row may slip by ~ρ_soft·(soft excess)/ρ_hard where tracking pulls hard against
-    # it: re-solve with tracking weighed less, down to the hard rows alone; only when those
-    # alone cannot be met is the step infeasible (then cbf_record applies the backup).
+    # it: re-solve with tracking weighed less, down to the hard rows alone (what remains is
+    # the backup's check, in record_inline).
     for _ in range(3):
         if not hard_violated(a.rows, a.limits, a.is_hard, count, tau):
             break
@@ -163,7 +225,8 @@ def cbf_step(k, a):
 class CbfFilter(Block):
     kind = "cbf_filter"
     Params = CbfFilterParams
-    per_joint = ("tau_d",)
+    PUBLISHES = {FILTER_ASSUMES: FilterAssumptions}
+    per_joint = ("tau_d", "torque_limit")
     views = (("h", "CBF barrier values β − |x| (≥ 0 inside)"),
              ("correction", "‖τ − τ_nom‖ (N·m)"))
 
@@ -198,10 +261,20 @@ class CbfFilter(Block):
             "cbf_active": Signal("1", "-", "number of active constraints",
                                  "cbf_filter/active_count"),
             "cbf_correction": Signal("1", "N·m", "‖τ − τ_nom‖", "cbf_filter/correction"),
-            "cbf_infeasible": Signal("1", "-", "1 where the hard part was infeasible and the "
-                                     "backup (cbf_filter.backup) acted",
+            "cbf_infeasible": Signal("1", "-", "1 where no torque was verified (the state was "
+                                     "not viable as the filter saw it): the backup acted",
                                      "cbf_filter/infeasible"),
+            VIABLE: Signal("1", "-", "1 where a verified torque existed: the backup could "
+                           "keep every hard set under the declared uncertainty",
+                           "cbf_filter/viable"),
+            BACKUP: Signal("1", "-", "share of the braking backup in the torque (0 … 1)",
+                           "cbf_filter/backup"),
         })
+        limit = np.broadcast_to(np.asarray(np.inf if params.torque_limit is None
+                                           else params.torque_limit, float),
+                                (context.links,)).copy()
+        self.publishes = {FILTER_ASSUMES: FilterAssumptions(
+            self.position, self.velocity, limit, np.zeros(context.links))}
         if params.solver == "newton":
             self.kernel = cbf_step
         else:
@@ -228,6 +301,8 @@ class CbfFilter(Block):
                     f"centres, but {centre} moves (by up to {float(np.max(moving)):.3g}); use "
                     "reference.safe_case = \"midpoint\" or drop the filter")
         self.args = self._arguments(ports)
+        published = self.publishes[FILTER_ASSUMES]
+        self.publishes[FILTER_ASSUMES] = published._replace(tau_d=self.args.tau_d.copy())
 
     def _arguments(self, ports: Ports) -> CbfArgs:
         """The step's arguments: the parameters, the declared bounds, the trace's arrays it
@@ -251,12 +326,16 @@ class CbfFilter(Block):
             CbfArgs,
             **{name: np.array([float(s in getattr(p, name)) for s in SETS])
                for name in ("hard", "soft", "soft_norms")},
-            bounds=bounds, k1=2.0 * p.position_rate, k0=p.position_rate**2,
+            bounds=bounds, viable_bounds=bounds[:2] * (1.0 - 0.5 * p.bound_margin)
+            / (1.0 - p.bound_margin), k1=2.0 * p.position_rate, k0=p.position_rate**2,
             tracking_k1=2.0 * p.tracking_rate, tracking_k0=p.tracking_rate**2,
             k_velocity=p.velocity_rate, dt=self.context.dt,
-            torque_limit=p.torque_limit or np.inf, rho_soft=p.tracking_weight,
-            rho_hard=p.hard_weight, hard_tolerance=p.hard_tolerance,
-            brake=p.backup == "brake", backup_rate=p.backup_rate,
+            torque_limit=self.publishes[FILTER_ASSUMES].torque_limit,
+            rho_soft=p.tracking_weight, rho_hard=p.hard_weight,
+            hard_tolerance=p.hard_tolerance, verify=p.backup == "verified",
+            backup_rate=p.backup_rate, recovery_speed=p.recovery_speed,
+            recovery_rate=p.recovery_rate, backup_step=p.backup_step,
+            backup_horizon=p.backup_horizon,
             payload_grid=p.payload_grid, iterations=p.iterations, tolerance=p.tolerance,
             noise_bound=uncertainty.noise_bound, payload_low=payload_low,
             payload_high=payload_high, disturbance=uncertainty.disturbance,
@@ -279,6 +358,7 @@ class CbfFilter(Block):
                                             ("active_norms", "_norm_active", (steps,)))},
             slack=out["cbf_slack"], active=out["cbf_active"],
             correction=out["cbf_correction"], infeasible=out["cbf_infeasible"],
+            viable=out[VIABLE], backup_share=out[BACKUP],
             work=cbf_work(n, rows, p.payload_grid))
 
     def step(self, k: int) -> bool:
@@ -299,7 +379,7 @@ class CbfFilter(Block):
                            [G[soft], -np.eye(m)], [np.zeros((m, n)), -np.eye(m)]])
         h_full = np.concatenate([h[hard] - a.hard_tolerance, h[soft], np.zeros(m)])
         x = qpsolvers.solve_qp(P, q, G_full, h_full, solver=self.params.solver)
-        tau = a.backup.copy() if x is None else x[:n]
+        tau = a.tau_nominal[k].copy() if x is None else x[:n]
         return cbf_record(k, a, count, tau)
 
 

@@ -8,6 +8,7 @@ import numpy as np
 
 from ...numba_compat import no_refcount_jit
 from ..linalg import dot, invert, product
+from .backup import velocity_interval
 from .model import moved_model, nominal_model, robust_model
 from .scratch import (
     ACCELERATION,
@@ -119,7 +120,7 @@ def hard_rows(a, count, k, y, v, eps, minv, base, at_end):
 @no_refcount_jit(cache=True)
 def cbf_rows(k, a):
     """Fill G (``a.rows``), h (``a.limits``), the weights and the hard flags of row k's QP,
-    and the braking backup (``a.backup``); returns the number of rows."""
+    and the true velocity's interval; returns the number of rows."""
     return rows_inline(k, a)
 
 
@@ -134,7 +135,7 @@ def rows_inline(k, a):
     nominal_model(a, y, v, matrices[NOMINAL_NOW], bias)
     invert(mass, minv, matrices[LU])
     product(minv, bias, base)
-    _braking_backup(k, a, v, mass, bias)
+    velocity_interval(k, a)
     count = hard_rows(a, 0, k, y, v, eps, minv, base, False)
     _predict_hold(k, a, y, v, minv, base)
     y_end, v_end = vectors[Y_END], vectors[V_END]
@@ -153,23 +154,7 @@ def rows_inline(k, a):
     _barrier_values(k, a, eps)
     for s in range(4):
         count = _soft_rows(k, a, count, s, rate_minv, minv_mid, base_mid)
-    if np.isfinite(a.torque_limit):
-        count = _torque_rows(a, count)
-    return count
-
-
-@no_refcount_jit(cache=True, inline="always")
-def _braking_backup(k, a, v, mass, bias):
-    """The backup into ``a.backup``: brake every joint towards q̇_s, within the torque
-    limit."""
-    n = v.shape[0]
-    for i in range(n):
-        braking = 0.0
-        for j in range(n):
-            braking += mass[i, j] * (-a.backup_rate * (v[j] - a.qdot_s[k, j]))
-        a.backup[i] = braking + bias[i]
-        if np.isfinite(a.torque_limit):
-            a.backup[i] = np.minimum(np.maximum(a.backup[i], -a.torque_limit), a.torque_limit)
+    return _torque_rows(a, count)
 
 
 @no_refcount_jit(cache=True, inline="always")
@@ -275,13 +260,16 @@ def _soft_rows(k, a, count, s, rate_minv, minv_mid, base_mid):
 
 @no_refcount_jit(cache=True, inline="always")
 def _torque_rows(a, count):
-    """The torque limits |τ_i| ≤ τ_max as hard rows; returns the next row's index."""
+    """The finite torque limits |τ_i| ≤ τ_max,i as hard rows; returns the next row's
+    index."""
     row = a.work.vectors[ROW]
     qp = (a.rows, a.limits, a.weights, a.is_hard, a.kinds, a.joints)
     n = row.shape[0]
     for i in range(n):
+        if not np.isfinite(a.torque_limit[i]):
+            continue
         for side in (1.0, -1.0):
             for col in range(n):
                 row[col] = side if col == i else 0.0
-            count = add_row(qp, count, row, a.torque_limit, a.rho_hard, True, -1, i)
+            count = add_row(qp, count, row, a.torque_limit[i], a.rho_hard, True, -1, i)
     return count

@@ -36,6 +36,17 @@ TAU, TRIAL, GRADIENT, DIRECTION, ROTATED = range(5)
 # Of CbfWork.matrices (n×n each): the nominal chain's M at y and at a predicted position, M̂
 # moved there, M̂⁻¹ at y, at the hold's end and at its midpoint, elimination scratch, and R.
 NOMINAL_NOW, NOMINAL, SHIFTED, MINV, MINV_END, MINV_MID, LU, FACTOR = range(8)
+# … then the backup's rollout (cosim.paper.cbf_filter.backup): M at its state, M⁻¹, scratch.
+ROLL_MASS, ROLL_MINV, ROLL_LU, BACKUP_FACTOR = range(8, 12)
+# Of CbfWork.rollout (n each): the rollout's state, the tube's half-widths δq, δv, its torque,
+# nominal q̈ and b̂; the bound D on q̈'s departure; what each set allows; the backup's target
+# velocities; the masses, bias and q̈ with a payload; scratch; a blend of the QP's torque and
+# the backup's; the true velocity's interval at this step (its centre and half-width) and
+# the one predicted for the next step; the backup's √weight per joint.
+(R_Q, R_V, R_DQ, R_DV, R_TAU, R_ACC, R_BIAS, R_DEV, R_LIMIT_Q, R_LIMIT_V, R_TARGET, R_MASSES,
+ R_PBIAS, R_PACC, R_SCRATCH, R_CANDIDATE, R_CENTRE, R_HALF, R_NEXT_LOW, R_NEXT_HIGH,
+ R_WEIGHT) = range(21)
+ROLLOUT_ROWS = 21
 # The payload's structure: of CbfWork.planar (2×n each) J of its point, J M̂⁻¹ and α; of
 # .pairs (2 each) γ = J̇v + g ŷ, J M̂⁻¹b̂, K's eigenvalues (ascending) and β; of .squares
 # (2×2 each) K = J M̂⁻¹ Jᵀ and its eigenvectors (columns).
@@ -48,7 +59,7 @@ class CbfWork(NamedTuple):
     chain: np.ndarray  # (CHAIN_SCRATCH_ROWS, n) inertia.CX …, then E, PLUS, MINUS
     solver: np.ndarray  # (5, n) TAU …
     vectors: np.ndarray  # (X + 4, n) BIAS …
-    matrices: np.ndarray  # (8, n, n) NOMINAL_NOW …
+    matrices: np.ndarray  # (12, n, n) NOMINAL_NOW …, ROLL_MASS …
     forms: np.ndarray  # (2, n, n, n) Γ of the nominal chain, of a unit payload (zero
     # without a payload range)
     linear: np.ndarray  # (2, n, n) B at each end of the payload range
@@ -59,6 +70,14 @@ class CbfWork(NamedTuple):
     corner_index: np.ndarray  # (3 grid + 1, 2) the grid points of each box corner
     per_row: np.ndarray  # (2, rows) the limits and the weights the QP is solved with
     binding: np.ndarray  # (rows,) the rows violated at the solver's iterate
+    rollout: np.ndarray  # (ROLLOUT_ROWS, n) R_Q …
+    # the backup's torque as a small QP in q̈ (cosim.paper.cbf_filter.backup): its rows
+    # (2n, n), their limits and weights (2, 2n), its solver's vectors (5, n) and the rows
+    # bound at its iterate (2n,)
+    backup_rows: np.ndarray
+    backup_limits: np.ndarray
+    backup_solver: np.ndarray
+    backup_binding: np.ndarray
 
 
 def payload_corners(grid: int) -> np.ndarray:
@@ -83,10 +102,13 @@ def cbf_work(n: int, rows: int, grid: int) -> CbfWork:
     vectors[UNIT, n - 1] = 1.0
     return kernel_args(
         CbfWork, chain=np.zeros((CHAIN_SCRATCH_ROWS, n)), solver=np.zeros((5, n)), vectors=vectors,
-        matrices=np.zeros((8, n, n)), forms=np.zeros((2, n, n, n)), linear=np.zeros((2, n, n)),
+        matrices=np.zeros((12, n, n)), forms=np.zeros((2, n, n, n)), linear=np.zeros((2, n, n)),
         planar=np.zeros((3, 2, n)), pairs=np.zeros((4, 2)), squares=np.zeros((2, 2, 2)),
         s_grid=np.zeros((grid + 1, 2)), corner_index=payload_corners(grid),
-        per_row=np.zeros((2, rows)), binding=np.zeros(rows, np.bool_))
+        per_row=np.zeros((2, rows)), binding=np.zeros(rows, np.bool_),
+        rollout=np.zeros((ROLLOUT_ROWS, n)), backup_rows=np.zeros((2 * n, n)),
+        backup_limits=np.zeros((2, 2 * n)), backup_solver=np.zeros((5, n)),
+        backup_binding=np.zeros(2 * n, np.bool_))
 
 
 class CbfArgs(NamedTuple):
@@ -94,18 +116,23 @@ class CbfArgs(NamedTuple):
     soft: np.ndarray  # (4,) 1 where it is a soft per-joint set
     soft_norms: np.ndarray  # (4,) 1 where it is a soft norm set
     bounds: np.ndarray  # (4,) β per set, bound_margin applied
+    viable_bounds: np.ndarray  # (2,) position, velocity: half of bound_margin applied
     k1: float  # 2p
     k0: float  # p²
     tracking_k1: float  # 2p of the soft error rows
     tracking_k0: float  # p²
     k_velocity: float
     dt: float  # the hold, s
-    torque_limit: float  # inf: none
+    torque_limit: np.ndarray  # (n,) |τ_i| ≤ this, N·m (inf: none)
     rho_soft: float
     rho_hard: float
     hard_tolerance: float
-    brake: bool  # the backup: braking (else the least-violation answer)
-    backup_rate: float
+    verify: bool  # check every torque against the braking backup (else: the QP's answer)
+    backup_rate: float  # k_b, 1/s
+    recovery_speed: float  # rad/s
+    recovery_rate: float  # 1/s
+    backup_step: float  # s
+    backup_horizon: float  # s
     payload_grid: int
     iterations: int
     tolerance: float
@@ -126,7 +153,7 @@ class CbfArgs(NamedTuple):
     is_hard: np.ndarray  # scratch: (rows,) 1 for hard rows
     kinds: np.ndarray  # (rows,) set index of each row (4 + set for norms, -1 torque)
     joints: np.ndarray  # (rows,) joint of each row (-1: a norm)
-    backup: np.ndarray  # (n,) the braking torque of this step
+    backup: np.ndarray  # (n,) the backup's torque at this step
     position: np.ndarray
     velocity: np.ndarray
     velocity_bound: np.ndarray  # ε per row and joint (zeros for the plant's q̇)
@@ -147,5 +174,7 @@ class CbfArgs(NamedTuple):
     active: np.ndarray
     correction: np.ndarray
     infeasible: np.ndarray
+    viable: np.ndarray  # 1 where a verified torque existed
+    backup_share: np.ndarray  # the share of the backup in the torque, 0 … 1
     work: CbfWork
 

@@ -1,0 +1,298 @@
+"""The braking backup and the check that makes the filter's hard sets hold with bounded
+torque: a torque is applied only if, after it, the backup can still stop every joint inside
+its position set and keep its velocity set, for every state and plant the declared
+uncertainty allows (a backup-controller safety filter in the manner of Chen, Jankovic,
+Santillo and Ames, "Backup control barrier functions", 2021, checked by rolling the backup
+out rather than by its sensitivities).
+
+The backup: q̈_b = k_b (w − (v − q̇_s)) in the nominal model, τ_b = M̂ q̈_b + b̂, each τ_i
+clipped to its limit (so the torque limits hold whatever it asks); w = 0 inside the position
+set, and towards it at up to ``recovery_speed`` outside it (recovery).
+
+The check (:func:`verified`) rolls the nominal model out from the estimate (y, v): the
+candidate torque held over one step, then the backup, in steps of ``backup_step``, until
+every joint is stopped (|v − q̇_s − w| ≤ ``STOPPED``) or ``backup_horizon`` has passed
+(unverified). Around the nominal rollout a tube of half-widths δq, δv holds the true
+state: δq(0) = n̄ (noise), δv(0) = ε (the velocity's bound), and per step
+
+    δv ← δv (1 − k_b h) + D h   (no joint's torque clipped: the backup's feedback
+                                  pulls the true velocity towards its target)
+    δv ← δv + D h               (a torque clipped: none)
+    δq ← δq + δv h
+
+with D_i the bound on the true q̈_i's departure from the nominal model's: the bias error
+from a velocity error up to δv and the disturbance (|M̂⁻¹(Δb + d)|, the hard rows' bound,
+see :mod:`.model`, at the rollout's state), plus the payload's, |q̈(Δm) − q̈(0)| at each end
+of its range under the rollout's torque. Every joint's |q − q_s| + δq and |v − q̇_s| + δv must stay
+within its bound at every rollout step: for a set already left, within the excess it
+started with, decaying at ``recovery_rate`` (h < 0 must grow back at that rate).
+
+What it assumes, besides the declared bounds: the tube's linear feedback model of the
+backup (exact for a joint the backup does not clip), b's velocity forms Γ taken at the
+step's configuration for the whole rollout, and the
+excursion between two rollout steps within half of ``bound_margin``: the check holds the
+sets shrunk by half the margin the QP's rows keep (``viable_bounds``), so that the QP's
+states leave the check that slack, and the check leaves the rest for what happens between
+its points (with |q̈| ≤ Ā at most Ā h²/8: 5e-4 rad at Ā = 1000 rad/s², h = 2 ms, against
+0.02 rad of a 20 rad bound).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...numba_compat import no_refcount_jit
+from ..inertia import chain_bias, chain_geometry, chain_mass
+from ..linalg import invert, product
+from .model import acceleration_error_bound_into
+from .scratch import (
+    BACKUP_FACTOR,
+    QUADRATIC,
+    R_ACC,
+    R_BIAS,
+    R_CENTRE,
+    R_DEV,
+    R_DQ,
+    R_DV,
+    R_HALF,
+    R_LIMIT_Q,
+    R_LIMIT_V,
+    R_MASSES,
+    R_NEXT_HIGH,
+    R_NEXT_LOW,
+    R_PACC,
+    R_PBIAS,
+    R_Q,
+    R_SCRATCH,
+    R_TARGET,
+    R_TAU,
+    R_V,
+    R_WEIGHT,
+    ROLL_LU,
+    ROLL_MASS,
+    ROLL_MINV,
+    TAU,
+)
+from .solver import newton
+
+STOPPED = 0.05  # rad/s: a joint within this of its backup's target velocity has stopped
+BACKUP_WEIGHT = 1e10  # the torque limits' weight in the backup's penalty form (then clipped)
+# The backup's q̈ of a joint within NEAR (rad) of its position bound weighs up to 1 +
+# NEAR_WEIGHT times another's, linearly in how near.
+NEAR, NEAR_WEIGHT = 0.5, 1e3
+
+
+@no_refcount_jit(cache=True, inline="always")
+def backup_torque(k, a, q, v, mass, bias, out, policy):
+    """τ_b at (q, v) into ``out``: the q̈ closest to the backup's k_b (w − (v − q̇_s)) that
+    the torque limits allow, τ_b = M̂ q̈ + b̂ (a small QP in q̈: clipping each τ_i alone
+    would turn the coupled arm's braking of one joint into accelerating another), w the
+    recovery velocity of a joint outside its position set (into the rollout's R_TARGET row,
+    relative to q̇_s). ``policy`` 1 weighs the q̈ of joints near their position bound first
+    (0: every joint alike). Returns whether a torque limit binds."""
+    n = q.shape[0]
+    w = a.work
+    r = w.rollout
+    target, desired = r[R_TARGET], r[R_SCRATCH]
+    for i in range(n):
+        x = q[i] - a.q_s[k, i]
+        excess = abs(x) + a.noise_bound - a.viable_bounds[0]
+        speed = 0.0
+        if a.hard[0] and excess > 0.0:
+            speed = -np.sign(x) * min(a.recovery_speed, a.backup_rate * excess)
+        target[i] = speed
+        desired[i] = a.backup_rate * (speed - (v[i] - a.qdot_s[k, i]))
+    # Weighted towards the joints near their position bound (what the limits cannot give
+    # every joint, those get first): in z = √W q̈ the weights are the identity the solver
+    # has, so q̈ = z/√W and a row's coefficients are divided by √W.
+    scale = r[R_WEIGHT]
+    for i in range(n):
+        distance = a.viable_bounds[0] - abs(q[i] - a.q_s[k, i]) - a.noise_bound
+        scale[i] = np.sqrt(1.0 + NEAR_WEIGHT * policy * max(0.0, 1.0 - distance / NEAR))
+        desired[i] *= scale[i]
+    rows, limits, weights = w.backup_rows, w.backup_limits[0], w.backup_limits[1]
+    count = 0
+    for i in range(n):  # ±(M̂ q̈ + b̂)_i ≤ τ_max,i, scaled to unit rows
+        if not np.isfinite(a.torque_limit[i]):
+            continue
+        norm = 0.0
+        for col in range(n):
+            norm += (mass[i, col] / scale[col]) ** 2
+        norm = np.sqrt(norm)
+        for side in (1.0, -1.0):
+            for col in range(n):
+                rows[count, col] = side * mass[i, col] / scale[col] / norm
+            limits[count] = (a.torque_limit[i] - side * bias[i]) / norm
+            weights[count] = BACKUP_WEIGHT
+            count += 1
+    acceleration = w.backup_solver[TAU]
+    newton(desired, rows, limits, weights, count, 50, 1e-12, w.backup_solver,
+           w.matrices[BACKUP_FACTOR], w.backup_binding, False)
+    for i in range(n):
+        acceleration[i] /= scale[i]
+    product(mass, acceleration, out)
+    binds = False
+    for i in range(n):
+        torque = out[i] + bias[i]
+        binds = binds or abs(torque) >= a.torque_limit[i] * (1.0 - 1e-9)
+        out[i] = min(max(torque, -a.torque_limit[i]), a.torque_limit[i])
+    return binds
+
+
+@no_refcount_jit(cache=True, inline="always")
+def _payload_deviation(a, q_dot, tau, acceleration, deviation):
+    """D_i += max over the payload range's ends of |q̈(Δm)_i − q̈(0)_i| under τ (the
+    chain's geometry already at the rollout's state, its velocity ``q_dot``)."""
+    r = a.work.rollout
+    matrices = a.work.matrices
+    masses, bias, moved = r[R_MASSES], r[R_PBIAS], r[R_PACC]
+    n = tau.shape[0]
+    for end in range(2):
+        payload = a.payload_low if end == 0 else a.payload_high
+        if payload == 0.0:
+            continue
+        for i in range(n):
+            masses[i] = a.m[i]
+        masses[n - 1] += payload
+        chain_mass(a.work.chain, masses, a.inertia, matrices[ROLL_MASS])
+        chain_bias(a.work.chain, q_dot, masses, a.gravity, bias)
+        for i in range(n):
+            bias[i] = tau[i] - bias[i] - a.tau_d[i]
+        invert(matrices[ROLL_MASS], matrices[ROLL_MINV], matrices[ROLL_LU])
+        product(matrices[ROLL_MINV], bias, moved)
+        for i in range(n):
+            deviation[i] = max(deviation[i], abs(moved[i] - acceleration[i]))
+
+
+@no_refcount_jit(cache=True, inline="always")
+def _deviation(a, q_dot, spread, tau, acceleration, deviation):
+    """D at the rollout's state into ``deviation``: the bound on |M̂⁻¹(Δb + d)| for a
+    velocity error up to ``spread`` at the velocity ``q_dot`` (b's velocity forms Γ as the
+    hard rows took them at row k: the configuration's drift over the rollout is left out),
+    plus the payload's (:func:`_payload_deviation`)."""
+    w = a.work
+    acceleration_error_bound_into(q_dot, spread, w.matrices[ROLL_MINV], a.payload_low,
+                                  a.payload_high, a.disturbance, w.forms[0], w.forms[1],
+                                  w.linear, w.vectors[QUADRATIC], deviation)
+    _payload_deviation(a, q_dot, tau, acceleration, deviation)
+
+
+@no_refcount_jit(cache=True, inline="always")
+def _nominal_acceleration(k, a, first, backup, policy):
+    """The rollout's torque (``first``, or the backup's if ``backup``) into R_TAU and the
+    nominal model's q̈ under it into R_ACC; the chain's geometry left at the rollout's q.
+    Returns whether the torque is held or limited (the backup's feedback does not act)."""
+    w = a.work
+    r, matrices = w.rollout, w.matrices
+    q, vel, tau, acc, bias = r[R_Q], r[R_V], r[R_TAU], r[R_ACC], r[R_BIAS]
+    mass, minv = matrices[ROLL_MASS], matrices[ROLL_MINV]
+    n = q.shape[0]
+    chain_geometry(q, a.l, a.lc, w.chain)
+    chain_mass(w.chain, a.m, a.inertia, mass)
+    chain_bias(w.chain, vel, a.m, a.gravity, bias)
+    for i in range(n):
+        bias[i] += a.tau_d[i]
+    binds = True  # a held torque: no feedback over its step
+    if backup:
+        binds = backup_torque(k, a, q, vel, mass, bias, tau, policy)
+    else:
+        for i in range(n):
+            tau[i] = first[i]
+    invert(mass, minv, matrices[ROLL_LU])
+    for i in range(n):
+        bias[i] = tau[i] - bias[i]
+    product(minv, bias, acc)
+    return binds
+
+
+@no_refcount_jit(cache=True, inline="always")
+def backup_at(k, a, policy, out):
+    """The backup's torque at row k (its position, the velocity interval's centre) with
+    ``policy``, as the rollout computes it, into ``out``."""
+    r = a.work.rollout
+    y = a.position[k]
+    for i in range(y.shape[0]):
+        r[R_Q, i], r[R_V, i] = y[i], r[R_CENTRE, i]
+    _nominal_acceleration(k, a, out, True, policy)
+    for i in range(y.shape[0]):
+        out[i] = r[R_TAU, i]
+
+
+@no_refcount_jit(cache=True, inline="always")
+def velocity_interval(k, a):
+    """The true velocity's interval at row k (centre into R_CENTRE, half-width into
+    R_HALF): the estimate's, v ± ε, intersected with the one predicted at the step before
+    (:func:`predict_interval`). Both hold the true q̇ under the declared bounds; the
+    intersection keeps what the backup was verified from at the step before (the estimate
+    alone may move by more than the model allows in one step, and a state verified a step
+    ago would then look unverifiable). Where they do not meet, the declared bounds did not
+    hold: the estimate's alone."""
+    r = a.work.rollout
+    v, eps = a.velocity[k], a.velocity_bound[k]
+    for i in range(v.shape[0]):
+        low, high = v[i] - eps[i], v[i] + eps[i]
+        if k > 0 and r[R_NEXT_LOW, i] <= high and r[R_NEXT_HIGH, i] >= low:
+            low, high = max(low, r[R_NEXT_LOW, i]), min(high, r[R_NEXT_HIGH, i])
+        r[R_CENTRE, i] = 0.5 * (low + high)
+        r[R_HALF, i] = 0.5 * (high - low)
+
+
+@no_refcount_jit(cache=True, inline="always")
+def predict_interval(k, a, tau):
+    """The interval of the true velocity at row k + 1 under τ held over the step (into
+    R_NEXT_LOW, R_NEXT_HIGH): row k's moved by the nominal model's q̈ ± D·dt."""
+    r = a.work.rollout
+    y = a.position[k]
+    for i in range(y.shape[0]):
+        r[R_Q, i], r[R_V, i] = y[i], r[R_CENTRE, i]
+    _nominal_acceleration(k, a, tau, False, 0)
+    deviation, acceleration = r[R_DEV], r[R_ACC]
+    _deviation(a, r[R_V], r[R_HALF], r[R_TAU], acceleration, deviation)
+    for i in range(y.shape[0]):
+        spread = r[R_HALF, i] + a.dt * deviation[i]
+        r[R_NEXT_LOW, i] = r[R_CENTRE, i] + a.dt * acceleration[i] - spread
+        r[R_NEXT_HIGH, i] = r[R_CENTRE, i] + a.dt * acceleration[i] + spread
+
+
+@no_refcount_jit(cache=True)
+def verified(k, a, y, v, eps, first, hold, policy):
+    """Whether the backup keeps every hard set from the estimate (y, v) (|q − y| ≤ n̄,
+    |q̇ − v| ≤ ε), after ``first`` is held for one step if ``hold`` (module docstring), with
+    the backup's ``policy``."""
+    r = a.work.rollout
+    q, vel, dq, dv, acc = r[R_Q], r[R_V], r[R_DQ], r[R_DV], r[R_ACC]
+    limit_q, limit_v, deviation = r[R_LIMIT_Q], r[R_LIMIT_V], r[R_DEV]
+    n = y.shape[0]
+    for i in range(n):
+        q[i], vel[i], dq[i], dv[i] = y[i], v[i], a.noise_bound, eps[i]
+        # what each set allows: its bound, or the excess it starts with (recovery)
+        limit_q[i] = max(a.viable_bounds[0], abs(y[i] - a.q_s[k, i]) + a.noise_bound)
+        limit_v[i] = max(a.viable_bounds[1], abs(v[i] - a.qdot_s[k, i]) + eps[i])
+        r[R_TARGET, i] = 0.0
+    t = 0.0
+    step = 0
+    while t < a.backup_horizon:
+        backup = not (hold and step == 0)
+        h = a.backup_step if backup else a.dt
+        clipped = _nominal_acceleration(k, a, first, backup, policy)
+        _deviation(a, vel, dv, r[R_TAU], acc, deviation)
+        feedback = 0.0 if clipped else min(a.backup_rate * h, 1.0)
+        decay = np.exp(-a.recovery_rate * (t + h))
+        stopped = backup and not clipped
+        for i in range(n):
+            dv[i] = dv[i] * (1.0 - feedback) + deviation[i] * h
+            vel[i] += h * acc[i]
+            q[i] += h * vel[i]
+            dq[i] += h * dv[i]
+            allowed_q = a.viable_bounds[0] + (limit_q[i] - a.viable_bounds[0]) * decay
+            allowed_v = a.viable_bounds[1] + (limit_v[i] - a.viable_bounds[1]) * decay
+            if a.hard[0] and abs(q[i] - a.q_s[k, i]) + dq[i] > allowed_q:
+                return False
+            if a.hard[1] and abs(vel[i] - a.qdot_s[k, i]) + dv[i] > allowed_v:
+                return False
+            stopped = stopped and abs(vel[i] - a.qdot_s[k, i] - r[R_TARGET, i]) <= STOPPED
+        t += h
+        step += 1
+        if stopped:
+            return True
+    return False
