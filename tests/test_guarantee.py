@@ -306,7 +306,7 @@ def test_a_torque_above_the_filters_limit_breaks_it():
     g = judge(trace)
     assert g["torque_over_limit_steps"] == 2 and g["broken"] is True
     assert g["violations"] == ["|τ| above the filter's torque limit at 2 steps (first "
-                               "t = 0.3 s; joint 2 up to 101 N·m > 100 N·m)"]
+                               "t = 0.3 s, joint 2 up to 101 N·m > 100 N·m)"]
     unlimited = OUTPUT_FEEDBACK._replace(torque_limit=np.full(2, np.inf))
     assert judge(trace, unlimited)["broken"] is False
     assert judge(trace, None)["torque_over_limit_steps"] is None  # no limit published
@@ -343,6 +343,22 @@ def test_the_time_to_return_from_every_set_left(excursions, returned, longest):
     line = report_line(g)
     assert (f"back inside (the longest excursion {longest:.3f} s)" if returned
             else f"still outside at the end ({longest:.3f} s)") in line
+
+
+def test_every_reason_survives_a_sweeps_rows():
+    """A sweep joins a list of texts with "; " (cosim/sweep/worker.py's flat), and its
+    reports split them again: no reason may hold "; " itself."""
+    g = conclude(misleading_signals(), {"g": 80.0, "tau_d_amp[1]": 200.0, "b[1]": 1.0,
+                                        "fc[2]": 2.0, "tau_d[2]": 1.0, "l[2]": 1.5})
+    trace = misleading_signals()
+    trace["cbf_infeasible"][7] = 1.0
+    trace["tau"][20, 0] = 150.0
+    trace["qdot_hat_bound"][:] = 0.0
+    broken = judge(trace, FULL_STATE._replace(velocity="qdot_hat"),
+                   DECLARED.model_copy(update={"initial_velocity_error": 5.0}))
+    assert len(g["outside"]) == 8 and len(broken["violations"]) == 4
+    for key, texts in (("outside", g["outside"]), ("violations", broken["violations"])):
+        assert flat({"guarantee": {key: texts}})[f"guarantee.{key}"].split("; ") == texts
 
 
 # 7. The sweep's classes

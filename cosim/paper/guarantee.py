@@ -294,7 +294,7 @@ def torque_violation(trace: Signals, assumes: FilterAssumptions | None
         return 0, None
     j = int(np.argmax(np.max(np.where(over, tau - limit, 0.0), axis=0)))
     return len(rows), (f"|τ| above the filter's torque limit at {len(rows)} steps (first "
-                       f"t = {rows[0] * trace.dt:.4g} s; joint {j + 1} up to "
+                       f"t = {rows[0] * trace.dt:.4g} s, joint {j + 1} up to "
                        f"{np.max(tau[:, j]):.4g} N·m > {limit[j]:g} N·m)")
 
 
