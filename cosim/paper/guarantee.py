@@ -1,22 +1,39 @@
 """Whether a run is one the safety filter's guarantee speaks for, and whether it held.
 
-The guarantee: a run that starts inside the hard (physical) sets, whose hard QP is
-feasible at every step and whose plant and signals stay within the declared uncertainty
-(``[uncertainty]``) never leaves a hard set. Each run is classified on the true state:
+The guarantee: a filtered run that starts inside the filter's *viable* set (the states from
+which its torque limits can still keep every hard set under the declared uncertainty) and
+whose plant and signals stay within what is declared (``[uncertainty]``, and the nominal
+model for everything not declared uncertain) never leaves a hard set, is feasible at every
+step, keeps the observer bound ε(t) it rests on, and never exceeds its torque limit. Each
+run is classified on the true state:
 
-- ``starts_inside``: every joint's position and true velocity inside its set at t = 0
-  (and, apart, ``starts_inside_observer_set``: |q̇(0) − x̂2(0)| ≤ ε_max of Theorem 2);
-- ``feasible``: no step where the filter's hard part was infeasible (None: no filter);
-- ``within_bounds``: the payload, the noise, the initial observer error and the observer
-  bound ε(t) stay as declared (``outside`` names each one that did not);
-- ``hard_kept`` / ``first_exit``: whether, and where first, a hard set was left;
-- ``broken``: left a hard set while all three held — a broken guarantee.
+- ``starts_inside``: every joint's position and true velocity inside its set at t = 0 (the
+  box); ``starts_viable``: the filter's ``cbf_viable`` flag at t = 0 (without one: the box),
+  and ``not_viable``, why a start inside the box is not viable (else None); apart,
+  ``starts_inside_observer_set``: |q̇(0) − x̂2(0)| ≤ ε_max of Theorem 2;
+- ``within_bounds`` / ``outside``: the payload, every other plant parameter against the
+  nominal model (gravity, friction, disturbance, links), and what the filter reads — the
+  noise if it reads the measured position, the initial observer error if it reads the
+  observer's velocity — as declared (``outside`` names each one that is not);
+- ``feasible`` / ``infeasible_steps``: no step where the filter's hard part was infeasible
+  (None: no filter);
+- ``hard_kept`` / ``first_exit``: whether, and where first, a hard set was left, and the
+  recovery: ``returned``, ``time_to_return_s``, ``back_within_1s``, ``excursions``;
+- ``covered``: a filtered run that starts viable and is within bounds; ``violations``: what
+  the guarantee promised a covered run that did not hold (a hard set left, an infeasible
+  step, ε(t) exceeded, |τ| above the limit); ``broken``: covered with a violation.
+
+What a run's filter does not read never excuses it: a filter reading the true velocity is
+not excused by the observer's error, nor one reading the true position by the noise. An
+exceedance of ε(t) while its inputs (noise, initial error, payload) are as declared is a
+violation, not "outside": the bound is the filter's own claim.
 
 Ground truth is used here, for evaluation only. SI units, radians.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from typing import Any
 
@@ -30,11 +47,30 @@ from ..declared import Uncertainty
 from ..evaluate import Check, Kind, Part, register_evaluator
 from ..evaluate.safety import SafeSet, Signals
 from ..signals import Trace
+from .cbf_filter.assumptions import FILTER_ASSUMES, VIABLE, FilterAssumptions
 
 # A tolerance for comparing declared and actual parameter values (rounding in TOML, FMI).
 PARAMETER_TOLERANCE = 1e-9
+# |τ_i| ≤ limit·(1 + this) is within the limit: the filter clips to the limit exactly, and
+# only the last bits may differ.
+TORQUE_TOLERANCE = 1e-9
+RETURN_WITHIN = 1.0  # s: how soon a run that left a set should be back inside (issue 30)
 INFEASIBLE = "cbf_infeasible"  # the filter's flag: its hard QP was infeasible at this step
 ACTIVE = "cbf_active"  # the filter's flag: it changed the torque at this step
+OBSERVER_TAU_D = "tau_d_model"  # the observer's constant: the τ_d its model assumes, N·m
+
+# The rigid arm's parameters, by family, as the classifier treats them. Compared with the
+# nominal model: the links (plant_payload), gravity, friction (nominal: none) and the
+# disturbance (undeclared_differences). Not model differences: the initial state (what the
+# viable set judges), the integrator's step, the Coulomb smoothing velocity (no effect
+# while fc = 0, which is compared) and the disturbance's frequency (its amplitude bounds it
+# at any frequency).
+CHAIN = ("m", "l", "lc", "I")
+GRAVITY = "g"
+FRICTION = (("b", "viscous friction", "N·m·s/rad"), ("fc", "Coulomb friction", "N·m"))
+DISTURBANCE = ("tau_d", "tau_d_amp")
+COMPARED = frozenset({*CHAIN, GRAVITY, *(name for name, _, _ in FRICTION), *DISTURBANCE})
+NOT_MODEL = frozenset({"q0", "qdot0", "rk4_step", "fc_vel", "tau_d_freq"})
 
 
 def rigid_chain_parameters(links: int) -> frozenset[str] | None:
@@ -72,6 +108,46 @@ def plant_payload(parameters: dict, chain, modelled: frozenset[str] | None = Non
     return float(parameters[f"m[{n}]"] - chain.m[n - 1]), differ
 
 
+def undeclared_differences(parameters: Mapping[str, float], chain, uncertainty: Uncertainty,
+                           tau_d_model: np.ndarray | None, links: int) -> list[str]:
+    """What sets the plant's gravity, friction and disturbance apart from the nominal model
+    beyond what is declared uncertain, each naming its parameter: gravity ``g`` against the
+    nominal chain's, friction ``b[i]``, ``fc[i]`` against none, and per joint the
+    disturbance error |τ_d[i] − τ_d,model[i]| + |tau_d_amp[i]| (the sinusoid's amplitude is
+    its largest value; compared whatever tau_d_freq, even 0 Hz where the plant's
+    sin(2π·f·t) is 0: conservative) against ``uncertainty.disturbance``. ``tau_d_model``:
+    the τ_d the filter's model assumes, N·m per joint (None: no model, 0). A parameter the
+    plant does
+    not have is not compared (a foreign FMU is judged by its missing chain instead)."""
+    out = []
+    if chain is not None and GRAVITY in parameters \
+            and abs(float(parameters[GRAVITY]) - chain.gravity) > PARAMETER_TOLERANCE:
+        out.append(f"g = {float(parameters[GRAVITY]):g} m/s² (the nominal chain's "
+                   f"{chain.gravity:g} m/s²): gravity is not declared uncertain")
+    for name, what, unit in FRICTION:
+        for i in range(1, links + 1):
+            value = float(parameters.get(f"{name}[{i}]", 0.0))
+            if abs(value) > PARAMETER_TOLERANCE:
+                out.append(f"{name}[{i}] = {value:g} {unit} (nominal 0): {what} is not "
+                           "declared uncertain")
+    model = np.broadcast_to(np.asarray(0.0 if tau_d_model is None else tau_d_model, float),
+                            (links,))
+    for i in range(1, links + 1):
+        constant = float(parameters.get(f"tau_d[{i}]", model[i - 1])) - model[i - 1]
+        amplitude = float(parameters.get(f"tau_d_amp[{i}]", 0.0))
+        error = abs(constant) + abs(amplitude)
+        if error <= uncertainty.disturbance + PARAMETER_TOLERANCE:
+            continue
+        named = [*([f"tau_d[{i}] = {constant + model[i - 1]:g} N·m (model "
+                    f"{model[i - 1]:g} N·m)"] if abs(constant) > PARAMETER_TOLERANCE else []),
+                 *([f"tau_d_amp[{i}] = {amplitude:g} N·m at tau_d_freq[{i}] = "
+                    f"{float(parameters.get(f'tau_d_freq[{i}]', math.nan)):g} Hz (nominal 0)"]
+                   if abs(amplitude) > PARAMETER_TOLERANCE else [])]
+        out.append(f"{', '.join(named)}: a disturbance error up to {error:g} N·m on joint {i} "
+                   f"> the declared {uncertainty.disturbance:g} N·m (uncertainty.disturbance)")
+    return out
+
+
 def hard_checks(checks: Mapping[str, Check]) -> dict[str, Check]:
     """The run's hard sets, per joint (their declarations say so), that hold values."""
     return {name: c for name, c in checks.items()
@@ -79,29 +155,93 @@ def hard_checks(checks: Mapping[str, Check]) -> dict[str, Check]:
             and c.declared.kind_of(c.joint) == Kind.HARD and np.isfinite(c.value).any()}
 
 
-def classify(trace: Trace, safe: SafeSet, uncertainty: Uncertainty,
-             payload: float | None, other_parameters: list[str],
-             true_velocity: bool = True, checks: Mapping[str, Check] | None = None) -> dict:
-    """The run's class and outcome (module docstring); ``payload``: what the plant carries
-    (None: unknown), ``other_parameters``: plant link parameters off the nominal chain;
-    ``true_velocity``: whether the plant maps q̇ (if not, the velocity set cannot be judged
-    and the run is outside what the guarantee speaks for); ``checks``: the run's evaluated
-    checks (default: evaluated here), of which the hard ones are judged."""
-    if trace.rows_done == 0:
-        return {}
-    if checks is None:
-        from ..evaluate import Evaluator
-
-        checks = Evaluator(trace, safe, {}).result().checks
-    hard = hard_checks(checks)
-    starts_inside = not any(bool(c.outside[0]) for c in hard.values())
-    first_exit = None
-    for name, check in hard.items():  # declaration order: the lowest joint first at a tie
+def first_exit(hard: Mapping[str, Check], dt: float) -> dict | None:
+    """Where a hard set was first left: its name, time (s), |value| and bound; None if never.
+    In declaration order: the lowest joint first at a tie."""
+    first = None
+    for name, check in hard.items():
         rows = np.flatnonzero(check.outside)
-        if len(rows) and (first_exit is None or rows[0] * trace.dt < first_exit["t"]):
-            first_exit = {"set": name, "t": float(rows[0] * trace.dt),
-                          "value": float(check.magnitude[rows[0]]),
-                          "bound": float(check.upper)}
+        if len(rows) and (first is None or rows[0] * dt < first["t"]):
+            first = {"set": name, "t": float(rows[0] * dt),
+                     "value": float(check.magnitude[rows[0]]), "bound": float(check.upper)}
+    return first
+
+
+def recovery(hard: Mapping[str, Check], dt: float) -> dict:
+    """How the run came back into the hard sets it left (or started outside): per set, its
+    excursions, each from its first row outside to the first row back inside. ``returned``:
+    every excursion ended before the trace did; ``time_to_return_s``: the longest excursion,
+    s (while still outside at the end, how long it had lasted: a lower bound);
+    ``back_within_1s``: returned, every excursion within :data:`RETURN_WITHIN`;
+    ``excursions``: one line per set left. None (and []) when no hard set was ever left."""
+    longest, returned, lines = None, True, []
+    for name, check in hard.items():
+        outside = check.outside
+        if not outside.any():
+            continue
+        edges = np.diff(np.concatenate(([0], outside.astype(np.int8), [0])))
+        starts, ends = np.flatnonzero(edges == 1), np.flatnonzero(edges == -1)
+        ended = bool(ends[-1] < len(outside))  # else outside at the last row
+        worst = float(np.max(ends - starts) * dt)
+        longest = worst if longest is None else max(longest, worst)
+        returned = returned and ended
+        lines.append(f"{name}: {len(starts)} excursion(s), the longest {worst:.3f} s"
+                     + ("" if ended else ", still outside at the end"))
+    if longest is None:
+        return {"returned": None, "time_to_return_s": None, "back_within_1s": None,
+                "excursions": []}
+    return {"returned": returned, "time_to_return_s": longest,
+            "back_within_1s": bool(returned and longest <= RETURN_WITHIN),
+            "excursions": lines}
+
+
+def stopping_need(trace: Signals, safe: SafeSet) -> str | None:
+    """The joint hardest to stop inside its position bound from t = 0, from the true q(0),
+    q̇(0) alone: moving toward a bound at speed v from a distance d, stopping needs a
+    deceleration of at least v²/(2d) (rad/s²), whatever the torque. None when no joint moves
+    toward a bound it is inside of (or the trace lacks the true state)."""
+    if not all(name in trace for name in ("q", "qdot", io.SAFE_CENTRE)):
+        return None
+    x, v = trace["q"][0] - trace[io.SAFE_CENTRE][0], trace["qdot"][0]
+    best = None
+    for j in np.flatnonzero(np.isfinite(x) & np.isfinite(v) & (v != 0)):
+        side = float(np.sign(v[j]))
+        distance = safe.position_bound - side * float(x[j])
+        if distance > 0:
+            need = float(v[j]) ** 2 / (2 * distance)
+            best = max(best or (need, j, side, distance), (need, j, side, distance))
+    if best is None:
+        return None
+    need, j, side, distance = best
+    return (f"joint {j + 1} moves toward its {'upper' if side > 0 else 'lower'} position "
+            f"bound at {abs(float(v[j])):.3g} rad/s, {distance:.3g} rad from it: stopping "
+            f"needs at least {need:.3g} rad/s²")
+
+
+def viability(trace: Signals, safe: SafeSet, starts_inside: bool) -> tuple[bool, str | None]:
+    """(whether the run starts in the filter's viable set, why not for a start inside the
+    box): the filter's ``cbf_viable`` flag at t = 0, where it wrote one; else the box, the
+    set of an unfiltered run (or of a filter that does not say)."""
+    flag = np.asarray(trace[VIABLE][0], float) if VIABLE in trace else np.array(np.nan)
+    if not np.isfinite(flag).all():
+        return starts_inside, None
+    viable = bool(np.all(flag > 0.5))  # 1 or 0; the trace holds floats
+    if viable or not starts_inside:
+        return viable, None
+    need = stopping_need(trace, safe)
+    return viable, ("the filter found no torque that keeps the hard sets from this start"
+                    + (f" ({need})" if need else ""))
+
+
+def declared_inputs(trace: Signals, safe: SafeSet, uncertainty: Uncertainty,
+                    payload: float | None, other_parameters: list[str], true_velocity: bool,
+                    assumes: FilterAssumptions | None) -> tuple[list[str], dict, str | None]:
+    """(what is outside the declared uncertainty, each named: the payload, the plant's
+    ``other_parameters`` and what the filter reads; the observer's facts; the observer
+    bound's violation, or None). Only what the
+    filter reads is judged (``assumes``; without it, the measured position and the
+    observer's velocity where the trace has them, as an output-feedback filter reads):
+    the noise for "q_meas", the initial observer error and ε(t) for "qdot_hat"."""
     outside = []
     low, high = uncertainty.payload
     if payload is None:
@@ -113,43 +253,106 @@ def classify(trace: Trace, safe: SafeSet, uncertainty: Uncertainty,
     if not true_velocity:
         outside.append("true velocity unknown (the plant does not map qdot): the velocity set "
                        "cannot be judged")
-    if "q_meas" in trace:
+    position = "q_meas" if assumes is None else assumes.position
+    velocity = "qdot_hat" if assumes is None else assumes.velocity
+    if position == "q_meas" and "q_meas" in trace:
         noise = float(np.max(np.abs(trace["q_meas"] - trace["q"])))
         if noise > uncertainty.noise_bound:
             outside.append(f"noise {noise:.3g} rad > {uncertainty.noise_bound:g}")
-    out = {"starts_inside": starts_inside}
-    if true_velocity and "qdot_hat" in trace and np.isfinite(trace["qdot_hat"][0]).all():
-        error = np.abs(trace["qdot"] - trace["qdot_hat"])
-        out["starts_inside_observer_set"] = bool(
-            np.linalg.norm(error[0]) <= safe.observer_error_bound)
-        if np.max(error[0]) > uncertainty.initial_velocity_error:
-            outside.append(f"initial observer error {np.max(error[0]):.3g} rad/s > "
-                           f"{uncertainty.initial_velocity_error:g}")
-        if "qdot_hat_bound" in trace:
-            over = error > trace["qdot_hat_bound"]
-            if over.any():
-                rows = np.flatnonzero(over.any(axis=1))
-                outside.append(f"observer error above ε(t) at {len(rows)} steps (first "
-                               f"t = {rows[0] * trace.dt:.4g} s): the declared "
-                               "observer_residual_rate was exceeded")
+    facts: dict[str, Any] = {"observer_bound_exceeded_steps": None}
+    violation = None
+    if not (true_velocity and "qdot_hat" in trace and np.isfinite(trace["qdot_hat"][0]).all()):
+        return outside, facts, violation
+    error = np.abs(trace["qdot"] - trace["qdot_hat"])
+    facts["starts_inside_observer_set"] = bool(
+        np.linalg.norm(error[0]) <= safe.observer_error_bound)
+    if velocity != "qdot_hat":  # the filter reads the true velocity: the observer is moot
+        return outside, facts, violation
+    if np.max(error[0]) > uncertainty.initial_velocity_error:
+        outside.append(f"initial observer error {np.max(error[0]):.3g} rad/s > "
+                       f"{uncertainty.initial_velocity_error:g}")
+    if "qdot_hat_bound" in trace:
+        rows = np.flatnonzero((error > trace["qdot_hat_bound"]).any(axis=1))
+        facts["observer_bound_exceeded_steps"] = len(rows)
+        if len(rows):
+            violation = (f"observer error |q̇ − x̂2| above its bound ε(t) at {len(rows)} "
+                         f"steps (first t = {rows[0] * trace.dt:.4g} s)")
+    return outside, facts, violation
+
+
+def torque_violation(trace: Signals, assumes: FilterAssumptions | None
+                     ) -> tuple[int | None, str | None]:
+    """(steps where some |τ_i| exceeded the filter's torque limit, what was exceeded); None
+    counts when the filter declares no limit (or the trace has no τ)."""
+    if assumes is None or "tau" not in trace:
+        return None, None
+    tau = np.abs(trace["tau"])
+    limit = np.broadcast_to(np.asarray(assumes.torque_limit, float), tau.shape[1:])
+    over = tau > limit * (1.0 + TORQUE_TOLERANCE)
+    rows = np.flatnonzero(over.any(axis=1))
+    if not len(rows):
+        return 0, None
+    j = int(np.argmax(np.max(np.where(over, tau - limit, 0.0), axis=0)))
+    return len(rows), (f"|τ| above the filter's torque limit at {len(rows)} steps (first "
+                       f"t = {rows[0] * trace.dt:.4g} s, joint {j + 1} up to "
+                       f"{np.max(tau[:, j]):.4g} N·m > {limit[j]:g} N·m)")
+
+
+def classify(trace: Trace, safe: SafeSet, uncertainty: Uncertainty,
+             payload: float | None, other_parameters: list[str],
+             true_velocity: bool = True, checks: Mapping[str, Check] | None = None,
+             assumes: FilterAssumptions | None = None) -> dict:
+    """The run's class and outcome (module docstring); ``payload``: what the plant carries
+    (None: unknown), ``other_parameters``: how the plant differs from the nominal model
+    beyond what is declared (:func:`plant_payload`, :func:`undeclared_differences`);
+    ``true_velocity``: whether the plant maps q̇ (if not, the velocity set cannot be judged
+    and the run is outside what the guarantee speaks for); ``checks``: the run's evaluated
+    checks (default: evaluated here), of which the hard ones are judged; ``assumes``: what
+    the filter published it reads and keeps (None: an unfiltered run, or a filter that does
+    not say: then its flags alone mark it filtered)."""
+    if trace.rows_done == 0:
+        return {}
+    if checks is None:
+        from ..evaluate import Evaluator
+
+        checks = Evaluator(trace, safe, {}).result().checks
+    hard = hard_checks(checks)
+    starts_inside = not any(bool(c.outside[0]) for c in hard.values())
+    starts_viable, not_viable = viability(trace, safe, starts_inside)
+    outside, facts, observer_violation = declared_inputs(
+        trace, safe, uncertainty, payload, other_parameters, true_velocity, assumes)
+    exit_ = first_exit(hard, trace.dt)
+    out = {"starts_inside": starts_inside, "starts_viable": starts_viable,
+           "not_viable": not_viable, **facts}
     feasible = None
     if INFEASIBLE in trace:
         steps = int(np.sum(trace[INFEASIBLE] > 0))
         feasible = steps == 0
         out["infeasible_steps"] = steps
+    over_steps, over_limit = torque_violation(trace, assumes)
+    # The guarantee speaks for filtered runs only: an unfiltered run promises nothing.
+    filtered = assumes is not None or INFEASIBLE in trace or VIABLE in trace
+    covered = bool(filtered and starts_viable and not outside)
+    violations = [] if not covered else [
+        *([f"left {exit_['set']} at {exit_['t']:.3f} s (|value| {exit_['value']:.4g} > "
+           f"{exit_['bound']:g})"] if exit_ else []),
+        *([f"{out['infeasible_steps']} infeasible step(s)"] if feasible is False else []),
+        *([observer_violation] if observer_violation else []),
+        *([over_limit] if over_limit else [])]
     out.update(feasible=feasible, within_bounds=not outside, outside=outside,
-               hard_kept=first_exit is None, first_exit=first_exit)
-    out["broken"] = bool(starts_inside and feasible is True and not outside
-                         and first_exit is not None)
+               hard_kept=exit_ is None, first_exit=exit_, torque_over_limit_steps=over_steps,
+               filtered=filtered, covered=covered, violations=violations,
+               broken=bool(violations), **recovery(hard, trace.dt))
     return out
 
 
 @register_evaluator
 class Guarantee(Part):
     """The filter's guarantee on a run (:func:`classify`), from its evaluated hard sets, the
-    plant's parameters against the nominal chain a block publishes, and the declared
-    uncertainty; the line `cosim run` prints of it for a filtered run; and how often the
-    filter changed the torque."""
+    plant's parameters against the nominal chain a block publishes, what the filter
+    publishes it assumes (``safety_filter``), and the declared uncertainty; the line
+    `cosim run` prints of it for a filtered run; and how often the filter changed the
+    torque."""
 
     name = "guarantee"
     meaning = "whether the safety filter's guarantee covers the run, and whether it held"
@@ -163,23 +366,30 @@ class Guarantee(Part):
 
     def conclude(self, trace: Signals, checks: Mapping[str, Check]) -> dict:
         chain = self.given.get(io.PLANT_MODEL)
-        payload, other = plant_payload(self.given[io.PLANT_PARAMETERS], chain,
-                                       rigid_chain_parameters(trace.links))
-        return {"guarantee": classify(trace, self.safe, self.given[io.UNCERTAINTY], payload,
-                                      other, true_velocity="qdot" in self.available,
-                                      checks=checks)}
+        assumes = self.given.get(FILTER_ASSUMES)
+        parameters, uncertainty = self.given[io.PLANT_PARAMETERS], self.given[io.UNCERTAINTY]
+        payload, other = plant_payload(parameters, chain, rigid_chain_parameters(trace.links))
+        # the τ_d the filter's model assumes: its own, else the observer's (its default)
+        tau_d = assumes.tau_d if assumes is not None else self.given.get(OBSERVER_TAU_D)
+        other += undeclared_differences(parameters, chain, uncertainty, tau_d, trace.links)
+        return {"guarantee": classify(trace, self.safe, uncertainty, payload, other,
+                                      true_velocity="qdot" in self.available,
+                                      checks=checks, assumes=assumes)}
 
     def report(self, metrics: Mapping[str, Any]) -> tuple[str | None, list[str]]:
         g = metrics.get("guarantee") or {}
-        if g.get("feasible") is None:  # not a filtered run: nothing to say
+        if not g.get("filtered"):  # not a filtered run: nothing to say
             return None, []
-        covered = g["starts_inside"] and g["feasible"] and g["within_bounds"]
         exit_text = (f"left {g['first_exit']['set']} at {g['first_exit']['t']:.3f} s"
                      if g["first_exit"] else "kept every hard set")
+        if g["time_to_return_s"] is not None:
+            exit_text += (f", back inside (the longest excursion {g['time_to_return_s']:.3f} s)"
+                          if g["returned"] else
+                          f", still outside at the end ({g['time_to_return_s']:.3f} s)")
         why = [*(["started outside"] if not g["starts_inside"] else []),
-               *([f"{g['infeasible_steps']} infeasible step(s)"] if not g["feasible"] else []),
+               *([f"not viable: {g['not_viable']}"] if g["not_viable"] else []),
                *g["outside"]]
         return (f"{exit_text}; guarantee "
-                + ("covers this run" if covered else "does not cover this run: "
+                + ("covers this run" if g["covered"] else "does not cover this run: "
                    + "; ".join(why))
-                + (" — BROKEN" if g["broken"] else "")), []
+                + (" — BROKEN: " + "; ".join(g["violations"]) if g["broken"] else "")), []
