@@ -19,7 +19,8 @@ run is classified on the true state:
   (None: no filter);
 - ``hard_kept`` / ``first_exit``: whether, and where first, a hard set was left, and the
   recovery: ``returned``, ``time_to_return_s``, ``back_within_1s``, ``excursions``;
-- ``covered``: a filtered run that starts viable and is within bounds; ``violations``: what
+- ``covered``: a filtered run that starts inside and viable and is within bounds (a start
+  outside a set is one to recover from, reported, not kept); ``violations``: what
   the guarantee promised a covered run that did not hold (a hard set left, an infeasible
   step, ε(t) exceeded, |τ| above the limit); ``broken``: covered with a violation.
 
@@ -332,7 +333,8 @@ def classify(trace: Trace, safe: SafeSet, uncertainty: Uncertainty,
     over_steps, over_limit = torque_violation(trace, assumes)
     # The guarantee speaks for filtered runs only: an unfiltered run promises nothing.
     filtered = assumes is not None or INFEASIBLE in trace or VIABLE in trace
-    covered = bool(filtered and starts_viable and not outside)
+    # A start outside a set is the filter's to bring back (recovery, reported), not to keep.
+    covered = bool(filtered and starts_inside and starts_viable and not outside)
     violations = [] if not covered else [
         *([f"left {exit_['set']} at {exit_['t']:.3f} s (|value| {exit_['value']:.4g} > "
            f"{exit_['bound']:g})"] if exit_ else []),

@@ -233,8 +233,8 @@ def velocity_interval(k, a):
         low, high = v[i] - eps[i], v[i] + eps[i]
         if k > 0 and r[R_NEXT_LOW, i] <= high and r[R_NEXT_HIGH, i] >= low:
             low, high = max(low, r[R_NEXT_LOW, i]), min(high, r[R_NEXT_HIGH, i])
-        r[R_CENTRE, i] = 0.5 * (low + high)
-        r[R_HALF, i] = 0.5 * (high - low)
+        r[R_CENTRE, i] = a.velocity_centre[k, i] = 0.5 * (low + high)
+        r[R_HALF, i] = a.velocity_spread[k, i] = 0.5 * (high - low)
 
 
 @no_refcount_jit(cache=True, inline="always")

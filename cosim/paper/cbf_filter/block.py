@@ -170,6 +170,7 @@ def record_inline(k, a, count, tau):
     chosen = a.tau[k]
     a.viable[k] = 1.0 if viable else 0.0
     a.infeasible[k] = 0.0 if viable else 1.0
+    a.rows_met[k] = 0.0 if hard_violated(a.rows, a.limits, a.is_hard, count, chosen) else 1.0
     a.backup_share[k] = share
     active = 0
     slack = 0.0
@@ -269,6 +270,13 @@ class CbfFilter(Block):
                            "cbf_filter/viable"),
             BACKUP: Signal("1", "-", "share of the braking backup in the torque (0 … 1)",
                            "cbf_filter/backup"),
+            "cbf_velocity_centre": Signal("n", "rad/s", "centre of the interval the filter "
+                                          "holds the true q̇ in", kept=True),
+            "cbf_velocity_spread": Signal("n", "rad/s", "half-width of the interval the "
+                                          "filter holds the true q̇ in", kept=True),
+            "cbf_rows_met": Signal("1", "-", "1 where the torque applied met every hard row of "
+                                   "the QP as given (its conditions; the backup's check is "
+                                   "apart)", "cbf_filter/rows_met"),
         })
         limit = np.broadcast_to(np.asarray(np.inf if params.torque_limit is None
                                            else params.torque_limit, float),
@@ -358,7 +366,9 @@ class CbfFilter(Block):
                                             ("active_norms", "_norm_active", (steps,)))},
             slack=out["cbf_slack"], active=out["cbf_active"],
             correction=out["cbf_correction"], infeasible=out["cbf_infeasible"],
-            viable=out[VIABLE], backup_share=out[BACKUP],
+            viable=out[VIABLE], backup_share=out[BACKUP], rows_met=out["cbf_rows_met"],
+            velocity_centre=out["cbf_velocity_centre"],
+            velocity_spread=out["cbf_velocity_spread"],
             work=cbf_work(n, rows, p.payload_grid))
 
     def step(self, k: int) -> bool:

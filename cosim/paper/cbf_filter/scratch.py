@@ -176,5 +176,8 @@ class CbfArgs(NamedTuple):
     infeasible: np.ndarray
     viable: np.ndarray  # 1 where a verified torque existed
     backup_share: np.ndarray  # the share of the backup in the torque, 0 … 1
+    rows_met: np.ndarray  # 1 where the torque applied met every hard row as given
+    velocity_centre: np.ndarray  # (rows, n) the true velocity's interval: centre
+    velocity_spread: np.ndarray  # and half-width
     work: CbfWork
 
