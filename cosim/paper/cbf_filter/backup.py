@@ -254,6 +254,22 @@ def predict_interval(k, a, tau):
         r[R_NEXT_HIGH, i] = r[R_CENTRE, i] + a.dt * acceleration[i] + spread
 
 
+@no_refcount_jit(cache=True, inline="always")
+def inside(k, a):
+    """Whether every state row k's bounds allow (|q − y| ≤ n̄, q̇ in its interval) is inside
+    every hard set (as the check holds them): a state verified but not inside is one the
+    backup brings back, not one it keeps."""
+    r = a.work.rollout
+    y = a.position[k]
+    for i in range(y.shape[0]):
+        if a.hard[0] and abs(y[i] - a.q_s[k, i]) + a.noise_bound > a.viable_bounds[0]:
+            return False
+        if a.hard[1] and abs(r[R_CENTRE, i] - a.qdot_s[k, i]) + r[R_HALF, i] \
+                > a.viable_bounds[1]:
+            return False
+    return True
+
+
 @no_refcount_jit(cache=True)
 def verified(k, a, y, v, eps, first, hold, policy):
     """Whether the backup keeps every hard set from the estimate (y, v) (|q − y| ≤ n̄,

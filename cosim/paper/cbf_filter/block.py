@@ -14,7 +14,7 @@ from ...schema import FiniteFloat, PipelineError, PositiveFloat, Section
 from ...signals import Signal
 from ..linalg import dot
 from .assumptions import BACKUP, FILTER_ASSUMES, VIABLE, FilterAssumptions
-from .backup import backup_at, predict_interval, verified
+from .backup import backup_at, inside, predict_interval, verified
 from .rows import cbf_rows, rows_inline
 from .scratch import FACTOR, R_CANDIDATE, R_CENTRE, R_HALF, SET_UNITS, SETS, TAU, CbfArgs, cbf_work
 from .solver import newton
@@ -114,7 +114,8 @@ def choose(k, a, count, tau):
     itself if the backup can still keep every hard set after it (:func:`.backup.verified`),
     else the verified blend τ_b + λ(τ − τ_b) with the largest λ found by bisection, else
     (no verified torque: the state is not viable as seen) the backup τ_b, each backup policy
-    tried in turn. Returns
+    tried in turn. Viable: a torque verified, and every state the bounds allow inside the
+    hard sets (else the verified torque brings the state back: recovery). Returns
     (viable, the backup's share 1 − λ). Without ``verify``: the QP's answer, viable where
     its hard rows hold as given."""
     n = tau.shape[0]
@@ -123,9 +124,10 @@ def choose(k, a, count, tau):
     if not a.verify:
         return not hard_violated(a.rows, a.limits, a.is_hard, count, tau), 0.0
     y, v, eps = a.position[k], a.work.rollout[R_CENTRE], a.work.rollout[R_HALF]
+    kept = inside(k, a)  # else verified means recovering: not viable
     for policy in range(POLICIES):
         if verified(k, a, y, v, eps, tau, True, policy):
-            return True, 0.0
+            return kept, 0.0
     backup = a.backup
     found = -1
     for policy in range(POLICIES):
@@ -150,7 +152,7 @@ def choose(k, a, count, tau):
             high = middle
     for i in range(n):
         tau[i] = backup[i] + low * (tau[i] - backup[i])
-    return True, 1.0 - low
+    return kept, 1.0 - low
 
 
 @no_refcount_jit(cache=True)
