@@ -296,13 +296,19 @@ def verified(k, a, y, v, eps, first, hold, policy):
         decay = np.exp(-a.recovery_rate * (t + h))
         stopped = backup and not clipped
         for i in range(n):
-            dv[i] = dv[i] * (1.0 - feedback) + deviation[i] * h
+            # exact for q̈ constant over the step (the position's error would be ~v·h/2),
+            # with its turning point inside the step checked too
+            turn = q[i]
+            if vel[i] * acc[i] < 0.0 and abs(vel[i]) < abs(acc[i]) * h:
+                turn = q[i] - 0.5 * vel[i] * vel[i] / acc[i]
+            q[i] += h * vel[i] + 0.5 * h * h * acc[i]
             vel[i] += h * acc[i]
-            q[i] += h * vel[i]
-            dq[i] += h * dv[i]
+            dq[i] += h * dv[i] + 0.5 * h * h * deviation[i]
+            dv[i] = dv[i] * (1.0 - feedback) + deviation[i] * h
             allowed_q = a.viable_bounds[0] + (limit_q[i] - a.viable_bounds[0]) * decay
             allowed_v = a.viable_bounds[1] + (limit_v[i] - a.viable_bounds[1]) * decay
-            if a.hard[0] and abs(q[i] - a.q_s[k, i]) + dq[i] > allowed_q:
+            if a.hard[0] and max(abs(q[i] - a.q_s[k, i]), abs(turn - a.q_s[k, i])) + dq[i] \
+                    > allowed_q:
                 return False
             if a.hard[1] and abs(vel[i] - a.qdot_s[k, i]) + dv[i] > allowed_v:
                 return False
