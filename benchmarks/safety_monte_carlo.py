@@ -9,21 +9,22 @@ run and limit with Wilson 95 % intervals.
         --samples 500 --torque-limits 1000 2000 --out runs/near
     .venv/bin/python benchmarks/safety_monte_carlo.py --results runs/near   # report only
 
-Distributions (pipelines/monte_carlo.toml, its declared [uncertainty]):
+Distributions (each pipeline's declared [uncertainty]):
 
-- project: benchmarks/monte_carlo.py's samples (q(0) = 0.1 ± 0.5 rad, q̇(0) = 10 ± 5 rad/s,
-  payload 0-1 kg, the noise's seed).
-- near-boundary: per sample one joint i and side s (cycled): q_i(0) = s·(β_q − d),
-  d ~ U(0, 2) rad, moving outward q̇_i(0) = s·v, v ~ U(0, β_v); the safe centres pinned at 0;
-  the other joints as in `project` (velocity drawn inside the box unless
-  --other-joints project); payload and noise seed as in `project`; x̂2(0) = q̇(0) + U(−e, e)
-  per joint with e = --observer-error, declared as uncertainty.initial_velocity_error. With
-  --reference outward (default) joint i's reference is the issue's reproducer's,
-  s·30 sin(ω_i t + 0.775) rad: it starts 1 rad outside the bound, moving outward.
-- outside: `project` with one declared range exceeded per sample by up to 10 % (cycled):
-  the payload (1.0-1.1 kg), the initial observer error (one joint's q̇(0) = 10 ± (5-5.5)
-  rad/s) or the noise (σ = bound × U(1, 1.1) / 4: the largest draw of a run, ~4σ, about at
-  or up to 10 % past the bound).
+- project (pipelines/monte_carlo.toml): benchmarks/monte_carlo.py's samples (q(0) = 0.1 ± 0.5
+  rad, q̇(0) = 10 ± 5 rad/s, payload 0-1 kg, the noise's seed).
+- near-boundary (pipelines/near_boundary.toml, 2 s): per sample one joint i and side s
+  (cycled): q_i(0) = s·(β_q − d), d ~ U(0, 2) rad, moving outward q̇_i(0) = s·v,
+  v ~ U(0, β_v), the safe centres pinned at 0; the other joints as in `project` (their
+  velocity drawn within the bound unless --other-joints project); payload and noise seed as
+  in `project`; x̂2(0) = q̇(0) + U(−e, e) per joint, e the declared initial observer error
+  (0.5 rad/s; --observer-error). With --reference outward (default) joint i's reference is
+  the issue's reproducer's, s·30 sin(ω_i t + 0.775) rad: it starts 1 rad past the bound,
+  moving outward; the other joint's is the paper's.
+- outside (pipelines/monte_carlo.toml, 5 s): `project` with one declared range exceeded per
+  sample by up to 10 % (cycled): the payload (1.0-1.1 kg), the initial observer error (one
+  joint's q̇(0) = 10 ± (5-5.5) rad/s) or the noise (σ = bound × U(1, 1.1) / 4: the largest
+  draw of a run, ~4σ, about at or up to 10 % past the bound).
 
 Every filtered run (--runs) runs at every --torque-limits value (N·m: a number, a per-joint
 TOML list "[1000,500]", or none); the unfiltered runs (--unfiltered-runs) once per sample.
@@ -48,10 +49,12 @@ from monte_carlo import SAMPLES as PROJECT_SAMPLES
 
 from cosim.config import load_pipeline
 from cosim.evaluate.reports import wilson
-from cosim.sweep import SweepSpec, cluster_client, execute, parse_sample
+from cosim.sweep import SweepError, SweepSpec, cluster_client, execute, parse_sample
 from cosim.sweep.checks import family_kept, table_checks
 
-PIPELINE = "pipelines/monte_carlo.toml"
+PIPELINES = {"project": "pipelines/monte_carlo.toml",
+             "near-boundary": "pipelines/near_boundary.toml",
+             "outside": "pipelines/monte_carlo.toml"}
 FILTERED = ("proposed_cbf", "baseline_cbf")
 UNFILTERED = ("baseline", "proposed")
 NOMINAL_TIP_MASS = 2.3  # kg, m[2] of the paper's arm (monte_carlo.toml's payload adds to it)
@@ -131,7 +134,8 @@ def near_boundary_sample(index: int, rng: np.random.Generator, bounds: Bounds,
             point[qdot0(j)] = float(rng.uniform(5.0, min(15.0, bounds.velocity)))
     point[q0(joint)] = side * (bounds.position - d)
     point[qdot0(joint)] = side * v
-    error = rng.uniform(-args.observer_error, args.observer_error, n)
+    bound = observer_error(args, bounds)
+    error = rng.uniform(-bound, bound, n)
     point["observer.initial_velocity"] = [point[qdot0(j + 1)] + float(error[j])
                                           for j in range(n)]
     if args.reference == "outward":
@@ -182,12 +186,18 @@ DISTRIBUTIONS: dict[str, Callable[..., list[Sample]]] = {
     "outside": outside_samples}
 
 
+def observer_error(args: argparse.Namespace, bounds: Bounds) -> float:
+    """The near-boundary starts' bound on |q̇(0) − x̂2(0)|, rad/s: --observer-error, else the
+    pipeline's declared one."""
+    return bounds.initial_velocity_error if args.observer_error is None else args.observer_error
+
+
 def base_sets(args: argparse.Namespace) -> list[str]:
-    """The --set assignments of every point of the distribution."""
+    """The --set assignments of every point of the distribution (near_boundary.toml pins
+    the safe centres and declares the observer's initial error itself)."""
     sets = [f"simulation.duration={args.duration}"]
-    if args.distribution == "near-boundary":
-        sets += [f"uncertainty.initial_velocity_error={args.observer_error}",
-                 "reference.safe_centre=[0.0,0.0]", "reference.safe_velocity_centre=[0.0,0.0]"]
+    if args.distribution == "near-boundary" and args.observer_error is not None:
+        sets.append(f"uncertainty.initial_velocity_error={args.observer_error}")
     return sets
 
 
@@ -233,15 +243,31 @@ def jobs_of(samples: list[Sample], args: argparse.Namespace) -> list[Job]:
     return jobs
 
 
-def run_jobs(jobs: list[Job], base: list[str], workers: int) -> tuple[list[dict], list[dict]]:
+def check_job(pipeline: str, job: Job, base: list[str]) -> None:
+    """Refuse before any work, as `cosim sweep` does, a point that does not load (a key, a
+    value): the first points, and the first of every torque limit and kind of sample (the
+    first one assembled too). :class:`SweepError` names the point."""
+    from cosim.sweep.spec import validate
+
+    firsts: dict[tuple, int] = {}
+    for index, drawn in enumerate(job.drawn):
+        firsts.setdefault((drawn.get("torque_limit"), drawn.get("kind")), index)
+    chosen = sorted({*range(min(4, len(job.points))), *firsts.values()})
+    validate(SweepSpec(pipeline, runs=job.runs, base=base), [job.points[i] for i in chosen])
+
+
+def run_jobs(pipeline: str, jobs: list[Job], base: list[str], workers: int
+             ) -> tuple[list[dict], list[dict]]:
     """Every job on one local Dask cluster: (rows, timings). A row gains its sample's drawn
     values as ``sample.*``. Ctrl-C keeps the finished rows (a timing says interrupted)."""
+    for job in jobs:
+        check_job(pipeline, job, base)
     rows: list[dict] = []
     timings: list[dict] = []
     client, cluster = cluster_client(workers, None)
     try:
         for job in jobs:
-            spec = SweepSpec(PIPELINE, runs=job.runs, base=base)
+            spec = SweepSpec(pipeline, runs=job.runs, base=base)
             start = time.perf_counter()
             found, interrupted = execute(spec, job.points, client)
             seconds = time.perf_counter() - start
@@ -272,10 +298,21 @@ def write_outputs(out: Path, rows: list[dict], meta: dict) -> None:
 
     out.mkdir(parents=True, exist_ok=True)
     columns = list(dict.fromkeys(k for r in rows for k in r))
-    table = pa.Table.from_pylist([{c: _cell(r.get(c)) for c in columns} for r in rows])
+    table = pa.table({c: _column([_cell(r.get(c)) for r in rows]) for c in columns})
     pq.write_table(table, out / "results.parquet")
     pacsv.write_csv(table, out / "results.csv")
     (out / "meta.json").write_text(json.dumps(meta, indent=2, default=str) + "\n")
+
+
+def _column(values: list) -> list:
+    """A column Arrow can store: values of mixed kinds (a limit given as a number in some
+    rows and as a per-joint list in others) as text."""
+    kinds = {bool if isinstance(v, bool) else float if isinstance(v, int | float) else type(v)
+             for v in values if v is not None}
+    if len(kinds) <= 1:
+        return values
+    return [None if v is None else json.dumps(v) if not isinstance(v, str) else v
+            for v in values]
 
 
 def _cell(value: object) -> object:
@@ -538,8 +575,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         help="unfiltered runs, once per sample (none: give the option alone)")
     parser.add_argument("--unfiltered-only", action="store_true",
                         help="only the unfiltered runs: their peak |τ1| sets the limits")
-    parser.add_argument("--observer-error", type=float, default=0.5,
-                        help="near-boundary: declared |q̇(0) − x̂2(0)| bound, rad/s")
+    parser.add_argument("--observer-error", type=float,
+                        help="near-boundary: the |q̇(0) − x̂2(0)| bound, rad/s, drawn within and "
+                        "declared (default: near_boundary.toml's, 0.5)")
     parser.add_argument("--reference", choices=("outward", "paper"), default="outward",
                         help="near-boundary: the sampled joint's reference")
     parser.add_argument("--other-joints", choices=("inside", "project"), default="inside",
@@ -569,12 +607,17 @@ def main(argv: list[str] | None = None) -> int:
         if args.out.exists() and any(args.out.iterdir()) and not args.force:
             print(f"{args.out} holds files: give another --out, or --force", file=sys.stderr)
             return 2
-        bounds = read_bounds(PIPELINE)
+        pipeline = PIPELINES[args.distribution]
+        bounds = read_bounds(pipeline)
         rng = np.random.default_rng(args.seed)
         samples = DISTRIBUTIONS[args.distribution](args.samples, rng, bounds, args)
         base = base_sets(args)
-        rows, timings = run_jobs(jobs_of(samples, args), base, args.workers)
-        meta = {"pipeline": PIPELINE, "options": vars(args), "base_sets": base,
+        try:
+            rows, timings = run_jobs(pipeline, jobs_of(samples, args), base, args.workers)
+        except SweepError as exc:
+            print(f"safety_monte_carlo: {exc}", file=sys.stderr)
+            return 2
+        meta = {"pipeline": pipeline, "options": vars(args), "base_sets": base,
                 "timings": timings, "command": " ".join(sys.argv)}
         write_outputs(args.out, rows, meta)
         folder = args.out
