@@ -37,6 +37,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
+import re
 import sys
 import time
 import tomllib
@@ -353,13 +354,12 @@ def is_covered(row: dict) -> bool:
 
 
 OBSERVER_TEXT = r"observer error above ε\(t\) at (\d+) steps"
+NUMBER = r"-?\d+(\.\d+)?(e[-+]?\d+)?"  # a value in a reason, for grouping reasons
 
 
 def observer_exceedances(row: dict) -> int | None:
     """Steps where |q̇ − x̂2| > ε(t): from guarantee.violations (a count under a key naming
     the observer, or its text), else from guarantee.outside's text; None: not said."""
-    import re
-
     for key, value in row.items():
         if (key.startswith("guarantee.violations.") and isinstance(value, int | float)
                 and not isinstance(value, bool)
@@ -479,12 +479,13 @@ def torque_lines(rows: list[dict], compared: list[dict], compared_name: str) -> 
     lines = [f"  peak |τ| (max over runs)        [{worst}] N·m, limit {limit_text}: "
              f"{above} run(s) above it"]
     quartiles = np.nanpercentile(peak[:, 0], [0, 25, 75, 100])
-    text = (f"  median peak τ1                  {median:.0f} N·m (min {quartiles[0]:.0f}, "
-            f"quartiles {quartiles[1]:.0f}-{quartiles[2]:.0f}, max {quartiles[3]:.0f})")
+    text = f"  median peak τ1                  {median:.0f} N·m"
     if compared:
         theirs = float(np.nanmedian(peaks(compared, links)[:, 0]))
-        text += f" ({compared_name}: {theirs:.0f} N·m; ratio {median / theirs:.2f})"
-    return [*lines, text]
+        text += f" against {compared_name}'s {theirs:.0f} N·m: ratio {median / theirs:.2f}"
+    lines += [text, f"  peak τ1 spread                  min {quartiles[0]:.0f}, quartiles "
+                    f"{quartiles[1]:.0f}-{quartiles[2]:.0f}, max {quartiles[3]:.0f} N·m"]
+    return lines
 
 
 def kept_share(rows: list[dict], checks: list[str]) -> str:
@@ -514,9 +515,83 @@ def tracking_lines(rows: list[dict], compared: list[dict], compared_name: str) -
     return lines
 
 
+def kind_lines(rows: list[dict]) -> list[str]:
+    """Per kind of sample (which declared range it exceeds, say): how many runs the
+    classifier files outside the declared ranges, and why."""
+    kinds = sorted({r.get("sample.kind") for r in rows} - {None})
+    if len(kinds) < 2 and not any(k.startswith("outside") for k in kinds):
+        return []
+    lines = []
+    for kind in kinds:
+        mine = [r for r in rows if r.get("sample.kind") == kind]
+        outside = [r for r in mine if r.get("guarantee.within_bounds") is False]
+        reasons: dict[str, int] = {}
+        for r in outside:
+            for reason in filter(None, (r.get("guarantee.outside") or "").split("; ")):
+                short = re.sub(NUMBER, "#", reason.split(" (")[0])
+                reasons[short] = reasons.get(short, 0) + 1
+        why = ", ".join(f"{n} × {text}" for text, n in sorted(reasons.items()))
+        lines.append(f"  {kind + ':':<32}{len(outside)} of {len(mine)} filed outside the "
+                     f"declared ranges" + (f" ({why})" if why else ""))
+    return lines
+
+
 def counterpart(run: str) -> str:
     """The unfiltered run a filtered one is compared with: proposed_cbf -> proposed."""
     return run.removesuffix("_cbf")
+
+
+def percent_low(kept: int, total: int) -> str:
+    """"k/n p % (≥ Wilson lower bound)", compact for the summary."""
+    if not total:
+        return "-"
+    return f"{kept}/{total} {100 * kept / total:.1f}% (≥{100 * wilson(kept, total)[0]:.1f})"
+
+
+def summary_cells(ok: list[dict], compared: list[dict]) -> list[str]:
+    """A filtered run's figures at one limit, one cell each (see SUMMARY_COLUMNS)."""
+    key = viable_key(ok)
+    viable = [r for r in ok if r.get(key) is True]
+    box = [r for r in ok if r.get("guarantee.starts_inside") is True]
+    apart = (str(sum(r.get(key) is False for r in box))
+             if key != "guarantee.starts_inside" else "-")
+    links = links_of(ok)
+    limits = np.array([limit_values(r.get("sample.torque_limit"), links) for r in ok])
+    above = int(np.sum(np.any(peaks(ok, links) > limits * (1 + 1e-9) + 1e-9, axis=1)))
+    inside = [c for r in ok if (c := observer_exceedances(r)) is not None
+              and declared_kept_but_observer(r)]
+    median_peak = [float(np.nanmedian(peaks(group, links)[:, 0])) for group in (ok, compared)
+                   if group]
+    ratio = f"{median_peak[0] / median_peak[1]:.2f}" if compared else "-"
+    left = [r.get("guarantee.back_within_1s") for r in ok if r.get("hard_sets_kept") is False]
+    known = [bool(b) for b in left if b is not None]
+    return [percent_low(sum(bool(r.get("hard_sets_kept")) for r in viable), len(viable)),
+            apart, percent_low(sum(map(is_covered, viable)), len(viable)),
+            str(sum(bool(r.get("guarantee.broken")) for r in ok)),
+            str(sum(inside)) if inside else "-", str(above), ratio,
+            f"{sum(known)}/{len(known)}" if known else f"-/{len(left)}"]
+
+
+SUMMARY_COLUMNS = (("run", 14), ("limit", 8), ("kept, viable", 24), ("¬viable", 8),
+                   ("covered, viable", 24), ("broken", 7), ("ε steps", 8), ("τ>lim", 6),
+                   ("τ1 ratio", 9), ("back≤1s", 8))
+
+
+def summary(groups: dict[tuple[str, str], list[dict]], rows: list[dict]) -> list[str]:
+    """One line per filtered run and limit: the issue's figures side by side."""
+    lines = ["", "summary of the filtered runs: kept = every joint's hard sets (true state);",
+             "≥ = Wilson 95 % lower bound; ε steps = within the declared ranges; τ1 ratio =",
+             "median peak τ1 against the unfiltered run's; back≤1s = of the runs that left",
+             "".join(f"{name:<{width}}" for name, width in SUMMARY_COLUMNS)]
+    for (run, limit), group in groups.items():
+        ok = [r for r in group if r["status"] == "ok"]
+        if not any(r.get("guarantee.feasible") is not None for r in ok):
+            continue
+        compared = [r for r in rows if r["run"] == counterpart(run) and r["status"] == "ok"]
+        cells = [run, limit, *summary_cells(ok, compared if counterpart(run) != run else [])]
+        lines.append("".join(f"{c:<{w}}" for c, (_, w) in zip(cells, SUMMARY_COLUMNS,
+                                                               strict=True)))
+    return lines
 
 
 def report(rows: list[dict], a_min: float | None) -> str:
@@ -537,6 +612,7 @@ def report(rows: list[dict], a_min: float | None) -> str:
                     if other != run else [])
         if any(r.get("guarantee.feasible") is not None for r in ok):
             lines += guarantee_lines(ok, a_min)
+            lines += kind_lines(ok)
         else:
             inside = [r for r in ok if r.get("guarantee.starts_inside") is True]
             lines.append("  hard sets kept, starts inside   "
@@ -545,7 +621,7 @@ def report(rows: list[dict], a_min: float | None) -> str:
         lines += recovery_lines(ok)
         lines += torque_lines(ok, compared, other)
         lines += tracking_lines(ok, compared, other)
-    return "\n".join(lines)
+    return "\n".join(lines + summary(groups, rows))
 
 
 def timing_text(meta: dict) -> str:
