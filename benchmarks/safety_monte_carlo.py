@@ -420,10 +420,33 @@ def viability_lines(rows: list[dict], key: str, a_min: float | None) -> list[str
     if drawn and a_min is not None:
         must = [r for r in drawn if r["sample.v"] ** 2 <= 2 * r["sample.d"] * a_min]
         wrong = [r for r in must if r.get(key) is False]
-        lines.append(f"  v² ≤ 2·d·a̲ (a̲ {a_min:g} rad/s²)  {len(must)} of {len(drawn)} starts; "
-                     f"not viable among them: {len(wrong)} (must be 0)")
+        lines.append(f"  {'v² ≤ 2·d·a̲':<32}{len(must)} of {len(drawn)} starts (a̲ = {a_min:g} "
+                     f"rad/s²); not viable among them: {len(wrong)} (must be 0)")
     elif drawn:
         lines.append("  v² ≤ 2·d·a̲                      - (give --decel a̲, rad/s²)")
+    return lines
+
+
+def drawn_lines(rows: list[dict], key: str, shown: int = 8) -> list[str]:
+    """Near-boundary: the hard sets kept among viable starts per joint and side, and the
+    broken runs' starts (sample, joint, side, d, v, the set left)."""
+    if not any(r.get("sample.joint") is not None for r in rows):
+        return []
+    cells = []
+    for joint, side in sorted({(r["sample.joint"], r["sample.side"]) for r in rows
+                               if r.get("sample.joint") is not None}):
+        viable = [r for r in rows if r.get("sample.joint") == joint
+                  and r.get("sample.side") == side and r.get(key) is True]
+        kept = sum(bool(r.get("hard_sets_kept")) for r in viable)
+        cells.append(f"joint {joint} {'+' if side > 0 else '−'}: {kept}/{len(viable)}")
+    lines = ["  kept per joint and side         " + ", ".join(cells)]
+    broken = [r for r in rows if r.get("guarantee.broken")]
+    lines += [f"    broken: sample {r['sample.index']}, joint {r['sample.joint']}, side "
+              f"{r['sample.side']:+d}, d {r['sample.d']:.3f} rad, v {r['sample.v']:.2f} rad/s, "
+              f"left {r.get('guarantee.first_exit.set')} at "
+              f"{r.get('guarantee.first_exit.value') or math.nan:.4f}" for r in broken[:shown]]
+    if len(broken) > shown:
+        lines.append(f"    … and {len(broken) - shown} more broken")
     return lines
 
 
@@ -438,7 +461,7 @@ def guarantee_lines(rows: list[dict], a_min: float | None) -> list[str]:
     lines = [f"  hard sets kept, viable starts   {share(kept, len(viable))}  "
              f"(viable: {key})", *viability_lines(rows, key, a_min),
              f"  covered, of viable starts       {share(covered, len(viable))}",
-             f"  broken                          {broken}"]
+             f"  broken                          {broken}", *drawn_lines(rows, key)]
     counts = [(observer_exceedances(r), declared_kept_but_observer(r)) for r in rows]
     known = [(c, inside) for c, inside in counts if c is not None]
     if known:
@@ -594,7 +617,19 @@ def summary(groups: dict[tuple[str, str], list[dict]], rows: list[dict]) -> list
     return lines
 
 
-def report(rows: list[dict], a_min: float | None) -> str:
+def reproducer(row: dict, meta: dict) -> str:
+    """The `cosim run` command that runs a row's sample and run again (its recording, its
+    verdict)."""
+    import shlex
+
+    sets = [*meta.get("base_sets", []),
+            *(f"{k.removeprefix('set:')}={v}" for k, v in row.items()
+              if k.startswith("set:") and v is not None)]
+    return shlex.join(["cosim", "run", meta["pipeline"], "--run", row["run"],
+                       *(word for s in sets for word in ("--set", s))])
+
+
+def report(rows: list[dict], a_min: float | None, meta: dict | None = None) -> str:
     """One block per run and torque limit (module docstring)."""
     groups: dict[tuple[str, str], list[dict]] = {}
     for r in rows:
@@ -621,6 +656,10 @@ def report(rows: list[dict], a_min: float | None) -> str:
         lines += recovery_lines(ok)
         lines += torque_lines(ok, compared, other)
         lines += tracking_lines(ok, compared, other)
+    broken = [r for r in rows if r.get("guarantee.broken")]
+    if broken and meta:
+        lines += ["", f"the first broken run again ({broken[0]['run']}, sample "
+                  f"{broken[0].get('sample.index')}):", "  " + reproducer(broken[0], meta)]
     return "\n".join(lines + summary(groups, rows))
 
 
@@ -701,7 +740,8 @@ def main(argv: list[str] | None = None) -> int:
     meta = json.loads((folder / "meta.json").read_text())
     print(f"{meta['options']['distribution']} distribution, {meta['options']['samples']} "
           f"sample(s), {meta['options']['duration']:g} s per run ({folder})")
-    print(report(rows, args.decel if args.decel is not None else meta["options"].get("decel")))
+    a_min = args.decel if args.decel is not None else meta["options"].get("decel")
+    print(report(rows, a_min, meta))
     print(timing_text(meta))
     return 0
 
