@@ -346,6 +346,14 @@ def viable_key(rows: list[dict]) -> str:
             else "guarantee.starts_inside")
 
 
+def is_filtered(rows: list[dict]) -> bool:
+    """Whether these are a filtered run's rows (the classifier's flag, else its
+    feasibility, which only a filter has)."""
+    if any("guarantee.filtered" in r for r in rows):
+        return any(r.get("guarantee.filtered") is True for r in rows)
+    return any(r.get("guarantee.feasible") is not None for r in rows)
+
+
 def is_covered(row: dict) -> bool:
     if row.get("guarantee.covered") is not None:
         return bool(row["guarantee.covered"])
@@ -353,25 +361,28 @@ def is_covered(row: dict) -> bool:
                 and row.get("guarantee.within_bounds"))
 
 
-OBSERVER_TEXT = r"observer error above ε\(t\) at (\d+) steps"
+OBSERVER_STEPS = "guarantee.observer_bound_exceeded_steps"
+OBSERVER_TEXT = r"above (?:its bound )?ε\(t\) at (\d+) steps"
 NUMBER = r"-?\d+(\.\d+)?(e[-+]?\d+)?"  # a value in a reason, for grouping reasons
 
 
 def observer_exceedances(row: dict) -> int | None:
-    """Steps where |q̇ − x̂2| > ε(t): from guarantee.violations (a count under a key naming
-    the observer, or its text), else from guarantee.outside's text; None: not said."""
-    for key, value in row.items():
-        if (key.startswith("guarantee.violations.") and isinstance(value, int | float)
-                and not isinstance(value, bool)
-                and any(w in key for w in ("observer", "epsilon", "qdot_hat"))):
-            return int(value)
-    for key in ("guarantee.violations", "guarantee.outside"):
-        text = row.get(key)
-        if isinstance(text, str):
-            match = re.search(OBSERVER_TEXT, text)
-            if match or key == "guarantee.outside":
-                return int(match[1]) if match else 0
-    return None
+    """Steps where |q̇ − x̂2| > ε(t). The classifier's count when it publishes one
+    (guarantee.observer_bound_exceeded_steps: None where it does not judge the observer, a
+    filter that reads the true velocity); else the count its text gives (a violation, or a
+    reason for "outside"); None: not said, or said without a count."""
+    if OBSERVER_STEPS in row:
+        value = row[OBSERVER_STEPS]
+        return None if value is None or value != value else int(value)
+    texts = [row.get(key) for key in ("guarantee.violations", "guarantee.outside")]
+    texts = [t for t in texts if isinstance(t, str)]
+    for text in texts:
+        match = re.search(OBSERVER_TEXT, text)
+        if match:
+            return int(match[1])
+        if "ε(t)" in text:  # said, but not how often
+            return None
+    return 0 if texts else None
 
 
 def limit_values(label: str, links: int) -> np.ndarray:
@@ -420,31 +431,39 @@ def viability_lines(rows: list[dict], key: str, a_min: float | None) -> list[str
     if drawn and a_min is not None:
         must = [r for r in drawn if r["sample.v"] ** 2 <= 2 * r["sample.d"] * a_min]
         wrong = [r for r in must if r.get(key) is False]
-        lines.append(f"  {'v² ≤ 2·d·a̲':<32}{len(must)} of {len(drawn)} starts (a̲ = {a_min:g} "
+        lines.append(f"  {'v² ≤ 2·d·a̲':<33}{len(must)} of {len(drawn)} starts (a̲ = {a_min:g} "
                      f"rad/s²); not viable among them: {len(wrong)} (must be 0)")
     elif drawn:
         lines.append("  v² ≤ 2·d·a̲                      - (give --decel a̲, rad/s²)")
     return lines
 
 
+def broken_why(row: dict) -> str:
+    """What broke a run: the classifier's violations, else the hard set it left."""
+    if isinstance(row.get("guarantee.violations"), str) and row["guarantee.violations"]:
+        return row["guarantee.violations"]
+    return (f"left {row.get('guarantee.first_exit.set')} at "
+            f"{row.get('guarantee.first_exit.t') or math.nan:.3f} s "
+            f"(|value| {row.get('guarantee.first_exit.value') or math.nan:.4f})")
+
+
 def drawn_lines(rows: list[dict], key: str, shown: int = 8) -> list[str]:
     """Near-boundary: the hard sets kept among viable starts per joint and side, and the
     broken runs' starts (sample, joint, side, d, v, the set left)."""
-    if not any(r.get("sample.joint") is not None for r in rows):
+    drawn = [r for r in rows if r.get("sample.d") is not None]
+    if not drawn:
         return []
     cells = []
-    for joint, side in sorted({(r["sample.joint"], r["sample.side"]) for r in rows
-                               if r.get("sample.joint") is not None}):
+    for joint, side in sorted({(r["sample.joint"], r["sample.side"]) for r in drawn}):
         viable = [r for r in rows if r.get("sample.joint") == joint
                   and r.get("sample.side") == side and r.get(key) is True]
         kept = sum(bool(r.get("hard_sets_kept")) for r in viable)
         cells.append(f"joint {joint} {'+' if side > 0 else '−'}: {kept}/{len(viable)}")
     lines = ["  kept per joint and side         " + ", ".join(cells)]
-    broken = [r for r in rows if r.get("guarantee.broken")]
+    broken = [r for r in drawn if r.get("guarantee.broken")]
     lines += [f"    broken: sample {r['sample.index']}, joint {r['sample.joint']}, side "
-              f"{r['sample.side']:+d}, d {r['sample.d']:.3f} rad, v {r['sample.v']:.2f} rad/s, "
-              f"left {r.get('guarantee.first_exit.set')} at "
-              f"{r.get('guarantee.first_exit.value') or math.nan:.4f}" for r in broken[:shown]]
+              f"{r['sample.side']:+d}, d {r['sample.d']:.3f} rad, v {r['sample.v']:.2f} rad/s: "
+              + broken_why(r) for r in broken[:shown]]
     if len(broken) > shown:
         lines.append(f"    … and {len(broken) - shown} more broken")
     return lines
@@ -501,6 +520,11 @@ def torque_lines(rows: list[dict], compared: list[dict], compared_name: str) -> 
     median = float(np.nanmedian(peak[:, 0]))
     lines = [f"  peak |τ| (max over runs)        [{worst}] N·m, limit {limit_text}: "
              f"{above} run(s) above it"]
+    steps = [r["guarantee.torque_over_limit_steps"] for r in rows
+             if isinstance(r.get("guarantee.torque_over_limit_steps"), int | float)]
+    if steps:
+        lines.append(f"  steps with |τ| above the limit  {int(np.nansum(steps))} (the "
+                     "classifier's count, every step)")
     quartiles = np.nanpercentile(peak[:, 0], [0, 25, 75, 100])
     text = f"  median peak τ1                  {median:.0f} N·m"
     if compared:
@@ -608,7 +632,7 @@ def summary(groups: dict[tuple[str, str], list[dict]], rows: list[dict]) -> list
              "".join(f"{name:<{width}}" for name, width in SUMMARY_COLUMNS)]
     for (run, limit), group in groups.items():
         ok = [r for r in group if r["status"] == "ok"]
-        if not any(r.get("guarantee.feasible") is not None for r in ok):
+        if not is_filtered(ok):
             continue
         compared = [r for r in rows if r["run"] == counterpart(run) and r["status"] == "ok"]
         cells = [run, limit, *summary_cells(ok, compared if counterpart(run) != run else [])]
@@ -645,7 +669,7 @@ def report(rows: list[dict], a_min: float | None, meta: dict | None = None) -> s
         other = counterpart(run)
         compared = ([r for r in rows if r["run"] == other and r["status"] == "ok"]
                     if other != run else [])
-        if any(r.get("guarantee.feasible") is not None for r in ok):
+        if is_filtered(ok):
             lines += guarantee_lines(ok, a_min)
             lines += kind_lines(ok)
         else:
