@@ -214,7 +214,7 @@ def parse_limit(text: str) -> float | list[float] | None:
 
 
 def limit_label(limit: float | list[float] | None) -> str:
-    return "none" if limit is None else json.dumps(limit)
+    return "none" if limit is None else json.dumps(limit, separators=(",", ":"))
 
 
 @dataclass
@@ -619,7 +619,7 @@ def summary_cells(ok: list[dict], compared: list[dict]) -> list[str]:
             f"{sum(known)}/{len(known)}" if known else f"-/{len(left)}"]
 
 
-SUMMARY_COLUMNS = (("run", 14), ("limit", 8), ("kept, viable", 24), ("¬viable", 8),
+SUMMARY_COLUMNS = (("run", 14), ("limit", 11), ("kept, viable", 24), ("¬viable", 8),
                    ("covered, viable", 24), ("broken", 7), ("ε steps", 8), ("τ>lim", 6),
                    ("τ1 ratio", 9), ("back≤1s", 8))
 
