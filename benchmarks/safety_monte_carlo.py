@@ -428,6 +428,10 @@ def viability_lines(rows: list[dict], key: str, a_min: float | None) -> list[str
                     reasons[v.split(" (")[0]] = reasons.get(v.split(" (")[0], 0) + 1
         lines += [f"    {count} × {reason}" for reason, count in sorted(reasons.items())]
     drawn = [r for r in rows if r.get("sample.d") is not None]
+    need = [r["sample.v"] ** 2 / (2 * r["sample.d"]) for r in drawn if r.get(key) is False]
+    if need:  # the easiest start filed not viable: an a̲ above this fails the figure
+        lines.append(f"  {'least v²/(2d), not viable':<32}{min(need):.3g} rad/s² (median "
+                     f"{np.median(need):.3g}): a stated a̲ must stay below it")
     if drawn and a_min is not None:
         must = [r for r in drawn if r["sample.v"] ** 2 <= 2 * r["sample.d"] * a_min]
         wrong = [r for r in must if r.get(key) is False]
