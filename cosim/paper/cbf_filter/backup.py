@@ -47,6 +47,7 @@ from ..linalg import invert, product
 from .model import acceleration_error_bound_into
 from .scratch import (
     BACKUP_FACTOR,
+    CONSISTENT,
     QUADRATIC,
     R_ACC,
     R_BIAS,
@@ -54,6 +55,7 @@ from .scratch import (
     R_DEV,
     R_DQ,
     R_DV,
+    R_FLAGS,
     R_HALF,
     R_LIMIT_Q,
     R_LIMIT_V,
@@ -229,29 +231,46 @@ def velocity_interval(k, a):
     hold: the estimate's alone."""
     r = a.work.rollout
     v, eps = a.velocity[k], a.velocity_bound[k]
+    consistent = k > 0
     for i in range(v.shape[0]):
         low, high = v[i] - eps[i], v[i] + eps[i]
-        if k > 0 and r[R_NEXT_LOW, i] <= high and r[R_NEXT_HIGH, i] >= low:
+        # a little room for rounding: a true velocity (ε = 0) may sit on the prediction's edge
+        meets = r[R_NEXT_LOW, i] <= high + 1e-9 and r[R_NEXT_HIGH, i] >= low - 1e-9
+        consistent = consistent and meets
+        if k > 0 and meets:
             low, high = max(low, r[R_NEXT_LOW, i]), min(high, r[R_NEXT_HIGH, i])
+            high = max(high, low)
         r[R_CENTRE, i] = a.velocity_centre[k, i] = 0.5 * (low + high)
         r[R_HALF, i] = a.velocity_spread[k, i] = 0.5 * (high - low)
+    r[R_FLAGS, CONSISTENT] = 1.0 if consistent else 0.0
 
 
 @no_refcount_jit(cache=True, inline="always")
 def predict_interval(k, a, tau):
     """The interval of the true velocity at row k + 1 under τ held over the step (into
-    R_NEXT_LOW, R_NEXT_HIGH): row k's moved by the nominal model's q̈ ± D·dt."""
+    R_NEXT_LOW, R_NEXT_HIGH): row k's moved by dt times the hull of q̈ ± D at the step's
+    start and at its predicted end (q̈ drifts over the hold as q and q̇ move)."""
     r = a.work.rollout
     y = a.position[k]
-    for i in range(y.shape[0]):
+    n = y.shape[0]
+    low, high = r[R_NEXT_LOW], r[R_NEXT_HIGH]
+    for i in range(n):
         r[R_Q, i], r[R_V, i] = y[i], r[R_CENTRE, i]
-    _nominal_acceleration(k, a, tau, False, 0)
+        low[i], high[i] = np.inf, -np.inf
     deviation, acceleration = r[R_DEV], r[R_ACC]
-    _deviation(a, r[R_V], r[R_HALF], r[R_TAU], acceleration, deviation)
-    for i in range(y.shape[0]):
-        spread = r[R_HALF, i] + a.dt * deviation[i]
-        r[R_NEXT_LOW, i] = r[R_CENTRE, i] + a.dt * acceleration[i] - spread
-        r[R_NEXT_HIGH, i] = r[R_CENTRE, i] + a.dt * acceleration[i] + spread
+    for end in range(2):
+        _nominal_acceleration(k, a, tau, False, 0)
+        _deviation(a, r[R_V], r[R_HALF], r[R_TAU], acceleration, deviation)
+        for i in range(n):
+            low[i] = min(low[i], acceleration[i] - deviation[i])
+            high[i] = max(high[i], acceleration[i] + deviation[i])
+        if end == 0:  # to the predicted end of the step
+            for i in range(n):
+                r[R_Q, i] += a.dt * r[R_V, i] + 0.5 * a.dt * a.dt * acceleration[i]
+                r[R_V, i] += a.dt * acceleration[i]
+    for i in range(n):
+        low[i] = r[R_CENTRE, i] - r[R_HALF, i] + a.dt * low[i]
+        high[i] = r[R_CENTRE, i] + r[R_HALF, i] + a.dt * high[i]
 
 
 @no_refcount_jit(cache=True, inline="always")

@@ -16,7 +16,20 @@ from ..linalg import dot
 from .assumptions import BACKUP, FILTER_ASSUMES, VIABLE, FilterAssumptions
 from .backup import backup_at, inside, predict_interval, verified
 from .rows import cbf_rows, rows_inline
-from .scratch import FACTOR, R_CANDIDATE, R_CENTRE, R_HALF, SET_UNITS, SETS, TAU, CbfArgs, cbf_work
+from .scratch import (
+    CONSISTENT,
+    FACTOR,
+    PLAN,
+    R_CANDIDATE,
+    R_CENTRE,
+    R_FLAGS,
+    R_HALF,
+    SET_UNITS,
+    SETS,
+    TAU,
+    CbfArgs,
+    cbf_work,
+)
 from .solver import newton
 
 # Bisections of the blend between the QP's torque and the backup's, where the QP's alone is
@@ -125,8 +138,10 @@ def choose(k, a, count, tau):
         return not hard_violated(a.rows, a.limits, a.is_hard, count, tau), 0.0
     y, v, eps = a.position[k], a.work.rollout[R_CENTRE], a.work.rollout[R_HALF]
     kept = inside(k, a)  # else verified means recovering: not viable
+    flags = a.work.rollout[R_FLAGS]
     for policy in range(POLICIES):
         if verified(k, a, y, v, eps, tau, True, policy):
+            flags[PLAN] = policy
             return kept, 0.0
     backup = a.backup
     found = -1
@@ -134,12 +149,19 @@ def choose(k, a, count, tau):
         backup_at(k, a, policy, backup)
         if verified(k, a, y, v, eps, backup, True, policy):
             found = policy
+            flags[PLAN] = policy
             break
-    if found < 0:  # not viable as seen: the backup, even-handed, all the same
-        backup_at(k, a, 0, backup)
+    if found < 0:
+        # No torque verified afresh. If the step before was viable, its check proved the
+        # backup from every state its tube allows, and the state is in that tube when the
+        # velocity is where it predicted (CONSISTENT): the backup, as planned, and still
+        # viable. (A check from a state on the edge of the verified set may fail by the
+        # rollout's own discretisation.) Else not viable as seen: the backup all the same.
+        backup_at(k, a, int(flags[PLAN]), backup)
         for i in range(n):
             tau[i] = backup[i]
-        return False, 1.0
+        planned = k > 0 and a.viable[k - 1] > 0.0 and flags[CONSISTENT] > 0.0
+        return kept and planned, 1.0
     candidate = a.work.rollout[R_CANDIDATE]
     low, high = 0.0, 1.0  # λ = low is verified
     for _ in range(BISECTIONS):

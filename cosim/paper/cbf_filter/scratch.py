@@ -42,11 +42,14 @@ ROLL_MASS, ROLL_MINV, ROLL_LU, BACKUP_FACTOR = range(8, 12)
 # nominal q̈ and b̂; the bound D on q̈'s departure; what each set allows; the backup's target
 # velocities; the masses, bias and q̈ with a payload; scratch; a blend of the QP's torque and
 # the backup's; the true velocity's interval at this step (its centre and half-width) and
-# the one predicted for the next step; the backup's √weight per joint.
+# the one predicted for the next step; the backup's √weight per joint; flags (CONSISTENT).
 (R_Q, R_V, R_DQ, R_DV, R_TAU, R_ACC, R_BIAS, R_DEV, R_LIMIT_Q, R_LIMIT_V, R_TARGET, R_MASSES,
  R_PBIAS, R_PACC, R_SCRATCH, R_CANDIDATE, R_CENTRE, R_HALF, R_NEXT_LOW, R_NEXT_HIGH,
- R_WEIGHT) = range(21)
-ROLLOUT_ROWS = 21
+ R_WEIGHT, R_FLAGS) = range(22)
+ROLLOUT_ROWS = 22
+# R_FLAGS[CONSISTENT]: 1 where the velocity's intervals met at this step; R_FLAGS[PLAN]: the
+# backup policy of the last torque verified
+CONSISTENT, PLAN = 0, 1
 # The payload's structure: of CbfWork.planar (2×n each) J of its point, J M̂⁻¹ and α; of
 # .pairs (2 each) γ = J̇v + g ŷ, J M̂⁻¹b̂, K's eigenvalues (ascending) and β; of .squares
 # (2×2 each) K = J M̂⁻¹ Jᵀ and its eigenvectors (columns).
