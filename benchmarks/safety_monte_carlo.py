@@ -435,8 +435,13 @@ def viability_lines(rows: list[dict], key: str, a_min: float | None) -> list[str
     if drawn and a_min is not None:
         must = [r for r in drawn if r["sample.v"] ** 2 <= 2 * r["sample.d"] * a_min]
         wrong = [r for r in must if r.get(key) is False]
+        # not viable only because the velocity the filter holds at t = 0 (x̂2 ± ε(0)) reaches
+        # past a velocity bound: the declared initial observer error, not the braking
+        blind = [r for r in wrong if "reaches past the velocity bound"
+                 in (r.get("guarantee.not_viable") or "")]
         lines.append(f"  {'v² ≤ 2·d·a̲':<33}{len(must)} of {len(drawn)} starts (a̲ = {a_min:g} "
-                     f"rad/s²); not viable among them: {len(wrong)} (must be 0)")
+                     f"rad/s²); not viable among them: {len(wrong)} (must be 0), of which "
+                     f"{len(blind)} for the velocity's interval at t = 0 alone")
     elif drawn:
         lines.append("  v² ≤ 2·d·a̲                      - (give --decel a̲, rad/s²)")
     return lines

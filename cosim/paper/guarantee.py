@@ -229,9 +229,31 @@ def viability(trace: Signals, safe: SafeSet, starts_inside: bool) -> tuple[bool,
     viable = bool(np.all(flag > 0.5))  # 1 or 0; the trace holds floats
     if viable or not starts_inside:
         return viable, None
+    uncertain = velocity_uncertain(trace, safe)
+    if uncertain:
+        return viable, uncertain
     need = stopping_need(trace, safe)
     return viable, ("the filter found no torque that keeps the hard sets from this start"
                     + (f" ({need})" if need else ""))
+
+
+def velocity_uncertain(trace: Signals, safe: SafeSet) -> str | None:
+    """Why a start is not viable when the velocity the filter holds at t = 0 (its interval,
+    x̂2 ± ε from the declared initial error) reaches past a joint's velocity bound: the
+    filter cannot tell that start from one outside the set. None otherwise."""
+    if not all(name in trace for name in ("cbf_velocity_centre", "cbf_velocity_spread",
+                                          io.SAFE_VELOCITY_CENTRE)):
+        return None
+    centre, spread = trace["cbf_velocity_centre"][0], trace["cbf_velocity_spread"][0]
+    reach = np.abs(centre - trace[io.SAFE_VELOCITY_CENTRE][0]) + spread
+    over = np.flatnonzero(reach > safe.velocity_bound)
+    if not len(over):
+        return None
+    j = int(over[np.argmax(reach[over])])
+    return ("the velocity the filter holds at t = 0 reaches past the velocity bound (joint "
+            f"{j + 1}: {centre[j]:.3g} ± {spread[j]:.3g} rad/s against "
+            f"{safe.velocity_bound:g}; the interval is what the declared initial observer "
+            "error allows)")
 
 
 def declared_inputs(trace: Signals, safe: SafeSet, uncertainty: Uncertainty,
