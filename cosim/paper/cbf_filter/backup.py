@@ -15,13 +15,13 @@ every joint is stopped (|v − q̇_s − w| ≤ ``STOPPED``) or ``backup_horizon
 (unverified). Around the nominal rollout a tube of half-widths δq, δv holds the true
 state: δq(0) = n̄ (noise), δv(0) = ε (the velocity's bound), and per step
 
-    δv ← δv (1 − k_b h) + D h   (no joint's torque clipped: the backup's feedback
-                                  pulls the true velocity towards its target)
-    δv ← δv + D h               (a torque clipped: none)
+    δv_i ← δv_i (1 − k_b h) + D_i h   (joint i's torque free: the backup's feedback
+                                        pulls its true velocity towards its target)
+    δv_i ← δv_i + D_i h               (its torque at the limit, or the held torque)
     δq ← δq + δv h
 
 with D_i the bound on the true q̈_i's departure from the nominal model's: the bias error
-from a velocity error up to δv and the disturbance (|M̂⁻¹(Δb + d)|, the hard rows' bound,
+from the estimate's velocity error ε and the disturbance (|M̂⁻¹(Δb + d)|, the hard rows' bound,
 see :mod:`.model`, at the rollout's state), plus the payload's, |q̈(Δm) − q̈(0)| at each end
 of its range under the rollout's torque. Every joint's |q − q_s| + δq and |v − q̇_s| + δv must stay
 within its bound at every rollout step: for a set already left, within the excess it
@@ -81,7 +81,7 @@ STOPPED = 0.05  # rad/s: a joint within this of its backup's target velocity has
 BACKUP_WEIGHT = 1e10  # the torque limits' weight in the backup's penalty form (then clipped)
 # The backup's q̈ of a joint within NEAR (rad) of its position bound weighs up to 1 +
 # NEAR_WEIGHT times another's, linearly in how near.
-NEAR, NEAR_WEIGHT = 0.5, 1e3
+NEAR, NEAR_WEIGHT = 2.0, 1e3
 
 
 @no_refcount_jit(cache=True, inline="always")
@@ -310,11 +310,16 @@ def verified(k, a, y, v, eps, first, hold, policy):
         backup = not (hold and step == 0)
         h = a.backup_step if backup else a.dt
         clipped = _nominal_acceleration(k, a, first, backup, policy)
-        _deviation(a, vel, dv, r[R_TAU], acc, deviation)
-        feedback = 0.0 if clipped else min(a.backup_rate * h, 1.0)
+        # the bias error's velocity error is the estimate's, ε: the backup acts on the
+        # state as measured, whatever the tube (the true state's spread about the rollout)
+        _deviation(a, vel, eps, r[R_TAU], acc, deviation)
         decay = np.exp(-a.recovery_rate * (t + h))
         stopped = backup and not clipped
         for i in range(n):
+            # the backup's feedback acts on a joint whose torque is free (the held torque:
+            # on none): a limited joint brakes as hard as it can, the others still steer
+            free = backup and abs(r[R_TAU, i]) < a.torque_limit[i] * (1.0 - 1e-9)
+            feedback = min(a.backup_rate * h, 1.0) if free else 0.0
             # exact for q̈ constant over the step (the position's error would be ~v·h/2),
             # with its turning point inside the step checked too
             turn = q[i]
