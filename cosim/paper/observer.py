@@ -86,7 +86,7 @@ class ObserverParams(Section):
     initial_velocity: Literal["desired", "zero"] | list[FiniteFloat] = "desired"
     # longest window of the certified envelope's position-difference estimates of q̇ (ε(t),
     # module docstring), steps
-    window: Annotated[int, Field(ge=1, le=10000)] = 64
+    window: Annotated[int, Field(ge=1, le=10000)] = 16
 
 
 def basis_size(links: int, basis: str) -> int:
@@ -198,26 +198,29 @@ class Envelope(NamedTuple):
 E_, PLUS_, MINUS_, U_, CENTRE_, RADIUS_, ALO_, AHI_ = range(8)
 
 
-@no_refcount_jit(cache=True)
+@no_refcount_jit(cache=True, inline="always")
 def _forms(env, masses, out):
     """Γ (n, n, n) of the chain whose geometry env.chain holds, for ``masses``: b's velocity
-    part b_l(v) = vᵀΓ_l v, by polarisation of the bias without gravity."""
+    part b_l(v) = vᵀΓ_l v, from the bias without gravity at e_i (Γ_l,ii) and at e_i + e_j
+    (Γ_l,ii + Γ_l,jj + 2Γ_l,ij): n(n + 1)/2 evaluations."""
     n = masses.shape[0]
-    e, plus, minus = env.work[E_], env.work[PLUS_], env.work[MINUS_]
-    for j in range(n):
-        for k in range(j, n):
-            for i in range(n):
-                e[i] = 0.0
-            e[j] += 1.0
-            e[k] += 1.0
+    e, plus = env.work[E_], env.work[PLUS_]
+    for i in range(n):
+        e[:] = 0.0
+        e[i] = 1.0
+        chain_bias(env.chain, e, masses, 0.0, plus)
+        for l in range(n):  # noqa: E741
+            out[l, i, i] = plus[l]
+    for i in range(n):
+        for j in range(i + 1, n):
+            e[:] = 0.0
+            e[i] = e[j] = 1.0
             chain_bias(env.chain, e, masses, 0.0, plus)
-            e[k] -= 2.0
-            chain_bias(env.chain, e, masses, 0.0, minus)
-            for i in range(n):  # b_i(a + c) − b_i(a − c) = 4 aᵀΓ_i c
-                out[i, j, k] = out[i, k, j] = (plus[i] - minus[i]) / 4.0
+            for l in range(n):  # noqa: E741
+                out[l, i, j] = out[l, j, i] = 0.5 * (plus[l] - out[l, i, i] - out[l, j, j])
 
 
-@no_refcount_jit(cache=True)
+@no_refcount_jit(cache=True, inline="always")
 def envelope_position(env, y, slot):
     """What the acceleration bound needs of the position y, into cache ``slot``: M̂⁻¹, the
     payload point's J and link vectors, K = J M̂⁻¹ Jᵀ = VΛVᵀ, s_j at the ends of the payload
@@ -276,7 +279,7 @@ def envelope_position(env, y, slot):
     chain_bias(chain, env.zeros, env.m, env.gravity, env.grav[slot])
 
 
-@no_refcount_jit(cache=True)
+@no_refcount_jit(cache=True, inline="always")
 def envelope_acceleration(env, slot, tau, tau_d, centre, radius, lo, hi):
     """Widen [lo, hi] (per joint) to hold q̈ = M(Δm)⁻¹(τ − τ_d − d − b(y, q̇, Δm)) at the
     cached position ``slot`` for every q̇ with |q̇ − centre| ≤ radius, Δm in the declared
@@ -353,7 +356,7 @@ def envelope_acceleration(env, slot, tau, tau_d, centre, radius, lo, hi):
         hi[i] = max(hi[i], high + size)
 
 
-@no_refcount_jit(cache=True)
+@no_refcount_jit(cache=True, inline="always")
 def envelope_windows(k, dt, noise, window, y, acc, interval):
     """Intersect q̇(t_k) ∈ ``interval`` with the estimates from the position differences over
     the last N = 1 … ``window`` steps: q̇(t_k) = (q(t_k) − q(t_k−N))/T + (1/T)∫(s − t_k−N)q̈ ds,
@@ -379,7 +382,7 @@ def envelope_windows(k, dt, noise, window, y, acc, interval):
         interval[0, i], interval[1, i] = lo, hi
 
 
-@no_refcount_jit(cache=True)
+@no_refcount_jit(cache=True, inline="always")
 def envelope_step(k, dt, y, tau, tau_d, noise, env):
     """The envelope from t_k−1 to t_k: q̈'s bound over the step on an a-priori enclosure of
     q̇ that the bound itself must confirm (widened until it does), the interval propagated
