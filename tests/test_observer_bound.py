@@ -85,14 +85,15 @@ def test_the_observer_bound_holds_on_every_step_near_the_boundary(sets):
 
 def test_the_observer_bound_can_fail_outside_the_declared_range():
     """The same check fails when the initial error (2 rad/s) exceeds the declared 0.5: the
-    test can fail. (The windows of measured positions bring the envelope back within a few
-    steps whatever its start: only the first steps are wrong.)"""
+    test can fail. (The windows of measured positions bring the envelope back whatever its
+    start; a wrong start may rule out the true payload's cell for a while, until the cells
+    left fail too and all restart: here within 25 ms.)"""
     _, trace = near_boundary(["uncertainty.initial_velocity_error=0.5",
                               "observer.initial_velocity=[14.0,10.0]"], duration=0.1)
     worst = excess(trace)
     assert worst.max() > 1.0
     over = np.flatnonzero(worst.max(axis=1) > 0.0)
-    assert over[0] == 0 and over[-1] < 20, over
+    assert over[0] == 0 and over[-1] < 50, over
 
 
 def arm_envelope(payload: tuple[float, float], disturbance: float):
@@ -111,9 +112,10 @@ def arm_envelope(payload: tuple[float, float], disturbance: float):
 
 def test_the_acceleration_bound_holds_the_closed_form_arm():
     """envelope_acceleration at random positions, velocity boxes (radius up to 3 rad/s),
-    torques up to 20 kN·m, payload range [0, 1] kg and d̄ = 5 N·m: the closed-form arm's q̈
-    (Lewis's M and Vm q̇ + G, the tip mass 2.3 + Δm) at random velocities in the box,
-    payloads in the range (its ends included) and disturbances ±d̄ lies inside [lo, hi];
+    torques up to 20 kN·m, a random cell of the payload range [0, 1] kg and d̄ = 5 N·m: the
+    closed-form arm's q̈ (Lewis's M and Vm q̇ + G, the tip mass 2.3 + Δm) at random velocities
+    in the box, payloads in the cell (its ends included) and disturbances ±d̄ lies inside
+    [lo, hi];
     and the bound is not vacuous (some such q̈ comes within 5 % of its width of an edge)."""
     a = arm_envelope((0.0, 1.0), 5.0)
     env = a.env
@@ -125,12 +127,14 @@ def test_the_acceleration_bound_holds_the_closed_form_arm():
         radius = rng.uniform(0, 3, 2)
         tau = rng.uniform(-2e4, 2e4, 2) * 10 ** rng.uniform(-2, 0)
         envelope_position(env, y, 1)
+        cell = rng.integers(len(env.cells) - 1)
+        low, high = env.cells[cell], env.cells[cell + 1]
         lo, hi = np.full(2, np.inf), np.full(2, -np.inf)
-        envelope_acceleration(env, 1, tau, a.tau_d, centre, radius, lo, hi)
+        envelope_acceleration(env, 1, cell, tau, a.tau_d, centre, radius, lo, hi)
         assert np.all(lo <= hi)
         for _ in range(40):
             qdot = centre + radius * rng.choice([-1.0, 1.0, rng.uniform(-1, 1)], 2)
-            payload = rng.choice([0.0, 1.0, rng.uniform(0, 1)])
+            payload = rng.choice([low, high, rng.uniform(low, high)])
             d = 5.0 * rng.choice([-1.0, 1.0], 2)
             mass, bias = two_link_closed_form(y, qdot, 1.0, 1.0, M1, M2 + payload, GRAVITY)
             qddot = np.linalg.solve(mass, tau - TAU_D - d - bias)
