@@ -48,10 +48,12 @@ class Uncertainty(Section):
       |q̇(0) − x̂2(0)| per joint, rad/s.
     - ``disturbance``: bound on the error of the disturbance model |τ_d − τ_d,model| per
       joint, N·m.
-    - ``observer_residual_rate``: bound J̄ on the rate of the observer's unmodelled
-      acceleration, rad/s³; with the observer's gains it bounds the part of its velocity
-      error that its measured position error does not explain (docs/safety.md, "How the
-      margins follow from them").
+    - ``observer_residual_rate``: a bound J̄ on the rate of the observer's unmodelled
+      acceleration, rad/s³, which the observer's bound ε(t) once rested on. No longer used
+      by it: ε(t) is certified from the quantities above, the applied torque and the
+      nominal chain (cosim/paper/observer.py; docs/safety.md, "How the margins follow from
+      them"), since the closed loop broke any declared J̄. Kept so that pipelines that set
+      it still load.
     """
 
     payload: Annotated[list[FiniteFloat], Field(min_length=2, max_length=2)] = [0.0, 0.0]

@@ -130,8 +130,9 @@ def filtered_run(name: str):
 def test_the_fused_and_the_python_engine_filter_bit_for_bit():
     """The filter's step carries state from one step to the next (the rows that bound, where
     the solver starts), reset with the run: both engines give the same rows, bit for bit,
-    on both filtered runs, the second time as the first."""
-    pipeline = load_pipeline(SAFETY, ["simulation.duration=2"])
+    on both filtered runs, the second time as the first. (3.5 s: the proposed run's filter
+    first acts at 2.9 s, with the observer's certified ε(t).)"""
+    pipeline = load_pipeline(SAFETY, ["simulation.duration=3.5"])
     pipeline.runs = {name: pipeline.runs[name] for name in ("proposed_cbf", "baseline_cbf")}
     scenario = assemble(pipeline)
     try:
@@ -190,6 +191,8 @@ def test_every_filtered_torque_is_its_steps_qp_answer(name):
                                    np.concatenate([h[hard], h[~hard], np.zeros(m)]),
                                    solver="daqp")
             worst_daqp = max(worst_daqp, np.abs(tau - x[:n]).max() / scale)
-    assert binding_steps > 1000  # the filter acts at many steps
+    # the filter acts at many steps (871 on proposed_cbf with the observer's certified
+    # ε(t); with the former, wider J̄-based ε, over 1000)
+    assert binding_steps > 800
     assert worst_penalty < 1e-12, worst_penalty
     assert worst_daqp < 1e-6, worst_daqp
