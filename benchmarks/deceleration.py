@@ -3,9 +3,9 @@ uncertainty (issue 30's figure "every start with v² ≤ 2·d·a̲ is viable"): 
 starts — each joint in turn d rad inside either position bound, moving outward; the other
 joints' angles and velocities on a grid within their sets — the fastest outward speed v*
 the filter's own check verifies (cosim/paper/cbf_filter/backup.py, bisection), and
-a = v*²/(2d). a̲ is the least over the grid; the velocity is taken as known (ε = 0: what
-the observer adds is reported apart by the Monte Carlo), the payload, noise and disturbance
-as declared.
+a = v*²/(2d). a̲ is the least over the grid; the payload, noise and disturbance as
+declared, and the velocity known to within ε: 0 (a full-state filter) and the declared
+initial observer error (an output-feedback filter at t = 0), both printed.
 
     .venv/bin/python benchmarks/deceleration.py --torque-limits 1000 2000
 """
@@ -37,14 +37,16 @@ def filter_args(pipeline_path: str, limit: float):
     return plan.block("cbf_filter").args
 
 
-def fastest(a, q: np.ndarray, v: np.ndarray, joint: int, side: float, top: float) -> float:
-    """The fastest outward speed of ``joint`` the check verifies from (q, v), rad/s."""
-    zero = np.zeros(len(q))
+def fastest(a, q: np.ndarray, v: np.ndarray, joint: int, side: float, top: float,
+            spread: float) -> float:
+    """The fastest outward speed of ``joint`` the check verifies from (q, v ± spread),
+    rad/s."""
+    zero, eps = np.zeros(len(q)), np.full(len(q), spread)
 
     def ok(speed: float) -> bool:
         start = v.copy()
         start[joint] = side * speed
-        return any(bool(verified(0, a, q, start, zero, zero, False, policy))
+        return any(bool(verified(0, a, q, start, eps, zero, False, policy))
                    for policy in range(2))
 
     if not ok(0.0):
@@ -66,26 +68,36 @@ def main() -> None:
     parser.add_argument("--distances", type=float, nargs="+", default=[0.5, 1.0, 2.0],
                         help="rad inside the bound")
     args = parser.parse_args()
-    for limit in args.torque_limits:
+    for limit, spread in itertools.product(args.torque_limits, (0.0, None)):
         a = filter_args(args.pipeline, limit)
-        bound_q, bound_v = a.viable_bounds
-        n = len(a.m)
-        angles = np.linspace(-np.pi, np.pi, 9)
-        speeds = np.array([-1.0, -0.5, 0.0, 0.5, 1.0]) * 0.95 * bound_v
-        worst = (np.inf, None)
-        for joint, side, d in itertools.product(range(n), (1.0, -1.0), args.distances):
-            others = [j for j in range(n) if j != joint]
-            for angle, speed in itertools.product(angles, speeds):
-                q, v = np.zeros(n), np.zeros(n)
-                q[joint] = side * (bound_q - d)
-                q[others], v[others] = angle, speed
-                v_star = fastest(a, q, v, joint, side, 0.999 * bound_v)
-                decel = v_star**2 / (2 * d)
-                if v_star < 0.999 * bound_v and decel < worst[0]:
-                    worst = (decel, (joint + 1, side, d, angle, speed, v_star))
-        print(f"torque limit {limit:g} N·m: a̲ = {worst[0]:.3g} rad/s² (the least v*²/2d over "
-              f"the grid, at joint, side, d, other angle, other speed, v* = {worst[1]})")
+        if spread is None:
+            spread = float(load_pipeline(args.pipeline).uncertainty.initial_velocity_error)
+        worst = least_deceleration(a, args.distances, spread)
+        print(f"torque limit {limit:g} N·m, velocity known to ±{spread:g} rad/s: a̲ = "
+              f"{worst[0]:.3g} rad/s² (the least v*²/2d over the grid, at joint, side, d, "
+              f"other angle, other speed, v* = {worst[1]})")
 
+
+def least_deceleration(a, distances: list[float], spread: float) -> tuple[float, tuple]:
+    """(a̲, where) over the grid (module docstring)."""
+    bound_q, bound_v = a.viable_bounds
+    n = len(a.m)
+    angles = np.linspace(-np.pi, np.pi, 9)
+    speeds = np.array([-1.0, -0.5, 0.0, 0.5, 1.0]) * 0.95 * (bound_v - spread)
+    top = 0.999 * (bound_v - spread)
+    worst: tuple[float, tuple] = (np.inf, ())
+    for joint, side, d in itertools.product(range(n), (1.0, -1.0), distances):
+        others = [j for j in range(n) if j != joint]
+        for angle, speed in itertools.product(angles, speeds):
+            q, v = np.zeros(n), np.zeros(n)
+            q[joint] = side * (bound_q - d)
+            q[others], v[others] = angle, speed
+            v_star = fastest(a, q, v, joint, side, top, spread)
+            decel = v_star**2 / (2 * d)
+            if v_star < top and decel < worst[0]:
+                worst = (decel, (joint + 1, side, d, round(float(angle), 3),
+                                 round(float(speed), 3), round(v_star, 3)))
+    return worst
 
 if __name__ == "__main__":
     main()
