@@ -15,8 +15,9 @@ every joint is stopped (|v − q̇_s − w| ≤ ``STOPPED``) or ``backup_horizon
 (unverified). Around the nominal rollout a tube of half-widths δq, δv holds the true
 state: δq(0) = n̄ (noise), δv(0) = ε (the velocity's bound), and per step
 
-    δv_i ← δv_i (1 − k_b h) + D_i h   (joint i's torque free: the backup's feedback
-                                        pulls its true velocity towards its target)
+    δv_i ← max(δv_i (1 − k_b h) + D_i h, ε_i)   (joint i's torque free: the backup's
+                   feedback pulls its velocity towards its target, to within the estimate's
+                   error ε, as it acts on the estimate)
     δv_i ← δv_i + D_i h               (its torque at the limit, or the held torque)
     δq ← δq + δv h
 
@@ -328,7 +329,8 @@ def verified(k, a, y, v, eps, first, hold, policy):
             q[i] += h * vel[i] + 0.5 * h * h * acc[i]
             vel[i] += h * acc[i]
             dq[i] += h * dv[i] + 0.5 * h * h * deviation[i]
-            dv[i] = dv[i] * (1.0 - feedback) + deviation[i] * h
+            # the feedback acts on the estimate: the true velocity keeps its error, ε
+            dv[i] = max(dv[i] * (1.0 - feedback) + deviation[i] * h, eps[i])
             allowed_q = a.viable_bounds[0] + (limit_q[i] - a.viable_bounds[0]) * decay
             allowed_v = a.viable_bounds[1] + (limit_v[i] - a.viable_bounds[1]) * decay
             if a.hard[0] and max(abs(q[i] - a.q_s[k, i]), abs(turn - a.q_s[k, i])) + dq[i] \
