@@ -160,8 +160,10 @@ def choose(k, a, count, tau):
         backup_at(k, a, int(flags[PLAN]), backup)
         for i in range(n):
             tau[i] = backup[i]
-        planned = k > 0 and a.viable[k - 1] > 0.0 and flags[CONSISTENT] > 0.0
-        return kept and planned, 1.0
+        # (The plan's check covered its tube, so the state need not be shown inside anew:
+        # the interval the filter holds may be wider than the tube the plan was verified
+        # with, as it is what the filter knows, not where the plan keeps the state.)
+        return k > 0 and a.viable[k - 1] > 0.0 and flags[CONSISTENT] > 0.0, 1.0
     candidate = a.work.rollout[R_CANDIDATE]
     low, high = 0.0, 1.0  # λ = low is verified
     for _ in range(BISECTIONS):
