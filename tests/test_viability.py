@@ -13,7 +13,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from test_references import two_link_closed_form
-from test_robust_safety import simulated
 
 from cosim.paper.cbf_filter.backup import verified
 from cosim.runner import run

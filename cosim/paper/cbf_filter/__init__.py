@@ -35,28 +35,29 @@ b̂ = C(y, v) v + G(y) + τ_d. The plant is q̈ = M⁻¹(τ − b − τ_d), and
   payload range) + Σ_l |(M̂⁻¹)_il| (Σ_jk |Γ_l,jk| ε_j ε_k + d̄), d̄ the disturbance bound.
 
 Solved as min ½‖τ − τ_nom‖² + ½ρ_s‖s‖² subject to G_hard τ ≤ h_hard and
-G_soft τ ≤ h_soft + s (and |τ_i| ≤ τ_max, hard), every row scaled to unit norm (N·m). The
+G_soft τ ≤ h_soft + s (and |τ_i| ≤ τ_max,i, hard), every row scaled to unit norm (N·m). The
 compiled semismooth Newton solves the penalty form with the hard rows at weight ρ_hard and
 their limits lowered by ``hard_tolerance`` (each Newton step a least-squares solve in
 square-root form, to ~1e-13 of τ; started from the rows that bound at the step before,
 which is the answer at once at 99.9 % of the paper's steps); where a hard row still slips
 (tracking pulling hard against it), it re-solves with the soft weights 1e-3 and 1e-6 times,
-then without the soft rows; only if the hard rows alone are violated (as given) is the hard
-part infeasible at that step (``cbf_infeasible`` = 1, counted), and the **backup** acts: by
-default the penalty form's answer itself (the torque that violates the hard rows least), or
-braking, q̈ = −k (v − q̇_s) with the nominal model, within the torque limit
-(``backup = "brake"``). Soft slack is reported apart
-(``cbf_slack``): it says how much tracking gave way, never whether safety did.
+then without the soft rows. The rows' answer is a proposal: the torque applied is decided by
+the **backup's check** (:mod:`.backup`): the answer (clipped to the torque limits) if the
+braking backup can still keep every hard set after it, for every state and plant the
+declared uncertainty allows; else the largest verified blend towards the backup; else the
+backup (``cbf_infeasible`` = 1, ``cbf_viable`` = 0: the state was not viable as seen).
+``cbf_rows_met`` says where the applied torque met the rows as given. Soft slack is reported
+apart (``cbf_slack``): it says how much tracking gave way, never whether safety did.
 
-Remaining assumptions (not covered by the margins): the sampled-data hold between steps
-(``bound_margin`` keeps a fraction of each bound for it), and M̂, b̂ evaluated at y rather than
-q (first order in n̄). The safe centres q_s, q̇_s must be constant (Remark 1, case ii): a
-moving centre is refused.
+Remaining assumptions (not covered by the margins): those of the backup's check (its
+module docstring), and M̂, b̂ evaluated at y rather than q (first order in n̄). The safe
+centres q_s, q̇_s must be constant (Remark 1, case ii): a moving centre is refused.
 
 The package: ``scratch`` (the work arrays and the step's arguments), ``model`` (M̂, b̂, the
 bias error, the payload), ``rows`` (the QP's rows), ``solver`` (the semismooth Newton),
-``block`` (the block, its step and record); the small linear algebra is
-:mod:`cosim.paper.linalg`, shared with the observer.
+``backup`` (the braking backup, its check and the velocity's interval), ``assumptions``
+(what the filter publishes it assumes), ``block`` (the block, its step and record); the
+small linear algebra is :mod:`cosim.paper.linalg`, shared with the observer.
 
 What a step runs is compiled without numba's reference counting
 (:func:`cosim.numba_compat.no_refcount_jit`): it allocates nothing (every array it works in

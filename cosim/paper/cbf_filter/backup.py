@@ -19,7 +19,7 @@ state: δq(0) = n̄ (noise), δv(0) = ε (the velocity's bound), and per step
                    feedback pulls its velocity towards its target, to within the estimate's
                    error ε, as it acts on the estimate)
     δv_i ← δv_i + D_i h               (its torque at the limit, or the held torque)
-    δq ← δq + δv h
+    δq ← δq + δv h + ½ D h²
 
 with D_i the bound on the true q̈_i's departure from the nominal model's: the bias error
 from the estimate's velocity error ε and the disturbance (|M̂⁻¹(Δb + d)|, the hard rows' bound,
