@@ -26,11 +26,14 @@ ROOT = Path(__file__).resolve().parent.parent
 
 LAWS = ["tests/test_references.py", "tests/test_blocks.py"]
 FILTER = ["tests/test_robust_safety.py", "tests/test_safety.py"]
-EVALUATION = ["tests/test_references.py", "tests/test_cosim.py", "tests/test_robust_safety.py"]
+EVALUATION = ["tests/test_references.py", "tests/test_cosim.py", "tests/test_robust_safety.py",
+              "tests/test_guarantee.py"]
 FOLDER = ["tests/test_errors.py", "tests/test_recording.py"]
 SWEEP = ["tests/test_references.py", "tests/test_sweep.py"]
 LIMITS = ["tests/test_errors.py", "tests/test_resources.py"]
 RESULTS = ["tests/test_export.py"]
+BOUND = ["tests/test_observer_bound.py"]
+VIABILITY = FILTER + ["tests/test_viability.py", "tests/test_guarantee.py"]
 
 # (id, file, text, replacement, tests): the text must occur exactly once in the file.
 MUTANTS = [
@@ -41,16 +44,15 @@ MUTANTS = [
     ("inertia-link-vs-com", "cosim/paper/inertia.py",
      "        ax -= w2 * chain[LX, i]\n", "        ax -= w2 * chain[CX, i]\n", LAWS),
     ("obs-gain-sqrt", "cosim/paper/observer.py",
-     "den = 2.0 * np.sqrt(a.kp * a.kd) * (x1_err_norm * x1_err_norm + a.nu)",
-     "den = 2.0 * (a.kp * a.kd) * (x1_err_norm * x1_err_norm + a.nu)", LAWS),
+     "den_scale=2.0 * math.sqrt(p.kp * p.kd)", "den_scale=2.0 * (p.kp * p.kd)", LAWS),
     ("obs-input-one-substep-off", "cosim/paper/observer.py",
-     "y = y0 + dy * ((j + 1) / a.substeps)", "y = y0 + dy * (j / a.substeps)", LAWS),
+     "frac = (j + 1) / a.substeps", "frac = j / a.substeps", LAWS),
     ("obs-kd-dropped", "cosim/paper/observer.py",
-     "denom = 1.0 + h * c + h * h * k0", "denom = 1.0 + h * kp + h * h * k0", LAWS),
+     "denom = 1.0 + hc + hh * k0", "denom = 1.0 + h * kp + hh * k0", LAWS),
     ("obs-drift-injection", "cosim/paper/observer.py",
-     "+ (k0 - kp * a.kd) * x1_err)", "+ k0 * x1_err)", LAWS + ["tests/test_robust_safety.py"]),
-    ("obs-envelope-peak", "cosim/paper/observer.py",
-     "transient[0] = peak * a.initial_error", "transient[0] = a.initial_error", LAWS + FILTER),
+     "+ (k0 - kp * a.kd) * x1_err[i]", "+ k0 * x1_err[i]", LAWS + ["tests/test_robust_safety.py"]),
+    ("obs-envelope-noise", "cosim/paper/observer.py",
+     "spread = 2.0 * noise / span", "spread = 0.0", LAWS + BOUND),
     ("ctrl-robust-term-e", "cosim/paper/controller.py", "        v -= e\n", "", LAWS),
     ("ctrl-psi-square", "cosim/paper/controller.py",
      "v -= a.psi_b**2 / (a.delta + r_sq) * r", "v -= a.psi_b / (a.delta + r_sq) * r", LAWS),
@@ -79,7 +81,29 @@ MUTANTS = [
      "    count = hard_rows(a, count, k, y_end, v_end, eps, minv_end, base_end, True)\n", "",
      FILTER),
     ("cbf-infeasible-flag", "cosim/paper/cbf_filter/block.py",
-     "a.infeasible[k] = 1.0 if infeasible else 0.0", "a.infeasible[k] = 0.0", FILTER),
+     "a.infeasible[k] = 0.0 if viable else 1.0", "a.infeasible[k] = 0.0", FILTER),
+    # the backup's check (issue 30): each margin it takes, dropped
+    ("cbf-tube-deviation-dropped", "cosim/paper/cbf_filter/backup.py",
+     "dv[i] = max(dv[i] * (1.0 - feedback) + TUBE_SAFETY * deviation[i] * h, eps[i])",
+     "dv[i] = max(dv[i] * (1.0 - feedback), eps[i])", VIABILITY),
+    ("cbf-tube-estimate-floor", "cosim/paper/cbf_filter/backup.py",
+     "dv[i] = max(dv[i] * (1.0 - feedback) + TUBE_SAFETY * deviation[i] * h, eps[i])",
+     "dv[i] = dv[i] * (1.0 - feedback) + TUBE_SAFETY * deviation[i] * h", VIABILITY),
+    ("cbf-tube-start-estimate", "cosim/paper/cbf_filter/backup.py",
+     "q[i], vel[i], dq[i], dv[i] = y[i], v[i], a.noise_bound, eps[i]",
+     "q[i], vel[i], dq[i], dv[i] = y[i], v[i], a.noise_bound, 0.0", VIABILITY),
+    ("cbf-payload-deviation-dropped", "cosim/paper/cbf_filter/backup.py",
+     "    _payload_deviation(a, q_dot, tau, acceleration, deviation)\n", "", VIABILITY),
+    ("cbf-turning-point", "cosim/paper/cbf_filter/backup.py",
+     "max(abs(q[i] - a.q_s[k, i]), abs(turn - a.q_s[k, i]))", "abs(q[i] - a.q_s[k, i])",
+     VIABILITY),
+    ("cbf-viable-inside", "cosim/paper/cbf_filter/block.py",
+     "kept = inside(k, a)", "kept = True", VIABILITY),
+    ("cbf-torque-clip", "cosim/paper/cbf_filter/block.py",
+     "tau[i] = min(max(tau[i], -a.torque_limit[i]), a.torque_limit[i])", "pass", VIABILITY),
+    ("cbf-interval-deviation", "cosim/paper/cbf_filter/backup.py",
+     "low[i] = min(low[i], acceleration[i] - deviation[i])",
+     "low[i] = min(low[i], acceleration[i])", VIABILITY),
     # the evaluation
     ("eval-position-centre", "cosim/evaluate/sets.py",
      '"position": rows["q"] - rows[io.SAFE_CENTRE],', '"position": rows["q"],', EVALUATION),
@@ -98,9 +122,9 @@ MUTANTS = [
     ("eval-attainable", "cosim/evaluate/checks.py",
      'entry["attainable"] = not bool(((reference > check.upper)',
      'entry["attainable"] = True or bool(((reference > check.upper)', EVALUATION),
-    ("eval-guarantee-broken", "cosim/paper/guarantee.py",
-     'out["broken"] = bool(starts_inside and feasible is True and not outside',
-     'out["broken"] = bool(feasible is True and not outside', EVALUATION),
+    ("eval-guarantee-covered", "cosim/paper/guarantee.py",
+     "covered = bool(filtered and starts_inside and starts_viable and not outside)",
+     "covered = bool(filtered and starts_inside and not outside)", EVALUATION),
     # the run folder
     ("folder-complete-ignores-files", "cosim/outputs/run_folder.py",
      'files_complete = all(f["complete"] for f in self.files.values())',

@@ -88,7 +88,7 @@ def test_every_key_is_listed_with_a_value_set_takes_back_and_a_meaning():
     assert rows["simulation.duration"][3] == "simulated time of each run, s" \
         and "rad" in rows["sensor.noise_std"][3]
     assert rows["controller.kv"][2] == "number > 0 or list of number > 0"
-    assert rows["cbf_filter.backup"][2] == 'one of "least_violation", "brake"'
+    assert rows["cbf_filter.backup"][2] == 'one of "verified", "least_violation"'
     assert rows["simulation.step"][2] == "number > 0, ≤ 0.1"
 
 

@@ -5,9 +5,12 @@ uncertainty allows (a backup-controller safety filter in the manner of Chen, Jan
 Santillo and Ames, "Backup control barrier functions", 2021, checked by rolling the backup
 out rather than by its sensitivities).
 
-The backup: q̈_b = k_b (w − (v − q̇_s)) in the nominal model, τ_b = M̂ q̈_b + b̂, each τ_i
-clipped to its limit (so the torque limits hold whatever it asks); w = 0 inside the position
-set, and towards it at up to ``recovery_speed`` outside it (recovery).
+The backup: q̈_b = k_b (w − (v − q̇_s)) in the nominal model, τ_b = M̂ q̈_b + b̂ (the q̈
+nearest that the torque limits allow, a small QP), each τ_i clipped to its limit (so the
+torque limits hold whatever it asks); w = 0 inside the position set away from its bound,
+inward at HOLD_RATE per rad within HOLD of the bound (a persistent velocity error ε then
+holds the joint ε/HOLD_RATE deep in that band instead of letting it drift out), and at up to
+``recovery_speed`` past it (recovery).
 
 The check (:func:`verified`) rolls the nominal model out from the estimate (y, v): the
 candidate torque held over one step, then the backup, in steps of ``backup_step``, until
@@ -83,6 +86,15 @@ BACKUP_WEIGHT = 1e10  # the torque limits' weight in the backup's penalty form (
 # The backup's q̈ of a joint within NEAR (rad) of its position bound weighs up to 1 +
 # NEAR_WEIGHT times another's, linearly in how near.
 NEAR, NEAR_WEIGHT = 2.0, 1e3
+# The backup holds a joint within HOLD (rad) of its position bound off it, steering it in at
+# HOLD_RATE (1/s) per rad inside that band (and past the bound: recovery).
+HOLD, HOLD_RATE = 0.2, 10.0
+# The tube's D is taken this many times: its linear model of the backup's feedback (each
+# free joint pulled to its target at k_b, the torque recomputed from the true state) is first
+# order; braked apart on the closed-form arm with 1 kg at the tip from the edge of the
+# velocity's interval, D alone let joint 1 pass its bound by 0.015 rad
+# (tests/test_viability.py), 1.5 D keeps it inside. An empirical factor, stated as such.
+TUBE_SAFETY = 1.5
 
 
 @no_refcount_jit(cache=True, inline="always")
@@ -99,10 +111,13 @@ def backup_torque(k, a, q, v, mass, bias, out, policy):
     target, desired = r[R_TARGET], r[R_SCRATCH]
     for i in range(n):
         x = q[i] - a.q_s[k, i]
-        excess = abs(x) + a.noise_bound - a.viable_bounds[0]
+        # within HOLD of the bound, or past it: back in at HOLD_RATE per rad of depth, up
+        # to recovery_speed (a velocity the estimate gets wrong by ε then leaves the joint
+        # ε/HOLD_RATE deep in that band, not drifting out)
+        depth = abs(x) + a.noise_bound - (a.viable_bounds[0] - HOLD)
         speed = 0.0
-        if a.hard[0] and excess > 0.0:
-            speed = -np.sign(x) * min(a.recovery_speed, a.backup_rate * excess)
+        if a.hard[0] and depth > 0.0:
+            speed = -np.sign(x) * min(a.recovery_speed, HOLD_RATE * depth)
         target[i] = speed
         desired[i] = a.backup_rate * (speed - (v[i] - a.qdot_s[k, i]))
     # Weighted towards the joints near their position bound (what the limits cannot give
@@ -328,9 +343,9 @@ def verified(k, a, y, v, eps, first, hold, policy):
                 turn = q[i] - 0.5 * vel[i] * vel[i] / acc[i]
             q[i] += h * vel[i] + 0.5 * h * h * acc[i]
             vel[i] += h * acc[i]
-            dq[i] += h * dv[i] + 0.5 * h * h * deviation[i]
+            dq[i] += h * dv[i] + 0.5 * h * h * TUBE_SAFETY * deviation[i]
             # the feedback acts on the estimate: the true velocity keeps its error, ε
-            dv[i] = max(dv[i] * (1.0 - feedback) + deviation[i] * h, eps[i])
+            dv[i] = max(dv[i] * (1.0 - feedback) + TUBE_SAFETY * deviation[i] * h, eps[i])
             allowed_q = a.viable_bounds[0] + (limit_q[i] - a.viable_bounds[0]) * decay
             allowed_v = a.viable_bounds[1] + (limit_v[i] - a.viable_bounds[1]) * decay
             if a.hard[0] and max(abs(q[i] - a.q_s[k, i]), abs(turn - a.q_s[k, i])) + dq[i] \
