@@ -150,16 +150,18 @@ def uncertain_boundary(a, distance: float, joint2: tuple, spread: float) -> floa
     return low
 
 
-@pytest.mark.parametrize("distance, joint2", STARTS[:2])
+@pytest.mark.parametrize("distance, joint2, spread", [(*STARTS[0], 0.5), (*STARTS[1], 0.5),
+                                                     (*STARTS[0], 0.0)])
 def test_under_the_declared_payload_the_verified_starts_stop_for_every_plant(
-        uncertain_args, distance, joint2):
-    """With a payload of 0-1 kg declared (and the velocity known to ±0.5 rad/s): from the
-    fastest start the check verifies, the true arm stops inside the hard sets with either
-    end of the payload range, at either end of the velocity's interval (the margins the
-    check takes for them: drop one and the boundary moves out past this). Measured: 1 kg
-    from the interval's fast edge comes within 0.009 rad of the 20 rad bound."""
+        uncertain_args, distance, joint2, spread):
+    """With a payload of 0-1 kg declared (and the velocity known to ±0.5 rad/s, or exactly:
+    then the payload's margin alone decides): from the fastest start the check verifies,
+    the true arm stops inside the hard sets with either end of the payload range, at either
+    end of the velocity's interval (the margins the check takes for them: drop one and the
+    boundary moves out past this). Measured: 1 kg from the interval's fast edge comes within
+    0.009 rad of the 20 rad bound."""
     pytest.importorskip("qpsolvers")
-    a, spread = uncertain_args, 0.5
+    a = uncertain_args
     boundary = uncertain_boundary(a, distance, joint2, spread)
     q = [a.viable_bounds[0] - distance, joint2[0]]
     bound_q, bound_v = 20.0, 13.5  # the hard sets themselves (rad, rad/s)
