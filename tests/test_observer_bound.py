@@ -9,12 +9,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from test_references import two_link_closed_form
+from test_robust_safety import simulated
 
-from cosim.assemble import assemble
 from cosim.blocks.base import BlockContext, Ports
-from cosim.config import load_pipeline
 from cosim.declared import Uncertainty
-from cosim.engine import simulate
 from cosim.paper.observer import (
     FlnnObserver,
     ObserverParams,
@@ -24,7 +22,6 @@ from cosim.paper.observer import (
     envelope_windows,
 )
 
-MC = "pipelines/monte_carlo.toml"
 M1, M2, GRAVITY, TAU_D = 0.8, 2.3, 9.8, 0.01
 
 # The issue's near-boundary start (issue 30): joint 1 at 18.5 rad moving outward at
@@ -37,15 +34,7 @@ NEAR_BOUNDARY = ['plant.parameters."q0[1]"=18.5', 'plant.parameters."qdot0[1]"=1
 def near_boundary(sets: list[str], duration: float = 1.0):
     """proposed_cbf of the Monte Carlo pipeline (payload 0–1 kg, noise 6e-4 rad declared)
     from the near-boundary start, with ``sets``: the pipeline and the trace."""
-    pipeline = load_pipeline(MC, [f"simulation.duration={duration}", *NEAR_BOUNDARY, *sets])
-    pipeline.runs = {"proposed_cbf": pipeline.runs["proposed_cbf"]}
-    scenario = assemble(pipeline)
-    try:
-        plan = scenario.runs["proposed_cbf"]
-        trace = plan.new_trace(scenario.steps)
-        simulate(scenario.plant, plan, trace)
-    finally:
-        scenario.close()
+    pipeline, _, trace = simulated([*NEAR_BOUNDARY, *sets], "proposed_cbf", duration)
     return pipeline, trace
 
 

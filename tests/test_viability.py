@@ -10,11 +10,18 @@ states just past the filter's boundary it must not. SI units, radians."""
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 from test_references import two_link_closed_form
 
 from cosim.paper.cbf_filter.backup import HOLD, HOLD_RATE, verified
+
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
+from deceleration import filter_args as filter_args_of  # noqa: E402
+
 from cosim.runner import run
 
 LIMIT = 1000.0  # N·m, both joints
@@ -26,24 +33,10 @@ TAU_D = 0.01  # N·m, the plant's constant disturbance, which the filter's model
 
 
 def args_of(path: str):
-    """The filter's arguments after a short run of baseline_cbf with a 1000 N·m limit (its
-    model, its bounds, its declared uncertainty; the rollout needs nothing of the run's
-    state)."""
-    from cosim.config import load_pipeline
-
-    pipeline = load_pipeline(path, ["simulation.duration=0.01",
-                                    f"cbf_filter.torque_limit={LIMIT}"])
-    pipeline.runs = {"baseline_cbf": pipeline.runs["baseline_cbf"]}
-    from cosim.assemble import assemble
-    from cosim.engine import simulate
-
-    scenario = assemble(pipeline)
-    try:
-        plan = scenario.runs["baseline_cbf"]
-        simulate(scenario.plant, plan, plan.new_trace(scenario.steps))
-    finally:
-        scenario.close()
-    return plan.block("cbf_filter").args
+    """The filter's arguments for baseline_cbf with a 1000 N·m limit (its model, its
+    bounds, its declared uncertainty): benchmarks/deceleration.py's, which states a̲ with
+    the same check."""
+    return filter_args_of(path, LIMIT)
 
 
 @pytest.fixture(scope="module")
