@@ -93,7 +93,12 @@ MUTANTS = [
      "q[i], vel[i], dq[i], dv[i] = y[i], v[i], a.noise_bound, eps[i]",
      "q[i], vel[i], dq[i], dv[i] = y[i], v[i], a.noise_bound, 0.0", VIABILITY),
     ("cbf-payload-deviation-dropped", "cosim/paper/cbf_filter/backup.py",
-     "    _payload_deviation(a, q_dot, tau, acceleration, deviation)\n", "", VIABILITY),
+     "    _payload_deviation(a, a.work.rollout[R_Q], q_dot, acceleration, deviation)\n", "",
+     VIABILITY),
+    # the payload's departure at the range's ends only (the grid's first and last point)
+    ("cbf-payload-ends-only", "cosim/paper/cbf_filter/backup.py",
+     "        for corner in range(corner_index.shape[0]):",
+     "        for corner in (0, corner_index.shape[0] - 1):", VIABILITY),
     ("cbf-turning-point", "cosim/paper/cbf_filter/backup.py",
      "max(abs(q[i] - a.q_s[k, i]), abs(turn - a.q_s[k, i]))", "abs(q[i] - a.q_s[k, i])",
      VIABILITY),
@@ -102,7 +107,7 @@ MUTANTS = [
     ("cbf-torque-clip", "cosim/paper/cbf_filter/block.py",
      "tau[i] = min(max(tau[i], -a.torque_limit[i]), a.torque_limit[i])", "pass", VIABILITY),
     ("cbf-interval-deviation", "cosim/paper/cbf_filter/backup.py",
-     "low[i] = min(low[i], acceleration[i] - deviation[i])",
+     "low[i] = min(low[i], acceleration[i] - TUBE_SAFETY * deviation[i])",
      "low[i] = min(low[i], acceleration[i])", VIABILITY),
     # the evaluation
     ("eval-position-centre", "cosim/evaluate/sets.py",

@@ -26,10 +26,11 @@ state: δq(0) = n̄ (noise), δv(0) = ε (the velocity's bound), and per step
 
 with D_i the bound on the true q̈_i's departure from the nominal model's: the bias error
 from the estimate's velocity error ε and the disturbance (|M̂⁻¹(Δb + d)|, the hard rows' bound,
-see :mod:`.model`, at the rollout's state), plus the payload's, |q̈(Δm) − q̈(0)| at each end
-of its range under the rollout's torque. Every joint's |q − q_s| + δq and |v − q̇_s| + δv must stay
-within its bound at every rollout step: for a set already left, within the excess it
-started with, decaying at ``recovery_rate`` (h < 0 must grow back at that rate).
+see :mod:`.model`, at the rollout's state), plus the payload's, the largest |q̈(Δm) − q̈(0)|
+over its range under the rollout's torque (:func:`_payload_deviation`). Every joint's
+|q − q_s| + δq and |v − q̇_s| + δv must stay within its bound at every rollout step: for a
+set already left, within the excess it started with, decaying at ``recovery_rate``
+(h < 0 must grow back at that rate).
 
 What it assumes, besides the declared bounds: the tube's linear feedback model of the
 backup (exact for a joint the backup does not clip), b's velocity forms Γ taken at the
@@ -47,11 +48,15 @@ import numpy as np
 
 from ...numba_compat import no_refcount_jit
 from ..inertia import chain_bias, chain_geometry, chain_mass
-from ..linalg import invert, product
-from .model import acceleration_error_bound_into
+from ..linalg import dot, invert, product
+from .model import acceleration_error_bound_into, com_kinematics, payload_structure
 from .scratch import (
+    ALPHA,
     BACKUP_FACTOR,
+    BETA,
     CONSISTENT,
+    GAMMA,
+    JAC,
     QUADRATIC,
     R_ACC,
     R_BIAS,
@@ -63,11 +68,8 @@ from .scratch import (
     R_HALF,
     R_LIMIT_Q,
     R_LIMIT_V,
-    R_MASSES,
     R_NEXT_HIGH,
     R_NEXT_LOW,
-    R_PACC,
-    R_PBIAS,
     R_Q,
     R_SCRATCH,
     R_TARGET,
@@ -78,6 +80,7 @@ from .scratch import (
     ROLL_MASS,
     ROLL_MINV,
     TAU,
+    VEC,
 )
 from .solver import newton
 
@@ -158,28 +161,52 @@ def backup_torque(k, a, q, v, mass, bias, out, policy):
 
 
 @no_refcount_jit(cache=True, inline="always")
-def _payload_deviation(a, q_dot, tau, acceleration, deviation):
-    """D_i += max over the payload range's ends of |q̈(Δm)_i − q̈(0)_i| under τ (the
-    chain's geometry already at the rollout's state, its velocity ``q_dot``)."""
-    r = a.work.rollout
-    matrices = a.work.matrices
-    masses, bias, moved = r[R_MASSES], r[R_PBIAS], r[R_PACC]
-    n = tau.shape[0]
-    for end in range(2):
-        payload = a.payload_low if end == 0 else a.payload_high
-        if payload == 0.0:
-            continue
+def _payload_deviation(a, q, q_dot, acceleration, deviation):
+    """D_i += the largest |q̈(Δm)_i − q̈(0)_i| over the payload range under the rollout's
+    torque (the chain's M̂⁻¹ in ROLL_MINV and its q̈ ``acceleration`` at (q, ``q_dot``)).
+
+    A point mass Δm at the last link's centre of mass (Jacobian J, γ = J̇v + g ŷ) moves q̈ by
+    −(M̂ + ΔmJᵀJ)⁻¹ΔmJᵀ(Jq̈(0) + γ) = −Σ_j α_j s_j(Δm) v_jᵀ(Jq̈(0) + γ), with
+    K = JM̂⁻¹Jᵀ = Σ_j λ_j v_j v_jᵀ, α_j = v_jᵀJM̂⁻¹ and s_j = Δm/(1 + Δmλ_j) (Woodbury; the
+    hard rows' structure, :func:`.model.payload_structure`). Linear in (s_1, s_2), which both
+    increase with Δm: between two points of the payload grid the curve lies in their box,
+    so the largest size is bounded at the boxes' corners. Not at the range's ends alone: the
+    two terms may cancel at both ends and not between (measured on the paper's arm braking
+    near its bound: 0.75 rad/s² at the ends, 4.7 at Δm = 0.38 kg). Where M̂ is the plant's,
+    the shift is −ΔmM̂⁻¹Jᵀγ: linear in Δm, largest at an end."""
+    if a.payload_low == 0.0 and a.payload_high == 0.0:
+        return
+    w = a.work
+    minv = w.matrices[ROLL_MINV]
+    jac, gamma = w.planar[JAC], w.pairs[GAMMA]
+    com_kinematics(q, q_dot, a.l, a.lc, a.gravity, jac, gamma)
+    n = q.shape[0]
+    if a.inertia_is_plant:
+        size = max(abs(a.payload_low), abs(a.payload_high))
         for i in range(n):
-            masses[i] = a.m[i]
-        masses[n - 1] += payload
-        chain_mass(a.work.chain, masses, a.inertia, matrices[ROLL_MASS])
-        chain_bias(a.work.chain, q_dot, masses, a.gravity, bias)
-        for i in range(n):
-            bias[i] = tau[i] - bias[i] - a.tau_d[i]
-        invert(matrices[ROLL_MASS], matrices[ROLL_MINV], matrices[ROLL_LU])
-        product(matrices[ROLL_MINV], bias, moved)
-        for i in range(n):
-            deviation[i] = max(deviation[i], abs(moved[i] - acceleration[i]))
+            shift = 0.0
+            for col in range(n):
+                shift += minv[i, col] * (jac[0, col] * gamma[0] + jac[1, col] * gamma[1])
+            deviation[i] += size * abs(shift)
+        return
+    # γ + Jq̈(0) into γ: the point's acceleration the payload's force is proportional to
+    for r in range(2):
+        gamma[r] += dot(jac[r], acceleration)
+    structure = w.pairs[BETA]  # v_jᵀ(Jq̈(0) + γ), per eigenvector j
+    payload_structure(a.payload_low, a.payload_high, minv, acceleration, w.planar, w.pairs,
+                      w.squares, w.s_grid)
+    vec = w.squares[VEC]
+    alpha, s_grid, corner_index = w.planar[ALPHA], w.s_grid, w.corner_index
+    for j in range(2):
+        structure[j] = vec[0, j] * gamma[0] + vec[1, j] * gamma[1]
+    for i in range(n):
+        worst = 0.0
+        for corner in range(corner_index.shape[0]):
+            shift = 0.0
+            for j in range(2):
+                shift += alpha[j, i] * structure[j] * s_grid[corner_index[corner, j], j]
+            worst = max(worst, abs(shift))
+        deviation[i] += worst
 
 
 @no_refcount_jit(cache=True, inline="always")
@@ -187,12 +214,13 @@ def _deviation(a, q_dot, spread, tau, acceleration, deviation):
     """D at the rollout's state into ``deviation``: the bound on |M̂⁻¹(Δb + d)| for a
     velocity error up to ``spread`` at the velocity ``q_dot`` (b's velocity forms Γ as the
     hard rows took them at row k: the configuration's drift over the rollout is left out),
-    plus the payload's (:func:`_payload_deviation`)."""
+    plus the payload's (:func:`_payload_deviation`): the velocity's and the payload's
+    departures add up (a payload's true q̈ also carries the velocity error's)."""
     w = a.work
     acceleration_error_bound_into(q_dot, spread, w.matrices[ROLL_MINV], a.payload_low,
                                   a.payload_high, a.disturbance, w.forms[0], w.forms[1],
                                   w.linear, w.vectors[QUADRATIC], deviation)
-    _payload_deviation(a, q_dot, tau, acceleration, deviation)
+    _payload_deviation(a, a.work.rollout[R_Q], q_dot, acceleration, deviation)
 
 
 @no_refcount_jit(cache=True, inline="always")
@@ -265,7 +293,9 @@ def velocity_interval(k, a):
 def predict_interval(k, a, tau):
     """The interval of the true velocity at row k + 1 under τ held over the step (into
     R_NEXT_LOW, R_NEXT_HIGH): row k's moved by dt times the hull of q̈ ± D at the step's
-    start and at its predicted end (q̈ drifts over the hold as q and q̇ move)."""
+    start and at its predicted end (q̈ drifts over the hold as q and q̇ move), D taken
+    TUBE_SAFETY times as the check's tube takes it: a velocity outside a narrower prediction
+    may still be in the tube the check verified."""
     r = a.work.rollout
     y = a.position[k]
     n = y.shape[0]
@@ -278,8 +308,8 @@ def predict_interval(k, a, tau):
         _nominal_acceleration(k, a, tau, False, 0)
         _deviation(a, r[R_V], r[R_HALF], r[R_TAU], acceleration, deviation)
         for i in range(n):
-            low[i] = min(low[i], acceleration[i] - deviation[i])
-            high[i] = max(high[i], acceleration[i] + deviation[i])
+            low[i] = min(low[i], acceleration[i] - TUBE_SAFETY * deviation[i])
+            high[i] = max(high[i], acceleration[i] + TUBE_SAFETY * deviation[i])
         if end == 0:  # to the predicted end of the step
             for i in range(n):
                 r[R_Q, i] += a.dt * r[R_V, i] + 0.5 * a.dt * a.dt * acceleration[i]

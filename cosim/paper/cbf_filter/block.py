@@ -139,11 +139,22 @@ def choose(k, a, count, tau):
     y, v, eps = a.position[k], a.work.rollout[R_CENTRE], a.work.rollout[R_HALF]
     kept = inside(k, a)  # else verified means recovering: not viable
     flags = a.work.rollout[R_FLAGS]
+    backup = a.backup
+    # If the step before was viable, its check proved the backup from every state its tube
+    # allows, and the state is in that tube when the velocity is where it predicted
+    # (CONSISTENT): the backup, as planned, is still viable. The plan is followed where no
+    # torque is verified afresh, and where the interval the filter now holds pokes past a
+    # set (a torque verified from it would prove a recovery, not that the sets are kept).
+    planned = k > 0 and a.viable[k - 1] > 0.0 and flags[CONSISTENT] > 0.0
+    if not kept and planned:
+        backup_at(k, a, int(flags[PLAN]), backup)
+        for i in range(n):
+            tau[i] = backup[i]
+        return True, 1.0
     for policy in range(POLICIES):
         if verified(k, a, y, v, eps, tau, True, policy):
             flags[PLAN] = policy
             return kept, 0.0
-    backup = a.backup
     found = -1
     for policy in range(POLICIES):
         backup_at(k, a, policy, backup)
@@ -152,18 +163,16 @@ def choose(k, a, count, tau):
             flags[PLAN] = policy
             break
     if found < 0:
-        # No torque verified afresh. If the step before was viable, its check proved the
-        # backup from every state its tube allows, and the state is in that tube when the
-        # velocity is where it predicted (CONSISTENT): the backup, as planned, and still
-        # viable. (A check from a state on the edge of the verified set may fail by the
-        # rollout's own discretisation.) Else not viable as seen: the backup all the same.
+        # No torque verified afresh: the plan, viable if planned (a check from a state on
+        # the edge of the verified set may fail by the rollout's own discretisation); else
+        # not viable as seen, the backup all the same.
         backup_at(k, a, int(flags[PLAN]), backup)
         for i in range(n):
             tau[i] = backup[i]
         # (The plan's check covered its tube, so the state need not be shown inside anew:
         # the interval the filter holds may be wider than the tube the plan was verified
         # with, as it is what the filter knows, not where the plan keeps the state.)
-        return k > 0 and a.viable[k - 1] > 0.0 and flags[CONSISTENT] > 0.0, 1.0
+        return planned, 1.0
     candidate = a.work.rollout[R_CANDIDATE]
     low, high = 0.0, 1.0  # λ = low is verified
     for _ in range(BISECTIONS):

@@ -40,13 +40,12 @@ NOMINAL_NOW, NOMINAL, SHIFTED, MINV, MINV_END, MINV_MID, LU, FACTOR = range(8)
 ROLL_MASS, ROLL_MINV, ROLL_LU, BACKUP_FACTOR = range(8, 12)
 # Of CbfWork.rollout (n each): the rollout's state, the tube's half-widths δq, δv, its torque,
 # nominal q̈ and b̂; the bound D on q̈'s departure; what each set allows; the backup's target
-# velocities; the masses, bias and q̈ with a payload; scratch; a blend of the QP's torque and
-# the backup's; the true velocity's interval at this step (its centre and half-width) and
-# the one predicted for the next step; the backup's √weight per joint; flags (CONSISTENT).
-(R_Q, R_V, R_DQ, R_DV, R_TAU, R_ACC, R_BIAS, R_DEV, R_LIMIT_Q, R_LIMIT_V, R_TARGET, R_MASSES,
- R_PBIAS, R_PACC, R_SCRATCH, R_CANDIDATE, R_CENTRE, R_HALF, R_NEXT_LOW, R_NEXT_HIGH,
- R_WEIGHT, R_FLAGS) = range(22)
-ROLLOUT_ROWS = 22
+# velocities; scratch; a blend of the QP's torque and the backup's; the true velocity's
+# interval at this step (its centre and half-width) and the one predicted for the next step;
+# the backup's √weight per joint; flags (CONSISTENT).
+(R_Q, R_V, R_DQ, R_DV, R_TAU, R_ACC, R_BIAS, R_DEV, R_LIMIT_Q, R_LIMIT_V, R_TARGET, R_SCRATCH,
+ R_CANDIDATE, R_CENTRE, R_HALF, R_NEXT_LOW, R_NEXT_HIGH, R_WEIGHT, R_FLAGS) = range(19)
+ROLLOUT_ROWS = 19
 # R_FLAGS[CONSISTENT]: 1 where the velocity's intervals met at this step; R_FLAGS[PLAN]: the
 # backup policy of the last torque verified
 CONSISTENT, PLAN = 0, 1
