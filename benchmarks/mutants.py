@@ -97,8 +97,8 @@ MUTANTS = [
      VIABILITY),
     # the payload's departure at the range's ends only (the grid's first and last point)
     ("cbf-payload-ends-only", "cosim/paper/cbf_filter/backup.py",
-     "        for corner in range(corner_index.shape[0]):",
-     "        for corner in (0, corner_index.shape[0] - 1):", VIABILITY),
+     "start, end = weight * s_grid[g, j], weight * s_grid[g + 1, j]",
+     "start = end = weight * s_grid[grid, j]", VIABILITY),
     ("cbf-turning-point", "cosim/paper/cbf_filter/backup.py",
      "max(abs(q[i] - a.q_s[k, i]), abs(turn - a.q_s[k, i]))", "abs(q[i] - a.q_s[k, i])",
      VIABILITY),

@@ -168,12 +168,12 @@ def _payload_deviation(a, q, q_dot, acceleration, deviation):
     A point mass Δm at the last link's centre of mass (Jacobian J, γ = J̇v + g ŷ) moves q̈ by
     −(M̂ + ΔmJᵀJ)⁻¹ΔmJᵀ(Jq̈(0) + γ) = −Σ_j α_j s_j(Δm) v_jᵀ(Jq̈(0) + γ), with
     K = JM̂⁻¹Jᵀ = Σ_j λ_j v_j v_jᵀ, α_j = v_jᵀJM̂⁻¹ and s_j = Δm/(1 + Δmλ_j) (Woodbury; the
-    hard rows' structure, :func:`.model.payload_structure`). Linear in (s_1, s_2), which both
+    hard rows' structure, :func:`.model.payload_structure`). Linear in the s_j, which all
     increase with Δm: between two points of the payload grid the curve lies in their box,
-    so the largest size is bounded at the boxes' corners. Not at the range's ends alone: the
-    two terms may cancel at both ends and not between (measured on the paper's arm braking
-    near its bound: 0.75 rad/s² at the ends, 4.7 at Δm = 0.38 kg). Where M̂ is the plant's,
-    the shift is −ΔmM̂⁻¹Jᵀγ: linear in Δm, largest at an end."""
+    where a linear function's extremes are the sums of its terms' (each at one end). Not at
+    the range's ends alone: the terms may cancel at both ends and not between (measured on
+    the paper's arm braking near its bound: 0.75 rad/s² at the ends, 4.7 at Δm = 0.38 kg).
+    Where M̂ is the plant's, the shift is −ΔmM̂⁻¹Jᵀγ: linear in Δm, largest at an end."""
     if a.payload_low == 0.0 and a.payload_high == 0.0:
         return
     w = a.work
@@ -196,16 +196,22 @@ def _payload_deviation(a, q, q_dot, acceleration, deviation):
     payload_structure(a.payload_low, a.payload_high, minv, acceleration, w.planar, w.pairs,
                       w.squares, w.s_grid)
     vec = w.squares[VEC]
-    alpha, s_grid, corner_index = w.planar[ALPHA], w.s_grid, w.corner_index
-    for j in range(2):
-        structure[j] = vec[0, j] * gamma[0] + vec[1, j] * gamma[1]
+    alpha, s_grid = w.planar[ALPHA], w.s_grid
+    d, grid = vec.shape[0], s_grid.shape[0] - 1
+    for j in range(d):
+        structure[j] = 0.0
+        for r in range(d):
+            structure[j] += vec[r, j] * gamma[r]
     for i in range(n):
         worst = 0.0
-        for corner in range(corner_index.shape[0]):
-            shift = 0.0
-            for j in range(2):
-                shift += alpha[j, i] * structure[j] * s_grid[corner_index[corner, j], j]
-            worst = max(worst, abs(shift))
+        for g in range(grid):  # the box between grid points g and g + 1: its extremes
+            largest = least = 0.0
+            for j in range(d):
+                weight = -alpha[j, i] * structure[j]
+                start, end = weight * s_grid[g, j], weight * s_grid[g + 1, j]
+                largest += max(start, end)
+                least += min(start, end)
+            worst = max(worst, largest, -least)
         deviation[i] += worst
 
 
