@@ -44,8 +44,8 @@ def load_pipeline(path: str | Path | None, overrides: list[str] | None = None,
     if pipeline.plant.fmu is not None:
         fmu = Path(pipeline.plant.fmu).expanduser()
         pipeline.plant.fmu = str(fmu if fmu.is_absolute() else (base / fmu).resolve())
-    for table in [pipeline, *pipeline.runs.values()]:
+    for table in [pipeline, *pipeline.runs.values()]:  # a CSV given by --set: from ``base``
         reference = getattr(table, "reference", None)
-        if reference is not None and reference.csv is not None:  # given by --set: from the pipeline file's folder
+        if reference is not None and reference.csv is not None:
             reference.csv = str(absolute(reference.csv, base))
     return pipeline

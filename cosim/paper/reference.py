@@ -72,8 +72,8 @@ class ReferenceParams(Section):
     safe_centre: list[FiniteFloat] | None = None
     # the velocity set's centre q̇_s per joint, given instead of the midpoint, rad/s
     safe_velocity_centre: list[FiniteFloat] | None = None
-    # joint-space waypoints joined by minimum-jerk segments (a table: times, positions);
-    # given, they replace the sinusoids
+    # joint-space waypoints joined by minimum-jerk segments, a table: times (s) and one row
+    # of joint positions per time (rad); given, they replace the sinusoids, mixed units
     waypoints: Waypoints | None = None
     # a CSV trajectory: rows of t, q_1…q_n, optionally q̇_1…q̇_n and q̈_1…q̈_n (s, rad,
     # rad/s, rad/s²), joined by quintic segments; relative to the pipeline file; given, it
