@@ -1,0 +1,107 @@
+"""The arm in 3-D, for a plant read from a URDF: its links (the URDF's visual meshes and
+shapes, loaded by Rerun's own URDF loader) moving with the trace, one transform per moving
+joint per drawn row, and a skeleton joining the joints that shows even where a mesh is
+missing. Runs in the writer process. SI units, radians (metres for a prismatic joint).
+
+Layout under ``/<run>/arm3d``:
+
+    <robot>/visual_geometries/<link>/...    the loader's geometry, each in its link's frame
+    joints/<joint>                          the joint's transform parent link -> child link:
+                                            moving joints at the trace's q, others static
+    skeleton/<link>                         lines from the link's origin to its child joints'
+
+Frames are the URDF's link names under ``<run>/`` (one arm per run, moved by its own q).
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+
+from .layout import UrdfArm
+
+MOVING = ("revolute", "continuous", "prismatic")
+SKELETON_COLOR = (230, 150, 40)
+
+
+def frame(run: str, link: str) -> str:
+    """The frame of one run's link."""
+    return f"{run}/{link}"
+
+
+def package_paths(urdf: Path) -> list[str]:
+    """The ROS_PACKAGE_PATH entries that resolve the file's ``package://NAME/…`` meshes when
+    the URDF sits inside that package (as example-robot-data's do): for each NAME, the
+    nearest folder above the URDF that is NAME or holds NAME, taken as NAME's parent."""
+    names = set(re.findall(r"package://([^/\"']+)/", urdf.read_text(encoding="utf-8")))
+    found = []
+    for name in sorted(names):
+        for folder in urdf.resolve().parents:
+            if folder.name == name:
+                found.append(str(folder.parent))
+                break
+            if (folder / name).is_dir():
+                found.append(str(folder))
+                break
+    return list(dict.fromkeys(found))
+
+
+def load_tree(run: str, arm: UrdfArm):
+    """Rerun's URDF tree of ``arm``, its frames under ``<run>/``, package meshes resolved."""
+    import rerun as rr
+
+    extra = package_paths(Path(arm.path))
+    if extra:
+        known = os.environ.get("ROS_PACKAGE_PATH", "")
+        os.environ["ROS_PACKAGE_PATH"] = os.pathsep.join([*extra, *filter(None, [known])])
+    return rr.urdf.UrdfTree.from_file_path(arm.path, frame_prefix=f"{run}/")
+
+
+def log_model(rec, run: str, arm: UrdfArm):
+    """The static part of one run's arm: geometry, the joints that do not move, the
+    skeleton. Returns the tree (for :func:`log_pose`)."""
+    import rerun as rr
+
+    tree = load_tree(run, arm)
+    unknown = [name for name in arm.joints if tree.get_joint_by_name(name) is None]
+    if unknown:
+        raise ValueError(f"{arm.path} has no joint {', '.join(unknown)} (the plant's joints: "
+                         f"{', '.join(arm.joints)})")
+    root = f"/{run}/arm3d"
+    # Visual geometry only: the collision meshes would double the file for nothing seen.
+    rec.send_chunks([chunk.with_entity_path(f"{root}{chunk.entity_path}")
+                     for chunk in tree.stream(include_joint_transforms=False).to_chunks()
+                     if "/collision_geometries" not in str(chunk.entity_path)])
+    moving = set(arm.joints)
+    for joint in tree.joints():
+        if joint.name not in moving:  # fixed, or held at a value by the plant
+            value = arm.held.get(joint.name, 0.0)
+            rec.log(f"{root}/joints/{joint.name}", joint.compute_transform(value, clamp=False),
+                    static=True)
+    children: dict[str, list[tuple[float, float, float]]] = {}
+    for joint in tree.joints():
+        children.setdefault(joint.parent_link, []).append(joint.origin_xyz)
+    reach = max((float(np.linalg.norm(xyz)) for ends in children.values() for xyz in ends),
+                default=0.1)
+    for link, ends in children.items():
+        rec.log(f"{root}/skeleton/{link}",
+                rr.LineStrips3D([[(0.0, 0.0, 0.0), end] for end in ends],
+                                colors=[SKELETON_COLOR], radii=[0.03 * reach]),
+                rr.CoordinateFrame(frame(run, link)), static=True)
+    return tree
+
+
+def log_pose(rec, run: str, arm: UrdfArm, tree, times: np.ndarray, q: np.ndarray) -> None:
+    """The moving joints' transforms at ``times`` (s) from ``q`` (rows, n): column j is
+    joint ``arm.joints[j]``."""
+    import rerun as rr
+
+    index = [rr.TimeColumn("sim_time", duration=times)]
+    for j, name in enumerate(arm.joints):
+        joint = tree.get_joint_by_name(name)
+        rec.send_columns(f"/{run}/arm3d/joints/{name}", indexes=index,
+                         columns=joint.compute_transform_columns(q[:, j].tolist(),
+                                                                 clamp=False))
