@@ -21,6 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
+from plant_fmu.urdf import package_dirs
+
 from .layout import UrdfArm
 
 MOVING = ("revolute", "continuous", "prismatic")
@@ -33,20 +35,12 @@ def frame(run: str, link: str) -> str:
 
 
 def package_paths(urdf: Path) -> list[str]:
-    """The ROS_PACKAGE_PATH entries that resolve the file's ``package://NAME/…`` meshes when
-    the URDF sits inside that package (as example-robot-data's do): for each NAME, the
-    nearest folder above the URDF that is NAME or holds NAME, taken as NAME's parent."""
+    """The ROS_PACKAGE_PATH entries that let Rerun's loader find the file's
+    ``package://NAME/…`` meshes where the URDF reader finds them
+    (:func:`plant_fmu.urdf.package_dirs`): each found package folder's parent."""
     names = set(re.findall(r"package://([^/\"']+)/", urdf.read_text(encoding="utf-8")))
-    found = []
-    for name in sorted(names):
-        for folder in urdf.resolve().parents:
-            if folder.name == name:
-                found.append(str(folder.parent))
-                break
-            if (folder / name).is_dir():
-                found.append(str(folder))
-                break
-    return list(dict.fromkeys(found))
+    return list(dict.fromkeys(str(folder.parent) for name in sorted(names)
+                              for folder in package_dirs(name, near=urdf.parent)))
 
 
 def load_tree(run: str, arm: UrdfArm):

@@ -1,0 +1,160 @@
+"""The arm in 3-D (cosim/outputs/recording/arm3d.py): a recording of a Panda, from
+example-robot-data's URDF (a test extra, never copied into the repo), written by the real
+writer process and read back with rerun-sdk's reader: its links' meshes are there, each
+moving joint has one transform per drawn row, and composing the recorded transforms from the
+root link to the hand gives the hand's pose that Pinocchio computes from the same URDF at the
+same joint angles. Two runs with different angles stay apart (frames per run)."""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ElementTree
+
+import numpy as np
+import pinocchio as pin
+import pytest
+from rerun.chunk import RrdReader
+
+from cosim.outputs.recording import Recorder, RunSpec, UrdfArm
+from cosim.outputs.recording.layout import ARM_RATE_HZ, blueprint
+from plant_fmu.urdf import package_dirs, read_urdf
+
+PANDA = package_dirs("example-robot-data")[0] / "robots/panda_description/urdf/panda.urdf"
+DT, ROWS = 1e-3, 1001  # 1 s at 1 kHz
+RUNS = {"slow": 0.5, "fast": 2.0}  # run -> its joints' frequency, rad/s
+# Rerun stores transforms in single precision: ~1e-7 relative per joint, composed over the
+# chain's ten joints (7 moving, 3 fixed) of a metre-sized arm.
+POSITION_TOL = 1e-5  # m
+ROTATION_TOL = 1e-5  # the rotation matrices' entries
+
+
+def angles(frequency: float, chain) -> np.ndarray:
+    """Every joint sweeping inside its limits: (ROWS, n) rad."""
+    t = np.arange(ROWS) * DT
+    middle, half = (chain.upper + chain.lower) / 2, (chain.upper - chain.lower) / 2
+    phase = np.arange(chain.n)
+    return middle + 0.8 * half * np.sin(frequency * t[:, None] + phase)
+
+
+@pytest.fixture(scope="module")
+def recorded(tmp_path_factory):
+    """The two runs' recording, and each run's joint angles."""
+    chain = read_urdf(PANDA)
+    arm = UrdfArm(str(PANDA), chain.joints, dict(chain.held))
+    path = tmp_path_factory.mktemp("arm3d") / "recording.rrd"
+    recorder = Recorder(path, "panda", list(RUNS), spatial=list(RUNS))
+    q = {}
+    for name, frequency in RUNS.items():
+        q[name] = angles(frequency, chain)
+        recorder.begin_run(RunSpec(name, chain.n, DT, (ROWS - 1) * DT, {}, {},
+                                   np.ones(chain.n), urdf=arm))
+        for start in range(0, ROWS, 400):  # in chunks, as a run sends them
+            stop = min(ROWS, start + 400)
+            recorder.send_rows(name, start, stop, {"q": q[name][start:stop],
+                                                   "q_d": q[name][start:stop]}, {}, {})
+        recorder.end_run(name, {"complete": True, "metrics": {}, "safety": {}})
+    recorder.close(complete=True)
+    return path, chain, q
+
+
+def transforms(path) -> dict[str, dict]:
+    """Per entity of /<run>/arm3d/joints/: its parent and child frames, and its transforms
+    (times or None if static, translations, xyzw quaternions)."""
+    out = {}
+    for chunk in RrdReader(path).stream():
+        entity = str(chunk.entity_path)
+        if "/arm3d/joints/" not in entity:
+            continue
+        batch = chunk.to_record_batch()
+        column = {name.split(":")[-1]: batch.column(name).to_pylist()
+                  for name in batch.schema.names}
+        times = (np.array(batch.column("sim_time").cast("int64").to_pylist()) * 1e-9
+                 if "sim_time" in batch.schema.names else None)
+        out[entity] = {"parent": column["parent_frame"][0][0],
+                       "child": column["child_frame"][0][0], "time": times,
+                       "translation": np.array([row[0] for row in column["translation"]]),
+                       "quaternion": np.array([row[0] for row in column["quaternion"]])}
+    return out
+
+
+def homogeneous(translation: np.ndarray, xyzw: np.ndarray) -> np.ndarray:
+    x, y, z, w = xyzw
+    pose = np.eye(4)
+    pose[:3, :3] = pin.Quaternion(w, x, y, z).normalized().toRotationMatrix()
+    pose[:3, 3] = translation
+    return pose
+
+
+def recorded_pose(joints: dict[str, dict], run: str, link: str, row: int,
+                  times: np.ndarray) -> np.ndarray:
+    """``link``'s frame in the root link's, composed from the recorded joint transforms at
+    sim_time row·DT (the row's index in a temporal entity's drawn rows)."""
+    by_child = {j["child"]: j for e, j in joints.items() if e.startswith(f"/{run}/")}
+    pose, frame = np.eye(4), f"{run}/{link}"
+    while frame in by_child:
+        joint = by_child[frame]
+        k = 0 if joint["time"] is None else int(np.flatnonzero(
+            np.isclose(joint["time"], times[row]))[0])
+        pose = homogeneous(joint["translation"][k], joint["quaternion"][k]) @ pose
+        frame = joint["parent"]
+    assert frame == f"{run}/panda_link0", frame  # the URDF's root
+    return pose
+
+
+def test_the_recorded_joint_transforms_give_pinocchios_hand_pose(recorded):
+    """At five drawn rows of each run, the hand's pose composed from the recording equals
+    Pinocchio's forward kinematics of the same URDF at the run's joint angles (fingers at
+    0, as the plant holds them). Every moving joint has one transform per drawn row (50 Hz),
+    at the drawn times."""
+    path, chain, q = recorded
+    joints = transforms(path)
+    model = pin.buildModelFromUrdf(str(PANDA))
+    data = model.createData()
+    hand = model.getFrameId("panda_hand")
+    stride = round(1 / (ARM_RATE_HZ * DT))
+    drawn = np.arange(0, ROWS, stride) * DT
+    for run in RUNS:
+        for name in chain.joints:
+            times = joints[f"/{run}/arm3d/joints/{name}"]["time"]
+            np.testing.assert_allclose(times, drawn, atol=1e-9)
+        for row in (0, 7, 20, 33, 50):  # drawn rows: 0.14 s apart, the last at 1 s
+            angles_now = q[run][row * stride]
+            full = pin.neutral(model)
+            full[:chain.n] = angles_now  # Pinocchio's q: the 7 arm joints, then the fingers
+            pin.framesForwardKinematics(model, data, full)
+            expected = data.oMf[hand].homogeneous
+            got = recorded_pose(joints, run, "panda_hand", row, drawn)
+            assert np.max(np.abs(got[:3, 3] - expected[:3, 3])) <= POSITION_TOL, (run, row)
+            assert np.max(np.abs(got[:3, :3] - expected[:3, :3])) <= ROTATION_TOL, (run, row)
+    # the two runs' arms are apart: at 1 s their hands are ~0.1 m or more from each other
+    last = {run: recorded_pose(joints, run, "panda_hand", 50, drawn)[:3, 3] for run in RUNS}
+    assert np.linalg.norm(last["slow"] - last["fast"]) > 0.05
+
+
+def test_the_links_meshes_and_skeleton_are_in_the_recording(recorded):
+    """Every link with a <visual> has its geometry under /<run>/arm3d/panda/visual_geometries
+    (the meshes resolved from package://), in its run's frame of that link; the skeleton
+    is drawn for every parent link; the collision meshes are left out; the layout puts the
+    runs in 3-D views."""
+    path, _, _ = recorded
+    entities = {}
+    for chunk in RrdReader(path).stream():
+        names = chunk.to_record_batch().schema.names
+        entities.setdefault(str(chunk.entity_path), set()).update(
+            name.split(":")[0] for name in names if ":" in name)
+    visual_links = {link.get("name") for link in ElementTree.parse(PANDA).getroot().iter("link")
+                    if link.find("visual") is not None}
+    for run in RUNS:
+        geometry = {e.split("/")[5] for e in entities
+                    if e.startswith(f"/{run}/arm3d/panda/visual_geometries/")}
+        assert geometry == visual_links, run
+        meshes = [e for e in entities if e.startswith(f"/{run}/arm3d/panda/visual_geometries/")
+                  and entities[e] & {"Asset3D", "Mesh3D"}]
+        assert len(meshes) >= len(visual_links), run
+        assert f"/{run}/arm3d/skeleton/panda_link0" in entities
+    assert not [e for e in entities if "collision" in e]
+    import rerun.blueprint as rrb
+
+    columns = blueprint(list(RUNS), spatial=["slow"]).root_container.contents
+    arms = [column.contents[-1].contents[-1] for column in columns]  # the row's last view
+    assert isinstance(arms[0], rrb.Spatial3DView) and arms[0].origin == "/slow/arm3d"
+    assert isinstance(arms[1], rrb.Spatial2DView) and arms[1].origin == "/fast/arm"
