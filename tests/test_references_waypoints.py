@@ -192,6 +192,29 @@ def test_a_reference_outside_the_limits_is_refused_naming_joint_time_and_value(t
         == []
 
 
+@pytest.mark.parametrize(("table", "message"), [
+    ("times = [0.0, 2.0, 1.0]\npositions = [[0, 0], [1, 1], [0, 0]]",
+     "reference.waypoints.times[2] = 1 s does not increase (times[1] = 2 s); times must "
+     "increase strictly"),
+    ("times = [0.5, 2.0]\npositions = [[0, 0], [1, 1]]",
+     "reference.waypoints.times starts at 0.5 s; the first waypoint is at t = 0 s, the run's "
+     "start"),
+    ("times = [0.0, 2.0]\npositions = [[0, 0], [1, 1], [0, 0]]",
+     "reference.waypoints.positions has 3 rows, times has 2: one row of joint positions per "
+     "time"),
+    ("times = [0.0, 2.0]\npositions = [[0, 0, 0], [1, 1, 1]]",
+     "reference.waypoints.positions has rows of 3 entries (one per joint, rad); the plant "
+     "(the plant) has 2 joints"),
+])
+def test_bad_waypoints_are_refused_naming_the_key(tmp_path, table, message):
+    """Times that do not increase or do not start at 0, a row count other than the times',
+    rows of the wrong joint count: one message naming the key (at load or assembly)."""
+    with pytest.raises(PipelineError) as caught:
+        _, pipeline = waypoint_pipeline(tmp_path, f"[reference.waypoints]\n{table}")
+        assemble_run(pipeline, "pd_full_state", _TwoLinkArm())
+    assert message in str(caught.value)
+
+
 def write_csv(path: Path, rows: list[str], header: str = "t,q1,q2") -> Path:
     path.write_text("\n".join([header, *rows]) + "\n")
     return path
