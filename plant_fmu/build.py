@@ -142,7 +142,7 @@ def build_urdf_fmu(urdf: str | Path, base: str | None = None, tip: str | None = 
     chain = read_urdf(urdf, base=base, tip=tip, fixed=fixed)
     model = SpatialChainModel(chain, source=str(urdf))
     stem = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in chain.name)
-    return _build_cached(model, chain.n, fmi_version, output, cache_dir, f"{stem}{chain.n}")
+    return _build_cached(model, chain.n, fmi_version, output, cache_dir, stem)
 
 
 def _build_cached(chosen: ModuleType, links: int, fmi_version: int,

@@ -264,7 +264,7 @@ def _check_inertial(link, carried_by, path: Path) -> None:
         return
     mass = float(inertial.mass)
     if not np.isfinite(mass) or mass < 0 or (carried_by is not None and mass == 0):
-        raise UrdfError(f"{path}: link '{link.name}' <inertial><mass value='{inertial.mass}'>"
+        raise UrdfError(f"{path}: link '{link.name}' <inertial><mass value='{mass:g}'>"
                         ": a mass in kg must be positive" +
                         (f" (moving joint '{carried_by}' carries it)" if mass == 0 else ""))
     inertia = np.asarray(inertial.inertia, float) if inertial.inertia is not None else None
