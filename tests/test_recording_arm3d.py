@@ -1,9 +1,10 @@
-"""The arm in 3-D (cosim/outputs/recording/arm3d.py): a recording of a Panda, from
-example-robot-data's URDF (a test extra, never copied into the repo), written by the real
-writer process and read back with rerun-sdk's reader: its links' meshes are there, each
-moving joint has one transform per drawn row, and composing the recorded transforms from the
-root link to the hand gives the hand's pose that Pinocchio computes from the same URDF at the
-same joint angles. Two runs with different angles stay apart (frames per run)."""
+"""The arm in 3-D (cosim/outputs/recording/arm3d.py): a Panda, from example-robot-data's
+URDF (a test extra, never copied into the repo), run as the URDF plant FMU (plant.urdf) by
+`cosim run`'s own runner under a PD controller along two waypoint references, and the
+recording read back with rerun-sdk's reader: its links' meshes are there, each moving joint
+has one transform per drawn row, and composing the recorded transforms from the root link
+to the hand gives the hand's pose that Pinocchio computes from the same URDF at the joint
+angles of the run's trace. The two runs' arms stay apart (frames per run)."""
 
 from __future__ import annotations
 
@@ -14,46 +15,63 @@ import pinocchio as pin
 import pytest
 from rerun.chunk import RrdReader
 
-from cosim.outputs.recording import Recorder, RunSpec, UrdfArm
+from cosim.config import load_pipeline
 from cosim.outputs.recording.layout import ARM_RATE_HZ, blueprint
+from cosim.runner import run as run_pipeline
 from plant_fmu.urdf import package_dirs, read_urdf
 
 PANDA = package_dirs("example-robot-data")[0] / "robots/panda_description/urdf/panda.urdf"
 DT, ROWS = 1e-3, 1001  # 1 s at 1 kHz
-RUNS = {"slow": 0.5, "fast": 2.0}  # run -> its joints' frequency, rad/s
+READY = [0.0, -0.785, 0.0, -2.356, 0.0, 1.571, 0.785]  # rad, the Panda's "ready" pose
+RUNS = {"out": 1.0, "back": -1.0}  # run -> the direction it moves every joint from READY
 # Rerun stores transforms in single precision: ~1e-7 relative per joint, composed over the
 # chain's ten joints (7 moving, 3 fixed) of a metre-sized arm.
 POSITION_TOL = 1e-5  # m
 ROTATION_TOL = 1e-5  # the rotation matrices' entries
 
-
-def angles(frequency: float, chain) -> np.ndarray:
-    """Every joint sweeping inside its limits: (ROWS, n) rad."""
-    t = np.arange(ROWS) * DT
-    middle, half = (chain.upper + chain.lower) / 2, (chain.upper - chain.lower) / 2
-    phase = np.arange(chain.n)
-    return middle + 0.8 * half * np.sin(frequency * t[:, None] + phase)
+PIPELINE = """
+name = "panda_view"
+[simulation]
+duration = 1.0
+[plant]
+urdf = "{urdf}"
+[plant.parameters]
+{start}
+[reference]
+safe_centre = {zeros}
+safe_velocity_centre = {zeros}
+[inertia_model]
+source = "fmu"
+[pd_controller]   # without gravity compensation: the arm sags, which the view must show
+kp = [200.0, 200.0, 200.0, 200.0, 50.0, 50.0, 50.0]
+kd = [20.0, 20.0, 20.0, 20.0, 2.0, 2.0, 2.0]
+gravity_compensation = false
+velocity = "plant"
+"""
+RUN = """
+[runs.{name}]
+blocks = ["reference", "sensor", "inertia_model", "pd_controller"]
+[runs.{name}.reference.waypoints]
+times = [0.0, 1.0]
+positions = [{ready}, {goal}]
+"""
 
 
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory):
-    """The two runs' recording, and each run's joint angles."""
-    chain = read_urdf(PANDA)
-    arm = UrdfArm(str(PANDA), chain.joints, dict(chain.held))
-    path = tmp_path_factory.mktemp("arm3d") / "recording.rrd"
-    recorder = Recorder(path, "panda", list(RUNS), spatial=list(RUNS))
-    q = {}
-    for name, frequency in RUNS.items():
-        q[name] = angles(frequency, chain)
-        recorder.begin_run(RunSpec(name, chain.n, DT, (ROWS - 1) * DT, {}, {},
-                                   np.ones(chain.n), urdf=arm))
-        for start in range(0, ROWS, 400):  # in chunks, as a run sends them
-            stop = min(ROWS, start + 400)
-            recorder.send_rows(name, start, stop, {"q": q[name][start:stop],
-                                                   "q_d": q[name][start:stop]}, {}, {})
-        recorder.end_run(name, {"complete": True, "metrics": {}, "safety": {}})
-    recorder.close(complete=True)
-    return path, chain, q
+    """The two runs' recording, the Panda's chain, and each run's trace of q."""
+    folder = tmp_path_factory.mktemp("arm3d")
+    start = "\n".join(f'"q0[{i + 1}]" = {v}' for i, v in enumerate(READY))
+    text = PIPELINE.format(urdf=PANDA, start=start, zeros=[0.0] * 7)
+    for name, sign in RUNS.items():
+        goal = [v + sign * 0.3 for v in READY]
+        text += RUN.format(name=name, ready=READY, goal=goal)
+    (folder / "panda.toml").write_text(text)
+    results = run_pipeline(load_pipeline(folder / "panda.toml"), folder / "out",
+                           progress=False, figures=False)
+    assert all(result.complete for result in results.values())
+    q = {name: results[name].trace["q"] for name in RUNS}
+    return folder / "out" / "recording.rrd", read_urdf(PANDA), q
 
 
 def transforms(path) -> dict[str, dict]:
@@ -102,7 +120,7 @@ def recorded_pose(joints: dict[str, dict], run: str, link: str, row: int,
 
 def test_the_recorded_joint_transforms_give_pinocchios_hand_pose(recorded):
     """At five drawn rows of each run, the hand's pose composed from the recording equals
-    Pinocchio's forward kinematics of the same URDF at the run's joint angles (fingers at
+    Pinocchio's forward kinematics of the same URDF at the trace's joint angles (fingers at
     0, as the plant holds them). Every moving joint has one transform per drawn row (50 Hz),
     at the drawn times."""
     path, chain, q = recorded
@@ -125,16 +143,16 @@ def test_the_recorded_joint_transforms_give_pinocchios_hand_pose(recorded):
             got = recorded_pose(joints, run, "panda_hand", row, drawn)
             assert np.max(np.abs(got[:3, 3] - expected[:3, 3])) <= POSITION_TOL, (run, row)
             assert np.max(np.abs(got[:3, :3] - expected[:3, :3])) <= ROTATION_TOL, (run, row)
-    # the two runs' arms are apart: at 1 s their hands are ~0.1 m or more from each other
+    # the two runs' arms are apart: at 1 s their hands are ~0.3 m from each other
     last = {run: recorded_pose(joints, run, "panda_hand", 50, drawn)[:3, 3] for run in RUNS}
-    assert np.linalg.norm(last["slow"] - last["fast"]) > 0.05
+    assert np.linalg.norm(last["out"] - last["back"]) > 0.1
 
 
 def test_the_links_meshes_and_skeleton_are_in_the_recording(recorded):
     """Every link with a <visual> has its geometry under /<run>/arm3d/panda/visual_geometries
-    (the meshes resolved from package://), in its run's frame of that link; the skeleton
-    is drawn for every parent link; the collision meshes are left out; the layout puts the
-    runs in 3-D views."""
+    (the meshes resolved from package://); the skeleton is drawn; the collision meshes are
+    left out; every joint's signals are beside it; the layout puts a URDF run's arm in a 3-D
+    view and a planar run's in 2-D."""
     path, _, _ = recorded
     entities = {}
     for chunk in RrdReader(path).stream():
@@ -151,10 +169,12 @@ def test_the_links_meshes_and_skeleton_are_in_the_recording(recorded):
                   and entities[e] & {"Asset3D", "Mesh3D"}]
         assert len(meshes) >= len(visual_links), run
         assert f"/{run}/arm3d/skeleton/panda_link0" in entities
+        assert {f"/{run}/plant/q", f"/{run}/plant/tau", f"/{run}/reference/q_d"} <= set(entities)
+        assert f"/{run}/arm/links" not in entities  # no planar drawing of a spatial arm
     assert not [e for e in entities if "collision" in e]
     import rerun.blueprint as rrb
 
-    columns = blueprint(list(RUNS), spatial=["slow"]).root_container.contents
+    columns = blueprint(list(RUNS), spatial=["out"]).root_container.contents
     arms = [column.contents[-1].contents[-1] for column in columns]  # the row's last view
-    assert isinstance(arms[0], rrb.Spatial3DView) and arms[0].origin == "/slow/arm3d"
-    assert isinstance(arms[1], rrb.Spatial2DView) and arms[1].origin == "/fast/arm"
+    assert isinstance(arms[0], rrb.Spatial3DView) and arms[0].origin == "/out/arm3d"
+    assert isinstance(arms[1], rrb.Spatial2DView) and arms[1].origin == "/back/arm"
