@@ -59,7 +59,7 @@ positions = [{ready}, {goal}]
 
 @pytest.fixture(scope="module")
 def recorded(tmp_path_factory):
-    """The two runs' recording, the Panda's chain, and each run's trace of q."""
+    """The two runs' recording, the Panda's chain, and each run's traces of q and q_d."""
     folder = tmp_path_factory.mktemp("arm3d")
     start = "\n".join(f'"q0[{i + 1}]" = {v}' for i, v in enumerate(READY))
     text = PIPELINE.format(urdf=PANDA, start=start, zeros=[0.0] * 7)
@@ -70,17 +70,19 @@ def recorded(tmp_path_factory):
     results = run_pipeline(load_pipeline(folder / "panda.toml"), folder / "out",
                            progress=False, figures=False)
     assert all(result.complete for result in results.values())
-    q = {name: results[name].trace["q"] for name in RUNS}
-    return folder / "out" / "recording.rrd", read_urdf(PANDA), q
+    angles = {(name, kind): results[name].trace[key] for name in RUNS
+              for kind, key in (("arm", "q"), ("desired", "q_d"))}
+    return folder / "out" / "recording.rrd", read_urdf(PANDA), angles
 
 
 def transforms(path) -> dict[str, dict]:
-    """Per entity of /<run>/arm3d/joints/: its parent and child frames, and its transforms
-    (times or None if static, translations, xyzw quaternions)."""
+    """Per joint entity of /<run>/arm3d/ (the arm's and the desired pose's, and the desired
+    pose's base): its parent and child frames, and its transforms (times or None if
+    static, translations, xyzw quaternions)."""
     out = {}
     for chunk in RrdReader(path).stream():
         entity = str(chunk.entity_path)
-        if "/arm3d/joints/" not in entity:
+        if "/arm3d/" not in entity or not ("/joints/" in entity or entity.endswith("/base")):
             continue
         batch = chunk.to_record_batch()
         column = {name.split(":")[-1]: batch.column(name).to_pylist()
@@ -102,27 +104,27 @@ def homogeneous(translation: np.ndarray, xyzw: np.ndarray) -> np.ndarray:
     return pose
 
 
-def recorded_pose(joints: dict[str, dict], run: str, link: str, row: int,
+def recorded_pose(joints: dict[str, dict], frames: str, link: str, row: int,
                   times: np.ndarray) -> np.ndarray:
-    """``link``'s frame in the root link's, composed from the recorded joint transforms at
-    sim_time row·DT (the row's index in a temporal entity's drawn rows)."""
-    by_child = {j["child"]: j for e, j in joints.items() if e.startswith(f"/{run}/")}
-    pose, frame = np.eye(4), f"{run}/{link}"
+    """The frame ``<frames>/<link>`` in the run's root link frame, composed from the
+    recorded joint transforms at ``times[row]`` (the drawn rows' times)."""
+    by_child = {j["child"]: j for j in joints.values()}
+    pose, frame = np.eye(4), f"{frames}/{link}"
     while frame in by_child:
         joint = by_child[frame]
         k = 0 if joint["time"] is None else int(np.flatnonzero(
             np.isclose(joint["time"], times[row]))[0])
         pose = homogeneous(joint["translation"][k], joint["quaternion"][k]) @ pose
         frame = joint["parent"]
-    assert frame == f"{run}/panda_link0", frame  # the URDF's root
+    assert frame == f"{frames.split('/')[0]}/panda_link0", frame  # the run's root link
     return pose
 
 
 def test_the_recorded_joint_transforms_give_pinocchios_hand_pose(recorded):
     """At five drawn rows of each run, the hand's pose composed from the recording equals
     Pinocchio's forward kinematics of the same URDF at the trace's joint angles (fingers at
-    0, as the plant holds them). Every moving joint has one transform per drawn row (50 Hz),
-    at the drawn times."""
+    0, as the plant holds them), for the arm (q) and for the desired pose (q_d, on the same
+    base). Every moving joint has one transform per drawn row (50 Hz), at the drawn times."""
     path, chain, q = recorded
     joints = transforms(path)
     model = pin.buildModelFromUrdf(str(PANDA))
@@ -130,22 +132,27 @@ def test_the_recorded_joint_transforms_give_pinocchios_hand_pose(recorded):
     hand = model.getFrameId("panda_hand")
     stride = round(1 / (ARM_RATE_HZ * DT))
     drawn = np.arange(0, ROWS, stride) * DT
-    for run in RUNS:
+    for (run, kind), angles in q.items():
+        frames = run if kind == "arm" else f"{run}/desired"
+        entity = f"/{run}/arm3d" + ("" if kind == "arm" else "/desired")
         for name in chain.joints:
-            times = joints[f"/{run}/arm3d/joints/{name}"]["time"]
+            times = joints[f"{entity}/joints/{name}"]["time"]
             np.testing.assert_allclose(times, drawn, atol=1e-9)
         for row in (0, 7, 20, 33, 50):  # drawn rows: 0.14 s apart, the last at 1 s
-            angles_now = q[run][row * stride]
             full = pin.neutral(model)
-            full[:chain.n] = angles_now  # Pinocchio's q: the 7 arm joints, then the fingers
+            full[:chain.n] = angles[row * stride]  # Pinocchio's q: the arm's 7, the fingers
             pin.framesForwardKinematics(model, data, full)
             expected = data.oMf[hand].homogeneous
-            got = recorded_pose(joints, run, "panda_hand", row, drawn)
+            got = recorded_pose(joints, frames, "panda_hand", row, drawn)
             assert np.max(np.abs(got[:3, 3] - expected[:3, 3])) <= POSITION_TOL, (run, row)
             assert np.max(np.abs(got[:3, :3] - expected[:3, :3])) <= ROTATION_TOL, (run, row)
     # the two runs' arms are apart: at 1 s their hands are ~0.3 m from each other
     last = {run: recorded_pose(joints, run, "panda_hand", 50, drawn)[:3, 3] for run in RUNS}
     assert np.linalg.norm(last["out"] - last["back"]) > 0.1
+    # and the arm lags its reference (no gravity compensation): the desired hand is elsewhere
+    desired = recorded_pose(joints, "out/desired", "panda_hand", 20, drawn)[:3, 3]
+    assert np.linalg.norm(desired - recorded_pose(joints, "out", "panda_hand", 20, drawn)[:3, 3]
+                          ) > 1e-3
 
 
 def test_the_links_meshes_and_skeleton_are_in_the_recording(recorded):
@@ -169,6 +176,7 @@ def test_the_links_meshes_and_skeleton_are_in_the_recording(recorded):
                   and entities[e] & {"Asset3D", "Mesh3D"}]
         assert len(meshes) >= len(visual_links), run
         assert f"/{run}/arm3d/skeleton/panda_link0" in entities
+        assert f"/{run}/arm3d/desired/skeleton/panda_link0" in entities
         assert {f"/{run}/plant/q", f"/{run}/plant/tau", f"/{run}/reference/q_d"} <= set(entities)
         assert f"/{run}/arm/links" not in entities  # no planar drawing of a spatial arm
     assert not [e for e in entities if "collision" in e]

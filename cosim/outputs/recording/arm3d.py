@@ -9,8 +9,11 @@ Layout under ``/<run>/arm3d``:
     joints/<joint>                          the joint's transform parent link -> child link:
                                             moving joints at the trace's q, others static
     skeleton/<link>                         lines from the link's origin to its child joints'
+    desired/{base, joints/…, skeleton/…}    the pose the reference asks for (q_d), as a
+                                            grey skeleton on the same base
 
-Frames are the URDF's link names under ``<run>/`` (one arm per run, moved by its own q).
+Frames are the URDF's link names under ``<run>/`` (one arm per run, moved by its own q), and
+under ``<run>/desired/`` for the desired pose.
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ import numpy as np
 
 from plant_fmu.urdf import package_dirs
 
-from .layout import UrdfArm
+from .layout import REFERENCE_COLOR, UrdfArm
 
 MOVING = ("revolute", "continuous", "prismatic")
 SKELETON_COLOR = (230, 150, 40)
@@ -54,12 +57,13 @@ def load_tree(run: str, arm: UrdfArm):
     return rr.urdf.UrdfTree.from_file_path(arm.path, frame_prefix=f"{run}/")
 
 
-def log_model(rec, run: str, arm: UrdfArm):
-    """The static part of one run's arm: geometry, the joints that do not move, the
-    skeleton. Returns the tree (for :func:`log_pose`)."""
+def log_model(rec, run: str, arm: UrdfArm) -> tuple:
+    """The static part of one run's arm and of the pose its reference asks for (a second
+    set of frames, ``<run>/desired/<link>``, on the same base): the geometry, the joints
+    that do not move, the skeletons. Returns both trees (for :func:`log_pose`)."""
     import rerun as rr
 
-    tree = load_tree(run, arm)
+    tree, desired = load_tree(run, arm), load_tree(f"{run}/desired", arm)
     unknown = [name for name in arm.joints if tree.get_joint_by_name(name) is None]
     if unknown:
         raise ValueError(f"{arm.path} has no joint {', '.join(unknown)} (the plant's joints: "
@@ -69,33 +73,53 @@ def log_model(rec, run: str, arm: UrdfArm):
     rec.send_chunks([chunk.with_entity_path(f"{root}{chunk.entity_path}")
                      for chunk in tree.stream(include_joint_transforms=False).to_chunks()
                      if "/collision_geometries" not in str(chunk.entity_path)])
-    moving = set(arm.joints)
+    base = tree.root_link().name
+    rec.log(f"{root}/desired/base", rr.Transform3D(
+        translation=[0.0, 0.0, 0.0], quaternion=rr.Quaternion(xyzw=[0.0, 0.0, 0.0, 1.0]),
+        parent_frame=frame(run, base), child_frame=frame(f"{run}/desired", base)), static=True)
+    for prefix, frames, color, which in ((root, run, SKELETON_COLOR, tree),
+                                         (f"{root}/desired", f"{run}/desired",
+                                          REFERENCE_COLOR, desired)):
+        _log_still_joints(rec, f"{prefix}/joints", which, arm)
+        _log_skeleton(rec, f"{prefix}/skeleton", frames, which, color)
+    return tree, desired
+
+
+def _log_still_joints(rec, entity: str, tree, arm: UrdfArm) -> None:
+    """The joints that do not move (fixed, or held at a value by the plant), static."""
     for joint in tree.joints():
-        if joint.name not in moving:  # fixed, or held at a value by the plant
+        if joint.name not in arm.joints:
             value = arm.held.get(joint.name, 0.0)
-            rec.log(f"{root}/joints/{joint.name}", joint.compute_transform(value, clamp=False),
+            rec.log(f"{entity}/{joint.name}", joint.compute_transform(value, clamp=False),
                     static=True)
+
+
+def _log_skeleton(rec, entity: str, frames: str, tree, color) -> None:
+    """A line from each link's origin to each of its child joints, in that link's frame."""
+    import rerun as rr
+
     children: dict[str, list[tuple[float, float, float]]] = {}
     for joint in tree.joints():
         children.setdefault(joint.parent_link, []).append(joint.origin_xyz)
     reach = max((float(np.linalg.norm(xyz)) for ends in children.values() for xyz in ends),
                 default=0.1)
     for link, ends in children.items():
-        rec.log(f"{root}/skeleton/{link}",
-                rr.LineStrips3D([[(0.0, 0.0, 0.0), end] for end in ends],
-                                colors=[SKELETON_COLOR], radii=[0.03 * reach]),
-                rr.CoordinateFrame(frame(run, link)), static=True)
-    return tree
+        rec.log(f"{entity}/{link}", rr.LineStrips3D([[(0.0, 0.0, 0.0), end] for end in ends],
+                                                    colors=[color], radii=[0.03 * reach]),
+                rr.CoordinateFrame(frame(frames, link)), static=True)
 
 
-def log_pose(rec, run: str, arm: UrdfArm, tree, times: np.ndarray, q: np.ndarray) -> None:
-    """The moving joints' transforms at ``times`` (s) from ``q`` (rows, n): column j is
-    joint ``arm.joints[j]``."""
+def log_pose(rec, run: str, arm: UrdfArm, trees: tuple, times: np.ndarray, q: np.ndarray,
+             q_d: np.ndarray) -> None:
+    """The moving joints' transforms at ``times`` (s), of the arm from ``q`` and of the
+    desired pose from ``q_d`` (rows, n): column j is joint ``arm.joints[j]``."""
     import rerun as rr
 
     index = [rr.TimeColumn("sim_time", duration=times)]
-    for j, name in enumerate(arm.joints):
-        joint = tree.get_joint_by_name(name)
-        rec.send_columns(f"/{run}/arm3d/joints/{name}", indexes=index,
-                         columns=joint.compute_transform_columns(q[:, j].tolist(),
-                                                                 clamp=False))
+    for prefix, tree, values in ((f"/{run}/arm3d", trees[0], q),
+                                 (f"/{run}/arm3d/desired", trees[1], q_d)):
+        for j, name in enumerate(arm.joints):
+            joint = tree.get_joint_by_name(name)
+            rec.send_columns(f"{prefix}/joints/{name}", indexes=index,
+                             columns=joint.compute_transform_columns(values[:, j].tolist(),
+                                                                     clamp=False))

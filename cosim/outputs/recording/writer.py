@@ -45,7 +45,7 @@ class _Writer:
     batch_s: float = 5.0
     runs: dict[str, RunSpec] = field(default_factory=dict)
     pending: dict[str, list] = field(default_factory=dict)
-    trees: dict[str, object] = field(default_factory=dict)  # run -> its URDF tree (3-D arm)
+    trees: dict[str, tuple] = field(default_factory=dict)  # run -> its URDF trees (3-D arm)
 
     def begin(self, spec: RunSpec) -> None:
         """Static styles: series names and joint colours, the checks' bounds, the arm."""
@@ -161,7 +161,7 @@ class _Writer:
             return
         if spec.urdf is not None:
             arm3d.log_pose(self.rec, spec.name, spec.urdf, self.trees[spec.name], times[pick],
-                           rows["q"][pick])
+                           rows["q"][pick], rows["q_d"][pick])
             return
         index = [rr.TimeColumn("sim_time", duration=times[pick])]
         links = arm_points(rows["q"][pick], spec.link_lengths)
