@@ -82,9 +82,15 @@ class SpatialChainModel:
         kind = self.chain.kind
         return lambda index: units[int(kind[index[0]])]
 
+    def _naming(self, words: tuple[str, str]):
+        """A description per joint with its URDF name: "Angle of joint 'panda_joint3'"
+        (``words`` before the name: for a revolute joint, for a prismatic one)."""
+        joints, kind = self.chain.joints, self.chain.kind
+        return lambda index: f"{words[int(kind[index[0]])]} joint '{joints[index[0]]}'"
+
     def families(self) -> tuple[VariableFamily, ...]:
         c = self.chain
-        per_joint = self._per_joint
+        per_joint, named = self._per_joint, self._naming
         tip = f"the tip frame (link '{c.tip_link}')"
         return (
             VariableFamily("time", "", "independent", "continuous", "s", "Simulation time"),
@@ -125,12 +131,14 @@ class SpatialChainModel:
                            "positive"),
             VariableFamily("tau", "n", "input", "continuous", None,
                            "Applied force at joint i (torque for a revolute joint)",
-                           constant(0.0), "finite", unit_of=per_joint(FORCE)),
-            VariableFamily("q", "n", "output", "continuous", None,
-                           "Position of joint i (the URDF joint of the model's description)",
-                           unit_of=per_joint(POSITION)),
+                           constant(0.0), "finite", unit_of=per_joint(FORCE),
+                           description_of=named(("Torque applied to", "Force applied to"))),
+            VariableFamily("q", "n", "output", "continuous", None, "Position of joint i",
+                           unit_of=per_joint(POSITION),
+                           description_of=named(("Angle of", "Position of"))),
             VariableFamily("qdot", "n", "output", "continuous", None, "Velocity of joint i",
-                           derivative_of="q", unit_of=per_joint(VELOCITY)),
+                           derivative_of="q", unit_of=per_joint(VELOCITY),
+                           description_of=named(("Angular velocity of", "Velocity of"))),
             VariableFamily("M", "nn", "output", "continuous", None,
                            "Joint-space inertia matrix M(q) (CRBA)",
                            unit_of=lambda ij: INERTIA[(int(c.kind[ij[0]]), int(c.kind[ij[1]]))]),
