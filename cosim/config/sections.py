@@ -103,7 +103,9 @@ VariableMapping = create_model(
 class Plant(Section):
     builtin: BuiltinPlant | None = None
     fmu: str | None = None  # the plant FMU's file, relative to the pipeline file, a path
-    urdf: UrdfPlant | None = None  # a robot's URDF, built into the plant FMU at run time
+    # a robot's URDF built into the plant FMU at run time: its file, relative to the pipeline
+    # file or package://..., a path (or a table: file, base, tip, fixed, fmi_version)
+    urdf: UrdfPlant | None = None
     # FMU parameter and start values by the FMU's variable name, each in that variable's own
     # unit (cosim inspect lists them), mixed units
     parameters: dict[str, FiniteFloat] = {}
