@@ -28,8 +28,7 @@ from plant_fmu.urdf import package_dirs
 
 from .layout import REFERENCE_COLOR, UrdfArm
 
-MOVING = ("revolute", "continuous", "prismatic")
-SKELETON_COLOR = (230, 150, 40)
+SKELETON_COLOR = (230, 150, 40)  # the arm's skeleton: orange, seen through grey meshes
 
 
 def frame(run: str, link: str) -> str:
