@@ -18,7 +18,7 @@ from .config import Pipeline, PipelineError
 from .engine import Diverged, simulate
 from .evaluate import Evaluation
 from .outputs.figures import FIGURE_FILES, write_figures
-from .outputs.recording import Recorder, RunSpec
+from .outputs.recording import Recorder, RunSpec, UrdfArm
 from .outputs.recording.layout import check_views, derived_entities
 from .outputs.run_folder import RunFolder, RunFolderError, jsonable
 from .outputs.table import markdown_table
@@ -82,11 +82,12 @@ def run(pipeline: Pipeline, out_dir: str | Path | None = None, progress: bool = 
     try:
         folder = RunFolder.create(out_dir, force) if out_dir else None
         # The writer imports Rerun in its own process while the first run loads its blocks.
+        arm = urdf_arm(pipeline) if folder is not None and record else None
         if folder is not None and record:
-            recorder = _open_recorder(folder.path, scenario, spawn, connect)
+            recorder = _open_recorder(folder.path, scenario, spawn, connect, arm)
             recorder.set_properties(_properties(pipeline, plant_info))
         for name, plan in scenario.runs.items():
-            result = _run_one(plan, scenario, plant_info, recorder, progress, engine)
+            result = _run_one(plan, scenario, plant_info, recorder, progress, engine, arm)
             results[name] = result
             if folder is not None:
                 folder.write_trace(name, result.trace, result.evaluation)
@@ -182,9 +183,9 @@ def _summary(pipeline: Pipeline, results: dict[str, RunResult], plant_info: dict
 
 
 def _run_one(plan: RunPlan, scenario: Scenario, plant_info: dict, recorder: Recorder | None,
-             progress: bool, engine: str) -> RunResult:
+             progress: bool, engine: str, arm: UrdfArm | None = None) -> RunResult:
     """One run through the master, evaluated and recorded chunk by chunk (one simulated
-    second each)."""
+    second each); ``arm``: the plant's URDF, drawn in 3-D."""
     name, plant, sim = plan.name, scenario.plant, scenario.pipeline.simulation
     steps = scenario.steps
     if progress:
@@ -215,7 +216,7 @@ def _run_one(plan: RunPlan, scenario: Scenario, plant_info: dict, recorder: Reco
                 evaluator.bounds, link_lengths(plant_info, plan),
                 tuple(n for n in evaluator.barrier_values if n != io.BARRIER_CONDITION), derived,
                 {n: (declared.family, joint)
-                 for n, (declared, joint) in evaluator.declared.items()}))
+                 for n, (declared, joint) in evaluator.declared.items()}, arm))
         # Everything evaluated that the recorder has not been given (an interrupt between
         # the two leaves it for the next call).
         start, stop = recorder.sent[name], evaluator.upto
@@ -259,8 +260,21 @@ def _run_one(plan: RunPlan, scenario: Scenario, plant_info: dict, recorder: Reco
     return result
 
 
-def _open_recorder(out: Path, scenario: Scenario, spawn: bool,
-                   connect: str | None) -> Recorder:
+def urdf_arm(pipeline: Pipeline) -> UrdfArm | None:
+    """The plant's URDF, its moving joints (q's columns) and the joints it holds, for the
+    3-D view: a plant built from ``plant.urdf``; None for any other plant (drawn planar)."""
+    urdf = getattr(pipeline.plant, "urdf", None)
+    if urdf is None:
+        return None
+    from plant_fmu.urdf import read_urdf, resolve_uri
+
+    path = resolve_uri(urdf.file, Path.cwd())
+    chain = read_urdf(path, urdf.base, urdf.tip, dict(urdf.fixed))
+    return UrdfArm(str(path), chain.joints, dict(chain.held))
+
+
+def _open_recorder(out: Path, scenario: Scenario, spawn: bool, connect: str | None,
+                   arm: UrdfArm | None = None) -> Recorder:
     pipeline, sim = scenario.pipeline, scenario.pipeline.simulation
     title = (f"{pipeline.name}: {' vs '.join(pipeline.runs)} "
              f"({sim.duration:g} s at {1 / sim.step:g} Hz)")
@@ -272,7 +286,8 @@ def _open_recorder(out: Path, scenario: Scenario, spawn: bool,
               for name, plan in scenario.runs.items()}
     checks = {name: check_views(plan.declarations()) for name, plan in scenario.runs.items()}
     return Recorder(out / "recording.rrd", title, list(pipeline.runs), spawn=spawn,
-                    connect=connect, views=views, error_views=errors, check_views=checks)
+                    connect=connect, views=views, error_views=errors, check_views=checks,
+                    spatial=list(pipeline.runs) if arm is not None else [])
 
 
 def _present(plan: RunPlan) -> frozenset[str]:

@@ -26,6 +26,7 @@ from .layout import (
     JOINT_COLORS,
     VIOLATION_COLOR,
     RunSpec,
+    UrdfArm,
     derived_entities,
 )
 
@@ -33,7 +34,7 @@ F_SETPIPE_SZ = getattr(fcntl, "F_SETPIPE_SZ", 1031)  # Linux; elsewhere the call
 PIPE_BYTES = 1 << 20
 
 __all__ = ["BOUND_COLOR", "JOINT_COLORS", "VIOLATION_COLOR", "Recorder", "derived_entities",
-           "RecordingError", "RunSpec"]
+           "RecordingError", "RunSpec", "UrdfArm"]
 
 
 class RecordingError(RuntimeError):
@@ -52,7 +53,8 @@ class Recorder:
                  spawn: bool = False, connect: str | None = None, port: int = 9876,
                  views: dict[str, list] | None = None,
                  error_views: dict[str, list] | None = None,
-                 check_views: dict[str, list] | None = None):
+                 check_views: dict[str, list] | None = None,
+                 spatial: list[str] | None = None):
         self.path = Path(path)
         self.sent: dict[str, int] = {}
         self.handoff_seconds = 0.0  # time the caller spent handing rows over
@@ -60,7 +62,7 @@ class Recorder:
         self._ready = False
         header = {"name": name, "runs": run_names, "recording_id": str(uuid.uuid4()),
                   "views": views or {}, "error_views": error_views or {},
-                  "check_views": check_views or {}}
+                  "check_views": check_views or {}, "spatial": spatial or []}
         live = {"spawn": spawn, "connect": connect, "port": port, "viewer": None}
         if spawn:
             from ..viewer import has_display, viewer_binary

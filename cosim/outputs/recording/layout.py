@@ -12,7 +12,9 @@ Layout (one subtree per run; one timeline, ``sim_time``, in seconds; SI units, r
     /<run>/barrier/{H1, H2, H}
     /<run>/barrier_condition                     Ḣ + α·H where it fails (< 0): first row
                                                 of each stretch, then every 10 ms
-    /<run>/arm/{links, joints, desired}         the arm, drawn at 50 Hz
+    /<run>/arm/{links, joints, desired}         the planar arm, drawn at 50 Hz
+    /<run>/arm3d/...                            an arm read from a URDF, in 3-D, at 50 Hz
+                                                (:mod:`.arm3d`), instead of the planar one
 
 Multi-joint signals are one entity with series ``<label>1``, ``<label>2``, … in the same
 colours in every run, and so are a check family's joints (its norm in grey). Constant bounds
@@ -65,6 +67,15 @@ def check_views(declarations: Iterable[Declaration]) -> list[tuple[str, str]]:
             for figure in figures for d in drawn if d.figure == figure]
 
 
+@dataclass(frozen=True)
+class UrdfArm:
+    """An arm the recording draws in 3-D from its URDF."""
+
+    path: str  # the URDF file
+    joints: tuple[str, ...]  # the URDF names of the plant's joints, q's columns in order
+    held: dict[str, float] = field(default_factory=dict)  # joints the plant holds, rad or m
+
+
 @dataclass
 class RunSpec:
     """What the writer needs to know of one run before its rows arrive."""
@@ -82,6 +93,7 @@ class RunSpec:
     # check -> (its family, its joint or None for the norm): a family's checks are one
     # entity, a series each
     check_families: dict[str, tuple[str, int | None]] = field(default_factory=dict)
+    urdf: UrdfArm | None = None  # drawn in 3-D from its URDF, else as a planar chain
 
     def family(self, check: str) -> str:
         return self.check_families.get(check, (check, None))[0]
@@ -136,10 +148,12 @@ SIDE_BY_SIDE = 2
 
 def blueprint(run_names: list[str], block_views: dict[str, list] | None = None,
               error_views: dict[str, list] | None = None,
-              checks: dict[str, list[tuple[str, str]]] | None = None):
+              checks: dict[str, list[tuple[str, str]]] | None = None,
+              spatial: Collection[str] = ()):
     """For every run: the checks drawn in figures (``checks[run]``: (title, family), from
     :func:`check_views`), the torque, then barriers, the observer's velocity error
-    where the run has one (``error_views[run]``: (entity, title)) and the arm, and the views
+    where the run has one (``error_views[run]``: (entity, title)) and the arm (in 3-D for
+    the runs in ``spatial``, whose plant was read from a URDF), and the views
     the run's blocks add (``block_views[run]``: (entity, title) pairs, e.g. a CBF filter's
     barrier values and how much it corrects the torque); runs side by side up to
     :data:`SIDE_BY_SIDE`, else a tab per run; time panel on sim_time, paused."""
@@ -157,7 +171,9 @@ def blueprint(run_names: list[str], block_views: dict[str, list] | None = None,
                                name=f"{run}: barrier condition (≥ 0 where it holds)"),
             *(rrb.TimeSeriesView(origin=f"/{run}/{entity}", name=f"{run}: {title}")
               for entity, title in (error_views or {}).get(run) or []),
-            rrb.Spatial2DView(origin=f"/{run}/arm", name=f"{run}: arm (m)"),
+            (rrb.Spatial3DView(origin=f"/{run}/arm3d", name=f"{run}: arm (m)")
+             if run in spatial else
+             rrb.Spatial2DView(origin=f"/{run}/arm", name=f"{run}: arm (m)")),
         ))
         extra = (block_views or {}).get(run) or []
         if extra:

@@ -19,6 +19,7 @@ from multiprocessing.connection import Connection
 import numpy as np
 
 from ... import interface as io
+from . import arm3d
 from .layout import (
     ARM_RATE_HZ,
     BOUND_COLOR,
@@ -44,6 +45,7 @@ class _Writer:
     batch_s: float = 5.0
     runs: dict[str, RunSpec] = field(default_factory=dict)
     pending: dict[str, list] = field(default_factory=dict)
+    trees: dict[str, tuple] = field(default_factory=dict)  # run -> its URDF trees (3-D arm)
 
     def begin(self, spec: RunSpec) -> None:
         """Static styles: series names and joint colours, the checks' bounds, the arm."""
@@ -81,6 +83,9 @@ class _Writer:
                 self.rec.log(f"{base}/violation/{name}", rr.SeriesPoints(
                     names=["violation"], colors=[VIOLATION_COLOR], markers=["cross"],
                     marker_sizes=[3.0]), static=True)
+        if spec.urdf is not None:
+            self.trees[spec.name] = arm3d.log_model(self.rec, spec.name, spec.urdf)
+            return
         # Only colours and radii are static: a static strip or point would hide the
         # animated ones.
         reach = float(np.sum(spec.link_lengths))
@@ -154,6 +159,10 @@ class _Writer:
         pick = np.flatnonzero((start + np.arange(len(times))) % stride == 0)
         if not len(pick):
             return
+        if spec.urdf is not None:
+            arm3d.log_pose(self.rec, spec.name, spec.urdf, self.trees[spec.name], times[pick],
+                           rows["q"][pick], rows["q_d"][pick])
+            return
         index = [rr.TimeColumn("sim_time", duration=times[pick])]
         links = arm_points(rows["q"][pick], spec.link_lengths)
         desired = arm_points(rows["q_d"][pick], spec.link_lengths)
@@ -184,7 +193,7 @@ def _writer_main(inbox: Connection, outbox: Connection) -> None:
         elif live.get("connect"):
             sinks.append(rr.GrpcSink(live["connect"]))
         layout = blueprint(header["runs"], header.get("views"), header.get("error_views"),
-                           header.get("check_views"))
+                           header.get("check_views"), header.get("spatial", ()))
         rec.set_sinks(*sinks, default_blueprint=layout)
         rec.send_recording_name(header["name"])
         outbox.send(("ready", ""))
