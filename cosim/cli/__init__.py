@@ -30,6 +30,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return supervise(sys.argv[1:])
     if argv is None and os.environ.get(SUPERVISED):
         follow_the_supervisor()
+        _dump_fatal_signals()
     from plant_fmu import BuildError
 
     from ..schema import PipelineError
@@ -48,3 +49,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
+
+
+def _dump_fatal_signals() -> None:
+    """In the supervised run process: a fatal signal (a plugin's or a plant's binary
+    crashing) dumps the Python stack where the supervisor reads whose code it was in."""
+    import faulthandler
+    from pathlib import Path
+
+    from ..run_note import NOTE
+    from .supervisor import fault_file
+
+    if os.environ.get(NOTE):
+        try:  # kept open for the life of the process: faulthandler writes to its descriptor
+            faulthandler.enable(fault_file(Path(os.environ[NOTE])).open("w"))
+        except OSError:
+            pass
