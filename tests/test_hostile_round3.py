@@ -47,7 +47,7 @@ class Hostile(Block):
         super().__init__(params, context)
         self.inputs = ("tau",)
         self.outputs = {{"tau": Signal("n", "N·m", "the torque, passed on", "{kind}/tau"),
-                        **{{name: Signal("1", "1", "a plugin's value") for name in {names}}}}}
+                        **{{name: Signal("1", "1", "a plugin's value", kept=True) for name in {names}}}}}
 
     def reset(self, ports):
         self.ports = ports
@@ -86,9 +86,10 @@ def run_in(folder: Path, *args: str, env: dict | None = None,
 
 
 def tree(folder: Path) -> dict[str, tuple[int, int]]:
-    """Every file under ``folder``: (size, modification time)."""
-    return {str(p.relative_to(folder)): (p.lstat().st_size, p.lstat().st_mtime_ns)
-            for p in sorted(folder.rglob("*"))}
+    """Every entry under ``folder``: a file's or link's (size, modification time); a
+    folder's (0, 0) (its time moves when an entry comes and goes)."""
+    return {str(p.relative_to(folder)): (0, 0) if p.is_dir() and not p.is_symlink()
+            else (p.lstat().st_size, p.lstat().st_mtime_ns) for p in sorted(folder.rglob("*"))}
 
 
 @pytest.fixture(scope="module")
@@ -176,3 +177,108 @@ def test_a_step_returning_false_is_named_as_such_not_as_divergence(tmp_path):
                    "the plugin false block stopped the run at t = 0.02 s: its step returned False "
                    "(a block's step returns True to go on; False, or nothing, stops the run); "
                    "what was computed is kept in out; summary.json says what is incomplete")
+
+
+# Plugins: what their code can do to a command --------------------------------------------
+
+def test_a_plugin_that_calls_sys_exit_at_import_is_one_message(tmp_path):
+    """sys.exit(0) at a plugin's import no longer ends run or params with status 0 and
+    nothing done; the command says which plugin, and that it imports it."""
+    (tmp_path / "quits.py").write_text("import sys\n\nsys.exit(0)\n")
+    (tmp_path / "p.toml").write_text('plugins = ["quits.py"]\n')
+    for command in (["run", "p.toml", "--out", "out"], ["params", "p.toml"]):
+        done = run_in(tmp_path, *command)
+        assert done.stderr.startswith(f"cosim: importing plugin {tmp_path}/quits.py (its code "
+                                      "runs now)\n")
+        assert_message(error_line(done),
+                       f"plugins: {tmp_path}/quits.py: failed to import: it called "
+                       f"sys.exit(0) ({tmp_path}/quits.py, line 3, in <module>); a plugin must "
+                       "only define and register its blocks")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["p.toml", "quits.py"]
+
+
+def test_a_plugin_that_segfaults_at_import_leaves_the_supervisor_to_say_so(tmp_path):
+    (tmp_path / "crashes.py").write_text("import ctypes\n\nctypes.string_at(0)\n")
+    (tmp_path / "p.toml").write_text('plugins = ["crashes.py"]\n')
+    done = run_in(tmp_path, "run", "p.toml")
+    assert_message(error_line(done),
+                   f"the run process was killed by SIGSEGV in a plugin's code ({tmp_path}/"
+                   "crashes.py, line 3, in <module>), before any run folder was made; nothing "
+                   "was run or written")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["crashes.py", "p.toml"]
+
+
+def test_plugin_signal_names_the_trace_cannot_hold_are_refused_before_the_run(tmp_path):
+    """``file`` and ``allow_pickle`` are plain names now (kept in the trace); ``time``,
+    ``_units`` and ``check_*`` are the trace file's own: refused, naming the block."""
+    pipeline = plugin(tmp_path / "fine", "plugin_names", names=("file", "allow_pickle"))
+    done = run_in(pipeline.parent, "run", pipeline.name, "--run", "hostile", "--out", "out",
+                  "--no-figures", "--no-recording")
+    assert done.returncode == 0, done.stderr[-2000:]
+    with np.load(pipeline.parent / "out" / "trace_hostile.npz") as trace:
+        np.testing.assert_array_equal(trace["allow_pickle"], np.arange(201))
+        np.testing.assert_array_equal(trace["file"], np.arange(201))
+    clash = ("the trace file's own ('check_', 'barrier_', '_': the checks', the barriers' "
+             "values, the units)")
+    for name, why in (("time", "the name of the trace's time column"),
+                      ("_units", f"and names starting with '_' are {clash}"),
+                      ("check_mine", f"and names starting with 'check_' are {clash}")):
+        kind = f"plugin_{name.strip('_')}"
+        pipeline = plugin(tmp_path / kind, kind, names=(name,))
+        done = run_in(pipeline.parent, "run", pipeline.name, "--run", "hostile", "--out",
+                      "out", "--no-figures", "--no-recording")
+        assert_message(error_line(done), f"run 'hostile': the {kind} block writes '{name}', "
+                       f"{why}; rename that output")
+        assert not (pipeline.parent / "out").exists()
+
+
+@pytest.mark.parametrize("kind", ["runs", "plant", "safety"])
+def test_a_plugin_block_kind_may_not_take_a_pipeline_key(kind, tmp_path):
+    from cosim.blocks.plugins import load_plugins
+    from cosim.schema import PipelineError
+
+    source = PLUGIN.format(kind=kind, names="()", step="        return True")
+    path = tmp_path / f"kind_{kind}.py"
+    path.write_text(source, encoding="utf-8")
+    with pytest.raises(PipelineError) as caught:
+        load_plugins([str(path)])
+    assert str(caught.value) == (
+        f"plugins: {path}: failed to import: ValueError: Hostile.kind = {kind!r} is the name "
+        "of a pipeline's own key (name, description, plugins, simulation, plant, safety, "
+        "uncertainty, runs, extends); a block's table would collide with it: choose another "
+        f"kind ({path}, line 16, in <module>)")
+
+
+def test_the_run_process_does_not_import_the_working_folders_modules(tmp_path):
+    """`cosim run` starts its run process without the working folder on the module path: a
+    random.py or json.py there does not shadow the standard library."""
+    for name in ("random.py", "json.py"):
+        (tmp_path / name).write_text("raise RuntimeError('shadowed the standard library')\n")
+    done = run_in(tmp_path, "run", str(ROOT / PAPER), "--out", "out", "--no-recording",
+                  *SHORT, program=(COSIM,))
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert "shadowed" not in done.stderr
+
+
+def test_a_bad_stop_grace_is_one_message_before_anything_runs(tmp_path):
+    done = run_in(tmp_path, "run", str(ROOT / PAPER), "--out", "out",
+                  env={**os.environ, "COSIM_STOP_GRACE_S": "abc"})
+    assert_message(error_line(done), "COSIM_STOP_GRACE_S='abc': expected a number of seconds "
+                   "> 0 (default 10); nothing was run")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_refused_run_without_out_leaves_no_folder_and_latest_as_it_was(finished, tmp_path):
+    """A run refused before writing anything (a missing plant FMU, a dead --connect) says
+    nothing was run and means it: no empty runs/NAME/<time>, latest not moved."""
+    base = tmp_path / "runs" / "paper_two_link"
+    base.mkdir(parents=True)
+    shutil.copytree(finished, base / "earlier")
+    (base / "latest").symlink_to("earlier", target_is_directory=True)
+    before = tree(tmp_path)
+    missing = run_in(tmp_path, "run", str(ROOT / PAPER), "--set", 'plant.fmu="missing.fmu"')
+    assert "missing.fmu" in error_line(missing)
+    dead = run_in(tmp_path, "run", str(ROOT / PAPER), "--connect",
+                  "rerun+http://127.0.0.1:9/proxy")
+    assert error_line(dead).endswith("; nothing was run")
+    assert tree(tmp_path) == before
