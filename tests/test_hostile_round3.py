@@ -282,3 +282,160 @@ def test_a_refused_run_without_out_leaves_no_folder_and_latest_as_it_was(finishe
                   "rerun+http://127.0.0.1:9/proxy")
     assert error_line(dead).endswith("; nothing was run")
     assert tree(tmp_path) == before
+
+
+# compare as a CI gate ------------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def others(finished, tmp_path_factory) -> dict[str, Path]:
+    """Run folders to hold against ``finished`` (A), run side by side: the baseline's kv
+    lowered (checks it already violated get worse), wider bounds, a shorter duration, and
+    a run stopped early (diverged at 0.05 s)."""
+    base = tmp_path_factory.mktemp("others")
+    cases = {"worse": ["--set", "runs.baseline.controller.kv=15"],
+             "wider": ["--set", "safety.velocity_bound=1000"],
+             "shorter": ["--set", "simulation.duration=0.4"],
+             "early": ["--set", 'observer.basis="lagged"', "--set", "observer.kp=10",
+                       "--set", "observer.kd=10", "--set", "observer.nu=1.0"]}
+    children = {name: subprocess.Popen(
+        [sys.executable, "-m", "cosim.cli", "run", PAPER, "--out", str(base / name),
+         "--no-recording", *SHORT, *extra], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+        text=True) for name, extra in cases.items()}
+    for name, child in children.items():
+        _, err = child.communicate(timeout=300)
+        assert child.returncode == (2 if name == "early" else 0), err[-2000:]
+    return {name: base / name for name in cases}
+
+
+def test_compare_refuses_what_is_not_like_with_like(finished, others):
+    """Wider bounds, another duration, a run stopped early: no verdict, exit 2, and what
+    differs named (a false 'no regression' before)."""
+    a = finished
+    expected = {
+        "wider": "safety.velocity_bound 13.5 in A, 1000.0 in B; compare",
+        "shorter": "simulation.duration 0.5 s in A, 0.4 s in B",
+        "early": "run baseline stopped early in B (at 0.",
+    }
+    for name, differs in expected.items():
+        b = others[name]
+        message = error_line(cosim_cli("compare", str(a), str(b)))
+        head = (f"A {a} and B {b} do not compare like with like, so no verdict: ")
+        assert message.startswith(f"cosim: error: {head}{differs}"), message
+        assert message.endswith("; compare runs of the same duration and bounds that both ran "
+                                "to their end")
+    early = error_line(cosim_cli("compare", str(a), str(others["early"])))
+    assert re.search(r"run baseline stopped early in B \(at 0\.0\d+ s of 0\.5 s: the run "
+                     r"diverged in the observer block at t = 0\.0\d+ s: a non-finite value\); "
+                     r"compare", early), early
+
+
+def test_compare_counts_a_worse_violation_once_with_a_tolerance_and_as_json(finished, others):
+    a, b = finished, others["worse"]
+    worse = cosim_cli("compare", str(a), str(b), "--run", "baseline", "--run", "baseline")
+    assert worse.returncode == 1, worse.stderr
+    tail = worse.stdout.split("\n4 regression(s):\n")[1].splitlines()
+    assert [line.split(":")[0].strip() for line in tail] == [
+        "baseline/error_joint2", "baseline/error_norm", "baseline/error_rate_joint2",
+        "baseline/error_rate_norm"]
+    assert re.fullmatch(r"  baseline/error_joint2: violated in A \(2\.386 VIOLATED\) and "
+                        r"worse in B \(2\.\d+ VIOLATED\)", tail[0])
+    assert worse.stdout.count("\nrun baseline\n") == 1 and "run proposed" not in worse.stdout
+    tolerated = cosim_cli("compare", str(a), str(b), "--tolerance", "0.3", "--json")
+    assert tolerated.returncode == 1, tolerated.stderr
+    document = json.loads(tolerated.stdout)
+    assert [r.split(":")[0] for r in document["regressions"]] == ["baseline/error_joint2"]
+    check = document["runs"]["baseline"]["checks"]["error_joint2"]
+    assert check["unit"] == "rad" and check["bound"] == 1.0 and check["change"] == "worse"
+    assert check["b_minus_a"] == pytest.approx(check["b"] - check["a"])
+    assert document["runs"]["proposed"]["checks"]["error_joint2"]["regression"] is False
+    assert document["runs"]["baseline"]["metrics"]["wall_time_s"]["timing"] is True
+    same = cosim_cli("compare", str(a), str(a), "--json")
+    assert same.returncode == 0 and json.loads(same.stdout)["regressions"] == []
+    bad = error_line(cosim_cli("compare", str(a), str(a), "--tolerance", "-1"))
+    assert_message(bad, "--tolerance -1: expected a fraction of each check's bound ≥ 0, e.g. "
+                   "0.01")
+
+
+# export --------------------------------------------------------------------------------------
+
+def test_export_writes_its_own_temporary_never_a_planted_link(finished, tmp_path):
+    folder = tmp_path / "run"
+    shutil.copytree(finished, folder)
+    victim = tmp_path / "victim.txt"
+    victim.write_text("the user's")
+    (folder / ".export_proposed.csv.tmp").symlink_to(victim)
+    done = cosim_cli("export", str(folder), "--format", "csv", "--run", "proposed")
+    assert done.returncode == 0, done.stderr
+    assert victim.read_text() == "the user's"
+    assert (folder / "export_proposed.csv").read_text().startswith("time (s),")
+
+
+def _rewrite_trace(folder: Path, run: str, change) -> None:
+    """trace_<run>.npz with ``change(arrays, units)`` applied (a trace as another writer,
+    or an older cosim, might have left it)."""
+    path = folder / f"trace_{run}.npz"
+    with np.load(path) as data:
+        arrays = {k: data[k] for k in data.files}
+    units = json.loads(str(arrays.pop("_units")))
+    change(arrays, units)
+    with zipfile.ZipFile(path, "w") as archive:
+        for key, values in {**arrays, "_units": np.array(json.dumps(units))}.items():
+            with archive.open(f"{key}.npy", "w") as f:
+                np.lib.format.write_array(f, values)
+
+
+def test_export_mat_keeps_every_signal_under_a_name_matlab_accepts(finished, tmp_path):
+    """Names MATLAB refuses (a leading '_', over 63 characters, non-ASCII) were dropped
+    silently; now each is made valid and the file's ``names`` maps it back."""
+    from scipy.io import loadmat
+
+    folder = tmp_path / "run"
+    shutil.copytree(finished, folder)
+    odd = {"_private": "1", "a_signal_name_that_goes_on_and_on_" + "x" * 40: "m",
+           "δ_über": "rad"}
+
+    def add(arrays, units):
+        for i, (name, unit) in enumerate(odd.items()):
+            arrays[name] = np.full(len(arrays["time"]), float(i))
+            units[name] = {"unit": unit, "description": f"odd name {i}"}
+
+    _rewrite_trace(folder, "proposed", add)
+    done = cosim_cli("export", str(folder), "--format", "mat", "--run", "proposed",
+                     "--out", str(tmp_path / "mat"))
+    assert done.returncode == 0, done.stderr
+    mat = loadmat(tmp_path / "mat" / "export_proposed.mat")
+    names = {str(v[0]): k for k, v in zip(mat["names"].dtype.names, mat["names"][0, 0],
+                                          strict=True)}
+    units = mat["units"][0, 0]
+    for i, (name, unit) in enumerate(odd.items()):
+        key = names[name]
+        assert re.fullmatch(r"[A-Za-z][A-Za-z0-9_]{0,62}", key), key
+        np.testing.assert_array_equal(mat[key].ravel(), float(i))
+        assert str(units[key][0]) == unit
+    assert names["tau"] == "tau"  # a valid name stays as it is
+
+
+def test_export_of_a_zero_row_a_damaged_and_a_traceless_run(finished, tmp_path):
+    folder = tmp_path / "run"
+    shutil.copytree(finished, folder)
+    _rewrite_trace(folder, "baseline",
+                   lambda arrays, units: arrays.update({k: v[:0] for k, v in arrays.items()}))
+    done = cosim_cli("export", str(folder), "--format", "csv", "--run", "baseline")
+    assert done.returncode == 0, done.stderr
+    assert len((folder / "export_baseline.csv").read_text().splitlines()) == 1  # the header
+    trace = folder / "trace_proposed.npz"
+    trace.write_bytes(trace.read_bytes()[:5000])
+    damaged = error_line(cosim_cli("export", str(folder), "--run", "proposed"))
+    assert damaged.startswith(f"cosim: error: {trace}: cannot be read, it is damaged (")
+    assert damaged.endswith("); run the pipeline again to rewrite it")
+    trace.unlink()
+    before = tree(folder)
+    traceless = error_line(cosim_cli("export", str(folder)))
+    assert_message(traceless, f"{folder}: run proposed has no trace file (trace_proposed.npz "
+                   "missing: the run was cut short before writing it, or it was deleted); "
+                   "nothing was exported: export the others with --run baseline")
+    assert tree(folder) == before
+    unwritable = error_line(cosim_cli("export", str(folder), "--run", "baseline",
+                                      "--out", "/proc"))
+    assert_message(unwritable, "/proc/export_baseline.parquet: could not be written (No such "
+                   "file or directory); choose a writable folder with --out")

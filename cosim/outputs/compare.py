@@ -86,6 +86,12 @@ def _like_with_like(first: dict, second: dict, names: list[str]) -> list[str]:
         va, vb = sims[0].get(key), sims[1].get(key)
         if va != vb:
             differs.append(f"simulation.{key} {va} {unit_} in A, {vb} {unit_} in B")
+    # the bounds as the pipelines set them, then (a run's own override) check by check
+    safety = [(s.get("pipeline") or {}).get("safety") or {} for s in (first, second)]
+    differs += [f"safety.{key} {safety[0].get(key)} in A, {safety[1].get(key)} in B"
+                for key in dict.fromkeys([*safety[0], *safety[1]])
+                if safety[0].get(key) != safety[1].get(key)]
+    bounds: list[str] = []
     for name in names:
         runs = [s["runs"].get(name) for s in (first, second)]
         if None in runs:
@@ -100,13 +106,14 @@ def _like_with_like(first: dict, second: dict, names: list[str]) -> list[str]:
                                if done is not None and duration is not None else
                                f"run {name} is incomplete in {label}")
         checks_a, checks_b = (r.get("safety") or {} for r in runs)
-        for check in checks_a.keys() & checks_b.keys():
+        for check in [c for c in checks_a if c in checks_b]:
             ba, bb = checks_a[check].get("bound"), checks_b[check].get("bound")
             if ba != bb:
-                u = unit(checks_a[check])
-                differs.append(f"{name}/{check} bound {ba:g} {u} in A, {bb:g} {u} in B"
-                               if isinstance(ba, int | float) and isinstance(bb, int | float)
-                               else f"{name}/{check} bound {ba} in A, {bb} in B")
+                u = f" {unit(checks_a[check])}".rstrip()
+                bounds.append(f"{name}/{check} bound {ba}{u} in A, {bb}{u} in B")
+    if bounds and not any(d.startswith("safety.") for d in differs):
+        differs += bounds[:3] + ([f"and {len(bounds) - 3} more bound(s)"]
+                                 if len(bounds) > 3 else [])
     return differs
 
 
