@@ -439,3 +439,49 @@ def test_export_of_a_zero_row_a_damaged_and_a_traceless_run(finished, tmp_path):
                                       "--out", "/proc"))
     assert_message(unwritable, "/proc/export_baseline.parquet: could not be written (No such "
                    "file or directory); choose a writable folder with --out")
+
+
+# FMUs: archives and versions -----------------------------------------------------------------
+
+def test_a_zip_bomb_fmu_is_refused_before_a_byte_is_decompressed(plant_fmu, tmp_path,
+                                                                  monkeypatch):
+    """Reading the model description checked every entry's CRC first (decompressing a
+    bomb whole: 7 s for 8 GB); now the size caps come first and the check streams."""
+    from cosim.plant import unpack
+    from cosim.plant.errors import FmuError
+    from cosim.plant.mapping import read_description
+
+    bomb = tmp_path / "bomb.fmu"
+    with zipfile.ZipFile(plant_fmu(2, 2)) as src, \
+            zipfile.ZipFile(bomb, "w", zipfile.ZIP_DEFLATED) as out:
+        for item in src.infolist():
+            out.writestr(item, src.read(item.filename))
+        out.writestr("resources/zeros.bin", bytes(50_000_000))
+    monkeypatch.setattr(unpack, "MAX_MEGABYTES", 2)
+    read = []
+    original = zipfile.ZipExtFile.read
+    monkeypatch.setattr(zipfile.ZipExtFile, "read",
+                        lambda self, n=-1: read.append(self.name) or original(self, n))
+    read_description(bomb)  # the description is read; the bomb is not
+    assert "resources/zeros.bin" not in read
+    with pytest.raises(FmuError) as caught:
+        unpack.extract(bomb)
+    assert str(caught.value) == (f"{bomb}: refusing to extract: it unpacks to 50 MB, more "
+                                 "than the 2 MB cosim unpacks (set COSIM_FMU_MAX_MB to allow "
+                                 "more)")
+    assert "resources/zeros.bin" not in read
+
+
+def test_an_fmi1_fmu_is_named_as_such(plant_fmu, tmp_path):
+    old = tmp_path / "old.fmu"
+    with zipfile.ZipFile(plant_fmu(2, 2)) as src, zipfile.ZipFile(old, "w") as out:
+        for item in src.infolist():
+            data = src.read(item.filename)
+            if item.filename == "modelDescription.xml":
+                data = re.sub(rb'fmiVersion="[^"]*"', b'fmiVersion="1.0"', data)
+            out.writestr(item, data)
+    done = cosim_cli("run", PAPER, "--out", str(tmp_path / "out"), "--set",
+                     f'plant.fmu="{old}"')
+    assert_message(error_line(done), f"{old}: an FMI 1.0 FMU: FMI 1.0 is not supported; "
+                   "export the model as FMI 2.0 or 3.0 Co-Simulation")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["old.fmu"]

@@ -18,6 +18,7 @@ import re
 import shutil
 import tempfile
 import zipfile
+from zlib import error as zlib_error
 from pathlib import Path, PurePosixPath
 
 from .errors import FmuError
@@ -60,6 +61,31 @@ def size_problem(path: str | Path) -> str | None:
     return None
 
 
+CHUNK = 1 << 20  # bytes read at a time while checking or unpacking an entry
+
+
+def damaged_entry(path: str | Path) -> str | None:
+    """Why the archive is damaged (an entry failing its CRC check), or None. An archive
+    beyond the caps is not read at all (:func:`size_problem` says why, where it is
+    unpacked); otherwise each entry is read as a stream, abandoned at the first byte beyond
+    the cap, so a zip bomb costs nothing."""
+    if size_problem(path):
+        return None
+    total = 0
+    with zipfile.ZipFile(path) as archive:
+        for entry in archive.infolist():
+            try:
+                with archive.open(entry) as stream:
+                    while chunk := stream.read(CHUNK):
+                        total += len(chunk)
+                        if total > MAX_MEGABYTES * 1e6:
+                            return (f"it unpacks to more than the {MAX_MEGABYTES} MB cosim "
+                                    "unpacks (set COSIM_FMU_MAX_MB to allow more)")
+            except (zipfile.BadZipFile, OSError, EOFError, zlib_error):
+                return f"the archive is damaged: entry {entry.filename!r} fails its CRC check"
+    return None
+
+
 def extract(path: str | Path) -> str:
     """Unzip into a fresh temporary folder of this process, refusing an archive with unsafe
     entries or beyond the caps; an interrupted unzip leaves nothing behind."""
@@ -75,12 +101,35 @@ def extract(path: str | Path) -> str:
     target = str(Path(tempfile.mkdtemp(prefix=f"{PREFIX}{os.getpid()}_")).resolve())
     _open.add(target)
     try:
-        with zipfile.ZipFile(path) as archive:
-            archive.extractall(target)
+        _extract_capped(path, Path(target))
     except BaseException:  # Ctrl-C, SIGTERM, a full disk: no half-unpacked FMU is left
         remove(target)
         raise
     return target
+
+
+def _extract_capped(path: Path, target: Path) -> None:
+    """Unzip entry by entry as streams, counting the bytes actually written against the
+    cap (not only what the archive's directory declares)."""
+    total = 0
+    with zipfile.ZipFile(path) as archive:
+        for entry in archive.infolist():
+            destination = target / PurePosixPath(entry.filename.replace("\\", "/"))
+            if entry.is_dir():
+                destination.mkdir(parents=True, exist_ok=True)
+                continue
+            destination.parent.mkdir(parents=True, exist_ok=True)
+            with archive.open(entry) as stream, destination.open("wb") as out:
+                while chunk := stream.read(CHUNK):
+                    total += len(chunk)
+                    if total > MAX_MEGABYTES * 1e6:
+                        raise FmuError(f"{path}: refusing to extract: it unpacks to more "
+                                       f"than the {MAX_MEGABYTES} MB cosim unpacks (set "
+                                       "COSIM_FMU_MAX_MB to allow more)")
+                    out.write(chunk)
+            mode = entry.external_attr >> 16
+            if mode & 0o111:  # keep an executable bit (a binary's own tools)
+                destination.chmod(0o755)
 
 
 def remove(folder: str) -> None:
