@@ -24,6 +24,7 @@ import subprocess
 import sys
 import time
 import tomllib
+import zipfile
 from pathlib import Path
 from typing import TextIO
 
@@ -97,13 +98,29 @@ def _sources_digest() -> str:
     return h.hexdigest()
 
 
+def _unwritable(folder: Path, exc: OSError) -> str:
+    return (f"the cache folder {folder} cannot be written ({exc.strerror or exc}); set "
+            "NUMBA_CACHE_DIR to a writable folder; nothing was compiled")
+
+
 def is_warm(pipeline: Path) -> bool:
-    """A stamp for this pipeline and these sources exists, and every file it lists does."""
+    """A stamp for this pipeline and these sources exists, and every file it lists is
+    there and whole (an FMU cut short in the cache is not warm)."""
     try:
         stamp = json.loads(stamp_path(pipeline).read_text())
     except (OSError, ValueError):
         return False
-    return all(Path(p).exists() for p in stamp.get("files", []))
+    return all(_whole(Path(p)) for p in stamp.get("files", []))
+
+
+def _whole(path: Path) -> bool:
+    if path.suffix != ".fmu":
+        return path.exists()
+    try:
+        with zipfile.ZipFile(path) as archive:
+            return archive.testzip() is None
+    except (OSError, zipfile.BadZipFile, EOFError):
+        return False
 
 
 # The work -------------------------------------------------------------------------------------
@@ -223,6 +240,14 @@ def warm_up(pipelines: list[Path], workers: int | None = None,
     if not cold:
         return []
     began = time.monotonic()
+    base = jit_cache.default_base()
+    try:
+        base.mkdir(parents=True, exist_ok=True)
+        probe = base / f".writable-{os.getpid()}"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        raise WarmUpError(_unwritable(base, exc)) from None
     workers = workers or os.cpu_count() or 1
     print(f"cosim warm-up: compiling the kernels and fused loops of "
           f"{', '.join(map(str, cold))} on {workers} process(es), building their plant FMU …",
@@ -247,8 +272,11 @@ def warm_up(pipelines: list[Path], workers: int | None = None,
     files = [str(p) for p in fmus] + [str(p) for p in sorted(cache_dir().glob("fused_*.py"))]
     for pipeline in cold:
         stamp = stamp_path(pipeline)
-        stamp.parent.mkdir(parents=True, exist_ok=True)
-        stamp.write_text(json.dumps({"pipeline": str(pipeline), "files": files}, indent=1))
+        try:
+            stamp.parent.mkdir(parents=True, exist_ok=True)
+            stamp.write_text(json.dumps({"pipeline": str(pipeline), "files": files}, indent=1))
+        except OSError as exc:
+            raise WarmUpError(_unwritable(stamp.parent, exc)) from None
     print(f"cosim warm-up: done in {time.monotonic() - began:.1f} s; the first `cosim run` "
           "of these pipelines loads everything from the caches", file=stream)
     return cold

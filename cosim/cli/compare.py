@@ -33,9 +33,9 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 
 def handle(args: argparse.Namespace) -> int:
-    from ..outputs.compare import CompareError, compare
-
     import math
+
+    from ..outputs.compare import CompareError, compare
 
     if not (math.isfinite(args.tolerance) and args.tolerance >= 0):
         raise UserError(f"--tolerance {args.tolerance:g}: expected a fraction of each check's "

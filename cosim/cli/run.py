@@ -112,6 +112,10 @@ def _run(pipeline, out: Path, args: argparse.Namespace) -> None:
         raise UserError(f"{str(exc) or 'interrupted (Ctrl-C)'}; {kept()}") from None
     except RecordingError as exc:
         raise UserError(f"{exc}; {kept()}") from None
+    except MemoryError:  # a limit the memory check could not see
+        raise UserError("ran out of memory (an allocation failed); shorten "
+                        "simulation.duration or lengthen simulation.step, or run fewer runs "
+                        f"with --run; {kept()}") from None
     except RunFolderError as exc:  # "--out …" messages: the folder could not be used at all
         raise UserError(str(exc) if str(exc).startswith("--out") else f"{exc}; {kept()}") \
             from None

@@ -21,8 +21,8 @@ import fmpy
 from fmpy.model_description import ModelDescription, ValidationError
 
 from .errors import FmuError
-from .unpack import damaged_entry
 from .ports import PORT, PORTS
+from .unpack import damaged_entry
 
 REAL_TYPES = ("Real", "Float64")
 

@@ -18,8 +18,8 @@ import re
 import shutil
 import tempfile
 import zipfile
-from zlib import error as zlib_error
 from pathlib import Path, PurePosixPath
+from zlib import error as zlib_error
 
 from .errors import FmuError
 
