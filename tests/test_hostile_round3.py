@@ -47,7 +47,7 @@ class Hostile(Block):
         super().__init__(params, context)
         self.inputs = ("tau",)
         self.outputs = {{"tau": Signal("n", "N·m", "the torque, passed on", "{kind}/tau"),
-                        **{{name: Signal("1", "1", "a plugin's value", kept=True) for name in {names}}}}}
+                        **{{name: Signal("1", "1", "a value", kept=True) for name in {names}}}}}
 
     def reset(self, ports):
         self.ports = ports
@@ -485,3 +485,133 @@ def test_an_fmi1_fmu_is_named_as_such(plant_fmu, tmp_path):
     assert_message(error_line(done), f"{old}: an FMI 1.0 FMU: FMI 1.0 is not supported; "
                    "export the model as FMI 2.0 or 3.0 Co-Simulation")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["old.fmu"]
+
+
+# Caches and the environment ------------------------------------------------------------------
+
+def test_a_damaged_numba_cache_entry_is_compiled_again(tmp_path):
+    """One damaged cache file failed every run for good (UnpicklingError); now it is a
+    miss: compiled again and rewritten."""
+    script = tmp_path / "damage.py"
+    script.write_text(
+        "import importlib, os, sys\nfrom pathlib import Path\n"
+        "sys.path.insert(0, os.getcwd())\n"
+        "from cosim.jit_cache import use_versioned_cache\nuse_versioned_cache()\n"
+        "Path('kern.py').write_text('from numba import njit\\n@njit(cache=True)\\n"
+        "def f(x):\\n    return x + 1\\n')\n"
+        "import kern\nassert kern.f(1) == 2\n"
+        "for p in Path(os.environ['NUMBA_CACHE_DIR']).rglob('*.nbc'):\n"
+        "    p.write_bytes(b'damaged')\n"
+        "importlib.reload(kern)\nprint(kern.f(2))\n")
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True,
+                          cwd=tmp_path, timeout=300,
+                          env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")})
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout == "3\n"
+
+
+def test_a_truncated_fmu_in_the_build_cache_is_built_again(plant_fmu, tmp_path):
+    from plant_fmu import build_fmu
+
+    cached = plant_fmu(2, 2)
+    cache = tmp_path / "fmus"
+    cache.mkdir()
+    copy = cache / cached.name
+    copy.write_bytes(cached.read_bytes()[:20_000])  # a copy cut short
+    assert build_fmu(links=2, fmi_version=2, cache_dir=cache) == copy
+    with zipfile.ZipFile(copy) as archive:
+        assert archive.testzip() is None
+    assert copy.read_bytes() != cached.read_bytes()[:20_000]
+
+
+def test_warm_up_names_a_cache_folder_it_cannot_write(tmp_path):
+    done = run_in(tmp_path, "warm-up", str(ROOT / PAPER),
+                  env={**os.environ, "NUMBA_CACHE_DIR": "/proc/cosim-cache"})
+    assert_message(error_line(done), "the cache folder /proc/cosim-cache cannot be written (No "
+                   "such file or directory); set NUMBA_CACHE_DIR to a writable folder; nothing "
+                   "was compiled")
+
+
+def test_the_memory_check_sees_the_address_space_limit(tmp_path):
+    """Under ``ulimit -v`` the check passed (MemAvailable is the machine's) and the
+    allocation failed with a traceback; now the limit is the one checked against."""
+    import resource
+
+    def limited():
+        resource.setrlimit(resource.RLIMIT_AS, (3_000_000_000, resource.RLIM_INFINITY))
+
+    done = subprocess.run([COSIM, "run", str(ROOT / PAPER), "--out", "out", "--no-recording",
+                           "--no-figures", "--set", "simulation.duration=3000"],
+                          capture_output=True, text=True, cwd=tmp_path, timeout=300,
+                          preexec_fn=limited)
+    assert_message(error_line(done), re.compile(
+        r"the traces would need 2\.35 GB \(2 run\(s\) × 3,000,001 rows of 49 values × 8 B\) "
+        r"but [\d.]+ GB of memory is available under the address-space limit, ulimit -v \(at "
+        r"most 80% is used\); shorten simulation\.duration \(3000 s\) or lengthen "
+        r"simulation\.step \(0\.001 s\)"))
+    assert list(tmp_path.iterdir()) == []
+
+
+# Pipeline files ------------------------------------------------------------------------------
+
+def test_a_typo_in_an_extended_file_is_named_against_that_file(tmp_path):
+    (tmp_path / "base.toml").write_text("[controller]\nkvv = 3\n")
+    (tmp_path / "top.toml").write_text('extends = "base.toml"\nname = "top"\n')
+    done = run_in(tmp_path, "params", "top.toml")
+    assert_message(error_line(done), "base.toml (extended by top.toml): unknown key "
+                   "'controller.kvv'; allowed keys here: variant, kv, lambda, f, g, kappa, kz, "
+                   "z_b, z_wc, c0, c1, delta, psi_b, hidden, velocity, init, init_scale, seed")
+
+
+def test_a_pipeline_file_with_a_byte_order_mark_reads_as_its_text(tmp_path):
+    (tmp_path / "bom.toml").write_bytes("\ufeffname = \"bom\"\n".encode())
+    done = run_in(tmp_path, "run", "bom.toml", "--dry-run")
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.startswith("pipeline bom: 1 run(s)")
+
+
+# The newcomer's frictions --------------------------------------------------------------------
+
+def test_version_python_m_cosim_quiet_and_the_overrides_in_the_header(tmp_path):
+    from importlib.metadata import version
+
+    for program in ((COSIM,), (sys.executable, "-m", "cosim")):
+        done = run_in(tmp_path, "--version", program=program)
+        assert (done.returncode, done.stdout) == (0, f"cosim {version('cosim')}\n")
+    quiet = run_in(tmp_path, "run", str(ROOT / PAPER), "--out", "q", "--quiet", "--run",
+                   "proposed", "--no-recording", *SHORT, program=(sys.executable, "-m", "cosim"))
+    assert quiet.returncode == 0 and quiet.stderr == "", quiet.stderr
+    assert quiet.stdout.rstrip().endswith("run folder: q")
+    told = run_in(tmp_path, "run", str(ROOT / PAPER), "--out", "t", "--run", "proposed",
+                  "--no-recording", *SHORT)
+    assert (f"running paper_two_link with simulation.duration=0.5: proposed (0.5 s at 1000 Hz)"
+            " -> t\n") in told.stderr
+
+
+def test_view_of_a_sweep_folder_points_to_its_recorded_points(tmp_path):
+    sweep = tmp_path / "sweep"
+    (sweep / "best_proposed_point2").mkdir(parents=True)
+    (sweep / "summary.json").write_text('{"complete": true, "kind": "sweep", '
+                                        '"runs": ["proposed"], "provenance": {}}')
+    done = cosim_cli("view", str(sweep))
+    assert_message(error_line(done), f"{sweep} is a sweep folder: its rows are in results.csv, "
+                   "with no recording; run the sweep again with --record best,worst to record "
+                   "each run's best and worst points")
+    (sweep / "best_proposed_point2" / "recording.rrd").write_bytes(b"")
+    done = cosim_cli("view", str(sweep))
+    assert_message(error_line(done), f"{sweep} is a sweep folder, with no recording of its "
+                   f"own; view one of its recorded points: cosim view "
+                   f"{sweep}/best_proposed_point2")
+
+
+def test_a_viewer_that_fails_is_named_by_its_cause_not_its_backtrace():
+    from cosim.outputs.viewer import viewer_failure
+
+    stderr = ("\x1b[2m[2026-11-25T17:00:00Z WARN  re_renderer] Vulkan: no ICD found\x1b[0m\n"
+              "thread 'main' panicked at crates/viewer/re_renderer/src/context.rs:231:14:\n"
+              "Failed to create wgpu adapter: No graphics adapter was found\n"
+              "stack backtrace:\n" + "".join(f"  {i}: rust_begin_unwind\n             at "
+                                             f"/rustc/src/panicking.rs:{i}:5\n"
+                                             for i in range(40)))
+    assert viewer_failure(stderr) == ("Failed to create wgpu adapter: No graphics adapter was "
+                                      "found")
