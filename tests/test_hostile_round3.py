@@ -584,7 +584,7 @@ def test_version_python_m_cosim_quiet_and_the_overrides_in_the_header(tmp_path):
     assert quiet.stdout.rstrip().endswith("run folder: q")
     told = run_in(tmp_path, "run", str(ROOT / PAPER), "--out", "t", "--run", "proposed",
                   "--no-recording", *SHORT)
-    assert (f"running paper_two_link with simulation.duration=0.5: proposed (0.5 s at 1000 Hz)"
+    assert ("running paper_two_link with simulation.duration=0.5: proposed (0.5 s at 1000 Hz)"
             " -> t\n") in told.stderr
 
 
@@ -615,3 +615,41 @@ def test_a_viewer_that_fails_is_named_by_its_cause_not_its_backtrace():
                                              for i in range(40)))
     assert viewer_failure(stderr) == ("Failed to create wgpu adapter: No graphics adapter was "
                                       "found")
+
+
+def test_figures_keep_legends_off_the_data_and_torques_on_one_scale():
+    """Five runs: the checks figure's legend sits above every panel (it covered data inside
+    one); the torque panels share one scale, each legend beside its panel."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from cosim.config import load_pipeline
+    from cosim.outputs.figures import _checks_figure, _torque_figure, check_figures
+    from cosim.runner import run
+
+    extra = [f"runs.kv{kv}.controller.kv={kv}" for kv in (10, 30, 40)]
+    pipeline = load_pipeline(PAPER, ["simulation.duration=0.3", *extra], warn=None)
+    results = run(pipeline, None, progress=False, figures=False)
+    assert len(results) == 5
+    time = {n: r.trace.time for n, r in results.items()}
+    checks = {n: r.evaluation.checks for n, r in results.items()}
+    for columns in check_figures(checks).values():
+        fig = _checks_figure(plt, columns, time, checks)
+        fig.canvas.draw()
+        renderer = fig.canvas.get_renderer()
+        (legend,) = fig.legends
+        box = legend.get_window_extent(renderer)
+        assert set(results) <= {t.get_text() for t in legend.get_texts()}
+        assert not any(box.overlaps(ax.get_window_extent(renderer)) for ax in fig.axes
+                       if ax.axison)
+        plt.close(fig)
+    fig = _torque_figure(plt, time, {n: r.trace["tau"] for n, r in results.items()}, {})
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    assert len({ax.get_ylim() for ax in fig.axes}) == 1
+    for ax in fig.axes:
+        assert not ax.get_legend().get_window_extent(renderer).overlaps(
+            ax.get_window_extent(renderer))
+    plt.close(fig)

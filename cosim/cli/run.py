@@ -83,8 +83,9 @@ def _run(pipeline, out: Path, args: argparse.Namespace) -> None:
     say = (lambda text: None) if args.quiet else (lambda text: print(text, file=sys.stderr))
     if cache_is_cold():  # otherwise the terminal would sit silent while numba compiles
         say("compiling the numba kernels for this machine (the first run after installing "
-            "or updating cosim without its set-up step, `cosim warm-up`, which `make venv` "
-            "and `make demo` run: ~30 s on 2 cores; cached for later runs)")
+            "or updating cosim without its set-up step, `cosim warm-up`, which `make demo` "
+            "and `make test` run: ~30 s on 2 cores one kernel after another; cached for "
+            "later runs)")
     if not args.no_figures:  # they import matplotlib while the runs go
         from ..outputs.figures import start_painters
 
