@@ -98,9 +98,31 @@ def _sources_digest() -> str:
     return h.hexdigest()
 
 
-def _unwritable(folder: Path, exc: OSError) -> str:
+def _unwritable(folder: Path, exc: OSError, variable: str = "NUMBA_CACHE_DIR") -> str:
     return (f"the cache folder {folder} cannot be written ({exc.strerror or exc}); set "
-            "NUMBA_CACHE_DIR to a writable folder; nothing was compiled")
+            f"{variable} to a writable folder; nothing was compiled")
+
+
+def unwritable_caches() -> list[tuple[str, Path, str]]:
+    """The cache folders a run writes that cannot be made or written here, as (the
+    environment variable that moves it, the folder, why): numba's kernels, the fused
+    loops' sources, the built plant FMUs."""
+    from plant_fmu.build import default_cache_dir
+
+    from .engine.fused import cache_dir
+
+    problems = []
+    for variable, folder in (("NUMBA_CACHE_DIR", jit_cache.default_base()),
+                             ("COSIM_ENGINE_CACHE", cache_dir()),
+                             ("COSIM_CACHE", default_cache_dir())):
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            probe = folder / f".writable-{os.getpid()}"
+            probe.write_bytes(b"")
+            probe.unlink()
+        except OSError as exc:
+            problems.append((variable, folder, exc.strerror or str(exc)))
+    return problems
 
 
 def is_warm(pipeline: Path) -> bool:
@@ -240,14 +262,8 @@ def warm_up(pipelines: list[Path], workers: int | None = None,
     if not cold:
         return []
     began = time.monotonic()
-    base = jit_cache.default_base()
-    try:
-        base.mkdir(parents=True, exist_ok=True)
-        probe = base / f".writable-{os.getpid()}"
-        probe.write_bytes(b"")
-        probe.unlink()
-    except OSError as exc:
-        raise WarmUpError(_unwritable(base, exc)) from None
+    for variable, folder, why in unwritable_caches()[:1]:
+        raise WarmUpError(_unwritable(folder, OSError(why), variable))
     workers = workers or os.cpu_count() or 1
     print(f"cosim warm-up: compiling the kernels and fused loops of "
           f"{', '.join(map(str, cold))} on {workers} process(es), building their plant FMU …",

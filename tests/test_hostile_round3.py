@@ -653,3 +653,20 @@ def test_figures_keep_legends_off_the_data_and_torques_on_one_scale():
         assert not ax.get_legend().get_window_extent(renderer).overlaps(
             ax.get_window_extent(renderer))
     plt.close(fig)
+
+
+@pytest.mark.parametrize("variable", ["COSIM_CACHE", "COSIM_ENGINE_CACHE"])
+def test_a_cache_folder_a_run_cannot_write_is_one_message(variable, tmp_path):
+    done = run_in(tmp_path, "run", str(ROOT / PAPER), "--out", "out", "--no-recording",
+                  env={**os.environ, variable: "/proc/cosim-cache"})
+    assert_message(error_line(done), "the cache folder /proc/cosim-cache cannot be written (No "
+                   f"such file or directory); set {variable} to a writable folder; nothing was "
+                   "run")
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_the_supervisor_knows_where_an_fmu_is_unpacked():
+    from cosim.cli.supervisor import UNPACKED
+    from cosim.plant.unpack import PREFIX
+
+    assert UNPACKED == PREFIX

@@ -63,6 +63,7 @@ def handle(args: argparse.Namespace) -> None:
         _print_plan(pipeline, args.out or _run_folder(pipeline.name, create=False), args)
         return
     _check_viewer(args.spawn, args.connect)
+    _check_caches()
     out = args.out or _run_folder(pipeline.name)
     plant = Path(pipeline.plant.fmu).name if pipeline.plant.fmu else "the built-in plant"
     tell_supervisor(out=str(out), plant=plant, named="1" if args.out is None else None)
@@ -162,6 +163,21 @@ def _print_plan(pipeline, out: Path, args: argparse.Namespace) -> None:
     refusal = would_refuse(out, args.force)
     if refusal:  # the run itself would stop there: say so now
         raise UserError(f"{refusal} (--dry-run: the run would be refused here)")
+
+
+def _check_caches() -> None:
+    """Before anything runs: the caches a run writes. numba compiles without its cache
+    (every run, slowly: said); the fused loops' and the FMUs' are needed."""
+    from ..warm import unwritable_caches
+
+    for variable, folder, why in unwritable_caches():
+        if variable == "NUMBA_CACHE_DIR":
+            print(f"cosim: warning: the numba cache folder {folder} cannot be written ({why}): "
+                  "every run compiles its kernels again; set NUMBA_CACHE_DIR to a writable "
+                  "folder", file=sys.stderr)
+            continue
+        raise UserError(f"the cache folder {folder} cannot be written ({why}); set {variable} "
+                        "to a writable folder; nothing was run")
 
 
 def _check_viewer(spawn: bool, connect: str | None) -> None:

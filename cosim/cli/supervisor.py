@@ -70,6 +70,7 @@ def fault_file(note_file: Path) -> Path:
 
 # Frames that are not a user's code: cosim's own and installed packages' (FMPy's calls into
 # the plant binary); the standard library's are passed over (a plugin's ctypes call).
+UNPACKED = "cosim_fmu_"  # cosim.plant.unpack.PREFIX: where an FMU is unpacked to run
 _STDLIB = str(Path(sysconfig.get_paths()["stdlib"]).resolve())
 _NOT_USERS = (str(Path(__file__).resolve().parents[1]), *{
     str(Path(sysconfig.get_paths()[key]).resolve()) for key in ("purelib", "platlib")})
@@ -86,7 +87,10 @@ def users_frame(note_file: Path) -> str | None:
     current = dump.split("Current thread", 1)[-1]
     for path, line, function in re.findall(r'File "([^"]+)", line (\d+) in (\S+)', current):
         resolved = str(Path(path).resolve()) if not path.startswith("<") else path
-        if resolved.startswith(_NOT_USERS):  # before the stdlib: site-packages is inside it
+        # before the stdlib (site-packages may be inside it); an unpacked FMU's own Python
+        # (a PythonFMU plant) is the plant's
+        if resolved.startswith(_NOT_USERS) or any(part.startswith(UNPACKED)
+                                                  for part in Path(resolved).parts):
             return None
         if not (path.startswith("<") or resolved.startswith(_STDLIB)):
             return f"{path}, line {line}, in {function}"  # faulthandler: the innermost first
