@@ -670,3 +670,16 @@ def test_the_supervisor_knows_where_an_fmu_is_unpacked():
     from cosim.plant.unpack import PREFIX
 
     assert UNPACKED == PREFIX
+
+
+def test_a_reader_that_stops_early_ends_the_output_not_the_command(finished, others):
+    """`cosim params | head`: a BrokenPipeError traceback before; and a compare piped so
+    keeps its exit status (1: a regression), a gate even when its output is cut."""
+    for args, status in ((["params", PAPER], 0),
+                         (["compare", str(finished), str(others["worse"])], 1)):
+        child = subprocess.Popen([sys.executable, "-m", "cosim.cli", *args],
+                                 stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        child.stdout.close()  # the reader is gone before the first line
+        err = child.stderr.read()
+        child.stderr.close()
+        assert (child.wait(timeout=120), err) == (status, "")

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 # a supervisor process that only waits for the run's own process (supervise), and plant_fmu
 # and pydantic (cosim.schema) would add a quarter of a second to every run there. Each
 # command imports what it needs.
-from .common import UserError, print_error
+from .common import StdoutReaderGone, UserError, print_error
 from .parser import build_parser
 from .stopping import follow_the_supervisor, on_sigterm
 from .supervisor import SUPERVISED, supervise
@@ -35,6 +35,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     from ..schema import PipelineError
 
+    if argv is None and not isinstance(sys.stdout, StdoutReaderGone):
+        sys.stdout = StdoutReaderGone(sys.stdout)
     args = build_parser().parse_args(argv)
     # Every command ends on SIGTERM as on Ctrl-C (run and sweep keep what they computed).
     previous = signal.signal(signal.SIGTERM, on_sigterm) if argv is None else None
