@@ -683,3 +683,18 @@ def test_a_reader_that_stops_early_ends_the_output_not_the_command(finished, oth
         err = child.stderr.read()
         child.stderr.close()
         assert (child.wait(timeout=120), err) == (status, "")
+
+
+def test_a_crash_before_the_run_starts_claims_nothing_kept_and_leaves_no_folder(tmp_path):
+    """A plugin block whose constructor crashes the process (assembling, before the run
+    folder is made): no "kept in" a folder that holds nothing, no empty runs/NAME/<time>."""
+    pipeline = plugin(tmp_path, "plugin_early")
+    source = (tmp_path / "plugin_early.py").read_text()
+    (tmp_path / "plugin_early.py").write_text(source.replace(
+        "        super().__init__(params, context)\n",
+        "        super().__init__(params, context)\n        ctypes.string_at(0)\n"))
+    done = run_in(tmp_path, "run", pipeline.name, "--run", "hostile", "--no-recording")
+    assert_message(error_line(done), "the run process was killed by SIGSEGV, in a plugin's "
+                   f"code ({tmp_path}/plugin_early.py, line 23, in __init__); nothing was "
+                   "written (the run had not started)")
+    assert list((tmp_path / "runs" / "plugin_early").iterdir()) == []

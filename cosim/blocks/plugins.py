@@ -76,8 +76,20 @@ def _announce(what: str) -> None:
     it crash the process)."""
     from ..run_note import tell_supervisor
 
-    print(f"cosim: importing {what} (its code runs now)", file=sys.stderr)
+    if not _in_a_dask_worker():  # the sweep's own process said so already
+        print(f"cosim: importing {what} (its code runs now)", file=sys.stderr)
     tell_supervisor(importing=what)
+
+
+def _in_a_dask_worker() -> bool:
+    distributed = sys.modules.get("distributed")
+    if distributed is None:
+        return False
+    try:
+        distributed.get_worker()
+    except ValueError:
+        return False
+    return True
 
 
 def _import(key: str) -> ModuleType:

@@ -145,31 +145,40 @@ def _supervise(args: list[str], grace: float, note_file: Path, threading) -> int
                     "nothing was run or written")
         return 2
     out = Path(out)
-    _point_latest(note)
+    started = (out / "summary.json").is_file()
+    _settle(note, started)
+    kept = (f"what was written before is kept in {out} (summary.json marked crashed)"
+            if started else "nothing was written (the run had not started)")
     if stopping["killed"]:
         print_error(f"the run process did not answer {stopping['killed']} within "
                     f"{grace:g} s (most likely blocked inside the plant FMU's "
-                    f"doStep{where}) and was killed; what was written before is kept in {out} "
-                    "(summary.json marked crashed)")
+                    f"doStep{where}) and was killed; {kept}")
         _mark_crashed(out, f"killed: the run process did not answer {stopping['killed']} "
                       f"within {grace:g} s{where}")
         return 2
     inside = (f"in a plugin's code ({users})" if users
               else f"most likely inside the plant FMU's binary{where}")
-    print_error(f"the run process was killed by {name}, {inside}; what was computed is kept "
-                f"in {out} (summary.json marked crashed)")
+    print_error(f"the run process was killed by {name}, {inside}; "
+                + kept.replace("written before", "computed"))
     _mark_crashed(out, f"the run process was killed by {name}"
                   + (f" in a plugin's code ({users})" if users else where))
     return 2
 
 
-def _point_latest(note: dict) -> None:
-    """A run folder cosim named (no --out) that got as far as its summary: latest → it, as
-    the run itself would have at its end."""
-    if note.get("named") and (Path(note["out"]) / "summary.json").is_file():
+def _settle(note: dict, started: bool) -> None:
+    """A run folder cosim named (no --out), as the run itself would have left it: latest →
+    it once it holds a run; removed if still empty (the run had not started)."""
+    if not note.get("named"):
+        return
+    if started:
         from ..outputs.run_folder import point_latest
 
         point_latest(Path(note["out"]))
+        return
+    try:
+        Path(note["out"]).rmdir()  # only if empty
+    except OSError:
+        pass
 
 
 def _mark_crashed(out: Path, reason: str) -> None:
