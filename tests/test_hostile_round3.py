@@ -698,3 +698,14 @@ def test_a_crash_before_the_run_starts_claims_nothing_kept_and_leaves_no_folder(
                    f"code ({tmp_path}/plugin_early.py, line 23, in __init__); nothing was "
                    "written (the run had not started)")
     assert list((tmp_path / "runs" / "plugin_early").iterdir()) == []
+
+
+def test_view_of_a_folder_of_runs_names_one_to_view(tmp_path):
+    base = tmp_path / "runs" / "paper"
+    for name in ("20261125-100000", "20261125-110000"):
+        (base / name).mkdir(parents=True)
+        (base / name / "recording.rrd").write_bytes(b"")
+    (base / "latest").symlink_to("20261125-100000", target_is_directory=True)
+    assert_message(error_line(cosim_cli("view", str(base))),
+                   f"{base} holds run folders (2 with a recording), not a recording: view one, "
+                   f"e.g. cosim view {base}/latest")

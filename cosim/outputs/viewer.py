@@ -37,7 +37,7 @@ def recording_path(run_dir: str | Path) -> Path:
     path = Path(run_dir)
     if path.is_dir():
         if not (path / "recording.rrd").is_file():
-            raise ViewerError(_sweep_help(path) or
+            raise ViewerError(_sweep_help(path) or _runs_help(path) or
                               f"{path} has no recording.rrd (was it run with --no-recording?)")
         return path / "recording.rrd"
     if not path.is_file():
@@ -65,6 +65,20 @@ def _sweep_help(path: Path) -> str | None:
                 "worst points")
     return (f"{path} is a sweep folder, with no recording of its own; view one of its "
             f"recorded points: {', '.join(f'cosim view {p}' for p in recorded)}")
+
+
+def _runs_help(path: Path) -> str | None:
+    """For a folder of run folders (runs/NAME): which to view; None for any other folder."""
+    if (path / "summary.json").exists():
+        return None
+    runs = sorted(p for p in path.iterdir() if p.is_dir() and not p.is_symlink()
+                  and (p / "recording.rrd").is_file())
+    if not runs:
+        return None
+    latest = path / "latest"
+    pick = latest if (latest / "recording.rrd").is_file() else runs[-1]
+    return (f"{path} holds run folders ({len(runs)} with a recording), not a recording: view "
+            f"one, e.g. cosim view {pick}")
 
 
 def viewer_failure(stderr: str) -> str:
