@@ -128,7 +128,7 @@ def _judge(ca: dict | None, cb: dict | None, tolerance: float) -> tuple[str, boo
             return "REGRESSED", True
         return ("not held (not a safe set)" if kind(ca) == Kind.SUFFICIENT
                 else "unknown in B" if cb.get("satisfied") is None
-                else "unattainable in B"), False
+                else "not counted"), False
     if held_b and not held_a:
         return "now holds", False
     if ca and cb and counts and is_left(ca) and ca.get("worst") is not None:
@@ -161,8 +161,8 @@ def compare(a: str | Path, b: str | Path, runs: list[str] | None = None,
     result.document = {"a": str(a), "b": str(b), "tolerance": tolerance, "runs": {}}
     result.lines += [f"A: {a} ({first.get('status', '?')})",
                      f"B: {b} ({second.get('status', '?')})",
-                     "per run: each check's worst value (its unit) and verdict, then the "
-                     "metrics that differ; SI units, radians"]
+                     "per run: each check's worst value (unit) and verdict, then the metrics "
+                     "that differ; SI units"]
     for name in names:
         run_a, run_b = first["runs"].get(name), second["runs"].get(name)
         if run_a is None:
