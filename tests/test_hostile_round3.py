@@ -4,6 +4,7 @@ status, and that nothing outside the run folder changed."""
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import re
@@ -11,11 +12,12 @@ import shutil
 import subprocess
 import sys
 import zipfile
+from contextlib import chdir, redirect_stderr, redirect_stdout
 from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_helpers import PAPER, assert_message, cosim_cli, error_line
+from cli_helpers import PAPER, assert_message, error_line
 
 ROOT = Path(__file__).resolve().parents[1]
 SHORT = ["--set", "simulation.duration=0.5", "--no-figures"]
@@ -78,6 +80,27 @@ def plugin(folder: Path, kind: str, names: tuple[str, ...] = (),
     return pipeline
 
 
+def here(*args: str, cwd: Path | None = None, env: dict | None = None
+         ) -> subprocess.CompletedProcess:
+    """The command run in this process (``main(argv)``: no supervisor, the kernels already
+    loaded), its output and status as :func:`run_in` gives them: most cases need no process
+    of their own, and a test suite's seconds count."""
+    from cosim.cli import main
+
+    out, err, saved = io.StringIO(), io.StringIO(), dict(os.environ)
+    os.environ.update(env or {})
+    try:
+        with redirect_stdout(out), redirect_stderr(err), chdir(cwd or os.getcwd()):
+            try:
+                status = main(list(args))
+            except SystemExit as exc:  # argparse: --version, --help, a bad option
+                status = exc.code
+    finally:
+        os.environ.clear()
+        os.environ.update(saved)
+    return subprocess.CompletedProcess(args, status, out.getvalue(), err.getvalue())
+
+
 def run_in(folder: Path, *args: str, env: dict | None = None,
            program: tuple[str, ...] = (sys.executable, "-m", "cosim.cli")
            ) -> subprocess.CompletedProcess:
@@ -96,7 +119,7 @@ def tree(folder: Path) -> dict[str, tuple[int, int]]:
 def finished(tmp_path_factory) -> Path:
     """A complete run folder: 0.5 s of the paper's two runs, no figures."""
     out = tmp_path_factory.mktemp("round3") / "run"
-    done = cosim_cli("run", PAPER, "--out", str(out), "--no-recording", *SHORT)
+    done = here("run", PAPER, "--out", str(out), "--no-recording", *SHORT)
     assert done.returncode == 0, done.stderr[-2000:]
     return out
 
@@ -113,7 +136,7 @@ def test_force_replaces_only_what_the_folders_summary_lists(finished, tmp_path):
         (folder / name).write_text("the user's")
     shutil.copytree(finished, folder / "earlier_run")
     before = tree(folder)
-    done = cosim_cli("run", PAPER, "--out", str(folder), "--force", "--no-recording", *SHORT)
+    done = here("run", PAPER, "--out", str(folder), "--force", "--no-recording", *SHORT)
     assert_message(error_line(done),
                    f"--out {folder}: --force replaces only what cosim wrote, and this folder "
                    "holds 5 entries it did not write (.notes.tmp, earlier_run, "
@@ -155,8 +178,8 @@ def test_sys_exit_in_a_blocks_step_stops_the_run_with_its_line(tmp_path):
     no message, the run gone from the summary)."""
     pipeline = plugin(tmp_path, "plugin_exit",
                       step="        if k == 100:\n            sys.exit(0)\n        return True")
-    done = run_in(tmp_path, "run", pipeline.name, "--run", "hostile", "--out", "out",
-                  "--no-figures", "--no-recording")
+    done = here("run", pipeline.name, "--run", "hostile", "--out", "out", "--no-figures",
+                "--no-recording", cwd=tmp_path)
     assert_message(error_line(done),
                    f"the plugin exit block raised at t = 0.1 s: SystemExit: 0 ({tmp_path}/"
                    "plugin_exit.py, line 35, in step); what was computed is kept in out; "
@@ -171,8 +194,8 @@ def test_sys_exit_in_a_blocks_step_stops_the_run_with_its_line(tmp_path):
 def test_a_step_returning_false_is_named_as_such_not_as_divergence(tmp_path):
     pipeline = plugin(tmp_path, "plugin_false",
                       step="        return k < 20")
-    done = run_in(tmp_path, "run", pipeline.name, "--run", "hostile", "--out", "out",
-                  "--no-figures", "--no-recording")
+    done = here("run", pipeline.name, "--run", "hostile", "--out", "out", "--no-figures",
+                "--no-recording", cwd=tmp_path)
     assert_message(error_line(done),
                    "the plugin false block stopped the run at t = 0.02 s: its step returned False "
                    "(a block's step returns True to go on; False, or nothing, stops the run); "
@@ -187,7 +210,7 @@ def test_a_plugin_that_calls_sys_exit_at_import_is_one_message(tmp_path):
     (tmp_path / "quits.py").write_text("import sys\n\nsys.exit(0)\n")
     (tmp_path / "p.toml").write_text('plugins = ["quits.py"]\n')
     for command in (["run", "p.toml", "--out", "out"], ["params", "p.toml"]):
-        done = run_in(tmp_path, *command)
+        done = here(*command, cwd=tmp_path)
         assert done.stderr.startswith(f"cosim: importing plugin {tmp_path}/quits.py (its code "
                                       "runs now)\n")
         assert_message(error_line(done),
@@ -212,8 +235,8 @@ def test_plugin_signal_names_the_trace_cannot_hold_are_refused_before_the_run(tm
     """``file`` and ``allow_pickle`` are plain names now (kept in the trace); ``time``,
     ``_units`` and ``check_*`` are the trace file's own: refused, naming the block."""
     pipeline = plugin(tmp_path / "fine", "plugin_names", names=("file", "allow_pickle"))
-    done = run_in(pipeline.parent, "run", pipeline.name, "--run", "hostile", "--out", "out",
-                  "--no-figures", "--no-recording")
+    done = here("run", pipeline.name, "--run", "hostile", "--out", "out", "--no-figures",
+                "--no-recording", cwd=pipeline.parent)
     assert done.returncode == 0, done.stderr[-2000:]
     with np.load(pipeline.parent / "out" / "trace_hostile.npz") as trace:
         np.testing.assert_array_equal(trace["allow_pickle"], np.arange(201))
@@ -225,8 +248,8 @@ def test_plugin_signal_names_the_trace_cannot_hold_are_refused_before_the_run(tm
                       ("check_mine", f"and names starting with 'check_' are {clash}")):
         kind = f"plugin_{name.strip('_')}"
         pipeline = plugin(tmp_path / kind, kind, names=(name,))
-        done = run_in(pipeline.parent, "run", pipeline.name, "--run", "hostile", "--out",
-                      "out", "--no-figures", "--no-recording")
+        done = here("run", pipeline.name, "--run", "hostile", "--out", "out",
+                    "--no-figures", "--no-recording", cwd=pipeline.parent)
         assert_message(error_line(done), f"run 'hostile': the {kind} block writes '{name}', "
                        f"{why}; rename that output")
         assert not (pipeline.parent / "out").exists()
@@ -261,8 +284,16 @@ def test_the_run_process_does_not_import_the_working_folders_modules(tmp_path):
 
 
 def test_a_bad_stop_grace_is_one_message_before_anything_runs(tmp_path):
-    done = run_in(tmp_path, "run", str(ROOT / PAPER), "--out", "out",
-                  env={**os.environ, "COSIM_STOP_GRACE_S": "abc"})
+    from cosim.cli.supervisor import supervise
+
+    err = io.StringIO()
+    with redirect_stderr(err), chdir(tmp_path):
+        os.environ["COSIM_STOP_GRACE_S"] = "abc"
+        try:
+            status = supervise(["run", str(ROOT / PAPER), "--out", "out"])
+        finally:
+            del os.environ["COSIM_STOP_GRACE_S"]
+    done = subprocess.CompletedProcess([], status, "", err.getvalue())
     assert_message(error_line(done), "COSIM_STOP_GRACE_S='abc': expected a number of seconds "
                    "> 0 (default 10); nothing was run")
     assert list(tmp_path.iterdir()) == []
@@ -276,10 +307,10 @@ def test_a_refused_run_without_out_leaves_no_folder_and_latest_as_it_was(finishe
     shutil.copytree(finished, base / "earlier")
     (base / "latest").symlink_to("earlier", target_is_directory=True)
     before = tree(tmp_path)
-    missing = run_in(tmp_path, "run", str(ROOT / PAPER), "--set", 'plant.fmu="missing.fmu"')
+    missing = here("run", str(ROOT / PAPER), "--set", 'plant.fmu="missing.fmu"', cwd=tmp_path)
     assert "missing.fmu" in error_line(missing)
-    dead = run_in(tmp_path, "run", str(ROOT / PAPER), "--connect",
-                  "rerun+http://127.0.0.1:9/proxy")
+    dead = here("run", str(ROOT / PAPER), "--connect", "rerun+http://127.0.0.1:9/proxy",
+                cwd=tmp_path)
     assert error_line(dead).endswith("; nothing was run")
     assert tree(tmp_path) == before
 
@@ -297,13 +328,9 @@ def others(finished, tmp_path_factory) -> dict[str, Path]:
              "shorter": ["--set", "simulation.duration=0.4"],
              "early": ["--set", 'observer.basis="lagged"', "--set", "observer.kp=10",
                        "--set", "observer.kd=10", "--set", "observer.nu=1.0"]}
-    children = {name: subprocess.Popen(
-        [sys.executable, "-m", "cosim.cli", "run", PAPER, "--out", str(base / name),
-         "--no-recording", *SHORT, *extra], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
-        text=True) for name, extra in cases.items()}
-    for name, child in children.items():
-        _, err = child.communicate(timeout=300)
-        assert child.returncode == (2 if name == "early" else 0), err[-2000:]
+    for name, extra in cases.items():
+        done = here("run", PAPER, "--out", str(base / name), "--no-recording", *SHORT, *extra)
+        assert done.returncode == (2 if name == "early" else 0), done.stderr[-2000:]
     return {name: base / name for name in cases}
 
 
@@ -318,12 +345,12 @@ def test_compare_refuses_what_is_not_like_with_like(finished, others):
     }
     for name, differs in expected.items():
         b = others[name]
-        message = error_line(cosim_cli("compare", str(a), str(b)))
+        message = error_line(here("compare", str(a), str(b)))
         head = (f"A {a} and B {b} do not compare like with like, so no verdict: ")
         assert message.startswith(f"cosim: error: {head}{differs}"), message
         assert message.endswith("; compare runs of the same duration and bounds that both ran "
                                 "to their end")
-    early = error_line(cosim_cli("compare", str(a), str(others["early"])))
+    early = error_line(here("compare", str(a), str(others["early"])))
     assert re.search(r"run baseline stopped early in B \(at 0\.0\d+ s of 0\.5 s: the run "
                      r"diverged in the observer block at t = 0\.0\d+ s: a non-finite value\); "
                      r"compare", early), early
@@ -331,7 +358,7 @@ def test_compare_refuses_what_is_not_like_with_like(finished, others):
 
 def test_compare_counts_a_worse_violation_once_with_a_tolerance_and_as_json(finished, others):
     a, b = finished, others["worse"]
-    worse = cosim_cli("compare", str(a), str(b), "--run", "baseline", "--run", "baseline")
+    worse = here("compare", str(a), str(b), "--run", "baseline", "--run", "baseline")
     assert worse.returncode == 1, worse.stderr
     tail = worse.stdout.split("\n4 regression(s):\n")[1].splitlines()
     assert [line.split(":")[0].strip() for line in tail] == [
@@ -340,7 +367,7 @@ def test_compare_counts_a_worse_violation_once_with_a_tolerance_and_as_json(fini
     assert re.fullmatch(r"  baseline/error_joint2: violated in A \(2\.386 VIOLATED\) and "
                         r"worse in B \(2\.\d+ VIOLATED\)", tail[0])
     assert worse.stdout.count("\nrun baseline\n") == 1 and "run proposed" not in worse.stdout
-    tolerated = cosim_cli("compare", str(a), str(b), "--tolerance", "0.3", "--json")
+    tolerated = here("compare", str(a), str(b), "--tolerance", "0.3", "--json")
     assert tolerated.returncode == 1, tolerated.stderr
     document = json.loads(tolerated.stdout)
     assert [r.split(":")[0] for r in document["regressions"]] == ["baseline/error_joint2"]
@@ -349,9 +376,9 @@ def test_compare_counts_a_worse_violation_once_with_a_tolerance_and_as_json(fini
     assert check["b_minus_a"] == pytest.approx(check["b"] - check["a"])
     assert document["runs"]["proposed"]["checks"]["error_joint2"]["regression"] is False
     assert document["runs"]["baseline"]["metrics"]["wall_time_s"]["timing"] is True
-    same = cosim_cli("compare", str(a), str(a), "--json")
+    same = here("compare", str(a), str(a), "--json")
     assert same.returncode == 0 and json.loads(same.stdout)["regressions"] == []
-    bad = error_line(cosim_cli("compare", str(a), str(a), "--tolerance", "-1"))
+    bad = error_line(here("compare", str(a), str(a), "--tolerance", "-1"))
     assert_message(bad, "--tolerance -1: expected a fraction of each check's bound ≥ 0, e.g. "
                    "0.01")
 
@@ -364,7 +391,7 @@ def test_export_writes_its_own_temporary_never_a_planted_link(finished, tmp_path
     victim = tmp_path / "victim.txt"
     victim.write_text("the user's")
     (folder / ".export_proposed.csv.tmp").symlink_to(victim)
-    done = cosim_cli("export", str(folder), "--format", "csv", "--run", "proposed")
+    done = here("export", str(folder), "--format", "csv", "--run", "proposed")
     assert done.returncode == 0, done.stderr
     assert victim.read_text() == "the user's"
     assert (folder / "export_proposed.csv").read_text().startswith("time (s),")
@@ -400,7 +427,7 @@ def test_export_mat_keeps_every_signal_under_a_name_matlab_accepts(finished, tmp
             units[name] = {"unit": unit, "description": f"odd name {i}"}
 
     _rewrite_trace(folder, "proposed", add)
-    done = cosim_cli("export", str(folder), "--format", "mat", "--run", "proposed",
+    done = here("export", str(folder), "--format", "mat", "--run", "proposed",
                      "--out", str(tmp_path / "mat"))
     assert done.returncode == 0, done.stderr
     mat = loadmat(tmp_path / "mat" / "export_proposed.mat")
@@ -420,22 +447,22 @@ def test_export_of_a_zero_row_a_damaged_and_a_traceless_run(finished, tmp_path):
     shutil.copytree(finished, folder)
     _rewrite_trace(folder, "baseline",
                    lambda arrays, units: arrays.update({k: v[:0] for k, v in arrays.items()}))
-    done = cosim_cli("export", str(folder), "--format", "csv", "--run", "baseline")
+    done = here("export", str(folder), "--format", "csv", "--run", "baseline")
     assert done.returncode == 0, done.stderr
     assert len((folder / "export_baseline.csv").read_text().splitlines()) == 1  # the header
     trace = folder / "trace_proposed.npz"
     trace.write_bytes(trace.read_bytes()[:5000])
-    damaged = error_line(cosim_cli("export", str(folder), "--run", "proposed"))
+    damaged = error_line(here("export", str(folder), "--run", "proposed"))
     assert damaged.startswith(f"cosim: error: {trace}: cannot be read, it is damaged (")
     assert damaged.endswith("); run the pipeline again to rewrite it")
     trace.unlink()
     before = tree(folder)
-    traceless = error_line(cosim_cli("export", str(folder)))
+    traceless = error_line(here("export", str(folder)))
     assert_message(traceless, f"{folder}: run proposed has no trace file (trace_proposed.npz "
                    "missing: the run was cut short before writing it, or it was deleted); "
                    "nothing was exported: export the others with --run baseline")
     assert tree(folder) == before
-    unwritable = error_line(cosim_cli("export", str(folder), "--run", "baseline",
+    unwritable = error_line(here("export", str(folder), "--run", "baseline",
                                       "--out", "/proc"))
     assert_message(unwritable, "/proc/export_baseline.parquet: could not be written (No such "
                    "file or directory); choose a writable folder with --out")
@@ -480,7 +507,7 @@ def test_an_fmi1_fmu_is_named_as_such(plant_fmu, tmp_path):
             if item.filename == "modelDescription.xml":
                 data = re.sub(rb'fmiVersion="[^"]*"', b'fmiVersion="1.0"', data)
             out.writestr(item, data)
-    done = cosim_cli("run", PAPER, "--out", str(tmp_path / "out"), "--set",
+    done = here("run", PAPER, "--out", str(tmp_path / "out"), "--set",
                      f'plant.fmu="{old}"')
     assert_message(error_line(done), f"{old}: an FMI 1.0 FMU: FMI 1.0 is not supported; "
                    "export the model as FMI 2.0 or 3.0 Co-Simulation")
@@ -525,8 +552,7 @@ def test_a_truncated_fmu_in_the_build_cache_is_built_again(plant_fmu, tmp_path):
 
 
 def test_warm_up_names_a_cache_folder_it_cannot_write(tmp_path):
-    done = run_in(tmp_path, "warm-up", str(ROOT / PAPER),
-                  env={**os.environ, "NUMBA_CACHE_DIR": "/proc/cosim-cache"})
+    done = here("warm-up", str(ROOT / PAPER), env={"NUMBA_CACHE_DIR": "/proc/cosim-cache"})
     assert_message(error_line(done), "the cache folder /proc/cosim-cache cannot be written (No "
                    "such file or directory); set NUMBA_CACHE_DIR to a writable folder; nothing "
                    "was compiled")
@@ -557,7 +583,7 @@ def test_the_memory_check_sees_the_address_space_limit(tmp_path):
 def test_a_typo_in_an_extended_file_is_named_against_that_file(tmp_path):
     (tmp_path / "base.toml").write_text("[controller]\nkvv = 3\n")
     (tmp_path / "top.toml").write_text('extends = "base.toml"\nname = "top"\n')
-    done = run_in(tmp_path, "params", "top.toml")
+    done = here("params", "top.toml", cwd=tmp_path)
     assert_message(error_line(done), "base.toml (extended by top.toml): unknown key "
                    "'controller.kvv'; allowed keys here: variant, kv, lambda, f, g, kappa, kz, "
                    "z_b, z_wc, c0, c1, delta, psi_b, hidden, velocity, init, init_scale, seed")
@@ -565,7 +591,7 @@ def test_a_typo_in_an_extended_file_is_named_against_that_file(tmp_path):
 
 def test_a_pipeline_file_with_a_byte_order_mark_reads_as_its_text(tmp_path):
     (tmp_path / "bom.toml").write_bytes("\ufeffname = \"bom\"\n".encode())
-    done = run_in(tmp_path, "run", "bom.toml", "--dry-run")
+    done = here("run", "bom.toml", "--dry-run", cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     assert done.stdout.startswith("pipeline bom: 1 run(s)")
 
@@ -575,15 +601,15 @@ def test_a_pipeline_file_with_a_byte_order_mark_reads_as_its_text(tmp_path):
 def test_version_python_m_cosim_quiet_and_the_overrides_in_the_header(tmp_path):
     from importlib.metadata import version
 
-    for program in ((COSIM,), (sys.executable, "-m", "cosim")):
-        done = run_in(tmp_path, "--version", program=program)
+    python_m = run_in(tmp_path, "--version", program=(sys.executable, "-m", "cosim"))
+    for done in (python_m, here("--version")):
         assert (done.returncode, done.stdout) == (0, f"cosim {version('cosim')}\n")
-    quiet = run_in(tmp_path, "run", str(ROOT / PAPER), "--out", "q", "--quiet", "--run",
-                   "proposed", "--no-recording", *SHORT, program=(sys.executable, "-m", "cosim"))
+    quiet = here("run", str(ROOT / PAPER), "--out", "q", "--quiet", "--run", "proposed",
+                 "--no-recording", *SHORT, cwd=tmp_path)
     assert quiet.returncode == 0 and quiet.stderr == "", quiet.stderr
     assert quiet.stdout.rstrip().endswith("run folder: q")
-    told = run_in(tmp_path, "run", str(ROOT / PAPER), "--out", "t", "--run", "proposed",
-                  "--no-recording", *SHORT)
+    told = here("run", str(ROOT / PAPER), "--out", "t", "--run", "proposed",
+                "--no-recording", *SHORT, cwd=tmp_path)
     assert ("running paper_two_link with simulation.duration=0.5: proposed (0.5 s at 1000 Hz)"
             " -> t\n") in told.stderr
 
@@ -593,12 +619,12 @@ def test_view_of_a_sweep_folder_points_to_its_recorded_points(tmp_path):
     (sweep / "best_proposed_point2").mkdir(parents=True)
     (sweep / "summary.json").write_text('{"complete": true, "kind": "sweep", '
                                         '"runs": ["proposed"], "provenance": {}}')
-    done = cosim_cli("view", str(sweep))
+    done = here("view", str(sweep))
     assert_message(error_line(done), f"{sweep} is a sweep folder: its rows are in results.csv, "
                    "with no recording; run the sweep again with --record best,worst to record "
                    "each run's best and worst points")
     (sweep / "best_proposed_point2" / "recording.rrd").write_bytes(b"")
-    done = cosim_cli("view", str(sweep))
+    done = here("view", str(sweep))
     assert_message(error_line(done), f"{sweep} is a sweep folder, with no recording of its "
                    f"own; view one of its recorded points: cosim view "
                    f"{sweep}/best_proposed_point2")
@@ -657,8 +683,8 @@ def test_figures_keep_legends_off_the_data_and_torques_on_one_scale():
 
 @pytest.mark.parametrize("variable", ["COSIM_CACHE", "COSIM_ENGINE_CACHE"])
 def test_a_cache_folder_a_run_cannot_write_is_one_message(variable, tmp_path):
-    done = run_in(tmp_path, "run", str(ROOT / PAPER), "--out", "out", "--no-recording",
-                  env={**os.environ, variable: "/proc/cosim-cache"})
+    done = here("run", str(ROOT / PAPER), "--out", "out", "--no-recording", cwd=tmp_path,
+                env={variable: "/proc/cosim-cache"})
     assert_message(error_line(done), "the cache folder /proc/cosim-cache cannot be written (No "
                    f"such file or directory); set {variable} to a writable folder; nothing was "
                    "run")
@@ -706,6 +732,6 @@ def test_view_of_a_folder_of_runs_names_one_to_view(tmp_path):
         (base / name).mkdir(parents=True)
         (base / name / "recording.rrd").write_bytes(b"")
     (base / "latest").symlink_to("20261125-100000", target_is_directory=True)
-    assert_message(error_line(cosim_cli("view", str(base))),
+    assert_message(error_line(here("view", str(base))),
                    f"{base} holds run folders (2 with a recording), not a recording: view one, "
                    f"e.g. cosim view {base}/latest")
