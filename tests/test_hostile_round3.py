@@ -735,3 +735,19 @@ def test_view_of_a_folder_of_runs_names_one_to_view(tmp_path):
     assert_message(error_line(here("view", str(base))),
                    f"{base} holds run folders (2 with a recording), not a recording: view one, "
                    f"e.g. cosim view {base}/latest")
+
+
+def test_a_bad_fmu_cap_in_the_environment_is_said_when_an_fmu_is_unpacked(plant_fmu,
+                                                                         monkeypatch):
+    """COSIM_FMU_MAX_MB=abc was a ValueError traceback at import, in every command."""
+    from cosim.plant import unpack
+    from cosim.plant.errors import FmuError
+
+    monkeypatch.setenv("COSIM_FMU_MAX_MB", "abc")
+    monkeypatch.setattr(unpack, "_BAD_CAPS", [])
+    assert unpack._cap("COSIM_FMU_MAX_MB", 1024) == 1024
+    with pytest.raises(FmuError) as caught:
+        unpack.extract(plant_fmu(2, 2))
+    assert str(caught.value) == (f"{plant_fmu(2, 2)}: refusing to extract: "
+                                 "COSIM_FMU_MAX_MB='abc': expected a whole number > 0 (default "
+                                 "1024)")

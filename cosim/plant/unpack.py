@@ -26,8 +26,23 @@ from .errors import FmuError
 # An FMU is a model's binaries plus its resources: tens of MB is large. The caps stop an
 # archive that unpacks to far more than it weighs (a "zip bomb": 2 GB of zeros in 2 MB) before
 # a byte is written. Raise them with the environment variables for a truly large FMU.
-MAX_MEGABYTES = int(os.environ.get("COSIM_FMU_MAX_MB", "1024"))  # uncompressed, MB
-MAX_ENTRIES = int(os.environ.get("COSIM_FMU_MAX_FILES", "10000"))
+_BAD_CAPS: list[str] = []  # a cap's variable set to what is not a count: said at first use
+
+
+def _cap(variable: str, default: int) -> int:
+    """A cap from the environment (a whole number > 0), else ``default``; a bad value is
+    noted, to be said when an FMU is unpacked (not a traceback at import)."""
+    text = os.environ.get(variable, "").strip()
+    if not text:
+        return default
+    if text.isdigit() and int(text) > 0:
+        return int(text)
+    _BAD_CAPS.append(f"{variable}={text!r}: expected a whole number > 0 (default {default})")
+    return default
+
+
+MAX_MEGABYTES = _cap("COSIM_FMU_MAX_MB", 1024)  # uncompressed, MB
+MAX_ENTRIES = _cap("COSIM_FMU_MAX_FILES", 10000)
 PREFIX = "cosim_fmu_"
 _OURS = re.compile(rf"^{PREFIX}(\d+)_")
 _open: set[str] = set()  # folders this process unpacked and has not removed yet
@@ -49,6 +64,8 @@ def unsafe_entries(path: str | Path) -> list[str]:
 def size_problem(path: str | Path) -> str | None:
     """Why ``path`` is too large to unpack (its entry count or uncompressed size above the
     caps), or None; read from the archive's directory, nothing is unpacked."""
+    if _BAD_CAPS:
+        return _BAD_CAPS[0]
     with zipfile.ZipFile(path) as archive:
         entries = archive.infolist()
     total = sum(entry.file_size for entry in entries)
