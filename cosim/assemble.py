@@ -25,11 +25,10 @@ from .declared import Uncertainty
 from .evaluate import Declaration, Evaluator, SafeSet, evaluated_signals
 from .evaluate.parts import select
 from .memory import check_memory
-from .outputs.run_folder import trace_name_clash
 from .plant import PLANT_INPUT, PLANT_INPUT_ENTITY, PLANT_OUTPUTS, Plant
 from .plant.fmu import Fmu, FmuError
 from .plant.ports import traced_outputs
-from .signals import Signal, Trace
+from .signals import Signal, Trace, trace_name_clash
 
 
 @dataclass

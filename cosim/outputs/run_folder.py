@@ -264,22 +264,6 @@ class RunFolder:
 
 
 UNITS_KEY = "_units"  # the trace file's array of units and meanings (a JSON string)
-# The trace file's own entries beside the signals: the time column, the units, and each
-# check's and barrier's values.
-TRACE_PREFIXES = ("check_", "barrier_", "_")
-
-
-def trace_name_clash(signal: str) -> str | None:
-    """Why a signal cannot be called ``signal`` in the trace files (None: it can)."""
-    if signal == "time":
-        return "the name of the trace's time column"
-    prefix = next((p for p in TRACE_PREFIXES if signal.startswith(p)), None)
-    if prefix:
-        return (f"and names starting with {prefix!r} are the trace file's own "
-                f"({', '.join(repr(p) for p in TRACE_PREFIXES)}: the checks', the barriers' "
-                "values, the units)")
-    return None
-
 # What cosim writes into a run or sweep folder besides what summary.json lists: the files a
 # run killed before its summary caught up may leave (exact names, never patterns).
 OUR_NAMES = ("summary.json", "summary.md", "recording.rrd", "results.parquet", "results.csv",
