@@ -99,9 +99,13 @@ def users_frame(note_file: Path) -> str | None:
 
 def _supervise(args: list[str], grace: float, note_file: Path, threading) -> int:
     # -P: the working folder is not put first on the module path, so a random.py or
-    # json.py there cannot shadow the standard library in the run process.
+    # json.py there cannot shadow the standard library in the run process; the folder
+    # holding cosim itself is (a source tree run without installing).
+    package_root = str(Path(__file__).resolve().parents[2])
+    path = os.pathsep.join(filter(None, [package_root, os.environ.get("PYTHONPATH")]))
     child = subprocess.Popen([sys.executable, "-P", "-m", "cosim.cli", *args],
-                             env=dict(os.environ, **{SUPERVISED: "1", NOTE: str(note_file)}),
+                             env=dict(os.environ, PYTHONPATH=path,
+                                      **{SUPERVISED: "1", NOTE: str(note_file)}),
                              process_group=0)
     stopping: dict = {"timer": None, "acknowledged": False, "killed": None}
 
