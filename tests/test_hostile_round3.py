@@ -751,3 +751,17 @@ def test_a_bad_fmu_cap_in_the_environment_is_said_when_an_fmu_is_unpacked(plant_
     assert str(caught.value) == (f"{plant_fmu(2, 2)}: refusing to extract: "
                                  "COSIM_FMU_MAX_MB='abc': expected a whole number > 0 (default "
                                  "1024)")
+
+
+def test_the_notes_of_a_supervisor_killed_before_cleaning_up_are_removed(tmp_path):
+    from cosim.cli.supervisor import NOTE_PREFIX, _remove_stale_notes
+
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True).stdout.strip()
+    stale = [tmp_path / f"{NOTE_PREFIX}{dead}-abc{suffix}" for suffix in (".json", ".fault")]
+    live = tmp_path / f"{NOTE_PREFIX}{os.getpid()}-def.json"
+    users = tmp_path / f"{NOTE_PREFIX}{dead}-notes.txt"
+    for path in (*stale, live, users):
+        path.write_text("{}")
+    _remove_stale_notes(tmp_path)
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([live.name, users.name])

@@ -54,13 +54,35 @@ def supervise(args: list[str]) -> int:
     except ValueError as exc:
         print_error(str(exc))
         return 2
-    handle, note_file = tempfile.mkstemp(prefix="cosim-run-", suffix=".json")
+    _remove_stale_notes(Path(tempfile.gettempdir()))
+    handle, note_file = tempfile.mkstemp(prefix=f"{NOTE_PREFIX}{os.getpid()}-", suffix=".json")
     os.close(handle)
     try:
         return _supervise(args, grace, Path(note_file), threading)
     finally:
         Path(note_file).unlink(missing_ok=True)
         fault_file(Path(note_file)).unlink(missing_ok=True)
+
+
+NOTE_PREFIX = "cosim-run-"  # the note files: cosim-run-<supervisor pid>-<random>.json
+
+
+def _remove_stale_notes(folder: Path) -> None:
+    """Note and fault files of supervisors that no longer run (killed before cleaning up)."""
+    for path in folder.glob(f"{NOTE_PREFIX}*-*.*"):
+        pid = path.name[len(NOTE_PREFIX):].partition("-")[0]
+        if pid.isdigit() and not _alive(int(pid)) and path.suffix in (".json", ".fault"):
+            path.unlink(missing_ok=True)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    return True
 
 
 def fault_file(note_file: Path) -> Path:
