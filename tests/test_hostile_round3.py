@@ -765,3 +765,16 @@ def test_the_notes_of_a_supervisor_killed_before_cleaning_up_are_removed(tmp_pat
         path.write_text("{}")
     _remove_stale_notes(tmp_path)
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([live.name, users.name])
+
+
+def test_a_plugin_that_changes_the_working_folder_does_not_move_the_run_folder(tmp_path):
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    pipeline = plugin(tmp_path, "plugin_chdir")
+    source = (tmp_path / "plugin_chdir.py").read_text()
+    (tmp_path / "plugin_chdir.py").write_text(f"import os\nos.chdir({str(elsewhere)!r})\n"
+                                              + source)
+    done = here("run", pipeline.name, "--run", "hostile", "--out", "out", "--no-figures",
+                "--no-recording", cwd=tmp_path)
+    assert done.returncode == 0, done.stderr
+    assert (tmp_path / "out" / "summary.json").is_file() and list(elsewhere.iterdir()) == []

@@ -21,6 +21,7 @@ from __future__ import annotations
 import hashlib
 import importlib
 import importlib.util
+import os
 import sys
 import sysconfig
 import traceback
@@ -113,6 +114,7 @@ def _import(key: str) -> ModuleType:
 def _guarded(where: str, load):
     """``load()``, with any failure of the user's code turned into one PipelineError that
     names the plugin, the exception and the plugin's own line where it was raised."""
+    cwd = os.getcwd()
     try:
         return load()
     except PipelineError:
@@ -127,6 +129,8 @@ def _guarded(where: str, load):
         from ..run_note import tell_supervisor
 
         tell_supervisor(importing=None)
+        if os.getcwd() != cwd:  # a plugin's os.chdir would move every relative path after
+            os.chdir(cwd)
 
 
 # Frames that are not the user's: cosim's own and the standard library's (importlib's).
