@@ -332,8 +332,8 @@ def cache_folder(name: str, path: Path | None = None) -> Path:
 def cache_is_cold() -> bool:
     """True when numba's cache holds no compiled kernel of cosim's kernel modules as their
     sources are now: the first run after installing or updating cosim without its set-up
-    step (`cosim warm-up`, which `make venv` runs), which compiles every kernel it steps
-    before the loop starts."""
+    step (`cosim warm-up`, which `make demo` and `make test` run), which compiles every
+    kernel it steps before the loop starts."""
     return not any(any(cache_folder(name, path).glob("*.nbi"))
                    for name, path in kernel_modules() if cache_folder(name, path).is_dir())
 
