@@ -778,3 +778,19 @@ def test_a_plugin_that_changes_the_working_folder_does_not_move_the_run_folder(t
                 "--no-recording", cwd=tmp_path)
     assert done.returncode == 0, done.stderr
     assert (tmp_path / "out" / "summary.json").is_file() and list(elsewhere.iterdir()) == []
+
+
+def test_latest_stays_on_a_run_started_later(tmp_path):
+    """Runs end in any order: latest names the last one started (a run that crashes or
+    ends after a newer one has finished does not take it back)."""
+    from cosim.outputs.run_folder import point_latest
+
+    older, newer = tmp_path / "20261125-100000", tmp_path / "20261125-100000-2"
+    older.mkdir()
+    newer.mkdir()
+    point_latest(newer)
+    point_latest(older)
+    assert os.readlink(tmp_path / "latest") == newer.name
+    (tmp_path / "20261125-110000").mkdir()
+    point_latest(tmp_path / "20261125-110000")
+    assert os.readlink(tmp_path / "latest") == "20261125-110000"

@@ -377,11 +377,15 @@ LATEST = "latest"
 
 
 def point_latest(out: Path) -> None:
-    """``out``'s parent/latest → ``out`` (a relative link, replaced atomically). A ``latest``
-    that is not a link is the user's: left alone."""
+    """``out``'s parent/latest → ``out`` (a relative link, replaced atomically), unless it
+    points to a run started later already. A ``latest`` that is not a link is the user's:
+    left alone."""
     link = out.parent / LATEST
     if link.exists() and not link.is_symlink():
         return
+    if link.is_symlink() and (link.parent / os.readlink(link)).is_dir() \
+            and os.readlink(link) > out.name:
+        return  # a run started later (the names are start times) is the latest already
     tmp = out.parent / f".{LATEST}.{os.getpid()}.tmp"
     try:
         tmp.unlink(missing_ok=True)
