@@ -9,7 +9,7 @@ venv: $(VENV)/.installed warm-up
 test-venv: $(VENV)/.installed-test warm-up
 
 # The set-up's last step: compile the numba kernels and fused loops of the README's first
-# pipeline, and build its FMU, into the caches (~15 s on 2 cores, in parallel), so that the
+# pipeline, and build its FMU, into the caches (~11 s on 2 cores, in parallel), so that the
 # first `cosim run` starts at once. It runs every time: a warm cache is recognised in a
 # fraction of a second, and an edit recompiles only the kernels it changed. The tests also
 # step the safety filter's kernels (~1 min to compile on one core): warmed in parallel here,

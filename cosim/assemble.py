@@ -28,7 +28,7 @@ from .memory import check_memory
 from .plant import PLANT_INPUT, PLANT_INPUT_ENTITY, PLANT_OUTPUTS, Plant
 from .plant.fmu import Fmu, FmuError
 from .plant.ports import traced_outputs
-from .signals import Signal, Trace
+from .signals import Signal, Trace, trace_name_clash
 
 
 @dataclass
@@ -282,6 +282,10 @@ def wire(blocks: list[Block], context: BlockContext, run: str, plant
             ins[port] = current[port]
         outs = {}
         for port, signal in block.outputs.items():
+            clash = trace_name_clash(port)
+            if clash:
+                raise PipelineError(f"{where}: the {block.instance} block writes '{port}', "
+                                    f"{clash}; rename that output")
             if block.instance != block.kind and signal.entity is not None:
                 # a named instance records under its own name (two of one kind apart)
                 head, _, rest = signal.entity.partition("/")

@@ -277,7 +277,34 @@ def use_versioned_cache() -> Path:
     base = default_base()
     numba.config.CACHE_DIR = str(base)
     prepend_cache_locator(_locator_class())
+    _tolerate_damaged_entries()
     return base
+
+
+def _tolerate_damaged_entries() -> None:
+    """A damaged cache entry (a truncated or corrupted index or data file: a disk that
+    filled, a copy cut short) is a cache miss, compiled again and rewritten, rather than an
+    error every later run meets (numba raises the unpickling error as it is)."""
+    from numba.core import caching
+
+    original = caching.Cache.load_overload
+    if getattr(original, "tolerates_damage", False):
+        return
+
+    def load_overload(self, sig, target_context):
+        try:
+            return original(self, sig, target_context)
+        except Exception:  # noqa: BLE001 (pickle, EOF, zlib, OS errors: all mean damaged)
+            index = getattr(getattr(self, "_cache_file", None), "_index_path", None)
+            if index:
+                try:
+                    os.unlink(index)  # the data files it listed are replaced on saving
+                except OSError:
+                    pass
+            return None
+
+    load_overload.tolerates_damage = True
+    caching.Cache.load_overload = load_overload
 
 
 def kernel_modules() -> list[tuple[str, Path]]:
@@ -305,8 +332,8 @@ def cache_folder(name: str, path: Path | None = None) -> Path:
 def cache_is_cold() -> bool:
     """True when numba's cache holds no compiled kernel of cosim's kernel modules as their
     sources are now: the first run after installing or updating cosim without its set-up
-    step (`cosim warm-up`, which `make venv` runs), which compiles every kernel it steps
-    before the loop starts."""
+    step (`cosim warm-up`, which `make demo` and `make test` run), which compiles every
+    kernel it steps before the loop starts."""
     return not any(any(cache_folder(name, path).glob("*.nbi"))
                    for name, path in kernel_modules() if cache_folder(name, path).is_dir())
 

@@ -80,3 +80,20 @@ class Trace:
         view.arrays = {name: a[:k] for name, a in self.arrays.items()}
         view.time = self.time[:k]
         return view
+
+
+# The trace file's own entries beside the signals: the time column, the units, and each
+# check's and barrier's values.
+TRACE_PREFIXES = ("check_", "barrier_", "_")
+
+
+def trace_name_clash(signal: str) -> str | None:
+    """Why a signal cannot be called ``signal`` in the trace files (None: it can)."""
+    if signal == "time":
+        return "the name of the trace's time column"
+    prefix = next((p for p in TRACE_PREFIXES if signal.startswith(p)), None)
+    if prefix:
+        return (f"and names starting with {prefix!r} are the trace file's own "
+                f"({', '.join(repr(p) for p in TRACE_PREFIXES)}: the checks', the barriers' "
+                "values, the units)")
+    return None

@@ -24,6 +24,7 @@ import subprocess
 import sys
 import time
 import tomllib
+import zipfile
 from pathlib import Path
 from typing import TextIO
 
@@ -97,13 +98,51 @@ def _sources_digest() -> str:
     return h.hexdigest()
 
 
+def _unwritable(folder: Path, exc: OSError, variable: str = "NUMBA_CACHE_DIR") -> str:
+    return (f"the cache folder {folder} cannot be written ({exc.strerror or exc}); set "
+            f"{variable} to a writable folder; nothing was compiled")
+
+
+def unwritable_caches() -> list[tuple[str, Path, str]]:
+    """The cache folders a run writes that cannot be made or written here, as (the
+    environment variable that moves it, the folder, why): numba's kernels, the fused
+    loops' sources, the built plant FMUs."""
+    from plant_fmu.build import default_cache_dir
+
+    from .engine.fused import cache_dir
+
+    problems = []
+    for variable, folder in (("NUMBA_CACHE_DIR", jit_cache.default_base()),
+                             ("COSIM_ENGINE_CACHE", cache_dir()),
+                             ("COSIM_CACHE", default_cache_dir())):
+        try:
+            folder.mkdir(parents=True, exist_ok=True)
+            probe = folder / f".writable-{os.getpid()}"
+            probe.write_bytes(b"")
+            probe.unlink()
+        except OSError as exc:
+            problems.append((variable, folder, exc.strerror or str(exc)))
+    return problems
+
+
 def is_warm(pipeline: Path) -> bool:
-    """A stamp for this pipeline and these sources exists, and every file it lists does."""
+    """A stamp for this pipeline and these sources exists, and every file it lists is
+    there and whole (an FMU cut short in the cache is not warm)."""
     try:
         stamp = json.loads(stamp_path(pipeline).read_text())
     except (OSError, ValueError):
         return False
-    return all(Path(p).exists() for p in stamp.get("files", []))
+    return all(_whole(Path(p)) for p in stamp.get("files", []))
+
+
+def _whole(path: Path) -> bool:
+    if path.suffix != ".fmu":
+        return path.exists()
+    try:
+        with zipfile.ZipFile(path) as archive:
+            return archive.testzip() is None
+    except (OSError, zipfile.BadZipFile, EOFError):
+        return False
 
 
 # The work -------------------------------------------------------------------------------------
@@ -223,6 +262,8 @@ def warm_up(pipelines: list[Path], workers: int | None = None,
     if not cold:
         return []
     began = time.monotonic()
+    for variable, folder, why in unwritable_caches()[:1]:
+        raise WarmUpError(_unwritable(folder, OSError(why), variable))
     workers = workers or os.cpu_count() or 1
     print(f"cosim warm-up: compiling the kernels and fused loops of "
           f"{', '.join(map(str, cold))} on {workers} process(es), building their plant FMU …",
@@ -247,8 +288,11 @@ def warm_up(pipelines: list[Path], workers: int | None = None,
     files = [str(p) for p in fmus] + [str(p) for p in sorted(cache_dir().glob("fused_*.py"))]
     for pipeline in cold:
         stamp = stamp_path(pipeline)
-        stamp.parent.mkdir(parents=True, exist_ok=True)
-        stamp.write_text(json.dumps({"pipeline": str(pipeline), "files": files}, indent=1))
+        try:
+            stamp.parent.mkdir(parents=True, exist_ok=True)
+            stamp.write_text(json.dumps({"pipeline": str(pipeline), "files": files}, indent=1))
+        except OSError as exc:
+            raise WarmUpError(_unwritable(stamp.parent, exc)) from None
     print(f"cosim warm-up: done in {time.monotonic() - began:.1f} s; the first `cosim run` "
           "of these pipelines loads everything from the caches", file=stream)
     return cold

@@ -158,7 +158,7 @@ def _build_cached(chosen: ModuleType, links: int, fmi_version: int,
     cache.mkdir(parents=True, exist_ok=True)
     key = _build_key(chosen, links, fmi_version, cc)
     cached = cache / f"{stem}_fmi{fmi_version}_{key}.fmu"
-    if not cached.exists():
+    if not _whole(cached):  # missing, or damaged (truncated): built again
         _build_into(chosen, cached, links, fmi_version, cc)
     if output is None:
         return cached
@@ -166,6 +166,16 @@ def _build_cached(chosen: ModuleType, links: int, fmi_version: int,
     output.parent.mkdir(parents=True, exist_ok=True)
     _write_atomically(output, lambda tmp: shutil.copyfile(cached, tmp))
     return output
+
+
+def _whole(fmu: Path) -> bool:
+    """The cached FMU is there and every entry passes its CRC check (a few hundred kB: a
+    millisecond), so that a truncated file in the cache is rebuilt, not used by every run."""
+    try:
+        with zipfile.ZipFile(fmu) as archive:
+            return archive.testzip() is None
+    except (OSError, zipfile.BadZipFile, EOFError):
+        return False
 
 
 def _write_atomically(target: Path, produce) -> None:

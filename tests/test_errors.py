@@ -104,11 +104,11 @@ def test_an_existing_run_folder_is_refused_and_left_as_it_was(finished):
 def test_force_replaces_the_folder_without_stale_files(finished, tmp_path):
     out = tmp_path / "copy"
     shutil.copytree(finished, out)
-    (out / "trace_old_run.npz").write_bytes(b"stale")
+    (out / ".trace_proposed.npz.tmp").write_bytes(b"stale")  # a killed writer's temporary
     done = cosim_cli("run", PAPER, "--out", str(out), "--force", "--no-figures",
                      "--no-recording", *SHORT)
     assert done.returncode == 0, done.stderr
-    assert not (out / "trace_old_run.npz").exists() and not (out / "recording.rrd").exists()
+    assert not (out / ".trace_proposed.npz.tmp").exists() and not (out / "recording.rrd").exists()
     summary = json.loads((out / "summary.json").read_text())
     assert summary["complete"] and set(summary["files"]) == {"trace_baseline.npz",
                                                             "trace_proposed.npz", "summary.md"}

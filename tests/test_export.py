@@ -28,17 +28,16 @@ KNOWN_UNITS = {"time": "s", "q": "rad", "qdot": "rad/s", "qdot_hat": "rad/s", "t
 
 @pytest.fixture(scope="module")
 def folders(tmp_path_factory):
-    """A: the paper's pipeline for 2 s; B: the same with a velocity bound just below what the
-    proposed run reaches in A, so a check that held in A fails in B."""
+    """A: the paper's pipeline for 2 s; B: the same, the proposed run's reference on joint 1
+    faster (0.58 rad/s, not 0.5) under the same bounds, so checks that held in A fail in B."""
     base = tmp_path_factory.mktemp("export")
     a, b = base / "a", base / "b"
     done = cosim_cli("run", PAPER, "--out", str(a), *SHORT)
     assert done.returncode == 0, done.stderr[-2000:]
     held = json.loads((a / "summary.json").read_text())["runs"]["proposed"]["safety"]
     assert held["velocity_true_joint1"]["satisfied"]
-    lower = held["velocity_true_joint1"]["worst"] - 0.1
     done = cosim_cli("run", PAPER, "--out", str(b), *SHORT, "--set",
-                     f"safety.velocity_bound={lower}")
+                     "runs.proposed.reference.frequency=[[0.58], [1.0]]")
     assert done.returncode == 0, done.stderr[-2000:]
     return a, b
 
@@ -176,7 +175,9 @@ def test_compare_gates_a_regression_by_its_exit_status(folders):
     assert worse.returncode == 1, worse.stderr
     regressions = worse.stdout.split("regression(s):")[1].split("\n")
     named = [line.strip() for line in regressions if line.strip()]
-    assert named and all(line.startswith("proposed/velocity_") for line in named)
+    assert {line.split(":")[0] for line in named} == {
+        "proposed/velocity_true_joint1", "proposed/velocity_estimated_joint1",
+        "proposed/observer_error_norm"}
     assert any(line.startswith("proposed/velocity_true_joint1: held in A") for line in named)
     assert "REGRESSED" in worse.stdout
     better = cosim_cli("compare", str(b), str(a))
@@ -191,9 +192,10 @@ def test_every_export_format_has_its_writer_and_is_offered_by_the_command():
     command offers each, and the run folder counts each export file as its own."""
     from cosim.outputs.export import WRITERS
     from cosim.outputs.formats import EXPORT_FORMATS
-    from cosim.outputs.run_folder import OUR_PATTERNS
+    from cosim.outputs.run_folder import _our_entries
 
     assert set(WRITERS) == set(EXPORT_FORMATS)
     offered = cosim_cli("export", "--help").stdout
     assert all(name in offered for name in EXPORT_FORMATS)
-    assert {f"export_*{suffix}" for suffix in EXPORT_FORMATS.values()} <= set(OUR_PATTERNS)
+    assert {f"export_paper{suffix}" for suffix in EXPORT_FORMATS.values()} <= \
+        _our_entries({"runs": {"paper": {}}})

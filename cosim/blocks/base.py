@@ -134,6 +134,12 @@ class Block:
 BLOCKS: dict[str, type[Block]] = {}
 
 
+# A pipeline's own top-level keys (cosim.config.pipeline.Pipeline's fields, runs and extends):
+# no block kind may take one, its table would be the pipeline's.
+PIPELINE_TABLES = ("name", "description", "plugins", "simulation", "plant", "safety",
+                   "uncertainty", "runs", "extends")
+
+
 def register_block(cls: type[Block]) -> type[Block]:
     """Class decorator: make ``cls`` available to pipelines as ``cls.kind``."""
     kind = getattr(cls, "kind", None)
@@ -141,6 +147,10 @@ def register_block(cls: type[Block]) -> type[Block]:
         raise TypeError(f"{cls.__name__}.kind must be an identifier (got {kind!r})")
     if not (isinstance(getattr(cls, "Params", None), type) and issubclass(cls.Params, Section)):
         raise TypeError(f"{cls.__name__}.Params must be a cosim.schema.Section")
+    if kind in PIPELINE_TABLES:
+        raise ValueError(f"{cls.__name__}.kind = {kind!r} is the name of a pipeline's own key "
+                         f"({', '.join(PIPELINE_TABLES)}); a block's table would collide with "
+                         "it: choose another kind")
     if kind in BLOCKS and BLOCKS[kind] is not cls:
         raise ValueError(f"a block of kind {kind!r} is registered already "
                          f"({BLOCKS[kind].__module__}.{BLOCKS[kind].__name__})")

@@ -10,7 +10,10 @@ installed package offers its blocks to every pipeline with an entry point::
     my_blocks = "mypkg.blocks"
 
 Each is imported once per process (a sweep's Dask workers import them as they load the
-pipeline). A plugin that fails to import is one error naming it and the cause.
+pipeline), and importing runs its code: every command that reads the pipeline (``run``,
+``run --dry-run``, ``params``, ``inspect``, ``sweep``), through ``extends`` too, says on
+stderr which file it is about to import. A plugin that fails to import (an exception,
+``sys.exit``) is one error naming it and the cause.
 """
 
 from __future__ import annotations
@@ -18,6 +21,7 @@ from __future__ import annotations
 import hashlib
 import importlib
 import importlib.util
+import os
 import sys
 import sysconfig
 import traceback
@@ -46,6 +50,8 @@ def load_entry_points() -> None:
     _entry_points_loaded = True  # a broken one is reported once, not at every pipeline
     for point in entry_points(group=ENTRY_POINT_GROUP):
         where = f"entry point {point.name!r} = {point.value!r} (group {ENTRY_POINT_GROUP})"
+        if not point.value.startswith("cosim."):  # our own (the paper's blocks): no news
+            _announce(where)
         _guarded(where, point.load)
 
 
@@ -61,8 +67,30 @@ def _load(plugin: str) -> ModuleType:
     else:
         key = plugin
     if key not in _LOADED:
+        _announce(f"plugin {plugin}")
         _LOADED[key] = _guarded(f"plugins: {plugin}", lambda: _import(key))
     return _LOADED[key]
+
+
+def _announce(what: str) -> None:
+    """Say on stderr that a plugin's code is about to run (and tell a supervisor, should
+    it crash the process)."""
+    from ..run_note import tell_supervisor
+
+    if not _in_a_dask_worker():  # the sweep's own process said so already
+        print(f"cosim: importing {what} (its code runs now)", file=sys.stderr)
+    tell_supervisor(importing=what)
+
+
+def _in_a_dask_worker() -> bool:
+    distributed = sys.modules.get("distributed")
+    if distributed is None:
+        return False
+    try:
+        distributed.get_worker()
+    except ValueError:
+        return False
+    return True
 
 
 def _import(key: str) -> ModuleType:
@@ -86,12 +114,23 @@ def _import(key: str) -> ModuleType:
 def _guarded(where: str, load):
     """``load()``, with any failure of the user's code turned into one PipelineError that
     names the plugin, the exception and the plugin's own line where it was raised."""
+    cwd = os.getcwd()
     try:
         return load()
     except PipelineError:
         raise
+    except SystemExit as exc:  # sys.exit() at import: not the end of the command
+        raise PipelineError(f"{where}: failed to import: it called sys.exit({exc.code!r})"
+                            f"{_users_line(exc)}; a plugin must only define and register its "
+                            "blocks") from None
     except Exception as exc:  # the user's code: any exception is possible
         raise PipelineError(f"{where}: failed to import: {describe_exception(exc)}") from None
+    finally:
+        from ..run_note import tell_supervisor
+
+        tell_supervisor(importing=None)
+        if os.getcwd() != cwd:  # a plugin's os.chdir would move every relative path after
+            os.chdir(cwd)
 
 
 # Frames that are not the user's: cosim's own and the standard library's (importlib's).
@@ -103,8 +142,12 @@ def describe_exception(exc: BaseException) -> str:
     """``"NameError: name 'np' is not defined (my_blocks.py, line 26, in step)"``: the
     exception and the last line outside cosim and the standard library (the user's own
     code) on its way up; none when the user's code was never reached."""
+    return f"{type(exc).__name__}: {exc}{_users_line(exc)}"
+
+
+def _users_line(exc: BaseException) -> str:
+    """`` (my_blocks.py, line 26, in step)``: where the user's code raised ``exc``."""
     frames = [f for f in traceback.extract_tb(exc.__traceback__)
               if not f.filename.startswith(_NOT_THEIRS)]
-    where = f" ({frames[-1].filename}, line {frames[-1].lineno}, in {frames[-1].name})" \
+    return f" ({frames[-1].filename}, line {frames[-1].lineno}, in {frames[-1].name})" \
         if frames else ""
-    return f"{type(exc).__name__}: {exc}{where}"

@@ -16,7 +16,7 @@ from collections.abc import Sequence
 # a supervisor process that only waits for the run's own process (supervise), and plant_fmu
 # and pydantic (cosim.schema) would add a quarter of a second to every run there. Each
 # command imports what it needs.
-from .common import UserError, print_error
+from .common import StdoutReaderGone, UserError, print_error
 from .parser import build_parser
 from .stopping import follow_the_supervisor, on_sigterm
 from .supervisor import SUPERVISED, supervise
@@ -30,10 +30,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         return supervise(sys.argv[1:])
     if argv is None and os.environ.get(SUPERVISED):
         follow_the_supervisor()
+        _dump_fatal_signals()
     from plant_fmu import BuildError
 
     from ..schema import PipelineError
 
+    if argv is None and not isinstance(sys.stdout, StdoutReaderGone):
+        sys.stdout = StdoutReaderGone(sys.stdout)
     args = build_parser().parse_args(argv)
     # Every command ends on SIGTERM as on Ctrl-C (run and sweep keep what they computed).
     previous = signal.signal(signal.SIGTERM, on_sigterm) if argv is None else None
@@ -48,3 +51,19 @@ def main(argv: Sequence[str] | None = None) -> int:
     finally:
         if previous is not None:
             signal.signal(signal.SIGTERM, previous)
+
+
+def _dump_fatal_signals() -> None:
+    """In the supervised run process: a fatal signal (a plugin's or a plant's binary
+    crashing) dumps the Python stack where the supervisor reads whose code it was in."""
+    import faulthandler
+    from pathlib import Path
+
+    from ..run_note import NOTE
+    from .supervisor import fault_file
+
+    if os.environ.get(NOTE):
+        try:  # kept open for the life of the process: faulthandler writes to its descriptor
+            faulthandler.enable(fault_file(Path(os.environ[NOTE])).open("w"))
+        except OSError:
+            pass

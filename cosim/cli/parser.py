@@ -17,7 +17,18 @@ def build_parser() -> argparse.ArgumentParser:
         prog="cosim",
         description="Co-simulate a robot-arm FMU with a safe adaptive output-feedback "
         "controller. SI units, angles in radians.")
+    parser.add_argument("--version", action="version", version=f"cosim {_version()}",
+                        help="print cosim's version and exit")
     commands = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
     for command in COMMANDS:
         command.add_parser(commands)
     return parser
+
+
+def _version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("cosim")
+    except PackageNotFoundError:  # run from a source tree that was not installed
+        return "(not installed)"

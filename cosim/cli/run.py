@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import io
 import signal
 import sys
 from pathlib import Path
@@ -39,6 +40,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
                    help="do not write the PNG figures (Figs. 2-5)")
     p.add_argument("--force", action="store_true",
                    help="replace what --out holds (an existing run folder is refused without)")
+    p.add_argument("--quiet", action="store_true",
+                   help="print no progress on stderr (errors and the final summary still)")
     p.add_argument("--dry-run", action="store_true",
                    help="check everything (pipeline, plant FMU, wiring, sizes), build the FMU, "
                    "print the resolved plan and the memory and disk it needs; run nothing")
@@ -47,10 +50,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 def handle(args: argparse.Namespace) -> None:
     from ..config import load_pipeline
-    from ..engine import Diverged
-    from ..outputs.recording import RecordingError
-    from ..outputs.run_folder import RunFolderError
-    from ..runner import run
+    from ..run_note import tell_supervisor
 
     pipeline = load_pipeline(args.pipeline, args.set)
     if args.runs:
@@ -59,24 +59,42 @@ def handle(args: argparse.Namespace) -> None:
             raise UserError(f"--run {unknown[0]}: {args.pipeline} has no such run; its runs "
                             f"are {', '.join(pipeline.runs)}; nothing was run")
         pipeline.runs = {name: pipeline.runs[name] for name in dict.fromkeys(args.runs)}
-    out = _run_folder(pipeline.name, args.out, args.dry_run)
     if args.dry_run:
-        _print_plan(pipeline, out, args)
+        _print_plan(pipeline, args.out or _run_folder(pipeline.name, create=False), args)
         return
     _check_viewer(args.spawn, args.connect)
-    from ..jit_cache import announce_compiles, cache_is_cold
+    _check_caches()
+    out = args.out or _run_folder(pipeline.name)
+    plant = (Path(pipeline.plant.fmu).name if pipeline.plant.fmu else
+             Path(pipeline.plant.urdf.file).name if pipeline.plant.urdf else "the built-in plant")
+    tell_supervisor(out=str(out), plant=plant, named="1" if args.out is None else None)
+    try:
+        _run(pipeline, out, args)
+    finally:
+        if args.out is None:
+            _settle_named_folder(out)
 
+
+def _run(pipeline, out: Path, args: argparse.Namespace) -> None:
+    from ..engine import Diverged
+    from ..jit_cache import announce_compiles, cache_is_cold
+    from ..outputs.recording import RecordingError
+    from ..outputs.run_folder import RunFolderError
+    from ..runner import run
+
+    say = (lambda text: None) if args.quiet else (lambda text: print(text, file=sys.stderr))
     if cache_is_cold():  # otherwise the terminal would sit silent while numba compiles
-        print("compiling the numba kernels for this machine (the first run after installing "
-              "or updating cosim without its set-up step, `cosim warm-up`, which `make venv` "
-              "runs: ~30 s on 2 cores; cached for later runs)", file=sys.stderr)
+        say("compiling the numba kernels for this machine (the first run after installing "
+            "or updating cosim without its set-up step, `cosim warm-up`, which `make demo` "
+            "and `make test` run: ~30 s on 2 cores one kernel after another; cached for "
+            "later runs)")
     if not args.no_figures:  # they import matplotlib while the runs go
         from ..outputs.figures import start_painters
 
         start_painters()
-    print(f"running {pipeline.name}: {', '.join(pipeline.runs)} "
-          f"({pipeline.simulation.duration:g} s at {1 / pipeline.simulation.step:g} Hz) -> {out}",
-          file=sys.stderr)
+    overrides = f" with {', '.join(args.set)}" if args.set else ""
+    say(f"running {pipeline.name}{overrides}: {', '.join(pipeline.runs)} "
+        f"({pipeline.simulation.duration:g} s at {1 / pipeline.simulation.step:g} Hz) -> {out}")
     previous = signal.signal(signal.SIGTERM, on_sigterm)
 
     def kept() -> str:  # the run folder is made once the plant is open
@@ -87,8 +105,9 @@ def handle(args: argparse.Namespace) -> None:
     try:
         # A kernel edited since the last run (or the warm-up) recompiles: each module's
         # kernels are named as they are done.
-        with announce_compiles(sys.stderr):
-            results = run(pipeline, out, record=not args.no_recording, spawn=args.spawn,
+        with announce_compiles(io.StringIO() if args.quiet else sys.stderr):
+            results = run(pipeline, out, progress=not args.quiet,
+                          record=not args.no_recording, spawn=args.spawn,
                           connect=args.connect, figures=not args.no_figures, force=args.force)
     except Diverged as exc:
         raise UserError(f"{exc}; {kept()}") from None
@@ -96,6 +115,10 @@ def handle(args: argparse.Namespace) -> None:
         raise UserError(f"{str(exc) or 'interrupted (Ctrl-C)'}; {kept()}") from None
     except RecordingError as exc:
         raise UserError(f"{exc}; {kept()}") from None
+    except MemoryError:  # a limit the memory check could not see
+        raise UserError("ran out of memory (an allocation failed); shorten "
+                        "simulation.duration or lengthen simulation.step, or run fewer runs "
+                        f"with --run; {kept()}") from None
     except RunFolderError as exc:  # "--out …" messages: the folder could not be used at all
         raise UserError(str(exc) if str(exc).startswith("--out") else f"{exc}; {kept()}") \
             from None
@@ -107,20 +130,29 @@ def handle(args: argparse.Namespace) -> None:
         print(f"review: cosim view {out}   (or: rerun {out / 'recording.rrd'})")
 
 
-def _run_folder(name: str, out: Path | None, dry_run: bool) -> Path:
-    """``--out``, else a new folder per run, runs/NAME/TIME, and runs/NAME/latest pointing to
-    it (made only if the run is to go on)."""
-    if out is not None:
-        return out
-    from ..outputs.run_folder import RunFolderError, new_run_folder, point_latest
+def _run_folder(name: str, create: bool = True) -> Path:
+    """A new folder per run, runs/NAME/TIME (``create=False``: only named, for --dry-run)."""
+    from ..outputs.run_folder import RunFolderError, new_run_folder
 
     try:
-        out = new_run_folder(Path("runs") / name, create=not dry_run)
+        return new_run_folder(Path("runs") / name, create=create)
     except RunFolderError as exc:
         raise UserError(str(exc)) from None
-    if not dry_run:
+
+
+def _settle_named_folder(out: Path) -> None:
+    """After a run in a folder cosim named: runs/NAME/latest → it once it holds a run
+    (complete or not); a run refused before writing anything (a missing FMU, too little
+    memory) leaves no empty folder behind, and latest where it was."""
+    from ..outputs.run_folder import point_latest
+
+    if (out / "summary.json").is_file():
         point_latest(out)
-    return out
+        return
+    try:
+        out.rmdir()  # only if empty: it is ours, made a moment ago
+    except OSError:
+        pass
 
 
 def _print_plan(pipeline, out: Path, args: argparse.Namespace) -> None:
@@ -132,6 +164,21 @@ def _print_plan(pipeline, out: Path, args: argparse.Namespace) -> None:
     refusal = would_refuse(out, args.force)
     if refusal:  # the run itself would stop there: say so now
         raise UserError(f"{refusal} (--dry-run: the run would be refused here)")
+
+
+def _check_caches() -> None:
+    """Before anything runs: the caches a run writes. numba compiles without its cache
+    (every run, slowly: said); the fused loops' and the FMUs' are needed."""
+    from ..warm import unwritable_caches
+
+    for variable, folder, why in unwritable_caches():
+        if variable == "NUMBA_CACHE_DIR":
+            print(f"cosim: warning: the numba cache folder {folder} cannot be written ({why}): "
+                  "every run compiles its kernels again; set NUMBA_CACHE_DIR to a writable "
+                  "folder", file=sys.stderr)
+            continue
+        raise UserError(f"the cache folder {folder} cannot be written ({why}); set {variable} "
+                        "to a writable folder; nothing was run")
 
 
 def _check_viewer(spawn: bool, connect: str | None) -> None:

@@ -4,31 +4,131 @@ that crashes it, or never lets it answer Ctrl-C, is reported and its summary mar
 from __future__ import annotations
 
 import os
+import re
 import signal
 import subprocess
 import sys
+import sysconfig
 from pathlib import Path
 
+from ..run_note import NOTE, read_note
 from .common import print_error
-from .parser import build_parser
 
 SUPERVISED = "COSIM_SUPERVISED"  # set in the run process's environment by its supervisor
 
 # Seconds the run process has to answer Ctrl-C or SIGTERM (its handler acknowledges at once
 # when Python runs it) before it is killed: only a plant binary that never returns control
-# (a foreign FMU blocking in doStep) keeps Python from running it.
-STOP_GRACE_S = float(os.environ.get("COSIM_STOP_GRACE_S", "10"))
+# (a foreign FMU blocking in doStep) keeps Python from running it. COSIM_STOP_GRACE_S
+# changes it.
+STOP_GRACE_VARIABLE, STOP_GRACE_S = "COSIM_STOP_GRACE_S", 10.0
+
+
+def stop_grace() -> float:
+    """COSIM_STOP_GRACE_S (seconds, > 0), else the default; a bad value is the user's
+    mistake, said before anything runs."""
+    text = os.environ.get(STOP_GRACE_VARIABLE, "").strip()
+    if not text:
+        return STOP_GRACE_S
+    try:
+        value = float(text)
+    except ValueError:
+        value = float("nan")
+    if not (0 < value < float("inf")):
+        raise ValueError(f"{STOP_GRACE_VARIABLE}={text!r}: expected a number of seconds > 0 "
+                         f"(default {STOP_GRACE_S:g}); nothing was run")
+    return value
 
 
 def supervise(args: list[str]) -> int:
     """Run ``cosim run`` in a child process and wait: if it dies by a signal (a plant
     binary that crashes takes the process with it), say so and mark its summary. The child
     has its own process group, so Ctrl-C and SIGTERM reach it once, through here; if it does
-    not acknowledge one within STOP_GRACE_S, it is killed (and its summary marked)."""
+    not acknowledge one within the grace (COSIM_STOP_GRACE_S), it is killed (and its summary
+    marked). The child tells which run folder it made through a note file (cosim.run_note):
+    nothing of the pipeline is loaded here, so a plugin that crashes cannot crash this too."""
+    import tempfile
     import threading
 
-    child = subprocess.Popen([sys.executable, "-m", "cosim.cli", *args],
-                             env=dict(os.environ, **{SUPERVISED: "1"}), process_group=0)
+    try:
+        grace = stop_grace()
+    except ValueError as exc:
+        print_error(str(exc))
+        return 2
+    _remove_stale_notes(Path(tempfile.gettempdir()))
+    handle, note_file = tempfile.mkstemp(prefix=f"{NOTE_PREFIX}{os.getpid()}-", suffix=".json")
+    os.close(handle)
+    try:
+        return _supervise(args, grace, Path(note_file), threading)
+    finally:
+        Path(note_file).unlink(missing_ok=True)
+        fault_file(Path(note_file)).unlink(missing_ok=True)
+
+
+NOTE_PREFIX = "cosim-run-"  # the note files: cosim-run-<supervisor pid>-<random>.json
+
+
+def _remove_stale_notes(folder: Path) -> None:
+    """Note and fault files of supervisors that no longer run (killed before cleaning up)."""
+    for path in folder.glob(f"{NOTE_PREFIX}*-*.*"):
+        pid = path.name[len(NOTE_PREFIX):].partition("-")[0]
+        if pid.isdigit() and not _alive(int(pid)) and path.suffix in (".json", ".fault"):
+            path.unlink(missing_ok=True)
+
+
+def _alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # another user's process
+        return True
+    return True
+
+
+def fault_file(note_file: Path) -> Path:
+    """Where the run process's faulthandler writes the Python stack of a fatal signal."""
+    return note_file.with_suffix(".fault")
+
+
+# Frames that are not a user's code: cosim's own and installed packages' (FMPy's calls into
+# the plant binary); the standard library's are passed over (a plugin's ctypes call).
+UNPACKED = "cosim_fmu_"  # cosim.plant.unpack.PREFIX: where an FMU is unpacked to run
+_STDLIB = str(Path(sysconfig.get_paths()["stdlib"]).resolve())
+_NOT_USERS = (str(Path(__file__).resolve().parents[1]), *{
+    str(Path(sysconfig.get_paths()[key]).resolve()) for key in ("purelib", "platlib")})
+
+
+def users_frame(note_file: Path) -> str | None:
+    """``"my_blocks.py, line 12, in step"``: where the fatal signal's stack (faulthandler's
+    dump, the crashing thread's) leaves the standard library, when that is a user's code (a
+    plugin), else None (cosim's or an installed package's: the plant's binary)."""
+    try:
+        dump = fault_file(note_file).read_text(errors="replace")
+    except OSError:
+        return None
+    current = dump.split("Current thread", 1)[-1]
+    for path, line, function in re.findall(r'File "([^"]+)", line (\d+) in (\S+)', current):
+        resolved = str(Path(path).resolve()) if not path.startswith("<") else path
+        # before the stdlib (site-packages may be inside it); an unpacked FMU's own Python
+        # (a PythonFMU plant) is the plant's
+        if resolved.startswith(_NOT_USERS) or any(part.startswith(UNPACKED)
+                                                  for part in Path(resolved).parts):
+            return None
+        if not (path.startswith("<") or resolved.startswith(_STDLIB)):
+            return f"{path}, line {line}, in {function}"  # faulthandler: the innermost first
+    return None
+
+
+def _supervise(args: list[str], grace: float, note_file: Path, threading) -> int:
+    # -P: the working folder is not put first on the module path, so a random.py or
+    # json.py there cannot shadow the standard library in the run process; the folder
+    # holding cosim itself is (a source tree run without installing).
+    package_root = str(Path(__file__).resolve().parents[2])
+    path = os.pathsep.join(filter(None, [package_root, os.environ.get("PYTHONPATH")]))
+    child = subprocess.Popen([sys.executable, "-P", "-m", "cosim.cli", *args],
+                             env=dict(os.environ, PYTHONPATH=path,
+                                      **{SUPERVISED: "1", NOTE: str(note_file)}),
+                             process_group=0)
     stopping: dict = {"timer": None, "acknowledged": False, "killed": None}
 
     def end_unanswered(name: str) -> None:
@@ -39,7 +139,7 @@ def supervise(args: list[str]) -> int:
     def forward(signum, frame) -> None:
         child.send_signal(signum)
         if stopping["timer"] is None:
-            stopping["timer"] = threading.Timer(STOP_GRACE_S, end_unanswered,
+            stopping["timer"] = threading.Timer(grace, end_unanswered,
                                                 (signal.Signals(signum).name,))
             stopping["timer"].daemon = True
             stopping["timer"].start()
@@ -56,45 +156,67 @@ def supervise(args: list[str]) -> int:
     if status >= 0:
         return status
     name = signal.Signals(-status).name
-    out, plant = _crashed_run(args)
+    note = read_note(note_file)
+    plant, out = note.get("plant"), note.get("out")
     where = f" in {plant}" if plant else ""
+    users = None if stopping["killed"] else users_frame(note_file)
+    if not out:  # it died before making its run folder: loading the pipeline
+        culprit = (f"in a plugin's code ({users})" if users
+                   else f"while importing the plugin {note['importing']}"
+                   if note.get("importing")
+                   else "while loading the pipeline")
+        cause = (f"did not answer {stopping['killed']} within {grace:g} s and was killed"
+                 if stopping["killed"] else f"was killed by {name}")
+        print_error(f"the run process {cause} {culprit}, before any run folder was made; "
+                    "nothing was run or written")
+        return 2
+    out = Path(out)
+    started = (out / "summary.json").is_file()
+    _settle(note, started)
+    kept = (f"what was written before is kept in {out} (summary.json marked crashed)"
+            if started else "nothing was written (the run had not started)")
     if stopping["killed"]:
         print_error(f"the run process did not answer {stopping['killed']} within "
-                    f"{STOP_GRACE_S:g} s (most likely blocked inside the plant FMU's "
-                    f"doStep{where}) and was killed; what was written before is kept in {out} "
-                    "(summary.json marked crashed)")
+                    f"{grace:g} s (most likely blocked inside the plant FMU's "
+                    f"doStep{where}) and was killed; {kept}")
         _mark_crashed(out, f"killed: the run process did not answer {stopping['killed']} "
-                      f"within {STOP_GRACE_S:g} s{where}")
+                      f"within {grace:g} s{where}")
         return 2
-    print_error(f"the run process was killed by {name}, most likely inside the plant FMU's "
-                f"binary{where}; what was computed is kept in {out} (summary.json marked "
-                "crashed)")
-    _mark_crashed(out, f"the run process was killed by {name}{where}")
+    inside = (f"in a plugin's code ({users})" if users
+              else f"most likely inside the plant FMU's binary{where}")
+    print_error(f"the run process was killed by {name}, {inside}; "
+                + kept.replace("written before", "computed"))
+    _mark_crashed(out, f"the run process was killed by {name}"
+                  + (f" in a plugin's code ({users})" if users else where))
     return 2
 
 
-def _crashed_run(args: list[str]) -> tuple[Path, str]:
-    """The run folder and plant of the run that crashed, from its arguments."""
-    from ..config import load_pipeline
-    from ..schema import PipelineError
+def _settle(note: dict, started: bool) -> None:
+    """A run folder cosim named (no --out), as the run itself would have left it: latest →
+    it once it holds a run; removed if still empty (the run had not started)."""
+    if not note.get("named"):
+        return
+    if started:
+        from ..outputs.run_folder import point_latest
 
-    ns = build_parser().parse_args(args)
+        point_latest(Path(note["out"]))
+        return
     try:
-        pipeline = load_pipeline(ns.pipeline, ns.set)
-    except PipelineError:
-        return Path(ns.out or "runs"), ""
-    plant = (Path(pipeline.plant.fmu).name if pipeline.plant.fmu else
-             Path(pipeline.plant.urdf.file).name if pipeline.plant.urdf else "the built-in plant")
-    # without --out, the run made runs/NAME/TIME and pointed runs/NAME/latest at it
-    return Path(ns.out or (Path("runs") / pipeline.name / "latest").resolve()), plant
+        Path(note["out"]).rmdir()  # only if empty
+    except OSError:
+        pass
 
 
 def _mark_crashed(out: Path, reason: str) -> None:
+    """The crashed run's own summary.json (never another folder's): marked crashed, if
+    cosim wrote it."""
     import json
 
     summary = out / "summary.json"
     try:
         data = json.loads(summary.read_text())
+        if not isinstance(data, dict) or "complete" not in data:
+            return
         data.update(complete=False, status="crashed", error=reason)
         tmp = out / ".summary.json.crashed"
         tmp.write_text(json.dumps(data, indent=2) + "\n")

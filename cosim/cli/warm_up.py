@@ -15,7 +15,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "now, so that their first run starts at once",
         description="Fill the caches a run loads from: compile the numba kernels and fused "
         "loops that the pipelines' runs step (in parallel, one process per core), build their "
-        "plant FMUs and matplotlib's font list. `make venv` and `make test-venv` run it; a "
+        "plant FMUs and matplotlib's font list. `make demo` and `make test` run it; a "
         "warm cache is recognised in a fraction of a second. Caches: $NUMBA_CACHE_DIR (else "
         "~/.cache/cosim/numba, a folder per kernel module and version of its sources), "
         "$COSIM_ENGINE_CACHE, $COSIM_CACHE.")

@@ -34,7 +34,8 @@ def read_toml(path: Path, chain: tuple[Path, ...] = ()) -> dict:
             raise PipelineError(f"{path}: is a folder, not a pipeline file{where}")
         raise PipelineError(f"{path}: no such pipeline file{where}")
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        # utf-8-sig: a byte-order mark (Windows editors add one) is not part of the TOML
+        data = tomllib.loads(path.read_text(encoding="utf-8-sig"))
     except tomllib.TOMLDecodeError as exc:
         raise PipelineError(f"{path}: not valid TOML: {exc}") from None
     except UnicodeDecodeError as exc:
@@ -111,3 +112,28 @@ def plugin_path(name: str, folder: Path) -> str:
         return name
     path = Path(name).expanduser()
     return str(path if path.is_absolute() else (folder / path).resolve())
+
+
+def key_origin(path: Path, key: str) -> Path | None:
+    """The file of ``path``'s ``extends`` chain whose own tables set the dotted ``key``
+    (``controller.kvv``, ``runs.a.controller.kv``), the nearest first; None if none does
+    (it came from ``--set``, or the chain cannot be read)."""
+    seen: set[Path] = set()
+    while path not in seen and len(seen) < MAX_EXTENDS:
+        seen.add(path)
+        try:
+            data = tomllib.loads(path.read_text(encoding="utf-8-sig"))
+        except (OSError, ValueError):
+            return None
+        node = data
+        for part in key.split("."):
+            if not isinstance(node, dict) or part not in node:
+                break
+            node = node[part]
+        else:
+            return path
+        parent = data.get("extends")
+        if not isinstance(parent, str):
+            return None
+        path = path.parent / parent
+    return None

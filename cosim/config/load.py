@@ -8,7 +8,8 @@ from collections.abc import Callable
 from pathlib import Path
 
 from ..blocks.plugins import load_entry_points, load_plugins
-from .files import absolute, plugin_path, read_toml, urdf_relative_to
+from ..schema import PipelineError
+from .files import absolute, key_origin, plugin_path, read_toml, urdf_relative_to
 from .overrides import apply_override, shadowed
 from .pipeline import Pipeline
 from .validation import validate
@@ -42,7 +43,10 @@ def load_pipeline(path: str | Path | None, overrides: list[str] | None = None,
         data["plugins"] = [plugin_path(p, Path.cwd()) if isinstance(p, str) else p
                            for p in plugins]  # from --set: relative to where the user is
         load_plugins(data["plugins"])
-    pipeline = validate(data, source)
+    try:
+        pipeline = validate(data, source)
+    except PipelineError as exc:
+        raise _blamed_on_its_file(exc, path, source) from None
     if pipeline.plant.fmu is not None:
         fmu = Path(pipeline.plant.fmu).expanduser()
         pipeline.plant.fmu = str(fmu if fmu.is_absolute() else (base / fmu).resolve())
@@ -51,3 +55,18 @@ def load_pipeline(path: str | Path | None, overrides: list[str] | None = None,
         if reference is not None and reference.csv is not None:
             reference.csv = str(absolute(reference.csv, base))
     return pipeline
+
+
+def _blamed_on_its_file(exc: PipelineError, path: Path | None, source: str) -> PipelineError:
+    """A key's error named against the file of the ``extends`` chain that sets the key (a
+    typo in a base file is not the top file's)."""
+    import re
+
+    message = str(exc)
+    found = re.match(rf"{re.escape(source)}: (?:unknown key|key) '([^']+)'", message)
+    if path is None or not found:
+        return exc
+    origin = key_origin(path, found.group(1))
+    if origin is None or origin.resolve() == path.resolve():
+        return exc
+    return PipelineError(f"{origin} (extended by {source}){message[len(source):]}")

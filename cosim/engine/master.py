@@ -43,6 +43,14 @@ class Diverged(RuntimeError):
         return f"the run diverged in {where} at t = {t:.6g} s{extra}"
 
 
+class Stopped(Diverged):
+    """A Python block's step returned False (or nothing): the block stopped the run."""
+
+    @staticmethod
+    def describe(where: str, t: float, detail: str) -> str:
+        return f"{where} stopped the run at t = {t:.6g} s: {detail}"
+
+
 class PlantFailed(Diverged):
     """The plant FMU returned an error status from a step; ``detail`` names the FMI call."""
 
@@ -89,7 +97,7 @@ def simulate(plant, plan, trace: Trace, progress: Callable[[int], None] | None =
         plan.reset(trace)
     except (PipelineError, FmuError):
         raise  # a block's own refusal (e.g. the filter's moving centre): already one message
-    except Exception as exc:  # a user's block: any exception is possible
+    except (Exception, SystemExit) as exc:  # a user's block: anything, sys.exit() too
         trace.rows_done = 0
         raise BlockFailed("a block's reset", 0.0, exc) from exc
     fused = engine == "fused" or (engine == "auto" and all(_fusable(b) for b in plan.blocks)
@@ -123,12 +131,16 @@ def _python(plant, plan, trace: Trace, progress, progress_every: int) -> float:
         for block, step in blocks:
             try:
                 finite = step(k)
-            except Exception as exc:  # a user's block: any exception is possible
+            except (Exception, SystemExit) as exc:  # a user's block: anything, sys.exit()
                 trace.rows_done = k
                 raise BlockFailed(f"the {block.name} block", t, exc) from exc
             if not finite:
                 trace.rows_done = k
-                raise Diverged(f"the {block.name} block", t, "a non-finite value")
+                if block.kernel is not None:
+                    raise Diverged(f"the {block.name} block", t, "a non-finite value")
+                raise Stopped(f"the {block.name} block", t,
+                              f"its step returned {finite!r} (a block's step returns True "
+                              "to go on; False, or nothing, stops the run)")
         trace.rows_done = k + 1
         if k == steps:
             break

@@ -1,8 +1,16 @@
 """Two run folders side by side (`cosim compare A B`): every safety check's worst value and
-verdict, and every numeric metric, with the difference; a check that held in A and fails in
-B is a regression, so a controller change can be gated in a user's CI (exit status 1).
-A regression is judged as the runs' verdicts are (:mod:`cosim.evaluate.checks`): a
-sufficient condition, or a set the reference itself leaves in B, is shown, not counted."""
+verdict, and the numeric metrics that differ, with the difference; a gate a user's CI can
+trust (exit status 1 on a regression):
+
+- like with like: the folders must share the simulated duration and step, each compared
+  run must have run to its end in both, and each check must have the same bound in both;
+  otherwise :class:`CompareError` names what differs (nothing is judged);
+- a regression is a check that held in A and fails in B, a check already violated in A
+  whose worst value got worse in B (beyond ``tolerance``, a fraction of its bound), or a
+  run of A missing from B. It is judged as the runs' verdicts are
+  (:mod:`cosim.evaluate.checks`): a sufficient condition, or a set the reference itself
+  leaves in B, is shown, not counted.
+"""
 
 from __future__ import annotations
 
@@ -24,6 +32,7 @@ class CompareError(Exception):
 class Comparison:
     lines: list[str] = field(default_factory=list)
     regressions: list[str] = field(default_factory=list)
+    document: dict = field(default_factory=dict)  # the same, for --json
 
 
 def _summary(folder: Path, label: str) -> dict:
@@ -68,24 +77,97 @@ def _table(rows: list[list[str]]) -> list[str]:
             for r in rows]
 
 
-def compare(a: str | Path, b: str | Path, runs: list[str] | None = None) -> Comparison:
-    """Compare the runs the two folders share (or ``runs``); a run of A missing from B is a
-    regression (its checks cannot hold there)."""
+def _like_with_like(first: dict, second: dict, names: list[str]) -> list[str]:
+    """What makes A and B not comparable: duration, step, a run cut short, a check's
+    bound (each named with both values); empty when they compare like with like."""
+    differs = []
+    sims = [(s.get("pipeline") or {}).get("simulation") or {} for s in (first, second)]
+    for key, unit_ in (("duration", "s"), ("step", "s")):
+        va, vb = sims[0].get(key), sims[1].get(key)
+        if va != vb:
+            differs.append(f"simulation.{key} {va} {unit_} in A, {vb} {unit_} in B")
+    # the bounds as the pipelines set them, then (a run's own override) check by check
+    safety = [(s.get("pipeline") or {}).get("safety") or {} for s in (first, second)]
+    differs += [f"safety.{key} {safety[0].get(key)} in A, {safety[1].get(key)} in B"
+                for key in dict.fromkeys([*safety[0], *safety[1]])
+                if safety[0].get(key) != safety[1].get(key)]
+    bounds: list[str] = []
+    for name in names:
+        runs = [s["runs"].get(name) for s in (first, second)]
+        if None in runs:
+            continue
+        for label, run, sim in zip("AB", runs, sims, strict=True):
+            done = (run.get("metrics") or {}).get("simulated_time_s")
+            duration = sim.get("duration")
+            if run.get("complete") is False or (done is not None and duration is not None
+                                                and done < duration - 1e-9):
+                differs.append(f"run {name} stopped early in {label} (at {done:g} s of "
+                               f"{duration:g} s: {run.get('error') or 'incomplete'})"
+                               if done is not None and duration is not None else
+                               f"run {name} is incomplete in {label}")
+        checks_a, checks_b = (r.get("safety") or {} for r in runs)
+        for check in [c for c in checks_a if c in checks_b]:
+            ba, bb = checks_a[check].get("bound"), checks_b[check].get("bound")
+            if ba != bb:
+                u = f" {unit(checks_a[check])}".rstrip()
+                bounds.append(f"{name}/{check} bound {ba}{u} in A, {bb}{u} in B")
+    if bounds and not any(d.startswith("safety.") for d in differs):
+        differs += bounds[:3] + ([f"and {len(bounds) - 3} more bound(s)"]
+                                 if len(bounds) > 3 else [])
+    return differs
+
+
+def _judge(ca: dict | None, cb: dict | None, tolerance: float) -> tuple[str, bool]:
+    """A check's change from A to B and whether it is a regression."""
+    held_a = bool(ca and ca.get("satisfied"))
+    held_b = bool(cb and cb.get("satisfied"))
+    # a regression as the runs' verdicts count one: left in B (or gone from it)
+    counts = ca is not None and kind(ca) in VERDICT_KINDS and (cb is None or is_left(cb))
+    if held_a and not held_b:
+        if counts:
+            return "REGRESSED", True
+        return ("not held (not a safe set)" if kind(ca) == Kind.SUFFICIENT
+                else "unknown in B" if cb.get("satisfied") is None
+                else "not counted"), False
+    if held_b and not held_a:
+        return "now holds", False
+    if ca and cb and counts and is_left(ca) and ca.get("worst") is not None:
+        allowed = tolerance * abs(ca.get("bound") or 0.0)
+        if cb["worst"] - ca["worst"] > allowed:
+            return "WORSE", True
+    return "", False
+
+
+def compare(a: str | Path, b: str | Path, runs: list[str] | None = None,
+            tolerance: float = 0.0) -> Comparison:
+    """Compare the runs the two folders share (or ``runs``, each once); a run of A missing
+    from B is a regression (its checks cannot hold there). ``tolerance``: how much worse
+    (a fraction of the check's bound) an already violated check may get in B before it
+    counts. Raises :class:`CompareError` when A and B do not compare like with like."""
     a, b = Path(a), Path(b)
     first, second = _summary(a, "A"), _summary(b, "B")
-    result = Comparison()
-    result.lines += [f"A: {a} ({first.get('status', '?')})",
-                     f"B: {b} ({second.get('status', '?')})",
-                     "per run: each check's worst value and verdict, then the metrics; SI units"]
-    for label, summary in (("A", first), ("B", second)):
-        if not summary.get("complete"):
-            result.lines.append(f"note: {label} is not complete (status "
-                                f"{summary.get('status', '?')}): its values cover what ran")
-    names = runs or list(dict.fromkeys([*first["runs"], *second["runs"]]))
+    runs = list(dict.fromkeys(runs)) if runs else None
     for name in runs or []:
         if name not in first["runs"] and name not in second["runs"]:
             raise CompareError(f"--run {name}: in neither folder; A has "
                                f"{', '.join(first['runs'])}, B has {', '.join(second['runs'])}")
+    names = runs or list(dict.fromkeys([*first["runs"], *second["runs"]]))
+    differs = _like_with_like(first, second, names)
+    if differs:
+        raise CompareError(f"A {a} and B {b} do not compare like with like, so no verdict: "
+                           f"{'; '.join(differs)}; compare runs of the same duration and "
+                           "bounds that both ran to their end")
+    result = Comparison()
+    result.document = {"a": str(a), "b": str(b), "tolerance": tolerance, "runs": {}}
+    result.lines += [f"A: {a} ({first.get('status', '?')})",
+                     f"B: {b} ({second.get('status', '?')})",
+                     "per run: each check's worst value (unit) and verdict, then the metrics "
+                     "that differ; SI units"]
+    plants = [(s.get("plant") or {}) for s in (first, second)]
+    if plants[0].get("guid") != plants[1].get("guid"):  # judged, but say it: not the change
+        names = [f"{p.get('model_name', '?')} ({Path(p.get('path') or '?').name})"
+                 for p in plants]
+        result.lines.append(f"note: the plants differ: A {names[0]}, B {names[1]}")
     for name in names:
         run_a, run_b = first["runs"].get(name), second["runs"].get(name)
         if run_a is None:
@@ -96,43 +178,51 @@ def compare(a: str | Path, b: str | Path, runs: list[str] | None = None) -> Comp
             result.regressions.append(f"{name}: in A, missing from B")
             continue
         result.lines.append(f"\nrun {name}")
+        entries: dict = {"checks": {}, "metrics": {}}
+        result.document["runs"][name] = entries
         rows = [["check", "A", "B", "B - A", ""]]
-        checks = list(dict.fromkeys([*run_a.get("safety", {}), *run_b.get("safety", {})]))
-        for check in checks:
-            ca, cb = run_a.get("safety", {}).get(check), run_b.get("safety", {}).get(check)
-            held_a = bool(ca and ca.get("satisfied"))
-            held_b = bool(cb and cb.get("satisfied"))
-            change = ""
-            # a regression as the runs' verdicts count one: left in B (or gone from it)
-            counts = held_a and kind(ca) in VERDICT_KINDS and (cb is None or is_left(cb))
-            if held_a and not held_b and not counts:
-                change = ("not held (not a safe set)" if kind(ca) == Kind.SUFFICIENT
-                          else "unknown in B" if cb.get("satisfied") is None
-                          else "unattainable in B")
-            elif held_a and not held_b:
-                change = "REGRESSED"
-                result.regressions.append(f"{name}/{check}: held in A ({verdict(ca)}), not in "
-                                          f"B ({verdict(cb)})")
-            elif held_b and not held_a:
-                change = "now holds"
+        safety_a, safety_b = run_a.get("safety") or {}, run_b.get("safety") or {}
+        for check in dict.fromkeys([*safety_a, *safety_b]):
+            ca, cb = safety_a.get(check), safety_b.get(check)
+            change, regressed = _judge(ca, cb, tolerance)
+            if regressed:
+                result.regressions.append(
+                    f"{name}/{check}: violated in A ({verdict(ca)}) and worse in B "
+                    f"({verdict(cb)})" if change == "WORSE" else
+                    f"{name}/{check}: held in A ({verdict(ca)}), not in B ({verdict(cb)})")
             both = ca and cb and ca.get("worst") is not None and cb.get("worst") is not None
-            delta = f"{cb['worst'] - ca['worst']:+.4g}" if both else ""
+            delta = cb["worst"] - ca["worst"] if both else None
             declared = unit(cb or ca)
             rows.append([f"{check} ({declared})" if declared else check, verdict(ca),
-                         verdict(cb), delta, change])
+                         verdict(cb), f"{delta:+.4g}" if delta is not None else "", change])
+            entries["checks"][check] = {
+                "unit": declared, "bound": (cb or ca).get("bound"),
+                "a": ca and ca.get("worst"), "b": cb and cb.get("worst"), "b_minus_a": delta,
+                "a_verdict": verdict(ca), "b_verdict": verdict(cb),
+                "change": change.lower() or None, "regression": regressed}
         result.lines.extend(_table(rows))
         ma, mb = _numbers(run_a.get("metrics", {})), _numbers(run_b.get("metrics", {}))
-        rows = [["metric", "A", "B", "B - A", ""]]
+        rows = [["metric (SI units)", "A", "B", "B - A", ""]]
+        same = 0
         for metric in dict.fromkeys([*ma, *mb]):
             va, vb = ma.get(metric), mb.get(metric)
+            delta = vb - va if va is not None and vb is not None else None
+            entries["metrics"][metric] = {"a": va, "b": vb, "b_minus_a": delta,
+                                          "timing": metric in TIMING}
+            if va == vb:
+                same += 1
+                continue
             cells = [f"{v:.6g}" if v is not None else "-" for v in (va, vb)]
-            delta = f"{vb - va:+.4g}" if va is not None and vb is not None else ""
             note = "timing" if metric in TIMING else ""
-            rows.append([metric, *cells, delta, note])
-        result.lines.extend(_table(rows))
+            rows.append([metric, *cells, f"{delta:+.4g}" if delta is not None else "", note])
+        if len(rows) > 1:
+            result.lines.extend(_table(rows))
+        result.lines.append(f"  {same} metric(s) equal in A and B (--json lists every one)")
     if result.regressions:
         result.lines.append(f"\n{len(result.regressions)} regression(s):")
         result.lines.extend(f"  {r}" for r in result.regressions)
     else:
-        result.lines.append("\nno regression: every check that held in A holds in B")
+        result.lines.append("\nno regression: every check that held in A holds in B, and "
+                            "none already violated in A got worse")
+    result.document["regressions"] = list(result.regressions)
     return result

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import csv
 import json
+import os
+import tempfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -48,14 +50,21 @@ def trace_runs(folder: Path) -> list[str]:
     return runs
 
 
+def runs_without_trace(folder: Path) -> list[str]:
+    """The runs summary.json names whose trace file is missing."""
+    summary = _ours_summary(folder) or {}
+    return [r for r in summary.get("runs") or {} if not (folder / f"trace_{r}.npz").is_file()]
+
+
 def read_trace(folder: Path, run: str) -> tuple[dict[str, np.ndarray], dict[str, dict]]:
     """A run's arrays and their units and meanings, ``{name: {"unit", "description"}}``."""
     path = folder / f"trace_{run}.npz"
     try:
         with np.load(path, allow_pickle=False) as data:
             arrays = {key: data[key] for key in data.files}
-    except (OSError, ValueError) as exc:
-        raise ExportError(f"{path}: cannot be read ({exc})") from None
+    except Exception as exc:  # noqa: BLE001 (a damaged file: zip, header or data errors)
+        raise ExportError(f"{path}: cannot be read, it is damaged ({type(exc).__name__}: "
+                          f"{exc}); run the pipeline again to rewrite it") from None
     if UNITS_KEY not in arrays:
         raise ExportError(f"{path}: written by a cosim without units in its traces; run the "
                           "pipeline again to export it")
@@ -68,7 +77,7 @@ def columns(arrays: dict[str, np.ndarray], units: dict[str, dict]) -> list[Colum
     out = []
     for name in ["time", *(k for k in arrays if k != "time")]:
         values, meaning = arrays[name], units.get(name, {"unit": "", "description": ""})
-        flat = values.reshape(len(values), -1)
+        flat = values.reshape(len(values), int(np.prod(values.shape[1:])))  # 0 rows too
         if values.ndim == 1:
             labels = [name]
         elif values.ndim == 2:
@@ -106,17 +115,43 @@ def _csv(path: Path, cols: list[Column], about: dict[str, str]) -> None:
         np.savetxt(f, data, delimiter=",", fmt="%.17g")  # 17 digits: floats round-trip
 
 
+# MATLAB's names: a letter first, then letters, digits and '_', at most 63 characters.
+MAT_NAME_LENGTH = 63
+
+
+def mat_names(names: list[str]) -> dict[str, str]:
+    """Each signal's name in the MAT file: itself when MATLAB accepts it, else made valid
+    (other characters as '_', a leading 'x', cut to 63 characters with a short hash so
+    that two long names stay apart). The file's ``names`` struct maps them back."""
+    import hashlib
+    import re
+
+    out = {}
+    for name in names:
+        valid = re.sub(r"[^A-Za-z0-9_]", "_", name.encode("ascii", "replace").decode())
+        if not valid[:1].isalpha():
+            valid = f"x{valid}"
+        if valid != name or len(valid) > MAT_NAME_LENGTH:
+            digest = hashlib.sha1(name.encode()).hexdigest()[:8]
+            valid = f"{valid[:MAT_NAME_LENGTH - 9]}_{digest}"
+        out[name] = valid
+    return out
+
+
 def _mat(path: Path, arrays: dict[str, np.ndarray], units: dict[str, dict],
          about: dict[str, str]) -> None:
     from scipy.io import savemat
 
-    reserved = {"units", "descriptions", "cosim"}
+    reserved = {"units", "descriptions", "names", "cosim"}
     clash = reserved & set(arrays)
     if clash:
         raise ExportError(f"signal {sorted(clash)[0]!r} has a name the MAT file reserves")
-    content = dict(arrays)
-    content["units"] = {k: units.get(k, {}).get("unit", "") for k in arrays}
-    content["descriptions"] = {k: units.get(k, {}).get("description", "") for k in arrays}
+    named = mat_names(list(arrays))
+    content = {named[k]: v for k, v in arrays.items()}
+    content["units"] = {named[k]: units.get(k, {}).get("unit", "") for k in arrays}
+    content["descriptions"] = {named[k]: units.get(k, {}).get("description", "")
+                               for k in arrays}
+    content["names"] = {named[k]: k for k in arrays}
     content["cosim"] = about
     savemat(path, content, long_field_names=True, do_compression=True, oned_as="column")
 
@@ -130,7 +165,14 @@ def export(folder: str | Path, fmt: str = "parquet", runs: list[str] | None = No
     if fmt not in FORMATS:
         raise ExportError(f"--format {fmt}: must be one of {', '.join(FORMATS)}")
     available = trace_runs(folder)
-    chosen = runs or available
+    missing = runs_without_trace(folder)
+    if missing and not runs:
+        raise ExportError(f"{folder}: run{'s' * (len(missing) > 1)} {', '.join(missing)} "
+                          f"{'have' if len(missing) > 1 else 'has'} no trace file "
+                          f"(trace_{missing[0]}.npz missing: the run was cut short before "
+                          f"writing it, or it was deleted); nothing was exported: export the "
+                          f"others with --run {' --run '.join(available)}")
+    chosen = list(dict.fromkeys(runs or available))
     unknown = [r for r in chosen if r not in available]
     if unknown:
         raise ExportError(f"--run {unknown[0]}: {folder} has no trace of it; its runs are "
@@ -154,15 +196,24 @@ def export(folder: str | Path, fmt: str = "parquet", runs: list[str] | None = No
         about = {"run": run, "source": str(folder.resolve() / f"trace_{run}.npz"),
                  "pipeline": str((summary.get("pipeline") or {}).get("name", "")),
                  "units": "SI, angles in radians"}
-        tmp = path.with_name(f".{path.name}.tmp")
+        tmp = None
         try:
+            # a fresh temporary of our own (never one already there: a planted link would
+            # be written through)
+            handle, name = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp",
+                                            dir=target)
+            os.close(handle)
+            tmp = Path(name)
             WRITERS[fmt](tmp, arrays, units, about)
             tmp.replace(path)
         except OSError as exc:
-            tmp.unlink(missing_ok=True)
-            raise ExportError(f"{path}: could not be written ({exc.strerror or exc})") from None
+            if tmp is not None:
+                tmp.unlink(missing_ok=True)
+            raise ExportError(f"{path}: could not be written ({exc.strerror or exc}); "
+                              "choose a writable folder with --out") from None
         except BaseException:
-            tmp.unlink(missing_ok=True)
+            if tmp is not None:
+                tmp.unlink(missing_ok=True)
             raise
     return paths
 

@@ -127,8 +127,6 @@ def _checks_figure(plt, columns: list[list[str]], time, checks):
             first = checks[runs[0]][name]
             _shade(whole, first.lower, first.upper)
             whole.set_title(f"joint {first.joint}: {first.declared.quantity}")
-            if row == 0:
-                whole.legend(loc="lower right", fontsize=8)
         for row in range(len(names), rows):
             axes[row, column].set_axis_off()
         nearest = max(names, key=lambda n: max(
@@ -136,6 +134,10 @@ def _checks_figure(plt, columns: list[list[str]], time, checks):
         zoom = axes[rows, column]
         _plot_runs(zoom, time, {run: checks[run][nearest] for run in runs})
         _zoom(zoom, time, {run: checks[run][nearest] for run in runs})
+    # One legend for the figure, above the panels: inside one it covered data (5 runs).
+    handles, labels = axes[0, 0].get_legend_handles_labels()
+    fig.legend(handles, labels, loc="outside upper center", fontsize=8,
+               ncol=min(len(labels), 6))
     return fig
 
 
@@ -155,10 +157,11 @@ def _plot_runs(ax, time, checks: Mapping[str, Check]) -> None:
 
 
 def _torque_figure(plt, time, torques, asked):
-    """Fig. 4: each run's torques, beside those its filter was asked for."""
+    """Fig. 4: each run's torques, beside those its filter was asked for, on one torque
+    scale for every run (panels compared at a glance), each legend beside its panel."""
     runs = list(torques)
-    fig, axes = plt.subplots(len(runs), 1, figsize=(10, 2.6 * len(runs)), sharex=True,
-                             constrained_layout=True, squeeze=False)
+    fig, axes = plt.subplots(len(runs), 1, figsize=(11, 2.6 * len(runs)), sharex=True,
+                             sharey=True, constrained_layout=True, squeeze=False)
     for ax, run in zip(axes[:, 0], runs, strict=True):
         tau = torques[run]
         before, kind = asked.get(run, (None, ""))
@@ -175,7 +178,7 @@ def _torque_figure(plt, time, torques, asked):
             title += (f"; the {kind} changed them in {100 * changed.mean():.1f} % of steps, "
                       f"by up to {np.max(np.abs(tau - before)):.3g} N·m")
         ax.set_title(title, fontsize=10)
-        ax.legend(loc="upper right", fontsize=7, ncol=2 if before is not None else 1)
+        ax.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=7)
     axes[-1, 0].set_xlabel("time (s)")
     return fig
 
@@ -241,7 +244,7 @@ def _barrier_figure(plt, time, barriers):
         left.axhline(0.0, color="darkred", lw=0.8, ls="--")
         left.set_title(f"{run}: barrier functions (≥ 0 inside)")
         left.set_ylabel(f"{', '.join(names)} (mixed units)")  # k0·ε², ‖Ŵ‖²/F, rᵀMr
-        left.legend(loc="upper right", fontsize=8)
+        left.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8)
         condition = h[io.BARRIER_CONDITION]
         right.plot(time[run], condition, lw=0.6, color="tab:purple")
         right.fill_between(time[run], np.minimum(condition, 0.0), 0.0, color="tab:red",

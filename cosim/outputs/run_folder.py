@@ -204,13 +204,20 @@ class RunFolder:
                           for n in evaluation.barriers})
         extra[UNITS_KEY] = np.array(json.dumps(units, ensure_ascii=False))
 
+        entries = {"time": trace.time, **trace.arrays, **extra}
+
         def produce(tmp: Path) -> None:
             # np.savez's format, uncompressed: the signals are floats that deflate barely
             # shrinks (to 0.79 of their size, the paper's run), for 0.35 s a trace (0.26 s
             # at zlib's fastest level) on the way between one run and the next, against
-            # 0.01 s stored. np.load reads both alike.
-            with tmp.open("wb") as f:
-                np.savez(f, time=trace.time, **trace.arrays, **extra)
+            # 0.01 s stored. np.load reads both alike. Written entry by entry rather than
+            # through np.savez's keywords, which a signal named ``file`` or
+            # ``allow_pickle`` would collide with.
+            with zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED, allowZip64=True) as archive:
+                for key, values in entries.items():
+                    with archive.open(f"{key}.npy", "w", force_zip64=True) as f:
+                        np.lib.format.write_array(f, np.asanyarray(values),
+                                                  allow_pickle=False)
 
         self.write(f"trace_{name}.npz", produce)
 
@@ -257,19 +264,36 @@ class RunFolder:
 
 
 UNITS_KEY = "_units"  # the trace file's array of units and meanings (a JSON string)
-
-# What cosim writes into a run or sweep folder (besides what summary.json lists), and the
-# temporaries it may leave behind when killed.
+# What cosim writes into a run or sweep folder besides what summary.json lists: the files a
+# run killed before its summary caught up may leave (exact names, never patterns).
 OUR_NAMES = ("summary.json", "summary.md", "recording.rrd", "results.parquet", "results.csv",
              "sweep.json", "sweep_safety.png")
-OUR_PATTERNS = ("trace_*.npz", "fig*.png", ".*.tmp",
-                *(f"export_*{suffix}" for suffix in EXPORT_FORMATS.values()))
+
+
+def _our_entries(summary: dict) -> set[str]:
+    """The names a folder with this summary.json holds that cosim wrote: what the summary
+    lists as written, cosim's fixed names, each run's trace and export (of the runs the
+    summary names), and the temporaries of all of these. Nothing matched by a pattern: a
+    user's ``fig_final.png`` or ``export_my_data.csv`` is not ours."""
+    from .figures import FIGURE_FILES
+
+    runs = summary.get("runs")
+    names = list(runs) if isinstance(runs, dict | list) else []
+    pipeline = summary.get("pipeline")
+    if isinstance(pipeline, dict) and isinstance(pipeline.get("runs"), dict):
+        names += list(pipeline["runs"])
+    files = summary.get("files")
+    ours = {*(files if isinstance(files, dict) else ()), *OUR_NAMES, *FIGURE_FILES}
+    for run in map(str, names):
+        ours.add(f"trace_{run}.npz")
+        ours.update(f"export_{run}{suffix}" for suffix in EXPORT_FORMATS.values())
+    return ours | {f".{name}.tmp" for name in ours} | {".summary.json.crashed"}
 
 
 def _ours_summary(path: Path) -> dict | None:
     """The folder's summary.json when cosim wrote it (else None)."""
     try:
-        data = json.loads((path / "summary.json").read_text())
+        data = json.loads((path / "summary.json").read_text(encoding="utf-8"))
     except (OSError, ValueError):
         return None
     if isinstance(data, dict) and "complete" in data and ("provenance" in data
@@ -278,21 +302,31 @@ def _ours_summary(path: Path) -> dict | None:
     return None
 
 
+def _recorded_point(summary: dict, name: str) -> bool:
+    """A sweep's ``--record`` run folder: ``best_<run>_point<i>`` or ``worst_…`` of a run
+    the sweep's summary names."""
+    if summary.get("kind") != "sweep":
+        return False
+    runs = summary.get("runs") if isinstance(summary.get("runs"), list) else []
+    return any(name.startswith((f"best_{run}_point", f"worst_{run}_point"))
+               and name.rsplit("_point", 1)[1].isdigit() for run in map(str, runs))
+
+
 def _not_ours(path: Path, names: list[str]) -> list[str]:
     """The entries of ``path`` that cosim did not write: everything when the folder has no
-    summary.json of ours; else what is neither listed in it, nor one of our outputs, nor a
-    run folder of ours (a sweep's recorded points)."""
+    summary.json of ours; else what its summary does not account for (a sweep's recorded
+    points are run folders of ours, checked the same way)."""
     summary = _ours_summary(path)
     if summary is None:
         return names
-    listed = set((summary.get("files") or {}).keys())
+    ours = _our_entries(summary)
     out = []
     for name in names:
         entry = path / name
-        if name in listed or name in OUR_NAMES or any(entry.match(p) for p in OUR_PATTERNS):
-            if not entry.is_dir() or entry.is_symlink():
+        if entry.is_symlink() or not entry.is_dir():
+            if name in ours:
                 continue
-        if entry.is_dir() and not entry.is_symlink() and _ours_summary(entry) is not None \
+        elif _recorded_point(summary, name) and _ours_summary(entry) is not None \
                 and not _not_ours(entry, [p.name for p in entry.iterdir() if p.name != LOCK]):
             continue
         out.append(name)
@@ -343,11 +377,15 @@ LATEST = "latest"
 
 
 def point_latest(out: Path) -> None:
-    """``out``'s parent/latest → ``out`` (a relative link, replaced atomically). A ``latest``
-    that is not a link is the user's: left alone."""
+    """``out``'s parent/latest → ``out`` (a relative link, replaced atomically), unless it
+    points to a run started later already. A ``latest`` that is not a link is the user's:
+    left alone."""
     link = out.parent / LATEST
     if link.exists() and not link.is_symlink():
         return
+    if link.is_symlink() and (link.parent / os.readlink(link)).is_dir() \
+            and os.readlink(link) > out.name:
+        return  # a run started later (the names are start times) is the latest already
     tmp = out.parent / f".{LATEST}.{os.getpid()}.tmp"
     try:
         tmp.unlink(missing_ok=True)

@@ -37,11 +37,59 @@ def recording_path(run_dir: str | Path) -> Path:
     path = Path(run_dir)
     if path.is_dir():
         if not (path / "recording.rrd").is_file():
-            raise ViewerError(f"{path} has no recording.rrd (was it run with --no-recording?)")
+            raise ViewerError(_sweep_help(path) or _runs_help(path) or
+                              f"{path} has no recording.rrd (was it run with --no-recording?)")
         return path / "recording.rrd"
     if not path.is_file():
         raise ViewerError(f"{path} does not exist: give a run folder or an .rrd file")
     return path
+
+
+def _sweep_help(path: Path) -> str | None:
+    """For a sweep folder (no recording of its own): where its recorded points are, or how
+    to record some; None for any other folder."""
+    import json
+
+    try:
+        kind = json.loads((path / "summary.json").read_text(encoding="utf-8")).get("kind")
+    except (OSError, ValueError, AttributeError):
+        return None
+    if kind != "sweep":
+        return None
+    recorded = sorted(p for p in path.iterdir() if p.is_dir()
+                      and p.name.startswith(("best_", "worst_"))
+                      and (p / "recording.rrd").is_file())
+    if not recorded:
+        return (f"{path} is a sweep folder: its rows are in results.csv, with no recording; "
+                "run the sweep again with --record best,worst to record each run's best and "
+                "worst points")
+    return (f"{path} is a sweep folder, with no recording of its own; view one of its "
+            f"recorded points: {', '.join(f'cosim view {p}' for p in recorded)}")
+
+
+def _runs_help(path: Path) -> str | None:
+    """For a folder of run folders (runs/NAME): which to view; None for any other folder."""
+    if (path / "summary.json").exists():
+        return None
+    runs = sorted(p for p in path.iterdir() if p.is_dir() and not p.is_symlink()
+                  and (p / "recording.rrd").is_file())
+    if not runs:
+        return None
+    latest = path / "latest"
+    pick = latest if (latest / "recording.rrd").is_file() else runs[-1]
+    return (f"{path} holds run folders ({len(runs)} with a recording), not a recording: view "
+            f"one, e.g. cosim view {pick}")
+
+
+def viewer_failure(stderr: str) -> str:
+    """The cause in what a viewer that failed printed (a Rust panic's message, e.g. "No
+    graphics adapter was found"), not the last lines of its backtrace."""
+    lines = [re.sub(r"\x1b\[[0-9;]*m", "", line).strip() for line in stderr.splitlines()]
+    lines = [line for line in lines if line and not re.match(
+        r"(\d+:|at |stack backtrace|note: |thread '.*' panicked at .*:\d+:\d+:?$)", line)]
+    causes = [line for line in lines
+              if re.search(r"(?i)error|fail|panic|no graphics adapter|not found|unable", line)]
+    return ((causes or lines or ["no output"])[0])[:300]
 
 
 def verify_recording(path: Path, timeout: float = 120.0) -> None:
@@ -129,8 +177,9 @@ def headless_viewer(recording: str | Path | None = None, size: str = "1600x1000"
         deadline = time.monotonic() + timeout
         while True:
             if process.poll() is not None:
+                cause = viewer_failure(process.stderr.read().decode(errors="replace"))
                 raise ViewerError(f"the viewer exited with status {process.returncode}: "
-                                  f"{process.stderr.read().decode(errors='replace')[-500:]}")
+                                  f"{cause}")
             try:
                 client = ViewerClient.connect(url)
                 break
@@ -165,8 +214,14 @@ def screenshot(recording: str | Path, png: str | Path, size: str = "1600x1000",
     default blueprint to ``png``."""
     verify_recording(Path(recording))
     with headless_viewer(recording, size, timeout) as (client, _):
-        wait_for_recording(client, timeout)
-        client.save_screenshot(str(png))
+        try:
+            wait_for_recording(client, timeout)
+            client.save_screenshot(str(png))
+        except (ConnectionError, OSError, RuntimeError) as exc:
+            if isinstance(exc, ViewerError):
+                raise
+            raise ViewerError(f"the viewer stopped answering while rendering ({exc}); "
+                              "nothing was saved") from None
     return Path(png)
 
 

@@ -12,6 +12,7 @@ and what would be valid, so a user's FMU is refused before anything runs.
 
 from __future__ import annotations
 
+import re
 import zipfile
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,6 +22,7 @@ from fmpy.model_description import ModelDescription, ValidationError
 
 from .errors import FmuError
 from .ports import PORT, PORTS
+from .unpack import damaged_entry
 
 REAL_TYPES = ("Real", "Float64")
 
@@ -63,9 +65,15 @@ def read_description(path: str | Path) -> ModelDescription:
             if "modelDescription.xml" not in names:
                 raise FmuError(f"{path}: not an FMU: the archive has no modelDescription.xml "
                                "at its top level")
-            bad = archive.testzip()
-        if bad is not None:
-            raise FmuError(f"{path}: the archive is damaged: entry {bad!r} fails its CRC check")
+            head = archive.open("modelDescription.xml").read(4096)
+        # the CRC check reads every entry as a stream, abandoned at the size cap
+        problem = damaged_entry(path)
+        if problem:
+            raise FmuError(f"{path}: {problem}")
+        version = re.search(rb'fmiVersion\s*=\s*["\']([^"\']*)', head)
+        if version and version.group(1).startswith(b"1."):
+            raise FmuError(f"{path}: an FMI {version.group(1).decode()} FMU: FMI 1.0 is not "
+                           "supported; export the model as FMI 2.0 or 3.0 Co-Simulation")
         return fmpy.read_model_description(str(path))
     except FmuError:
         raise

@@ -19,14 +19,30 @@ import shutil
 import tempfile
 import zipfile
 from pathlib import Path, PurePosixPath
+from zlib import error as zlib_error
 
 from .errors import FmuError
 
 # An FMU is a model's binaries plus its resources: tens of MB is large. The caps stop an
 # archive that unpacks to far more than it weighs (a "zip bomb": 2 GB of zeros in 2 MB) before
 # a byte is written. Raise them with the environment variables for a truly large FMU.
-MAX_MEGABYTES = int(os.environ.get("COSIM_FMU_MAX_MB", "1024"))  # uncompressed, MB
-MAX_ENTRIES = int(os.environ.get("COSIM_FMU_MAX_FILES", "10000"))
+_BAD_CAPS: list[str] = []  # a cap's variable set to what is not a count: said at first use
+
+
+def _cap(variable: str, default: int) -> int:
+    """A cap from the environment (a whole number > 0), else ``default``; a bad value is
+    noted, to be said when an FMU is unpacked (not a traceback at import)."""
+    text = os.environ.get(variable, "").strip()
+    if not text:
+        return default
+    if text.isdigit() and int(text) > 0:
+        return int(text)
+    _BAD_CAPS.append(f"{variable}={text!r}: expected a whole number > 0 (default {default})")
+    return default
+
+
+MAX_MEGABYTES = _cap("COSIM_FMU_MAX_MB", 1024)  # uncompressed, MB
+MAX_ENTRIES = _cap("COSIM_FMU_MAX_FILES", 10000)
 PREFIX = "cosim_fmu_"
 _OURS = re.compile(rf"^{PREFIX}(\d+)_")
 _open: set[str] = set()  # folders this process unpacked and has not removed yet
@@ -48,6 +64,8 @@ def unsafe_entries(path: str | Path) -> list[str]:
 def size_problem(path: str | Path) -> str | None:
     """Why ``path`` is too large to unpack (its entry count or uncompressed size above the
     caps), or None; read from the archive's directory, nothing is unpacked."""
+    if _BAD_CAPS:
+        return _BAD_CAPS[0]
     with zipfile.ZipFile(path) as archive:
         entries = archive.infolist()
     total = sum(entry.file_size for entry in entries)
@@ -57,6 +75,31 @@ def size_problem(path: str | Path) -> str | None:
     if total > MAX_MEGABYTES * 1e6:
         return (f"it unpacks to {total / 1e6:,.0f} MB, more than the {MAX_MEGABYTES} MB cosim "
                 "unpacks (set COSIM_FMU_MAX_MB to allow more)")
+    return None
+
+
+CHUNK = 1 << 20  # bytes read at a time while checking or unpacking an entry
+
+
+def damaged_entry(path: str | Path) -> str | None:
+    """Why the archive is damaged (an entry failing its CRC check), or None. An archive
+    beyond the caps is not read at all (:func:`size_problem` says why, where it is
+    unpacked); otherwise each entry is read as a stream, abandoned at the first byte beyond
+    the cap, so a zip bomb costs nothing."""
+    if size_problem(path):
+        return None
+    total = 0
+    with zipfile.ZipFile(path) as archive:
+        for entry in archive.infolist():
+            try:
+                with archive.open(entry) as stream:
+                    while chunk := stream.read(CHUNK):
+                        total += len(chunk)
+                        if total > MAX_MEGABYTES * 1e6:
+                            return (f"it unpacks to more than the {MAX_MEGABYTES} MB cosim "
+                                    "unpacks (set COSIM_FMU_MAX_MB to allow more)")
+            except (zipfile.BadZipFile, OSError, EOFError, zlib_error):
+                return f"the archive is damaged: entry {entry.filename!r} fails its CRC check"
     return None
 
 
@@ -75,12 +118,35 @@ def extract(path: str | Path) -> str:
     target = str(Path(tempfile.mkdtemp(prefix=f"{PREFIX}{os.getpid()}_")).resolve())
     _open.add(target)
     try:
-        with zipfile.ZipFile(path) as archive:
-            archive.extractall(target)
+        _extract_capped(path, Path(target))
     except BaseException:  # Ctrl-C, SIGTERM, a full disk: no half-unpacked FMU is left
         remove(target)
         raise
     return target
+
+
+def _extract_capped(path: Path, target: Path) -> None:
+    """Unzip entry by entry as streams, counting the bytes actually written against the
+    cap (not only what the archive's directory declares)."""
+    total = 0
+    with zipfile.ZipFile(path) as archive:
+        for entry in archive.infolist():
+            destination = target / PurePosixPath(entry.filename.replace("\\", "/"))
+            if entry.is_dir():
+                destination.mkdir(parents=True, exist_ok=True)
+                continue
+            destination.parent.mkdir(parents=True, exist_ok=True)
+            with archive.open(entry) as stream, destination.open("wb") as out:
+                while chunk := stream.read(CHUNK):
+                    total += len(chunk)
+                    if total > MAX_MEGABYTES * 1e6:
+                        raise FmuError(f"{path}: refusing to extract: it unpacks to more "
+                                       f"than the {MAX_MEGABYTES} MB cosim unpacks (set "
+                                       "COSIM_FMU_MAX_MB to allow more)")
+                    out.write(chunk)
+            mode = entry.external_attr >> 16
+            if mode & 0o111:  # keep an executable bit (a binary's own tools)
+                destination.chmod(0o755)
 
 
 def remove(folder: str) -> None:
