@@ -1,6 +1,17 @@
-"""Sweep efficiency: rows per second of `cosim sweep` on Dask against what its workers could
-do at the loop's speed, i.e. workers × the rows per second of in-process `run()` of one row
-(the same pipeline and point, kernels loaded, the plant FMU kept open as a worker keeps it).
+"""What a sweep point costs against its loop, and sweep efficiency.
+
+1. ``--per-step``: the cost per simulated step of a sweep point (every run of it, as a Dask
+   worker runs it: ``run_point``, the plant FMU kept open) against the same runs' fused loops
+   alone (``simulate`` with nothing between chunks), point by point, interleaved, for
+   pipelines/paper_two_link.toml (its two runs) and pipelines/monte_carlo.toml (its three);
+   also the same points through ``execute`` on one local Dask worker. Target ≤ 1.3×.
+
+       .venv/bin/python benchmarks/bench_sweep.py --per-step [--points 6] [--duration S]
+
+2. Otherwise, sweep efficiency: rows per second of `cosim sweep` on Dask against what its
+workers could do at the loop's speed, i.e. workers × the rows per second of in-process
+`run()` of one row (the same pipeline and point, kernels loaded, the plant FMU kept open as
+a worker keeps it).
 
     .venv/bin/python benchmarks/bench_sweep.py [--points 24] [--duration 5] [--workers 2]
 
@@ -23,8 +34,12 @@ import tempfile
 import time
 from pathlib import Path
 
-from cosim.assemble import open_plant
+from monte_carlo import RUNS as MONTE_CARLO_RUNS
+from monte_carlo import SAMPLES as MONTE_CARLO_SAMPLES
+
+from cosim.assemble import assemble, open_plant
 from cosim.config import load_pipeline
+from cosim.engine import simulate
 from cosim.runner import run
 from cosim.sweep import (
     SweepSpec,
@@ -32,6 +47,7 @@ from cosim.sweep import (
     cluster_client,
     execute,
     parse_grid,
+    parse_sample,
     points,
     points_per_task,
     run_point,
@@ -40,6 +56,80 @@ from cosim.sweep import (
 ROOT = Path(__file__).resolve().parent.parent
 PIPELINE = str(ROOT / "pipelines" / "paper_two_link.toml")
 TARGET = 0.85
+PER_STEP_TARGET = 1.3
+
+
+def loops_alone(spec: SweepSpec, point: dict, plant: object) -> tuple[float, int]:
+    """(seconds, steps) of the point's runs' fused loops alone: each run assembled on the
+    open plant and stepped with nothing between its chunks (no evaluation, no trace kept)."""
+    from cosim.sweep.spec import only_runs
+
+    pipeline = only_runs(load_pipeline(spec.pipeline, assignments(spec, point), warn=None),
+                         spec.runs)
+    scenario = assemble(pipeline, plant)
+    seconds, steps = 0.0, 0
+    for plan in scenario.runs.values():
+        seconds += simulate(plant, plan, plan.new_trace(scenario.steps), engine="fused")
+        steps += scenario.steps
+    return seconds, steps
+
+
+def per_step(name: str, spec: SweepSpec, repeat: int) -> None:
+    """Print µs per simulated step: the sweep point (run_point in-process, and execute() on
+    one local Dask worker) against the same runs' fused loops, best of ``repeat``
+    interleaved repeats."""
+    all_points = points(spec)
+    plant = open_plant(load_pipeline(spec.pipeline, spec.base, warn=None))
+    run_point(spec.pipeline, assignments(spec, all_points[0]), spec.runs, 0, all_points[0])
+    client, cluster = cluster_client(1, None)
+    try:
+        point = all_points[0]  # the worker's first point: imports, kernels, the FMU
+        client.run(run_point, spec.pipeline, assignments(spec, point), spec.runs, 0, point)
+        loop, swept, dasked = [], [], []
+        for _ in range(repeat):  # interleaved: the machine is shared
+            seconds = steps = 0
+            for point in all_points:
+                s, n = loops_alone(spec, point, plant)
+                seconds, steps = seconds + s, steps + n
+            loop.append(seconds / steps * 1e6)
+            began = time.perf_counter()
+            for index, point in enumerate(all_points):
+                rows = run_point(spec.pipeline, assignments(spec, point), spec.runs, index,
+                                 point)
+                assert all(r["status"] == "ok" for r in rows), rows
+            swept.append((time.perf_counter() - began) / steps * 1e6)
+            began = time.perf_counter()
+            rows, _ = execute(spec, all_points, client)
+            dasked.append((time.perf_counter() - began) / steps * 1e6)
+            assert all(r["status"] == "ok" for r in rows), rows
+    finally:
+        client.close()
+        cluster.close()
+        plant.close()
+    best = min(loop)
+    print(f"{name}: {len(all_points)} point(s) × {len(spec.runs)} run(s) "
+          f"({', '.join(spec.runs)}), {steps // len(all_points):,} steps a point; µs per "
+          f"simulated step, best of {repeat} interleaved")
+    print(f"  fused loops alone          {best:7.2f}  ({', '.join(f'{v:.2f}' for v in loop)})")
+    for label, values in (("sweep point (run_point)", swept),
+                          ("sweep on 1 Dask worker", dasked)):
+        ratio = min(values) / best
+        print(f"  {label:<26} {min(values):7.2f}  ({', '.join(f'{v:.2f}' for v in values)})"
+              f"  = {ratio:.2f}× the loop (target ≤ {PER_STEP_TARGET}: "
+              f"{'met' if ratio <= PER_STEP_TARGET else 'NOT met'})")
+
+
+def per_step_both(points_count: int, duration: float | None, repeat: int) -> None:
+    """:func:`per_step` for the paper pipeline (a payload sample) and the Monte Carlo's."""
+    base = [f"simulation.duration={duration}"] if duration else []
+    payload = parse_sample('plant.parameters."m[2]"=uniform(2.3,3.3)')
+    paper = SweepSpec(PIPELINE, samples=[payload],
+                      count=points_count, seed=1, runs=["proposed", "baseline"], base=base)
+    monte_carlo = SweepSpec(str(ROOT / "pipelines" / "monte_carlo.toml"),
+                            samples=[parse_sample(s) for s in MONTE_CARLO_SAMPLES],
+                            count=points_count, seed=1, runs=list(MONTE_CARLO_RUNS), base=base)
+    per_step("paper_two_link.toml", paper, repeat)
+    per_step("monte_carlo.toml", monte_carlo, repeat)
 
 
 def in_process(spec: SweepSpec, all_points: list[dict], keep_plant: bool) -> float:
@@ -94,13 +184,21 @@ def command(spec_args: list[str], workers: int) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--points", type=int, default=24)
-    parser.add_argument("--duration", type=float, default=5.0, help="simulated seconds")
+    parser.add_argument("--points", type=int, default=None,
+                        help="points (default 24; 6 with --per-step)")
+    parser.add_argument("--duration", type=float, default=None,
+                        help="simulated seconds (default 5; the pipelines' own with --per-step)")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--repeat", type=int, default=3, help="interleaved repeats")
     parser.add_argument("--per-task", type=int, default=None, metavar="K",
                         help="points per Dask task (default: what cosim sweep picks)")
+    parser.add_argument("--per-step", action="store_true",
+                        help="µs per simulated step of a sweep point against its fused loops")
     args = parser.parse_args()
+    if args.per_step:
+        per_step_both(args.points or 6, args.duration, args.repeat)
+        return
+    args.points, args.duration = args.points or 24, args.duration or 5.0
     values = ",".join(str(20 + 2 * i) for i in range(args.points))
     grid = f"runs.proposed.controller.kv={values}"
     base = [f"simulation.duration={args.duration}"]
