@@ -15,8 +15,10 @@ from ..config import load_pipeline
 from ..evaluate.reports import SWEEP_REPORTS
 from ..progress import phase
 from .checks import margin
-from .execution import cluster_client, execute
-from .files import write_results
+from .execution import check_versions, cluster_client, execute, quiet_dask
+from .files import write_results, write_spec
+from .journal import JOURNAL, Journal, Rows, points_done, read_table
+from .resume import check_same, identity, stored_identity
 from .spec import (
     SweepError,
     SweepSpec,
@@ -107,11 +109,9 @@ def main(args: argparse.Namespace) -> int:
 
 
 def _main(args: argparse.Namespace) -> int:
-    from ..outputs.run_folder import RunFolder
-
     spec, record = _spec_of(args)
     check_spec(spec, args.max_points, args.workers, args.scheduler)
-    out = Path(args.out)
+    out = Path(args.resume or args.out)
     try:
         with phase("checking every point against the pipeline's schema", not args.quiet):
             all_points = points(spec)
@@ -122,16 +122,58 @@ def _main(args: argparse.Namespace) -> int:
     runs = spec.runs or list(load_pipeline(spec.pipeline, spec.base, warn=None).runs)
     if args.dry_run:
         return _dry_run(spec, all_points, runs, out, args)
-    folder = RunFolder.create(out, args.force)
-    rows, interrupted = _run_on_dask(spec, all_points, runs, out, folder, args)
-    _report(folder, spec, rows, interrupted, all_points, runs, out)
+    start = identity(spec, len(all_points))
+    folder, done = _open_folder(out, start, args)
+    todo = [i for i in range(len(all_points)) if i not in done]
+    if done:
+        print(f"resuming {out}: {len(done)} of {len(all_points)} point(s) already there; "
+              f"running the other {len(todo)}", file=sys.stderr)
+    interrupted = _run_on_dask(spec, all_points, todo, runs, out, folder, args)
+    rows = _report(folder, spec, interrupted, all_points, runs, out, start)
     if interrupted:
-        print(f"cosim: interrupted; the {len(rows)} finished row(s) are kept in {out}",
-              file=sys.stderr)
+        print(f"cosim: interrupted; the {len(rows)} finished row(s) are kept in {out}"
+              + (f" (resume: the same command with --resume {out})"
+                 if len(rows) < len(all_points) * len(runs) else ""), file=sys.stderr)
         return 2
     if record:
         _record(spec, rows, record, out, args)
     return 0
+
+
+def _open_folder(out: Path, start: dict, args: argparse.Namespace
+                 ) -> tuple[RunFolder, set[int]]:
+    """The sweep folder, with sweep.json (what the sweep is) and the journal of rows listed
+    in its summary from the start (so a killed sweep's folder is cosim's to --force or
+    --resume), and the points it already holds (resumed: only if it is the same sweep)."""
+    from ..outputs.run_folder import RunFolder
+
+    done: set[int] = set()
+    if args.resume:
+        check_same(out, stored_identity(out), start)
+        folder = RunFolder.create(out, keep=True)
+        previous = _previous_files(out)
+        folder.files.update({k: v for k, v in previous.items() if k == JOURNAL})
+        done = points_done(out / JOURNAL)
+    else:
+        folder = RunFolder.create(out, args.force)
+    try:
+        write_spec(folder, {**start, "status": "running"})
+        (out / JOURNAL).touch()
+        folder.files[JOURNAL] = {"complete": False, "reason": "the sweep is running"}
+        folder.write_summary({"complete": False, "kind": "sweep",
+                              "status_detail": "running", "points": start["points"]},
+                             final=False)
+    except BaseException:
+        folder.release()
+        raise
+    return folder, done
+
+
+def _previous_files(out: Path) -> dict:
+    try:
+        return json.loads((out / "summary.json").read_text()).get("files") or {}
+    except (OSError, ValueError, AttributeError):
+        return {}
 
 
 def _spec_of(args: argparse.Namespace) -> tuple[SweepSpec, list[str]]:
@@ -149,58 +191,93 @@ def _spec_of(args: argparse.Namespace) -> tuple[SweepSpec, list[str]]:
     return spec, record
 
 
-def _run_on_dask(spec: SweepSpec, all_points: list[dict], runs: list[str], out: Path,
-                 folder: RunFolder, args: argparse.Namespace) -> tuple[list[dict], bool]:
-    """Every point on the cluster ``args`` asks for: (rows, interrupted). A cluster that
-    cannot start is said in the folder's summary too, the folder released."""
+def _run_on_dask(spec: SweepSpec, all_points: list[dict], todo: list[int], runs: list[str],
+                 out: Path, folder: RunFolder, args: argparse.Namespace) -> bool:
+    """The points ``todo`` on the cluster ``args`` asks for, their rows appended to the
+    journal as they finish: whether it was interrupted. A cluster that cannot start, or a
+    scheduler lost mid-sweep, is said in the folder's summary too, the folder released (the
+    rows written so far kept)."""
     from tqdm import tqdm
 
-    rows: list[dict] = []
+    journal = Journal(out / JOURNAL)
     interrupted = False
     try:
-        starting = (f"connecting to {args.scheduler}" if args.scheduler else
-                    f"starting {args.workers or os.cpu_count() or 1} Dask worker process(es)")
-        with phase(starting, not args.quiet):
-            client, cluster = cluster_client(args.workers, args.scheduler)
-        try:
-            where = (args.scheduler
-                     or f"a local cluster of {len(client.scheduler_info()['workers'])}")
-            print(f"sweeping {len(all_points)} point(s) × {len(runs)} run(s) of "
-                  f"{spec.pipeline} on {where} worker(s) -> {out}", file=sys.stderr)
-            bar = tqdm(total=len(all_points), unit="point", file=sys.stderr,
-                       disable=args.quiet or not sys.stderr.isatty())
-            rows, interrupted = execute(spec, all_points, client, bar.update)
-            bar.close()
-        finally:
-            client.close()
-            if cluster is not None:
-                cluster.close()
+        if todo:
+            starting = (f"connecting to {args.scheduler}" if args.scheduler else
+                        f"starting {args.workers or os.cpu_count() or 1} Dask worker "
+                        "process(es)")
+            with phase(starting, not args.quiet), quiet_dask():
+                client, cluster = cluster_client(args.workers, args.scheduler)
+            try:
+                check_versions(client, args.scheduler)
+                where = (args.scheduler
+                         or f"a local cluster of {len(client.scheduler_info()['workers'])}")
+                print(f"sweeping {len(todo)} point(s) × {len(runs)} run(s) of "
+                      f"{spec.pipeline} on {where} worker(s) -> {out}", file=sys.stderr)
+                bar = tqdm(total=len(todo), unit="point", file=sys.stderr,
+                           disable=args.quiet or not sys.stderr.isatty())
+                _, interrupted = execute(spec, all_points, client, bar.update,
+                                         sink=journal.add, indices=todo)
+                bar.close()
+            finally:
+                with quiet_dask():
+                    client.close()
+                    if cluster is not None:
+                        cluster.close()
     except KeyboardInterrupt:  # while the cluster started or closed: what finished is kept
         interrupted = True
-    except BaseException as exc:  # the cluster could not start: say so in the folder too
+    except BaseException as exc:  # no cluster, or the scheduler lost: said in the folder too
+        message = _lost(exc, args.scheduler, journal.rows, out)
         try:
-            folder.write_summary({"complete": False, "kind": "sweep", "error": str(exc)},
-                                 final=True)
+            folder.note(JOURNAL, False, message)
+            folder.write_summary({"complete": False, "kind": "sweep", "error": message,
+                                  "rows": journal.rows}, final=True)
         finally:
             folder.release()
-        raise
-    return rows, interrupted
+            journal.close()
+        if isinstance(exc, SweepError) or message == str(exc):
+            raise
+        raise SweepError(message) from None
+    journal.close()
+    return interrupted
 
 
-def _report(folder: RunFolder, spec: SweepSpec, rows: list[dict], interrupted: bool,
-            all_points: list[dict], runs: list[str], out: Path) -> None:
-    """The results files and the folder's summary (the folder released), then the tables
-    printed."""
+def _lost(exc: BaseException, scheduler: str | None, rows: int, out: Path) -> str:
+    """What to say of a cluster failure: a lost scheduler by name, with the rows kept."""
+    if isinstance(exc, SweepError):
+        return str(exc)
+    name = type(exc).__name__
+    if scheduler and (isinstance(exc, OSError | TimeoutError) or "Comm" in name
+                      or "Cancelled" in name):
+        return (f"--scheduler {scheduler}: the scheduler stopped answering mid-sweep "
+                f"({name}); the {rows} row(s) finished before are kept in {out}: start it "
+                f"again and resume with the same command and --resume {out}")
+    return str(exc) or name
+
+
+def _report(folder: RunFolder, spec: SweepSpec, interrupted: bool, all_points: list[dict],
+            runs: list[str], out: Path, start: dict) -> Rows:
+    """The results files from the journal and the folder's summary (the folder released),
+    then the tables printed; returns the rows. A sweep stopped before its first row writes
+    no results files and says so."""
+    rows = Rows(read_table(out / JOURNAL))
+    failed = sum(s != "ok" for s in rows.column("status")) if len(rows) else 0
     table = safety_table(rows)
-    failed = sum(r["status"] != "ok" for r in rows)
     try:
-        write_results(folder, spec, rows, table, interrupted, len(all_points))
+        folder.note(JOURNAL, True)
+        if len(rows):
+            write_results(folder, spec, rows, table, interrupted, start)
         folder.write_summary({"complete": not interrupted, "kind": "sweep",
-                              "status_detail": "interrupted" if interrupted else "finished",
+                              "status_detail": ("interrupted" if interrupted and len(rows)
+                                                else "interrupted before any point finished"
+                                                if interrupted else "finished"),
                               "points": len(all_points), "runs": runs, "rows": len(rows),
                               "failed_rows": failed}, final=True)
     finally:
         folder.release()
+    if not len(rows):
+        print("no point finished: no results were written", file=sys.stderr)
+        return rows
     print(format_table(table))
     for key, entries in safety_by_value(rows, spec).items():
         print(format_table(entries, key))
@@ -210,6 +287,7 @@ def _report(folder: RunFolder, spec: SweepSpec, rows: list[dict], interrupted: b
             print(report.text(entries))
     print(f"{len(rows)} row(s) in {out / 'results.parquet'} and results.csv"
           + (f"; {failed} failed (see their error column)" if failed else ""))
+    return rows
 
 
 def _record(spec: SweepSpec, rows: list[dict], record: list[str], out: Path,

@@ -3,13 +3,21 @@ points grouped a few to a task, and the rows gathered as tasks finish."""
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import os
-from collections.abc import Callable
+import re
+import shutil
+import signal
+import tempfile
+import warnings
+import weakref
+from collections.abc import Callable, Iterator
 from typing import TYPE_CHECKING
 
 from ..config import load_pipeline
 from .spec import SweepError, SweepSpec, assignments
-from .worker import point_row, run_points
+from .worker import WrongVersion, cosim_version, point_row, run_points
 
 if TYPE_CHECKING:
     from dask.distributed import Client, Future, LocalCluster
@@ -24,6 +32,10 @@ if TYPE_CHECKING:
 MAX_POINTS_PER_TASK = 8
 TASKS_PER_WORKER = 8
 STEPS_PER_TASK = 20_000  # ~0.6 s of the paper's closed loop, with its evaluation
+# Tasks submitted ahead per worker slot: enough that a worker never waits for the next one
+# (Dask sends a worker its next task while it runs one), few enough that a sweep of 10⁶
+# points is not 10⁶ futures in this process and the scheduler.
+TASKS_IN_FLIGHT = 4
 
 
 def points_per_task(points: int, slots: int, steps_per_point: int = 0) -> int:
@@ -36,37 +48,52 @@ def points_per_task(points: int, slots: int, steps_per_point: int = 0) -> int:
 
 def execute(spec: SweepSpec, all_points: list[dict], client: Client,
             on_rows: Callable[[int], None] | None = None,
-            per_task: int | None = None) -> tuple[list[dict], bool]:
-    """Every point on the Dask ``client``, ``per_task`` points a task (default
-    :func:`points_per_task` for the client's workers); returns (rows, interrupted).
-    ``on_rows(points)`` is told of each task's points as they finish. Ctrl-C cancels what
-    has not finished and keeps the rows of every finished task (the points of a task in
-    progress are dropped with it). A task whose worker died (a plant that crashes its
-    process) is run again point by point, so that only the point that killed it is a
-    failed row, one per run."""
+            per_task: int | None = None, sink: Callable[[list[dict]], None] | None = None,
+            indices: list[int] | None = None) -> tuple[list[dict], bool]:
+    """The points ``indices`` (default every one) of ``all_points`` on the Dask ``client``,
+    ``per_task`` points a task (default :func:`points_per_task` for the client's workers);
+    returns (rows, interrupted). With ``sink``, each task's rows are handed to it as they
+    come and not kept (the rows returned are none). ``on_rows(points)`` is told of each
+    task's points as they finish. A bounded number of tasks is in flight at a time
+    (:data:`TASKS_IN_FLIGHT` per worker), so neither this process nor the scheduler holds
+    the whole sweep. Ctrl-C cancels what has not finished and keeps the rows of every
+    finished task (the points of a task in progress are dropped with it). A task whose
+    worker died (a plant that crashes its process) is run again point by point, and such a
+    point again alone, so that only the point that kills its worker is a failed row, one per
+    run."""
     import uuid
 
     from dask.distributed import as_completed
 
     pipeline = load_pipeline(spec.pipeline, spec.base, warn=None)
     runs = spec.runs or list(pipeline.runs)
+    todo = list(range(len(all_points))) if indices is None else list(indices)
+    slots = sum(client.nthreads().values()) or 1  # the tasks that run at once
     if per_task is None:
-        slots = sum(client.nthreads().values()) or 1  # the tasks that run at once
-        per_task = points_per_task(len(all_points), slots,
-                                   pipeline.simulation.steps * len(runs))
+        per_task = points_per_task(len(todo), slots, pipeline.simulation.steps * len(runs))
     # Keys unique to this call: a scheduler still holding another sweep's (or an earlier
     # call's) "point 3" would hand back its result for this one.
     sweep_id = uuid.uuid4().hex[:12]
 
     def submit(indices: list[int]) -> Future:
         jobs = [(i, assignments(spec, all_points[i]), all_points[i]) for i in indices]
-        return client.submit(run_points, spec.pipeline, spec.runs, jobs, pure=False,
+        return client.submit(run_points, spec.pipeline, spec.runs, jobs, cosim_version(),
+                             pure=False,
                              key=f"cosim-points-{sweep_id}-{indices[0]}-{len(indices)}")
 
-    batches = [list(range(start, min(start + per_task, len(all_points))))
-               for start in range(0, len(all_points), per_task)]
-    futures = {submit(batch): batch for batch in batches}
-    pending = as_completed(list(futures))
+    batches = iter([todo[start:start + per_task] for start in range(0, len(todo), per_task)])
+    futures: dict = {}
+    pending = as_completed()
+
+    def submit_next() -> None:
+        batch = next(batches, None)
+        if batch is not None:
+            future = submit(batch)
+            futures[future] = batch
+            pending.add(future)
+
+    for _ in range(TASKS_IN_FLIGHT * slots):
+        submit_next()
     # Points of a task whose worker died, run again one at a time: alone on a worker, the
     # point that kills it is the only one its death fails (Dask fails every task a dying
     # worker holds once it has died under them too often).
@@ -84,30 +111,91 @@ def execute(spec: SweepSpec, all_points: list[dict], client: Client,
     rows: list[dict] = []
     try:
         for future in pending:
-            batch = futures[future]
-            if future in alone:
+            batch = futures.pop(future)
+            was_alone = future in alone
+            if was_alone:
                 alone.remove(future)
             try:
-                rows.extend(future.result())
+                made = future.result()
+            except WrongVersion as exc:
+                raise SweepError(str(exc)) from None
             except Exception as exc:  # the worker itself failed
-                if len(batch) > 1:  # which point killed it is unknown: each on its own
+                if not was_alone:  # which point killed it is unknown: each on its own
                     again.extend(batch)
                     next_alone()
+                    submit_next()
                     continue
-                for run in runs:  # one failed row per run
-                    rows.append({**point_row(batch[0], all_points[batch[0]], run),
-                                 "status": "failed", "error": f"{type(exc).__name__}: {exc}"})
+                made = [{**point_row(batch[0], all_points[batch[0]], run), "status": "failed",
+                         "error": worker_death(exc)} for run in runs]  # one per run
+            if sink is None:
+                rows.extend(made)
+            else:
+                sink(made)
             if on_rows is not None:
                 on_rows(len(batch))
             next_alone()
+            submit_next()
     except KeyboardInterrupt:
         client.cancel(list(futures))
         return sorted(rows, key=_order), True
+    except SweepError:
+        client.cancel(list(futures))
+        raise
     return sorted(rows, key=_order), False
+
+
+def worker_death(exc: BaseException) -> str:
+    """A failed row's error for a point whose task failed on its own: the signal that ended
+    its worker process when this process saw it (a local cluster's nannies are here)."""
+    text = f"{type(exc).__name__}: {exc}"
+    if type(exc).__name__ != "KilledWorker":
+        return text
+    signal = DEATHS.last()
+    why = f"killed by signal {signal}" if signal else "died (its log says why)"
+    return (f"the point's worker process {why} every time it ran the point, alone: a crash "
+            f"of the plant FMU or a block's native code ({text})")
 
 
 def _order(row: dict) -> tuple:
     return (row["point"], row["run"])
+
+
+class _DeathLog(logging.Handler):
+    """The signals that ended local worker processes, from their nannies' log (which lives
+    in this process with a LocalCluster): Dask's KilledWorker does not say it."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.INFO)
+        self.signals: list[int] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        found = re.search(r"killed by signal (\d+)", record.getMessage())
+        if found:
+            self.signals.append(int(found[1]))
+        if record.levelno >= logging.ERROR:  # what the cluster would have shown anyway
+            logging.getLogger("distributed").handle(record)
+
+    def last(self) -> str | None:
+        """The last signal seen, as "11 (SIGSEGV)"; None if none was."""
+        if not self.signals:
+            return None
+        number = self.signals[-1]
+        try:
+            return f"{number} ({signal.Signals(number).name})"
+        except ValueError:
+            return str(number)
+
+    def listen(self) -> None:
+        """Hear the nannies' deaths (INFO) while their other messages stay as quiet as the
+        cluster made them."""
+        nanny = logging.getLogger("distributed.nanny")
+        if self not in nanny.handlers:
+            nanny.addHandler(self)
+        nanny.setLevel(logging.INFO)
+        nanny.propagate = False
+
+
+DEATHS = _DeathLog()
 
 
 CONNECT_TIMEOUT = 15.0  # s, the whole connection and handshake
@@ -145,6 +233,31 @@ def _connect(scheduler: str) -> Client:
                      f"scheduler (no handshake within {CONNECT_TIMEOUT + 5:g} s)")
 
 
+def check_versions(client: Client, scheduler: str | None) -> None:
+    """:class:`SweepError` naming a worker of the cluster whose cosim is not this one's,
+    and both versions (a worker joining later is checked by its first task)."""
+    if scheduler is None:
+        return  # a local cluster runs this very cosim
+    mine = cosim_version()
+    theirs = client.run(cosim_version)
+    for address, version in theirs.items():
+        if version != mine:
+            raise SweepError(f"--scheduler {scheduler}: the worker {address} runs cosim "
+                             f"{version}, this client cosim {mine}: install the same cosim "
+                             "on every worker (the same wheel, or a shared path), or stop "
+                             "that worker")
+
+
+@contextlib.contextmanager
+def quiet_dask() -> Iterator[None]:
+    """Dask's warnings while a cluster starts or closes (a port taken, a slow close) are
+    not the user's business and would land in the middle of a progress line."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", module=r"distributed(\.|$)")
+        warnings.filterwarnings("ignore", message=r"Port \d+ is already in use")
+        yield
+
+
 def cluster_client(workers: int | None, scheduler: str | None
                    ) -> tuple[Client, LocalCluster | None]:
     """A Dask client: on ``scheduler`` (an existing cluster), or a LocalCluster on
@@ -160,15 +273,20 @@ def cluster_client(workers: int | None, scheduler: str | None
             raise SweepError(f"--scheduler {scheduler}: no worker joined within 60 s "
                              "(start one: dask worker ADDRESS --nthreads 1)") from None
         return client, None
-    import logging
-
     import dask
 
     # Quiet workers: a cancelled point (Ctrl-C) is not a warning the user needs to read.
     with dask.config.set(WORKER_CONFIG):
+        # The scheduler serves HTTP even without a dashboard, on 8787 unless told: port 0,
+        # so a taken 8787 (another cluster) is no warning. Its workers' scratch space is a
+        # folder of ours, removed with the cluster, not one left in the temporary folder.
+        scratch = tempfile.mkdtemp(prefix="cosim-sweep-dask-")
         cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
                                processes=True, host="127.0.0.1", dashboard_address=None,
-                               silence_logs=logging.ERROR)
+                               scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
+                               local_directory=scratch, silence_logs=logging.ERROR)
+        weakref.finalize(cluster, shutil.rmtree, scratch, ignore_errors=True)
+    DEATHS.listen()
     return Client(cluster), cluster
 
 

@@ -5,6 +5,7 @@ Dask finds these functions on a worker by their module path (cosim.sweep.worker)
 from __future__ import annotations
 
 import json
+import os
 from typing import TYPE_CHECKING
 
 from ..config import Pipeline, PipelineError, load_pipeline
@@ -60,10 +61,29 @@ def run_point(pipeline_path: str, sets: list[str], runs: list[str] | None, index
     return rows
 
 
+class WrongVersion(RuntimeError):
+    """A worker whose cosim is not the client's: its rows would not be comparable."""
+
+
+def cosim_version() -> str:
+    import cosim
+
+    return cosim.__version__
+
+
 def run_points(pipeline_path: str, runs: list[str] | None,
-               jobs: list[tuple[int, list[str], dict]]) -> list[dict]:
+               jobs: list[tuple[int, list[str], dict]], version: str | None = None
+               ) -> list[dict]:
     """Several points (index, --set assignments, point), one after another in one task:
-    their rows."""
+    their rows. ``version``: the client's cosim, which this worker's must be (a worker may
+    join a cluster mid-sweep)."""
+    import socket
+
+    if version is not None and cosim_version() != version:
+        raise WrongVersion(f"the Dask worker on {socket.gethostname()} (pid {os.getpid()}) "
+                           f"runs cosim {cosim_version()}, this client cosim {version}: "
+                           "install the same cosim on every worker (the same wheel, or a "
+                           "shared path), or stop that worker")
     rows = []
     for index, sets, point in jobs:
         rows.extend(run_point(pipeline_path, sets, runs, index, point))
