@@ -15,6 +15,7 @@ ranges, noise 1e-4 rad (bound 6e-4). SI units, radians.
 from __future__ import annotations
 
 import argparse
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -41,7 +42,7 @@ def sweep(samples: int, out: Path, seed: int, workers: int, duration: float) -> 
                "--set", f"simulation.duration={duration}"]
     for sample in SAMPLES:
         command += ["--sample", sample]
-    print("$", " ".join(command), file=sys.stderr)
+    print("$", shlex.join(command), file=sys.stderr)  # quoted: a shell can run it
     subprocess.run(command, check=True)
 
 

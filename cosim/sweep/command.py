@@ -4,18 +4,21 @@ their recording (``--record``); or, with ``--dry-run``, what would be done."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
+import signal
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ..config import load_pipeline
+from ..config import PipelineError, load_pipeline
 from ..evaluate.reports import SWEEP_REPORTS
 from ..progress import phase
 from .checks import margin
-from .execution import check_versions, cluster_client, execute, quiet_dask
+from .execution import check_versions, close_cluster, cluster_client, execute, quiet_dask
 from .files import write_results, write_spec
 from .journal import JOURNAL, Journal, Rows, points_done, read_table
 from .resume import check_same, identity, stored_identity
@@ -27,6 +30,7 @@ from .spec import (
     only_runs,
     parse_grid,
     parse_sample,
+    point_label,
     points,
     validate,
 )
@@ -38,11 +42,15 @@ if TYPE_CHECKING:
     from ..outputs.run_folder import RunFolder
 
 
-def record_points(spec: SweepSpec, rows: list[dict], which: list[str], out: Path,
-                  progress: bool = False) -> list[str]:
+def record_points(spec: SweepSpec, rows: Rows | list[dict], which: list[str], out: Path,
+                  all_points: list[dict], progress: bool = False) -> list[str]:
     """Full run folders (recording, figures) of each run's best and/or worst point by
-    :func:`margin`, re-run here: ``out/best_<run>_point<i>``, ``out/worst_<run>_point<i>``.
-    A run with no completed row has nothing to record."""
+    :func:`margin`, re-run here with the point's own values: ``out/best_<run>_point<i>``,
+    ``out/worst_<run>_point<i>``; returns, for each, its folder and what the point is. A
+    run with no completed row has nothing to record. A re-run that fails is
+    :class:`SweepError` naming the point and what its folder kept."""
+    from ..engine import Diverged
+    from ..outputs.run_folder import RunFolderError
     from ..runner import run
 
     ok = [r for r in rows if r["status"] == "ok" and not math.isnan(margin(r))]
@@ -51,15 +59,22 @@ def record_points(spec: SweepSpec, rows: list[dict], which: list[str], out: Path
         for name in dict.fromkeys(r["run"] for r in ok):
             mine = [r for r in ok if r["run"] == name]
             row = (min if kind == "best" else max)(mine, key=margin)
-            point = {k.removeprefix("set:"): json.loads(v) if isinstance(v, str) and
-                     v.startswith("[") else v for k, v in row.items() if k.startswith("set:")}
-            folder = out / f"{kind}_{name}_point{row['point']}"
+            index = row["point"]
+            point = all_points[index]
+            folder = out / f"{kind}_{name}_point{index}"
+            what = (f"{name}'s {kind} point {index}: {point_label(point)}; its worst check "
+                    f"{margin(row):.3f} of its bound")
             pipeline = only_runs(load_pipeline(spec.pipeline, assignments(spec, point),
                                                warn=None), [name])
-            with phase(f"re-running {name}'s {kind} point ({row['point']}) with its "
-                       "recording and figures", progress):
-                run(pipeline, folder, progress=False, force=True)
-            written.append(str(folder))
+            try:
+                with phase(f"re-running {name}'s {kind} point ({index}) with its "
+                           "recording and figures", progress):
+                    run(pipeline, folder, progress=False, force=True)
+            except (Diverged, PipelineError, RunFolderError) as exc:
+                raise SweepError(f"--record: re-running {what} failed: {exc}; what it kept "
+                                 f"is in {folder} (the sweep's own results are complete in "
+                                 f"{out})") from None
+            written.append(f"{folder} ({what})")
     return written
 
 
@@ -96,11 +111,20 @@ def _on_sigterm(signum: int, frame: object) -> None:
     raise KeyboardInterrupt("terminated (SIGTERM)")
 
 
+@contextlib.contextmanager
+def deferred_signals() -> Iterator[None]:
+    """Ctrl-C and SIGTERM held while the block runs, acted on as it ends."""
+    held = {signal.SIGINT, signal.SIGTERM}
+    signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, held)
+
+
 def main(args: argparse.Namespace) -> int:
     """``cosim sweep`` (parsed arguments): returns the exit status. SIGTERM is handled like
     Ctrl-C in every phase: finished rows are written, the cluster ended, the lock released."""
-    import signal
-
     previous = signal.signal(signal.SIGTERM, _on_sigterm)
     try:
         return _main(args)
@@ -129,14 +153,22 @@ def _main(args: argparse.Namespace) -> int:
         print(f"resuming {out}: {len(done)} of {len(all_points)} point(s) already there; "
               f"running the other {len(todo)}", file=sys.stderr)
     interrupted = _run_on_dask(spec, all_points, todo, runs, out, folder, args)
-    rows = _report(folder, spec, interrupted, all_points, runs, out, start)
+    try:
+        rows = _report(folder, spec, interrupted, all_points, runs, out, start)
+    except KeyboardInterrupt as exc:
+        raise SweepError(f"{str(exc) or 'interrupted (Ctrl-C)'} while writing the results; "
+                         f"every finished row is kept in {out / JOURNAL}: the same command "
+                         f"with --resume {out} writes them") from None
     if interrupted:
-        print(f"cosim: interrupted; the {len(rows)} finished row(s) are kept in {out}"
-              + (f" (resume: the same command with --resume {out})"
-                 if len(rows) < len(all_points) * len(runs) else ""), file=sys.stderr)
+        resume = f"resume: the same command with --resume {out}"
+        print(f"cosim: interrupted before any point finished; no results were written ({resume})"
+              if not len(rows) else
+              f"cosim: interrupted; the {len(rows)} finished row(s) are kept in {out}"
+              + (f" ({resume})" if len(rows) < len(all_points) * len(runs) else ""),
+              file=sys.stderr)
         return 2
     if record:
-        _record(spec, rows, record, out, args)
+        _record(spec, rows, record, out, all_points, args)
     return 0
 
 
@@ -202,13 +234,16 @@ def _run_on_dask(spec: SweepSpec, all_points: list[dict], todo: list[int], runs:
     journal = Journal(out / JOURNAL)
     interrupted = False
     try:
-        if todo:
-            starting = (f"connecting to {args.scheduler}" if args.scheduler else
-                        f"starting {args.workers or os.cpu_count() or 1} Dask worker "
-                        "process(es)")
-            with phase(starting, not args.quiet), quiet_dask():
-                client, cluster = cluster_client(args.workers, args.scheduler)
-            try:
+        client = cluster = None
+        try:
+            if todo:
+                starting = (f"connecting to {args.scheduler}" if args.scheduler else
+                            f"starting {args.workers or os.cpu_count() or 1} Dask worker "
+                            "process(es)")
+                # Ctrl-C or SIGTERM while the cluster starts is acted on once it has (a
+                # second or two): a cluster half started could not be closed.
+                with phase(starting, not args.quiet), quiet_dask(), deferred_signals():
+                    client, cluster = cluster_client(args.workers, args.scheduler)
                 check_versions(client, args.scheduler)
                 where = (args.scheduler
                          or f"a local cluster of {len(client.scheduler_info()['workers'])}")
@@ -219,11 +254,9 @@ def _run_on_dask(spec: SweepSpec, all_points: list[dict], todo: list[int], runs:
                 _, interrupted = execute(spec, all_points, client, bar.update,
                                          sink=journal.add, indices=todo)
                 bar.close()
-            finally:
-                with quiet_dask():
-                    client.close()
-                    if cluster is not None:
-                        cluster.close()
+        finally:
+            with deferred_signals():
+                close_cluster(client, cluster)
     except KeyboardInterrupt:  # while the cluster started or closed: what finished is kept
         interrupted = True
     except BaseException as exc:  # no cluster, or the scheduler lost: said in the folder too
@@ -276,7 +309,6 @@ def _report(folder: RunFolder, spec: SweepSpec, interrupted: bool, all_points: l
     finally:
         folder.release()
     if not len(rows):
-        print("no point finished: no results were written", file=sys.stderr)
         return rows
     print(format_table(table))
     for key, entries in safety_by_value(rows, spec).items():
@@ -290,16 +322,16 @@ def _report(folder: RunFolder, spec: SweepSpec, interrupted: bool, all_points: l
     return rows
 
 
-def _record(spec: SweepSpec, rows: list[dict], record: list[str], out: Path,
-            args: argparse.Namespace) -> None:
+def _record(spec: SweepSpec, rows: Rows, record: list[str], out: Path,
+            all_points: list[dict], args: argparse.Namespace) -> None:
     """--record: each run's best and/or worst point re-run with its recording."""
     if not any(r["status"] == "ok" and not math.isnan(margin(r)) for r in rows):
         raise SweepError(f"--record {args.record}: no row completed, so there is no "
                          f"point to record; the {len(rows)} row(s) and their errors are "
                          f"in {out / 'results.csv'}")
     try:
-        for path in record_points(spec, rows, record, out, not args.quiet):
-            print(f"recorded: {path}")
+        for written in record_points(spec, rows, record, out, all_points, not args.quiet):
+            print(f"recorded: {written}")
     except KeyboardInterrupt as exc:
         raise SweepError(f"{str(exc) or 'interrupted (Ctrl-C)'} while recording; the sweep's "
                          f"results are complete in {out}") from None

@@ -13,11 +13,12 @@ import tempfile
 import warnings
 import weakref
 from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..config import load_pipeline
 from .spec import SweepError, SweepSpec, assignments
-from .worker import WrongVersion, cosim_version, point_row, run_points
+from .worker import WorkerMismatch, cosim_version, point_row, run_points
 
 if TYPE_CHECKING:
     from dask.distributed import Client, Future, LocalCluster
@@ -74,12 +75,17 @@ def execute(spec: SweepSpec, all_points: list[dict], client: Client,
     # Keys unique to this call: a scheduler still holding another sweep's (or an earlier
     # call's) "point 3" would hand back its result for this one.
     sweep_id = uuid.uuid4().hex[:12]
+    # Workers need not run where this process does: the pipeline by its absolute path (the
+    # same files on every machine: a shared folder).
+    pipeline_path = str(Path(spec.pipeline).resolve())
 
-    def submit(indices: list[int]) -> Future:
+    def submit(indices: list[int], again: bool = False) -> Future:
         jobs = [(i, assignments(spec, all_points[i]), all_points[i]) for i in indices]
-        return client.submit(run_points, spec.pipeline, spec.runs, jobs, cosim_version(),
-                             pure=False,
-                             key=f"cosim-points-{sweep_id}-{indices[0]}-{len(indices)}")
+        # A point run again has a key of its own: the scheduler may still hold the failed
+        # task, and a submit of its key would hand back that failure.
+        key = f"cosim-points-{sweep_id}-{indices[0]}-{len(indices)}{'-again' * again}"
+        return client.submit(run_points, pipeline_path, spec.runs, jobs, cosim_version(),
+                             pure=False, key=key)
 
     batches = iter([todo[start:start + per_task] for start in range(0, len(todo), per_task)])
     futures: dict = {}
@@ -103,7 +109,7 @@ def execute(spec: SweepSpec, all_points: list[dict], client: Client,
     def next_alone() -> None:
         if again and not alone:
             index = again.pop(0)
-            single = submit([index])
+            single = submit([index], again=True)
             futures[single] = [index]
             alone.append(single)
             pending.add(single)
@@ -117,7 +123,7 @@ def execute(spec: SweepSpec, all_points: list[dict], client: Client,
                 alone.remove(future)
             try:
                 made = future.result()
-            except WrongVersion as exc:
+            except WorkerMismatch as exc:
                 raise SweepError(str(exc)) from None
             except Exception as exc:  # the worker itself failed
                 if not was_alone:  # which point killed it is unknown: each on its own
@@ -258,6 +264,24 @@ def quiet_dask() -> Iterator[None]:
         yield
 
 
+def close_cluster(client: Client | None, cluster: LocalCluster | None) -> None:
+    """Close the client and the local cluster, if any. A close that fails (a worker caught
+    starting as it was ended) is not the sweep's failure: the rows are on disk; Dask's own
+    close at exit is spared the same failure, as a traceback after the last line."""
+    with quiet_dask():
+        if client is not None:
+            with contextlib.suppress(Exception):
+                client.close()
+        if cluster is not None:
+            from distributed.deploy.spec import SpecCluster
+
+            try:
+                with contextlib.suppress(Exception):  # Dask's asserts on its workers' states
+                    cluster.close()
+            finally:
+                SpecCluster._instances.discard(cluster)
+
+
 def cluster_client(workers: int | None, scheduler: str | None
                    ) -> tuple[Client, LocalCluster | None]:
     """A Dask client: on ``scheduler`` (an existing cluster), or a LocalCluster on
@@ -275,12 +299,13 @@ def cluster_client(workers: int | None, scheduler: str | None
         return client, None
     import dask
 
+    # The scheduler's, nannies' and workers' scratch space: a folder of ours, removed with
+    # the cluster, not one left in the temporary folder.
+    scratch = tempfile.mkdtemp(prefix="cosim-sweep-dask-")
     # Quiet workers: a cancelled point (Ctrl-C) is not a warning the user needs to read.
-    with dask.config.set(WORKER_CONFIG):
+    with dask.config.set({**WORKER_CONFIG, "temporary-directory": scratch}):
         # The scheduler serves HTTP even without a dashboard, on 8787 unless told: port 0,
-        # so a taken 8787 (another cluster) is no warning. Its workers' scratch space is a
-        # folder of ours, removed with the cluster, not one left in the temporary folder.
-        scratch = tempfile.mkdtemp(prefix="cosim-sweep-dask-")
+        # so a taken 8787 (another cluster) is no warning.
         cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
                                processes=True, host="127.0.0.1", dashboard_address=None,
                                scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},

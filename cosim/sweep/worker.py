@@ -61,8 +61,9 @@ def run_point(pipeline_path: str, sets: list[str], runs: list[str] | None, index
     return rows
 
 
-class WrongVersion(RuntimeError):
-    """A worker whose cosim is not the client's: its rows would not be comparable."""
+class WorkerMismatch(RuntimeError):
+    """A worker that cannot run the client's sweep as the client would: another cosim (its
+    rows would not be comparable) or without the pipeline's files."""
 
 
 def cosim_version() -> str:
@@ -80,10 +81,15 @@ def run_points(pipeline_path: str, runs: list[str] | None,
     import socket
 
     if version is not None and cosim_version() != version:
-        raise WrongVersion(f"the Dask worker on {socket.gethostname()} (pid {os.getpid()}) "
+        raise WorkerMismatch(f"the Dask worker on {socket.gethostname()} (pid {os.getpid()}) "
                            f"runs cosim {cosim_version()}, this client cosim {version}: "
                            "install the same cosim on every worker (the same wheel, or a "
                            "shared path), or stop that worker")
+    if not os.path.isfile(pipeline_path):
+        raise WorkerMismatch(f"the Dask worker on {socket.gethostname()} (pid {os.getpid()}) "
+                             f"cannot read the pipeline {pipeline_path}: every worker needs "
+                             "the pipeline's files at the same path as this client (a shared "
+                             "folder), or stop that worker")
     rows = []
     for index, sets, point in jobs:
         rows.extend(run_point(pipeline_path, sets, runs, index, point))
