@@ -2,13 +2,15 @@
 34): rows on disk as they finish, a client killed with SIGKILL and resumed (every point once,
 none re-run), a resume of another sweep refused by name, a worker killed mid-point and one
 joining mid-sweep against separately started `dask scheduler` / `dask worker` processes, a
-worker of another cosim version refused, a segfaulting point failing alone with its signal
-named, bad --sample bounds, a sweep stopped before its first row, Dask's scratch space and
-port warning, --record's values and a failing re-run, a plugin's sys.exit(0), units in
-results.parquet, and benchmarks/monte_carlo.py's command runnable by a shell."""
+worker of another cosim version refused, bad --sample bounds, a sweep stopped before its
+first row, Dask's scratch space and port warning, --record's values and a failing re-run, a
+plugin's sys.exit(0), units in results.parquet, and benchmarks/monte_carlo.py's command
+runnable by a shell. (A segfaulting point failing alone, its signal named, is in
+tests/test_sweep_tasks.py, beside the crashing FMU it builds.)"""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import re
@@ -28,6 +30,17 @@ ROOT = Path(__file__).resolve().parent.parent
 DASK = str(Path(sys.executable).parent / "dask")
 GRID = "runs.proposed.controller.kv=" + ",".join(str(20 + i) for i in range(24))
 SMALL = ["--runs", "proposed", "--set", "simulation.duration=1"]
+
+
+def cosim_here(capsys, *args: str) -> subprocess.CompletedProcess:
+    """The cosim command run in this process (no interpreter to start): its exit status and
+    output, as :func:`cosim_cli` gives them."""
+    from cosim.cli import main
+
+    capsys.readouterr()
+    status = main(list(args))
+    out, err = capsys.readouterr()
+    return subprocess.CompletedProcess(["cosim", *args], status, out, err)
 
 
 def journal(out: Path) -> list[dict]:
@@ -93,16 +106,20 @@ def test_rows_are_on_disk_as_points_finish_and_a_killed_sweep_resumes_each_point
 
 def test_a_resumed_sweep_has_the_rows_of_one_run_through_bit_for_bit(killed_and_resumed):
     from cosim.sweep import SweepSpec, assignments, parse_grid, points, run_point
+    from cosim.sweep.worker import close_plants
 
     out = killed_and_resumed[0]
     spec = SweepSpec(PAPER, [parse_grid(GRID)], runs=["proposed"],
                      base=["simulation.duration=1"])
     rows = pq.read_table(out / "results.parquet").to_pylist()
-    for index in (0, 11, 23):  # in-process, as one uninterrupted sweep computes them
-        point = points(spec)[index]
-        (expected,) = run_point(PAPER, assignments(spec, point), ["proposed"], index, point)
-        got = {k: v for k, v in rows[index].items() if k in expected and k != "wall_time_s"}
-        assert got == {k: v for k, v in expected.items() if k != "wall_time_s"}
+    try:
+        for index in (0, 11, 23):  # in-process, as one uninterrupted sweep computes them
+            point = points(spec)[index]
+            (expected,) = run_point(PAPER, assignments(spec, point), ["proposed"], index, point)
+            got = {k: v for k, v in rows[index].items() if k in expected and k != "wall_time_s"}
+            assert got == {k: v for k, v in expected.items() if k != "wall_time_s"}
+    finally:
+        close_plants()  # the plant run_point keeps open, as a worker does
 
 
 def test_resuming_another_sweep_is_refused_naming_what_differs(killed_and_resumed):
@@ -202,43 +219,15 @@ def test_a_worker_of_another_cosim_version_is_refused_naming_both(scheduler, tmp
 
 # -- issue 33's sweep cases ----------------------------------------------------------------
 
-def test_a_segfaulting_point_fails_alone_and_its_signal_is_named(tmp_path):
-    """One worker, a point a task: the point whose plant segfaults (the PythonFMU arm's
-    crash_at) is the only failed row, not the healthy point Dask held on the same worker."""
-    import dask
-    import distributed  # noqa: F401 (its defaults first: set() would drop them on exit)
-    from test_plant_swapping import FOREIGN_ARM, build_pythonfmu
-
-    from cosim.sweep import SweepSpec, cluster_client, execute, parse_grid, points
-
-    fmu = build_pythonfmu(FOREIGN_ARM, tmp_path / "fmu")
-    base = [f'plant.fmu="{fmu}"', 'plant.variables.tau=["shoulder_torque", "elbow_torque"]',
-            'plant.variables.q=["shoulder", "elbow"]',
-            'plant.variables.qdot=["shoulder_rate", "elbow_rate"]', "simulation.duration=0.3"]
-    spec = SweepSpec(PAPER, [parse_grid("plant.parameters.crash_at=1e300,0.1,1e300,1e300")],
-                     runs=["baseline"], base=base)
-    with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
-        client, cluster = cluster_client(1, None)
-    try:
-        rows, _ = execute(spec, points(spec), client, per_task=1)
-    finally:
-        client.close()
-        cluster.close()
-    assert [r["status"] for r in rows] == ["ok", "failed", "ok", "ok"], [r["error"] for r in rows]
-    assert rows[1]["error"].startswith(
-        "the point's worker process killed by signal 11 (SIGSEGV) every time it ran the "
-        "point, alone: a crash of the plant FMU or a block's native code (KilledWorker: ")
-
-
 @pytest.mark.parametrize(("sample", "why"), [
     ("uniform(nan,nan)", "'nan' and 'nan' must be finite numbers"),
     ("integers(0,inf)", "'0' and 'inf' must be finite numbers"),
     ("uniform(1,inf)", "'1' and 'inf' must be finite numbers"),
     ("integers(1.5,1.7)", "integers(low,high) draws whole numbers from low to high "
      "inclusive; give whole-number bounds (got 1.5 and 1.7)")])
-def test_sample_bounds_that_cannot_be_drawn_are_refused(sample, why, tmp_path):
-    done = cosim_cli("sweep", PAPER, "--sample", f"controller.kv={sample}", "--samples", "2",
-                     "--out", str(tmp_path / "out"))
+def test_sample_bounds_that_cannot_be_drawn_are_refused(sample, why, tmp_path, capsys):
+    done = cosim_here(capsys, "sweep", PAPER, "--sample", f"controller.kv={sample}",
+                      "--samples", "2", "--out", str(tmp_path / "out"))
     assert_message(error_line(done), f"--sample 'controller.kv={sample}': {why}")
     assert not (tmp_path / "out").exists()
 
@@ -269,19 +258,18 @@ def test_a_sweep_stopped_before_its_first_row_says_so_and_writes_no_empty_result
     assert not (out / "results.csv").exists() and not (out / "results.parquet").exists()
 
 
-def test_dask_scratch_space_is_removed_and_its_port_warning_not_printed(tmp_path):
-    scratch = tmp_path / "tmp"
-    scratch.mkdir()
-    # the port the scheduler's HTTP server would take without a dashboard, taken
+def test_a_sweep_leaves_no_scratch_space_and_prints_no_port_warning(tmp_path):
+    """Nothing left in the temporary folder (Dask's scratch space), nothing said of the port
+    8787 taken (the scheduler's HTTP server's default, held by another cluster)."""
     import socket
 
+    scratch = tmp_path / "tmp"
+    scratch.mkdir()
     with socket.socket() as taken:
-        try:
+        with contextlib.suppress(OSError):  # else another cluster holds it: the same case
             taken.bind(("127.0.0.1", 8787))
-        except OSError:
-            pass  # another cluster already holds it: the same case
         done = subprocess.run([sys.executable, "-m", "cosim.cli", "sweep", PAPER, "--grid",
-                               "controller.kv=20,30", *SMALL, "--workers", "1", "--out",
+                               "controller.kv=5,60", *SMALL, "--workers", "1", "--out",
                                str(tmp_path / "out")], capture_output=True, text=True,
                               env={**os.environ, "TMPDIR": str(scratch)}, timeout=300)
     assert done.returncode == 0, done.stderr[-3000:]
@@ -289,34 +277,37 @@ def test_dask_scratch_space_is_removed_and_its_port_warning_not_printed(tmp_path
     assert list(scratch.iterdir()) == []
 
 
-def test_record_says_each_points_values_and_a_failing_re_run_is_one_message(tmp_path):
-    out = tmp_path / "rec"
-    args = ["sweep", PAPER, "--grid", "controller.kv=5,60", "--runs", "proposed", "--set",
-            "simulation.duration=0.5", "--workers", "1", "--record", "best"]
-    done = cosim_cli(*args, "--out", str(out))
-    assert done.returncode == 0, done.stderr[-3000:]
-    row = pq.read_table(out / "results.parquet").to_pylist()[1]  # Kv = 60 keeps the sets best
-    ratio = max(row[f"{c}.worst"] / row[f"{c}.bound"] for c in
-                [k.removesuffix(".satisfied") for k in row if k.endswith(".satisfied")]
-                if row[f"{c}.kind"] != "sufficient" and row[f"{c}.attainable"] is not False)
-    assert f"recorded: {out}/best_proposed_point1 (proposed's best point 1: " \
-        f"controller.kv=60; its worst check {ratio:.3f} of its bound)" in done.stdout
-    # the same sweep where the best point's folder cannot be written (a file in its way)
-    again = tmp_path / "again"
-    again.mkdir()
-    (again / "best_proposed_point1").write_text("mine")
-    (again / "summary.json").write_text("{}")
-    failed = cosim_cli(*args, "--out", str(again), "--force")
-    assert failed.returncode == 2 and "Traceback" not in failed.stderr
+def test_record_names_the_points_values_and_a_failing_re_run_is_one_message(tmp_path):
+    """What --record prints of a point (its values, its worst check against its bound; the
+    same text follows "recorded: FOLDER" when it succeeds), here in the message of a re-run
+    that fails: the user's file where the point's folder would be, kept."""
+    from cosim.sweep import SweepSpec, parse_grid, points
+    from cosim.sweep.command import record_points
+    from cosim.sweep.spec import SweepError
+
+    spec = SweepSpec(PAPER, [parse_grid("controller.kv=5,60")], runs=["proposed"],
+                     base=["simulation.duration=0.5"])
+    row = {"point": 1, "run": "proposed", "status": "ok", "position_joint1.satisfied": True,
+           "position_joint1.worst": 0.5, "position_joint1.bound": 2.0}
+    (tmp_path / "best_proposed_point1").write_text("the user's")  # in the folder's way
+    with pytest.raises(SweepError) as refused:
+        record_points(spec, [row], ["best"], tmp_path, points(spec))
+    folder = tmp_path / "best_proposed_point1"
+    assert str(refused.value) == (
+        "--record: re-running proposed's best point 1: controller.kv=60; its worst check "
+        f"0.250 of its bound failed: --out {folder}: is a file, not a folder; choose another "
+        f"--out; what it kept is in {folder} (the sweep's own results are complete in "
+        f"{tmp_path})")
+    assert folder.read_text() == "the user's"
 
 
-def test_a_plugins_sys_exit_at_import_is_reported_not_a_silent_success(tmp_path):
+def test_a_plugins_sys_exit_at_import_is_reported_not_a_silent_success(tmp_path, capsys):
     plugin = tmp_path / "exits.py"
     plugin.write_text("import sys\nsys.exit(0)\n")
     pipeline = tmp_path / "p.toml"
     pipeline.write_text(f'extends = "{ROOT / PAPER}"\nplugins = ["{plugin}"]\n')
-    done = cosim_cli("sweep", str(pipeline), "--grid", "controller.kv=20,30", "--out",
-                     str(tmp_path / "out"))
+    done = cosim_here(capsys, "sweep", str(pipeline), "--grid", "controller.kv=20,30",
+                      "--out", str(tmp_path / "out"))
     message = error_line(done)
     assert message.startswith("cosim: error: point 0 (controller.kv=20): ") and \
         "sys.exit(0)" in message, message

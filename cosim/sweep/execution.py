@@ -204,7 +204,11 @@ class _DeathLog(logging.Handler):
 DEATHS = _DeathLog()
 
 
-CONNECT_TIMEOUT = 15.0  # s, the whole connection and handshake
+# s, the TCP connection (Client's own timeout), then HANDSHAKE_GRACE s more for the
+# handshake: a scheduler answers within a second on a cluster's network, so 10 s in all
+# says a silent port is not one without keeping the user waiting.
+CONNECT_TIMEOUT = 8.0
+HANDSHAKE_GRACE = 2.0
 
 
 def _connect(scheduler: str) -> Client:
@@ -227,7 +231,7 @@ def _connect(scheduler: str) -> Client:
 
     thread = threading.Thread(target=attempt, daemon=True, name="cosim-connect")
     thread.start()
-    thread.join(CONNECT_TIMEOUT + 5.0)
+    thread.join(CONNECT_TIMEOUT + HANDSHAKE_GRACE)
     if "client" in outcome:
         return outcome["client"]
     if "error" in outcome:
@@ -236,7 +240,7 @@ def _connect(scheduler: str) -> Client:
         raise SweepError(f"--scheduler {scheduler}: no Dask scheduler answered there "
                          f"({detail})")
     raise SweepError(f"--scheduler {scheduler}: something answers there but not as a Dask "
-                     f"scheduler (no handshake within {CONNECT_TIMEOUT + 5:g} s)")
+                     f"scheduler (no handshake within {CONNECT_TIMEOUT + HANDSHAKE_GRACE:g} s)")
 
 
 def check_versions(client: Client, scheduler: str | None) -> None:

@@ -29,6 +29,12 @@ def _plant_for(pipeline: Pipeline) -> object:
     return _PLANTS[key]
 
 
+def close_plants() -> None:
+    """Close this process's open plants (a worker's are closed as it ends)."""
+    while _PLANTS:
+        _PLANTS.popitem()[1].close()
+
+
 def point_row(index: int, point: dict, run: str) -> dict:
     """A row's first columns: the point's index, its values (``set:KEY``), the run."""
     return {"point": index, **{f"set:{k}": _cell(v) for k, v in point.items()}, "run": run}
