@@ -349,3 +349,33 @@ def test_tables_stay_within_100_columns_and_give_the_worst_values():
         " 90.5] w 1.500",
         "run                points failed  velocity_true",
         "proposed                2      0  100.0 % [ 34.2, 100.0] w 0.250"]
+
+
+def test_a_slurm_sweep_takes_dask_jobqueues_configuration_and_its_job_script_is_shown(
+        tmp_path):
+    """--cluster slurm --dry-run (no SLURM here): the job script dask-jobqueue would
+    submit, from the user's jobqueue.slurm configuration, each job one single-threaded
+    worker running this Python (the same cosim, on a shared path)."""
+    pytest.importorskip("dask_jobqueue")
+    config = tmp_path / "jobqueue.yaml"
+    config.write_text("jobqueue:\n  slurm:\n    queue: short\n    account: robots\n"
+                      "    memory: 4GB\n    walltime: '02:00:00'\n"
+                      "    job-extra-directives: ['--constraint=avx2']\n")
+    done = subprocess.run([sys.executable, "-m", "cosim.cli", "sweep", PAPER, "--grid",
+                           "controller.kv=20,30", *SMALL, "--cluster", "slurm", "--workers",
+                           "40", "--out", str(tmp_path / "out"), "--dry-run"],
+                          capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "DASK_CONFIG": str(tmp_path)})
+    assert done.returncode == 0, done.stderr[-3000:]
+    lines = done.stdout.splitlines()
+    assert lines[0].endswith("on 40 SLURM job(s) of one worker")
+    script = lines[lines.index("each SLURM job's script (sbatch):") + 1:-1]
+    assert script[:9] == ["#!/usr/bin/env bash", "", "#SBATCH -J dask-worker",
+                          "#SBATCH -p short", "#SBATCH -A robots", "#SBATCH -n 1",
+                          "#SBATCH --cpus-per-task=1", "#SBATCH --mem=4G",
+                          "#SBATCH -t 02:00:00"]
+    assert "#SBATCH --constraint=avx2" in script
+    worker = shlex.split(script[-1])
+    assert worker[:3] == [sys.executable, "-m", "distributed.cli.dask_worker"]
+    assert worker[-2:] == ["--nthreads", "1"] and "--nanny" in worker
+    assert not (tmp_path / "out").exists()

@@ -18,7 +18,14 @@ from ..config import PipelineError, load_pipeline
 from ..evaluate.reports import SWEEP_REPORTS
 from ..progress import phase
 from .checks import margin
-from .execution import check_versions, close_cluster, cluster_client, execute, quiet_dask
+from .execution import (
+    check_versions,
+    close_cluster,
+    cluster_client,
+    execute,
+    quiet_dask,
+    slurm_cluster,
+)
 from .files import write_results, write_spec
 from .journal import JOURNAL, Journal, Rows, points_done, read_table
 from .resume import check_same, identity, stored_identity
@@ -85,7 +92,9 @@ def _dry_run(spec: SweepSpec, all_points: list[dict], runs: list[str], out: Path
 
     load = load_pipeline(spec.pipeline, spec.base, warn=None)
     steps = round(load.simulation.duration / load.simulation.step)
-    where = args.scheduler or f"{args.workers or os.cpu_count() or 1} local Dask worker(s)"
+    where = (f"{args.workers or 1} SLURM job(s) of one worker" if args.cluster == "slurm"
+             else args.scheduler
+             or f"{args.workers or os.cpu_count() or 1} local Dask worker(s)")
     print(f"sweep of {spec.pipeline}: {len(all_points):,} point(s) × {len(runs)} run(s) "
           f"({', '.join(runs)}) = {len(all_points) * len(runs):,} row(s), "
           f"{load.simulation.duration:g} s simulated each ({steps:,} steps), on {where}")
@@ -103,6 +112,13 @@ def _dry_run(spec: SweepSpec, all_points: list[dict], runs: list[str], out: Path
     refusal = would_refuse(out, args.force)
     if refusal:
         raise SweepError(f"{refusal} (--dry-run: the sweep would be refused here)")
+    if args.cluster == "slurm":
+        cluster = slurm_cluster()
+        try:
+            print("each SLURM job's script (sbatch):")
+            print(cluster.job_script().strip())
+        finally:
+            close_cluster(None, cluster)
     print("every point checked against the pipeline's schema; nothing was run")
     return 0
 
@@ -134,7 +150,10 @@ def main(args: argparse.Namespace) -> int:
 
 def _main(args: argparse.Namespace) -> int:
     spec, record = _spec_of(args)
-    check_spec(spec, args.max_points, args.workers, args.scheduler)
+    slurm = args.cluster == "slurm"  # --workers: jobs, not this machine's processes
+    check_spec(spec, args.max_points, None if slurm else args.workers, args.scheduler)
+    if slurm and args.workers is not None and args.workers < 1:
+        raise SweepError(f"--workers {args.workers}: give 1 or more SLURM jobs")
     out = Path(args.resume or args.out)
     try:
         with phase("checking every point against the pipeline's schema", not args.quiet):
@@ -238,12 +257,15 @@ def _run_on_dask(spec: SweepSpec, all_points: list[dict], todo: list[int], runs:
         try:
             if todo:
                 starting = (f"connecting to {args.scheduler}" if args.scheduler else
+                            f"submitting {args.workers or 1} SLURM job(s)"
+                            if args.cluster == "slurm" else
                             f"starting {args.workers or os.cpu_count() or 1} Dask worker "
                             "process(es)")
                 # Ctrl-C or SIGTERM while the cluster starts is acted on once it has (a
                 # second or two): a cluster half started could not be closed.
                 with phase(starting, not args.quiet), quiet_dask(), deferred_signals():
-                    client, cluster = cluster_client(args.workers, args.scheduler)
+                    client, cluster = cluster_client(args.workers, args.scheduler,
+                                                     args.cluster)
                 check_versions(client, args.scheduler)
                 where = (args.scheduler
                          or f"a local cluster of {len(client.scheduler_info()['workers'])}")

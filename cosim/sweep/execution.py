@@ -9,6 +9,7 @@ import os
 import re
 import shutil
 import signal
+import sys
 import tempfile
 import warnings
 import weakref
@@ -286,12 +287,40 @@ def close_cluster(client: Client | None, cluster: LocalCluster | None) -> None:
                 SpecCluster._instances.discard(cluster)
 
 
-def cluster_client(workers: int | None, scheduler: str | None
+def slurm_cluster(workers: int | None = None) -> object:
+    """A dask-jobqueue SLURMCluster from the user's Dask configuration (``jobqueue.slurm``
+    in ~/.config/dask/jobqueue.yaml or $DASK_CONFIG: queue, account, memory, walltime,
+    job_extra_directives...), each job one single-threaded worker (FMUs are not thread-safe),
+    scaled to ``workers`` jobs (none yet without). Its workers run this Python on the
+    cluster's nodes: this cosim and the pipeline's files at the same paths (a shared
+    folder)."""
+    try:
+        from dask_jobqueue import SLURMCluster
+    except ImportError:
+        raise SweepError("--cluster slurm needs dask-jobqueue: pip install 'cosim[slurm]' "
+                         "(or dask-jobqueue)") from None
+    try:
+        cluster = SLURMCluster(cores=1, processes=1, python=sys.executable,
+                               worker_extra_args=["--nthreads", "1"])
+    except ValueError as exc:  # jobqueue's own: e.g. no memory configured
+        raise SweepError(f"--cluster slurm: {exc} (set it under jobqueue.slurm in "
+                         "~/.config/dask/jobqueue.yaml, or in a file $DASK_CONFIG "
+                         "names)") from None
+    if workers:
+        cluster.scale(jobs=workers)
+    return cluster
+
+
+def cluster_client(workers: int | None, scheduler: str | None, kind: str = "local"
                    ) -> tuple[Client, LocalCluster | None]:
-    """A Dask client: on ``scheduler`` (an existing cluster), or a LocalCluster on
-    127.0.0.1 with one single-threaded process per worker (FMUs are not thread-safe)."""
+    """A Dask client: on ``scheduler`` (an existing cluster), on SLURM jobs (``kind``
+    "slurm": :func:`slurm_cluster`), or a LocalCluster on 127.0.0.1 with one
+    single-threaded process per worker (FMUs are not thread-safe)."""
     from dask.distributed import Client, LocalCluster
 
+    if kind == "slurm":
+        cluster = slurm_cluster(workers or 1)
+        return Client(cluster), cluster
     if scheduler:
         client = _connect(scheduler)
         try:
