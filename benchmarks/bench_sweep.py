@@ -8,12 +8,21 @@
 
        .venv/bin/python benchmarks/bench_sweep.py --per-step [--points 6] [--duration S]
 
-2. Otherwise, sweep efficiency: rows per second of `cosim sweep` on Dask against what its
+2. ``--memory``: the peak memory (RSS) of the `cosim sweep` client for 10³ and 10⁴ points
+   of a tiny run (rows streamed to disk, not held), sampled every 50 ms; target ≤ 1.2×.
+
+       .venv/bin/python benchmarks/bench_sweep.py --memory [--points 1000]
+
+3. Otherwise, sweep efficiency: rows per second of `cosim sweep` on Dask against what its
 workers could do at the loop's speed, i.e. workers × the rows per second of in-process
 `run()` of one row (the same pipeline and point, kernels loaded, the plant FMU kept open as
 a worker keeps it).
 
     .venv/bin/python benchmarks/bench_sweep.py [--points 24] [--duration 5] [--workers 2]
+    .venv/bin/python benchmarks/bench_sweep.py --external   # 2 `dask worker` processes
+
+``--external``: the workers are `dask worker` processes started apart against a `dask
+scheduler` process (as on a cluster), not a LocalCluster.
 
 Points: the paper's proposed run over a grid of Kv. Printed, each measured on its own:
 - the in-process rate (best of the interleaved repeats; also with the FMU opened per row,
@@ -147,12 +156,39 @@ def in_process(spec: SweepSpec, all_points: list[dict], keep_plant: bool) -> flo
     return time.perf_counter() - began
 
 
+def external_cluster(workers: int) -> tuple[str, list[subprocess.Popen]]:
+    """A `dask scheduler` and ``workers`` single-threaded `dask worker` processes, started
+    apart: (address, processes)."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    dask = str(Path(sys.executable).parent / "dask")
+    address = f"tcp://127.0.0.1:{port}"
+    processes = [subprocess.Popen([dask, "scheduler", "--host", "127.0.0.1", "--port",
+                                   str(port), "--no-dashboard"], stderr=subprocess.DEVNULL)]
+    processes += [subprocess.Popen([dask, "worker", address, "--nthreads", "1", "--host",
+                                    "127.0.0.1", "--no-dashboard"], stderr=subprocess.DEVNULL,
+                                   cwd=ROOT) for _ in range(workers)]
+    return address, processes
+
+
+def end(processes: list[subprocess.Popen]) -> None:
+    for process in reversed(processes):
+        process.terminate()
+        process.wait(timeout=30)
+
+
 def on_dask(spec: SweepSpec, all_points: list[dict], workers: int, repeat: int,
-            per_task: int | None) -> tuple[list[float], float, float]:
+            per_task: int | None, scheduler: str | None = None
+            ) -> tuple[list[float], float, float]:
     """(steady-state seconds for all points, per repeat; cluster start-up; the workers'
-    first point)."""
+    first point). ``scheduler``: an external cluster's address (its workers started)."""
     began = time.perf_counter()
-    client, cluster = cluster_client(workers, None)
+    client, cluster = cluster_client(workers, scheduler)
+    if scheduler:
+        client.wait_for_workers(workers, timeout=120)
     started = time.perf_counter() - began
     try:
         began = time.perf_counter()
@@ -169,7 +205,8 @@ def on_dask(spec: SweepSpec, all_points: list[dict], workers: int, repeat: int,
         return walls, started, first
     finally:
         client.close()
-        cluster.close()
+        if cluster is not None:
+            cluster.close()
 
 
 def command(spec_args: list[str], workers: int) -> float:
@@ -182,6 +219,44 @@ def command(spec_args: list[str], workers: int) -> float:
         return time.perf_counter() - began
 
 
+def peak_rss(command: list[str]) -> tuple[float, float]:
+    """(peak RSS of the process in MB, sampled every 50 ms; wall seconds) of ``command``
+    (its worker processes apart)."""
+    import psutil
+
+    began = time.perf_counter()
+    process = psutil.Popen(command, cwd=ROOT, stdout=subprocess.DEVNULL,
+                           stderr=subprocess.DEVNULL)
+    peak = 0
+    while process.poll() is None:
+        try:
+            peak = max(peak, process.memory_info().rss)
+        except psutil.NoSuchProcess:
+            break
+        time.sleep(0.05)
+    assert process.returncode == 0, process.returncode
+    return peak / 1e6, time.perf_counter() - began
+
+
+def memory(points_count: int, workers: int) -> None:
+    """Print the client's peak memory for ``points_count`` and 10 × as many points of the
+    paper's proposed run, 10 steps each (what grows with the points is the client's)."""
+    peaks = {}
+    for n in (points_count, 10 * points_count):
+        with tempfile.TemporaryDirectory(prefix="cosim_bench_memory_") as tmp:
+            peaks[n] = peak_rss([sys.executable, "-m", "cosim.cli", "sweep", PIPELINE,
+                                 "--sample", "controller.kv=uniform(10,40)", "--samples",
+                                 str(n), "--runs", "proposed", "--set",
+                                 "simulation.duration=0.01", "--workers", str(workers),
+                                 "--quiet", "--out", f"{tmp}/out"])
+            rows = (Path(tmp) / "out" / "rows.jsonl").stat().st_size
+        print(f"  {n:>7,} points: client peak RSS {peaks[n][0]:7.1f} MB, "
+              f"{peaks[n][1]:6.1f} s, rows.jsonl {rows / 1e6:.1f} MB")
+    small, large = peaks[points_count][0], peaks[10 * points_count][0]
+    print(f"  peak memory ratio {10 * points_count:,} / {points_count:,} points = "
+          f"{large / small:.3f} (target ≤ 1.2: {'met' if large / small <= 1.2 else 'NOT met'})")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--points", type=int, default=None,
@@ -192,11 +267,18 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=3, help="interleaved repeats")
     parser.add_argument("--per-task", type=int, default=None, metavar="K",
                         help="points per Dask task (default: what cosim sweep picks)")
+    parser.add_argument("--external", action="store_true",
+                        help="the workers as `dask scheduler` / `dask worker` processes")
+    parser.add_argument("--memory", action="store_true",
+                        help="the client's peak memory for --points and 10 × --points points")
     parser.add_argument("--per-step", action="store_true",
                         help="µs per simulated step of a sweep point against its fused loops")
     args = parser.parse_args()
     if args.per_step:
         per_step_both(args.points or 6, args.duration, args.repeat)
+        return
+    if args.memory:
+        memory(args.points or 1000, args.workers)
         return
     args.points, args.duration = args.points or 24, args.duration or 5.0
     values = ",".join(str(20 + 2 * i) for i in range(args.points))
@@ -208,11 +290,16 @@ def main() -> None:
     in_process(spec, all_points[:2], keep_plant=True)  # kernels loaded in this process
     kept, fresh, sweeps = [], [], []
     started = first = 0.0
-    for _ in range(args.repeat):  # interleaved: the machine is shared
-        kept.append(in_process(spec, all_points, keep_plant=True))
-        fresh.append(in_process(spec, all_points, keep_plant=False))
-        walls, started, first = on_dask(spec, all_points, args.workers, 1, args.per_task)
-        sweeps += walls
+    address, processes = (external_cluster(args.workers) if args.external else (None, []))
+    try:
+        for _ in range(args.repeat):  # interleaved: the machine is shared
+            kept.append(in_process(spec, all_points, keep_plant=True))
+            fresh.append(in_process(spec, all_points, keep_plant=False))
+            walls, started, first = on_dask(spec, all_points, args.workers, 1, args.per_task,
+                                            address)
+            sweeps += walls
+    finally:
+        end(processes)
     end_to_end = command(["--grid", grid, "--runs", "proposed", "--set", base[0]],
                          args.workers)
     rate = n / min(kept)
@@ -224,7 +311,8 @@ def main() -> None:
     print(f"  in-process run(), FMU opened per row: {n / min(fresh):.2f} rows/s")
     steps = load_pipeline(PIPELINE, base).simulation.steps
     per_task = args.per_task or points_per_task(n, args.workers, steps)
-    print(f"  cosim sweep on {args.workers} Dask workers, steady state: {sweep_rate:.2f} rows/s "
+    kind = "separately started `dask worker`s" if args.external else "local Dask workers"
+    print(f"  cosim sweep on {args.workers} {kind}, steady state: {sweep_rate:.2f} rows/s "
           f"(best of {len(sweeps)}: {', '.join(f'{n / w:.2f}' for w in sweeps)}; "
           f"{per_task} point(s) a task)")
     print(f"  sweep efficiency = {sweep_rate:.2f} / ({args.workers} × {rate:.2f}) = "
