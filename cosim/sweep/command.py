@@ -302,11 +302,12 @@ def _lost(exc: BaseException, scheduler: str | None, rows: int, out: Path) -> st
     if isinstance(exc, SweepError):
         return str(exc)
     name = type(exc).__name__
-    if scheduler and (isinstance(exc, OSError | TimeoutError) or "Comm" in name
-                      or "Cancelled" in name):
-        return (f"--scheduler {scheduler}: the scheduler stopped answering mid-sweep "
-                f"({name}); the {rows} row(s) finished before are kept in {out}: start it "
-                f"again and resume with the same command and --resume {out}")
+    if isinstance(exc, OSError | TimeoutError) or "Comm" in name or "Closed" in name \
+            or "Cancelled" in name:
+        where = f"--scheduler {scheduler}" if scheduler else "the Dask cluster"
+        return (f"{where}: the scheduler stopped answering mid-sweep ({name}); every row "
+                f"finished before is kept in {out / JOURNAL} ({rows} this time): start it "
+                f"again and go on with the same command and --resume {out}")
     return str(exc) or name
 
 

@@ -126,7 +126,9 @@ def execute(spec: SweepSpec, all_points: list[dict], client: Client,
                 made = future.result()
             except WorkerMismatch as exc:
                 raise SweepError(str(exc)) from None
-            except Exception as exc:  # the worker itself failed
+            except Exception as exc:  # the worker itself failed, or the scheduler is gone
+                if client.status not in ("running", "connecting"):
+                    raise SchedulerLost(f"{type(exc).__name__}: {exc}") from None
                 if not was_alone:  # which point killed it is unknown: each on its own
                     again.extend(batch)
                     next_alone()
@@ -149,6 +151,10 @@ def execute(spec: SweepSpec, all_points: list[dict], client: Client,
         client.cancel(list(futures))
         raise
     return sorted(rows, key=_order), False
+
+
+class SchedulerLost(ConnectionError):
+    """The client lost its scheduler mid-sweep (Dask gave up reconnecting)."""
 
 
 def worker_death(exc: BaseException) -> str:
