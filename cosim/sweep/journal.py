@@ -19,11 +19,13 @@ from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+import numpy as np
+
 if TYPE_CHECKING:
     import pyarrow as pa
 
 JOURNAL = "rows.jsonl"
-CHUNK = 4096  # rows per Arrow chunk (and results.parquet row group) when reading back
+CHUNK = 256  # rows a chunk when reading back: as dicts, ~15 kB a row of 200 columns
 
 
 class Journal:
@@ -99,21 +101,40 @@ def _arrow(rows: list[dict]) -> pa.Table:
 
 class Rows:
     """A sweep's rows, as the tables read them (a sequence of mappings), over an Arrow
-    table: each column becomes Python values only when a table first reads it, and a row
-    is a view, not a dict of its own. A column a row has no value in (null) is not one of
-    its keys, as the row was made."""
+    table: a column becomes Python values only when a table first reads it (a float column
+    as a NumPy array, 8 bytes a value), and a row is a view, not a dict of its own. A
+    column a row has no value in (null) is not one of its keys, as the row was made."""
 
     def __init__(self, table: pa.Table):
         self.table = table
-        self._columns: dict[str, list] = {}
         self.names = table.column_names
         self._known = frozenset(self.names)
+        self._columns: dict[str, object] = {}
+        self._present: dict[str, np.ndarray] = {}
 
     def column(self, name: str) -> list:
         """A column's values (None where a row has none)."""
+        return self.table.column(name).to_pylist()
+
+    def value(self, name: str, index: int) -> object:
+        """Row ``index``'s value of column ``name`` (None: it has none)."""
         if name not in self._columns:
-            self._columns[name] = self.table.column(name).to_pylist()
-        return self._columns[name]
+            import pyarrow as pa
+
+            column = self.table.column(name)
+            self._columns[name] = (column.to_numpy(zero_copy_only=False)
+                                   if pa.types.is_floating(column.type) else column.to_pylist())
+        if not self.present(name)[index]:
+            return None
+        value = self._columns[name][index]
+        return float(value) if isinstance(value, np.floating) else value
+
+    def present(self, name: str) -> np.ndarray:
+        """Which rows have a value in column ``name`` (booleans)."""
+        if name not in self._present:
+            self._present[name] = np.asarray(
+                self.table.column(name).is_valid().to_numpy(zero_copy_only=False), bool)
+        return self._present[name]
 
     def __len__(self) -> int:
         return self.table.num_rows
@@ -134,8 +155,7 @@ class Row(Mapping):
         self._rows, self._index = rows, index
 
     def __getitem__(self, key: str) -> object:
-        value = (self._rows.column(key)[self._index] if key in self._rows._known
-                 else None)
+        value = self._rows.value(key, self._index) if key in self._rows._known else None
         if value is None:
             raise KeyError(key)
         return value
@@ -147,10 +167,10 @@ class Row(Mapping):
             return default
 
     def __contains__(self, key: object) -> bool:
-        return self.get(key) is not None  # type: ignore[arg-type]
+        return key in self._rows._known and bool(self._rows.present(key)[self._index])
 
     def __iter__(self) -> Iterator[str]:
-        return (k for k in self._rows.names if self._rows.column(k)[self._index] is not None)
+        return (k for k in self._rows.names if self._rows.present(k)[self._index])
 
     def __len__(self) -> int:
         return sum(1 for _ in self)
