@@ -43,7 +43,9 @@ def sweep(samples: int, out: Path, seed: int, workers: int, duration: float) -> 
     for sample in SAMPLES:
         command += ["--sample", sample]
     print("$", shlex.join(command), file=sys.stderr)  # quoted: a shell can run it
-    subprocess.run(command, check=True)
+    done = subprocess.run(command)
+    if done.returncode:  # cosim sweep said why on stderr: no traceback of ours on top
+        sys.exit(done.returncode)
 
 
 def percent(kept: int, total: int) -> str:

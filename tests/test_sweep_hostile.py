@@ -320,7 +320,8 @@ def test_the_monte_carlo_benchmark_prints_a_command_a_shell_can_run(monkeypatch)
 
     printed = []
     run = monte_carlo.subprocess.run
-    monte_carlo.subprocess.run = lambda command, check: printed.append(command)
+    monte_carlo.subprocess.run = lambda command: printed.append(command) or \
+        subprocess.CompletedProcess(command, 0)
     try:
         monte_carlo.sweep(2, Path("runs/x"), 1, 1, 0.1)
     finally:
