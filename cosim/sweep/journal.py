@@ -33,6 +33,7 @@ class Journal:
 
     def __init__(self, path: Path):
         self.path = path
+        _drop_cut_line(path)
         self._file = path.open("a", encoding="utf-8")
         self.rows = 0
 
@@ -47,6 +48,29 @@ class Journal:
 
     def close(self) -> None:
         self._file.close()
+
+
+def _drop_cut_line(path: Path) -> None:
+    """Cut the journal after its last whole line: a client killed mid-write leaves part of
+    one, which the next row appended would otherwise be glued to."""
+    if not path.exists():
+        return
+    with path.open("rb+") as f:
+        stop = f.seek(0, os.SEEK_END)
+        if stop == 0:
+            return
+        f.seek(stop - 1)
+        if f.read(1) == b"\n":
+            return
+        while stop > 0:  # back from the end, a block at a time (the journal may be GBs)
+            start = max(0, stop - 65536)
+            f.seek(start)
+            newline = f.read(stop - start).rfind(b"\n")
+            if newline >= 0:
+                f.truncate(start + newline + 1)
+                return
+            stop = start
+        f.truncate(0)
 
 
 def _lines(path: Path) -> Iterator[dict]:
