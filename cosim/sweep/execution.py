@@ -11,6 +11,7 @@ import shutil
 import signal
 import sys
 import tempfile
+import time
 import warnings
 import weakref
 from collections.abc import Callable, Iterator
@@ -92,15 +93,24 @@ def execute(spec: SweepSpec, all_points: list[dict], client: Client,
     futures: dict = {}
     pending = as_completed()
 
-    def submit_next() -> None:
-        batch = next(batches, None)
-        if batch is not None:
+    threads = {"count": slots, "asked": time.monotonic()}
+
+    def top_up() -> None:
+        """Tasks submitted up to TASKS_IN_FLIGHT per worker thread the scheduler has (asked
+        every few seconds, not at every task: workers may join mid-sweep)."""
+        if time.monotonic() - threads["asked"] > 2.0:
+            info = client.scheduler_info(n_workers=0)
+            threads.update(count=max(slots, info.get("total_threads", 0)),
+                           asked=time.monotonic())
+        while len(futures) < TASKS_IN_FLIGHT * max(1, threads["count"]):
+            batch = next(batches, None)
+            if batch is None:
+                return
             future = submit(batch)
             futures[future] = batch
             pending.add(future)
 
-    for _ in range(TASKS_IN_FLIGHT * slots):
-        submit_next()
+    top_up()
     # Points of a task whose worker died, run again one at a time: alone on a worker, the
     # point that kills it is the only one its death fails (Dask fails every task a dying
     # worker holds once it has died under them too often).
@@ -132,7 +142,7 @@ def execute(spec: SweepSpec, all_points: list[dict], client: Client,
                 if not was_alone:  # which point killed it is unknown: each on its own
                     again.extend(batch)
                     next_alone()
-                    submit_next()
+                    top_up()
                     continue
                 made = [{**point_row(batch[0], all_points[batch[0]], run), "status": "failed",
                          "error": worker_death(exc)} for run in runs]  # one per run
@@ -143,7 +153,7 @@ def execute(spec: SweepSpec, all_points: list[dict], client: Client,
             if on_rows is not None:
                 on_rows(len(batch))
             next_alone()
-            submit_next()
+            top_up()
     except KeyboardInterrupt:
         client.cancel(list(futures))
         return sorted(rows, key=_order), True
