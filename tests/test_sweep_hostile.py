@@ -62,10 +62,13 @@ def journal_rows(out: Path) -> int:
 
 
 def start_sweep(out: Path, *args: str) -> subprocess.Popen:
+    """The sweep in a process group of its own; its temporary files (a killed client cannot
+    remove its cluster's scratch space) beside ``out``."""
     return subprocess.Popen([sys.executable, "-m", "cosim.cli", "sweep", PAPER, "--grid", GRID,
                              *SMALL, "--quiet", "--out", str(out), *args],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            start_new_session=True)
+                            start_new_session=True,
+                            env={**os.environ, "TMPDIR": str(out.parent)})
 
 
 # -- streaming, SIGKILL, resume ------------------------------------------------------------
