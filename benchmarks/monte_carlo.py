@@ -15,6 +15,7 @@ ranges, noise 1e-4 rad (bound 6e-4). SI units, radians.
 from __future__ import annotations
 
 import argparse
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -41,8 +42,10 @@ def sweep(samples: int, out: Path, seed: int, workers: int, duration: float) -> 
                "--set", f"simulation.duration={duration}"]
     for sample in SAMPLES:
         command += ["--sample", sample]
-    print("$", " ".join(command), file=sys.stderr)
-    subprocess.run(command, check=True)
+    print("$", shlex.join(command), file=sys.stderr)  # quoted: a shell can run it
+    done = subprocess.run(command)
+    if done.returncode:  # cosim sweep said why on stderr: no traceback of ours on top
+        sys.exit(done.returncode)
 
 
 def percent(kept: int, total: int) -> str:

@@ -609,7 +609,7 @@ def test_a_scheduler_address_that_is_not_dask_fails_in_bounded_time(banner, tmp_
         stop()
     # with a banner, Dask reads it as a message length: its own error in the parentheses
     assert_message(message, f"--scheduler tcp://127.0.0.1:{port}: something answers there but "
-                   "not as a Dask scheduler (no handshake within 20 s)" if banner is None else
+                   "not as a Dask scheduler (no handshake within 10 s)" if banner is None else
                    re.compile(rf"--scheduler tcp://127\.0\.0\.1:{port}: no Dask scheduler "
                               r"answered there \(.+\)"))
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())

@@ -65,19 +65,23 @@ def test_workers_run_with_glibc_memory_defaults_and_no_profiler_and_keys_differ(
         cluster.close()
 
 
-def test_a_task_whose_worker_died_is_run_again_point_by_point(tmp_path):
+@pytest.fixture(scope="module")
+def crashing_arm(tmp_path_factory) -> list[str]:
+    """--set of the PythonFMU arm, whose crash_at kills its process (SIGSEGV)."""
+    from test_plant_swapping import FOREIGN_ARM, build_pythonfmu
+
+    fmu = build_pythonfmu(FOREIGN_ARM, tmp_path_factory.mktemp("fmu"))
+    return [f'plant.fmu="{fmu}"', 'plant.variables.tau=["shoulder_torque", "elbow_torque"]',
+            'plant.variables.q=["shoulder", "elbow"]',
+            'plant.variables.qdot=["shoulder_rate", "elbow_rate"]', "simulation.duration=0.3"]
+
+
+def test_a_task_whose_worker_died_is_run_again_point_by_point(crashing_arm):
     """Four points in one task; the second kills its worker (the PythonFMU arm's crash_at):
     the task's points are run again one at a time (none beside another on a worker that
     dies), and only that point's rows fail."""
-    from test_plant_swapping import FOREIGN_ARM, build_pythonfmu
-
-    fmu = build_pythonfmu(FOREIGN_ARM, tmp_path / "fmu")
-    base = [f'plant.fmu="{fmu}"', 'plant.variables.tau=["shoulder_torque", "elbow_torque"]',
-            'plant.variables.q=["shoulder", "elbow"]',
-            'plant.variables.qdot=["shoulder_rate", "elbow_rate"]',
-            "simulation.duration=0.3"]
     spec = SweepSpec(PAPER, [parse_grid("plant.parameters.crash_at=1e300,0.1,1e300,1e300")],
-                     runs=["baseline"], base=base)
+                     runs=["baseline"], base=crashing_arm)
     import distributed  # noqa: F401 (its defaults first: set() would drop them on exit)
 
     # a killed task is not tried on another worker first (each try kills one)
@@ -116,3 +120,24 @@ def _rows_one_by_one(spec: SweepSpec) -> list[dict]:
     return [row for index, point in enumerate(points(spec))
             for row in run_point(spec.pipeline, assignments(spec, point), spec.runs, index,
                                  point)]
+
+
+def test_a_segfaulting_point_fails_alone_and_its_signal_is_named(crashing_arm):
+    """One worker, a point a task (issue 33): the point whose plant segfaults is the only
+    failed row, not the healthy point Dask held on the same worker, and its error names the
+    signal."""
+    import distributed  # noqa: F401 (its defaults first: set() would drop them on exit)
+
+    spec = SweepSpec(PAPER, [parse_grid("plant.parameters.crash_at=1e300,0.1,1e300,1e300")],
+                     runs=["baseline"], base=crashing_arm)
+    with dask.config.set({"distributed.scheduler.allowed-failures": 0}):
+        client, cluster = cluster_client(1, None)
+    try:
+        rows, _ = execute(spec, points(spec), client, per_task=1)
+    finally:
+        client.close()
+        cluster.close()
+    assert [r["status"] for r in rows] == ["ok", "failed", "ok", "ok"], [r["error"] for r in rows]
+    assert rows[1]["error"].startswith(
+        "the point's worker process killed by signal 11 (SIGSEGV) every time it ran the "
+        "point, alone: a crash of the plant FMU or a block's native code (KilledWorker: ")

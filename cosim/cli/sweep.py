@@ -41,9 +41,18 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
                        help="local Dask worker processes (default: one per core)")
     where.add_argument("--scheduler", default=None, metavar="ADDRESS",
                        help="an existing Dask scheduler, e.g. tcp://127.0.0.1:8786")
+    p.add_argument("--cluster", choices=["local", "slurm"], default="local",
+                   help="where the workers run: local processes (default), or SLURM jobs "
+                   "from dask-jobqueue's configuration (jobqueue.slurm in "
+                   "~/.config/dask/jobqueue.yaml; --workers K jobs; --dry-run prints the job "
+                   "script)")
     p.add_argument("--record", default=None, metavar="best,worst",
                    help="also write full run folders of each run's best and/or worst point")
-    p.add_argument("--out", required=True, type=Path, help="sweep folder")
+    folder = p.add_mutually_exclusive_group()
+    folder.add_argument("--out", type=Path, help="sweep folder")
+    folder.add_argument("--resume", type=Path, metavar="DIR",
+                        help="go on with the sweep started in DIR (the same command, --resume "
+                        "DIR for --out DIR): run only the points DIR's results lack")
     p.add_argument("--force", action="store_true", help="replace what --out holds")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--dry-run", action="store_true",
@@ -67,6 +76,15 @@ def handle(args: argparse.Namespace) -> int:
                             "run names with --")
         raise UserError("give the pipeline file, e.g. cosim sweep "
                         "pipelines/paper_two_link.toml --grid … --out …")
+    if args.out is None and args.resume is None:
+        raise UserError("give the sweep folder: --out DIR (a new sweep) or --resume DIR (go "
+                        "on with one started there)")
+    if args.cluster == "slurm" and args.scheduler:
+        raise UserError(f"--cluster slurm starts its own scheduler; --scheduler "
+                        f"{args.scheduler} names another: give one of them")
+    if args.resume is not None and args.force:
+        raise UserError(f"--resume {args.resume} keeps what the folder holds; --force would "
+                        "replace it: give one of them")
     try:
         return main(args)
     except (SweepError, RunFolderError) as exc:

@@ -82,7 +82,9 @@ class RunFolder:
         self.started = datetime.now(UTC).isoformat(timespec="seconds")
 
     @classmethod
-    def create(cls, path: str | Path, force: bool = False) -> RunFolder:
+    def create(cls, path: str | Path, force: bool = False, keep: bool = False) -> RunFolder:
+        """The folder at ``path``, locked: emptied (refused if it holds files, unless
+        ``force`` and they are cosim's), or, ``keep``, as it is (a sweep resumed there)."""
         path = Path(path)
         try:
             if path.exists() and not path.is_dir():
@@ -102,6 +104,12 @@ class RunFolder:
             raise RunFolderError(f"--out {path}: another cosim run is writing this folder "
                                  f"(pid {owner}); wait for it, or choose another --out") from None
         folder = cls(path, lock_file)
+        if keep:
+            lock_file.seek(0)
+            lock_file.truncate()
+            lock_file.write(str(os.getpid()))
+            lock_file.flush()
+            return folder
         existing = sorted(p.name for p in path.iterdir() if p.name != LOCK)
         refusal = _refusal(path, existing, force)
         if refusal:
@@ -267,7 +275,7 @@ UNITS_KEY = "_units"  # the trace file's array of units and meanings (a JSON str
 # What cosim writes into a run or sweep folder besides what summary.json lists: the files a
 # run killed before its summary caught up may leave (exact names, never patterns).
 OUR_NAMES = ("summary.json", "summary.md", "recording.rrd", "results.parquet", "results.csv",
-             "sweep.json", "sweep_safety.png")
+             "sweep.json", "sweep_safety.png", "rows.jsonl")
 
 
 def _our_entries(summary: dict) -> set[str]:

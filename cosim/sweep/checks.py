@@ -55,9 +55,11 @@ def family_kept(row: dict, checks: list[str]) -> bool:
                for c in checks)
 
 
-def margin(row: dict) -> float:
-    """A row's worst check relative to its bound, over the checks that count in a verdict
-    (≤ 1: every set kept)."""
-    return max((row[f"{c}.worst"] / row[f"{c}.bound"] for c in _checks([row])
-                if row.get(f"{c}.worst") is not None and row.get(f"{c}.attainable") is not False),
+def margin(row: dict, checks: list[str] | None = None) -> float:
+    """A row's worst check relative to its bound, over ``checks`` (default those that count
+    in a verdict; ≤ 1: every set kept). NaN when none has a value."""
+    return max((row[f"{c}.worst"] / row[f"{c}.bound"]
+                for c in (_checks([row]) if checks is None else checks)
+                if row.get(f"{c}.worst") is not None and row.get(f"{c}.bound")
+                and row.get(f"{c}.attainable") is not False),
                default=math.nan)

@@ -4,19 +4,31 @@ their recording (``--record``); or, with ``--dry-run``, what would be done."""
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
 import os
+import signal
 import sys
+from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from ..config import load_pipeline
+from ..config import PipelineError, load_pipeline
 from ..evaluate.reports import SWEEP_REPORTS
 from ..progress import phase
 from .checks import margin
-from .execution import cluster_client, execute
-from .files import write_results
+from .execution import (
+    check_versions,
+    close_cluster,
+    cluster_client,
+    execute,
+    quiet_dask,
+    slurm_cluster,
+)
+from .files import write_results, write_spec
+from .journal import JOURNAL, Journal, Rows, points_done, read_table
+from .resume import check_same, identity, stored_identity
 from .spec import (
     SweepError,
     SweepSpec,
@@ -25,6 +37,7 @@ from .spec import (
     only_runs,
     parse_grid,
     parse_sample,
+    point_label,
     points,
     validate,
 )
@@ -36,11 +49,15 @@ if TYPE_CHECKING:
     from ..outputs.run_folder import RunFolder
 
 
-def record_points(spec: SweepSpec, rows: list[dict], which: list[str], out: Path,
-                  progress: bool = False) -> list[str]:
+def record_points(spec: SweepSpec, rows: Rows | list[dict], which: list[str], out: Path,
+                  all_points: list[dict], progress: bool = False) -> list[str]:
     """Full run folders (recording, figures) of each run's best and/or worst point by
-    :func:`margin`, re-run here: ``out/best_<run>_point<i>``, ``out/worst_<run>_point<i>``.
-    A run with no completed row has nothing to record."""
+    :func:`margin`, re-run here with the point's own values: ``out/best_<run>_point<i>``,
+    ``out/worst_<run>_point<i>``; returns, for each, its folder and what the point is. A
+    run with no completed row has nothing to record. A re-run that fails is
+    :class:`SweepError` naming the point and what its folder kept."""
+    from ..engine import Diverged
+    from ..outputs.run_folder import RunFolderError
     from ..runner import run
 
     ok = [r for r in rows if r["status"] == "ok" and not math.isnan(margin(r))]
@@ -49,15 +66,22 @@ def record_points(spec: SweepSpec, rows: list[dict], which: list[str], out: Path
         for name in dict.fromkeys(r["run"] for r in ok):
             mine = [r for r in ok if r["run"] == name]
             row = (min if kind == "best" else max)(mine, key=margin)
-            point = {k.removeprefix("set:"): json.loads(v) if isinstance(v, str) and
-                     v.startswith("[") else v for k, v in row.items() if k.startswith("set:")}
-            folder = out / f"{kind}_{name}_point{row['point']}"
+            index = row["point"]
+            point = all_points[index]
+            folder = out / f"{kind}_{name}_point{index}"
+            what = (f"{name}'s {kind} point {index}: {point_label(point)}; its worst check "
+                    f"{margin(row):.3f} of its bound")
             pipeline = only_runs(load_pipeline(spec.pipeline, assignments(spec, point),
                                                warn=None), [name])
-            with phase(f"re-running {name}'s {kind} point ({row['point']}) with its "
-                       "recording and figures", progress):
-                run(pipeline, folder, progress=False, force=True)
-            written.append(str(folder))
+            try:
+                with phase(f"re-running {name}'s {kind} point ({index}) with its "
+                           "recording and figures", progress):
+                    run(pipeline, folder, progress=False, force=True)
+            except (Diverged, PipelineError, RunFolderError) as exc:
+                raise SweepError(f"--record: re-running {what} failed: {exc}; what it kept "
+                                 f"is in {folder} (the sweep's own results are complete in "
+                                 f"{out})") from None
+            written.append(f"{folder} ({what})")
     return written
 
 
@@ -68,7 +92,9 @@ def _dry_run(spec: SweepSpec, all_points: list[dict], runs: list[str], out: Path
 
     load = load_pipeline(spec.pipeline, spec.base, warn=None)
     steps = round(load.simulation.duration / load.simulation.step)
-    where = args.scheduler or f"{args.workers or os.cpu_count() or 1} local Dask worker(s)"
+    where = (f"{args.workers or 1} SLURM job(s) of one worker" if args.cluster == "slurm"
+             else args.scheduler
+             or f"{args.workers or os.cpu_count() or 1} local Dask worker(s)")
     print(f"sweep of {spec.pipeline}: {len(all_points):,} point(s) × {len(runs)} run(s) "
           f"({', '.join(runs)}) = {len(all_points) * len(runs):,} row(s), "
           f"{load.simulation.duration:g} s simulated each ({steps:,} steps), on {where}")
@@ -86,6 +112,13 @@ def _dry_run(spec: SweepSpec, all_points: list[dict], runs: list[str], out: Path
     refusal = would_refuse(out, args.force)
     if refusal:
         raise SweepError(f"{refusal} (--dry-run: the sweep would be refused here)")
+    if args.cluster == "slurm":
+        cluster = slurm_cluster()
+        try:
+            print("each SLURM job's script (sbatch):")
+            print(cluster.job_script().strip())
+        finally:
+            close_cluster(None, cluster)
     print("every point checked against the pipeline's schema; nothing was run")
     return 0
 
@@ -94,11 +127,20 @@ def _on_sigterm(signum: int, frame: object) -> None:
     raise KeyboardInterrupt("terminated (SIGTERM)")
 
 
+@contextlib.contextmanager
+def deferred_signals() -> Iterator[None]:
+    """Ctrl-C and SIGTERM held while the block runs, acted on as it ends."""
+    held = {signal.SIGINT, signal.SIGTERM}
+    signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_UNBLOCK, held)
+
+
 def main(args: argparse.Namespace) -> int:
     """``cosim sweep`` (parsed arguments): returns the exit status. SIGTERM is handled like
     Ctrl-C in every phase: finished rows are written, the cluster ended, the lock released."""
-    import signal
-
     previous = signal.signal(signal.SIGTERM, _on_sigterm)
     try:
         return _main(args)
@@ -107,11 +149,12 @@ def main(args: argparse.Namespace) -> int:
 
 
 def _main(args: argparse.Namespace) -> int:
-    from ..outputs.run_folder import RunFolder
-
     spec, record = _spec_of(args)
-    check_spec(spec, args.max_points, args.workers, args.scheduler)
-    out = Path(args.out)
+    slurm = args.cluster == "slurm"  # --workers: jobs, not this machine's processes
+    check_spec(spec, args.max_points, None if slurm else args.workers, args.scheduler)
+    if slurm and args.workers is not None and args.workers < 1:
+        raise SweepError(f"--workers {args.workers}: give 1 or more SLURM jobs")
+    out = Path(args.resume or args.out)
     try:
         with phase("checking every point against the pipeline's schema", not args.quiet):
             all_points = points(spec)
@@ -122,16 +165,66 @@ def _main(args: argparse.Namespace) -> int:
     runs = spec.runs or list(load_pipeline(spec.pipeline, spec.base, warn=None).runs)
     if args.dry_run:
         return _dry_run(spec, all_points, runs, out, args)
-    folder = RunFolder.create(out, args.force)
-    rows, interrupted = _run_on_dask(spec, all_points, runs, out, folder, args)
-    _report(folder, spec, rows, interrupted, all_points, runs, out)
+    start = identity(spec, len(all_points))
+    folder, done = _open_folder(out, start, args)
+    todo = [i for i in range(len(all_points)) if i not in done]
+    if done:
+        print(f"resuming {out}: {len(done)} of {len(all_points)} point(s) already there; "
+              f"running the other {len(todo)}", file=sys.stderr)
+    interrupted = _run_on_dask(spec, all_points, todo, runs, out, folder, args)
+    try:
+        rows = _report(folder, spec, interrupted, all_points, runs, out, start)
+    except KeyboardInterrupt as exc:
+        raise SweepError(f"{str(exc) or 'interrupted (Ctrl-C)'} while writing the results; "
+                         f"every finished row is kept in {out / JOURNAL}: the same command "
+                         f"with --resume {out} writes them") from None
     if interrupted:
-        print(f"cosim: interrupted; the {len(rows)} finished row(s) are kept in {out}",
+        resume = f"resume: the same command with --resume {out}"
+        print(f"cosim: interrupted before any point finished; no results were written ({resume})"
+              if not len(rows) else
+              f"cosim: interrupted; the {len(rows)} finished row(s) are kept in {out}"
+              + (f" ({resume})" if len(rows) < len(all_points) * len(runs) else ""),
               file=sys.stderr)
         return 2
     if record:
-        _record(spec, rows, record, out, args)
+        _record(spec, rows, record, out, all_points, args)
     return 0
+
+
+def _open_folder(out: Path, start: dict, args: argparse.Namespace
+                 ) -> tuple[RunFolder, set[int]]:
+    """The sweep folder, with sweep.json (what the sweep is) and the journal of rows listed
+    in its summary from the start (so a killed sweep's folder is cosim's to --force or
+    --resume), and the points it already holds (resumed: only if it is the same sweep)."""
+    from ..outputs.run_folder import RunFolder
+
+    done: set[int] = set()
+    if args.resume:
+        check_same(out, stored_identity(out), start)
+        folder = RunFolder.create(out, keep=True)
+        previous = _previous_files(out)
+        folder.files.update({k: v for k, v in previous.items() if k == JOURNAL})
+        done = points_done(out / JOURNAL)
+    else:
+        folder = RunFolder.create(out, args.force)
+    try:
+        write_spec(folder, {**start, "status": "running"})
+        (out / JOURNAL).touch()
+        folder.files[JOURNAL] = {"complete": False, "reason": "the sweep is running"}
+        folder.write_summary({"complete": False, "kind": "sweep",
+                              "status_detail": "running", "points": start["points"]},
+                             final=False)
+    except BaseException:
+        folder.release()
+        raise
+    return folder, done
+
+
+def _previous_files(out: Path) -> dict:
+    try:
+        return json.loads((out / "summary.json").read_text()).get("files") or {}
+    except (OSError, ValueError, AttributeError):
+        return {}
 
 
 def _spec_of(args: argparse.Namespace) -> tuple[SweepSpec, list[str]]:
@@ -149,58 +242,97 @@ def _spec_of(args: argparse.Namespace) -> tuple[SweepSpec, list[str]]:
     return spec, record
 
 
-def _run_on_dask(spec: SweepSpec, all_points: list[dict], runs: list[str], out: Path,
-                 folder: RunFolder, args: argparse.Namespace) -> tuple[list[dict], bool]:
-    """Every point on the cluster ``args`` asks for: (rows, interrupted). A cluster that
-    cannot start is said in the folder's summary too, the folder released."""
+def _run_on_dask(spec: SweepSpec, all_points: list[dict], todo: list[int], runs: list[str],
+                 out: Path, folder: RunFolder, args: argparse.Namespace) -> bool:
+    """The points ``todo`` on the cluster ``args`` asks for, their rows appended to the
+    journal as they finish: whether it was interrupted. A cluster that cannot start, or a
+    scheduler lost mid-sweep, is said in the folder's summary too, the folder released (the
+    rows written so far kept)."""
     from tqdm import tqdm
 
-    rows: list[dict] = []
+    journal = Journal(out / JOURNAL)
     interrupted = False
     try:
-        starting = (f"connecting to {args.scheduler}" if args.scheduler else
-                    f"starting {args.workers or os.cpu_count() or 1} Dask worker process(es)")
-        with phase(starting, not args.quiet):
-            client, cluster = cluster_client(args.workers, args.scheduler)
+        client = cluster = None
         try:
-            where = (args.scheduler
-                     or f"a local cluster of {len(client.scheduler_info()['workers'])}")
-            print(f"sweeping {len(all_points)} point(s) × {len(runs)} run(s) of "
-                  f"{spec.pipeline} on {where} worker(s) -> {out}", file=sys.stderr)
-            bar = tqdm(total=len(all_points), unit="point", file=sys.stderr,
-                       disable=args.quiet or not sys.stderr.isatty())
-            rows, interrupted = execute(spec, all_points, client, bar.update)
-            bar.close()
+            if todo:
+                starting = (f"connecting to {args.scheduler}" if args.scheduler else
+                            f"submitting {args.workers or 1} SLURM job(s)"
+                            if args.cluster == "slurm" else
+                            f"starting {args.workers or os.cpu_count() or 1} Dask worker "
+                            "process(es)")
+                # Ctrl-C or SIGTERM while the cluster starts is acted on once it has (a
+                # second or two): a cluster half started could not be closed.
+                with phase(starting, not args.quiet), quiet_dask(), deferred_signals():
+                    client, cluster = cluster_client(args.workers, args.scheduler,
+                                                     args.cluster)
+                check_versions(client, args.scheduler)
+                where = (args.scheduler
+                         or f"a local cluster of {len(client.scheduler_info()['workers'])}")
+                print(f"sweeping {len(todo)} point(s) × {len(runs)} run(s) of "
+                      f"{spec.pipeline} on {where} worker(s) -> {out}", file=sys.stderr)
+                bar = tqdm(total=len(todo), unit="point", file=sys.stderr,
+                           disable=args.quiet or not sys.stderr.isatty())
+                _, interrupted = execute(spec, all_points, client, bar.update,
+                                         sink=journal.add, indices=todo)
+                bar.close()
         finally:
-            client.close()
-            if cluster is not None:
-                cluster.close()
+            with deferred_signals():
+                close_cluster(client, cluster)
     except KeyboardInterrupt:  # while the cluster started or closed: what finished is kept
         interrupted = True
-    except BaseException as exc:  # the cluster could not start: say so in the folder too
+    except BaseException as exc:  # no cluster, or the scheduler lost: said in the folder too
+        message = _lost(exc, args.scheduler, journal.rows, out)
         try:
-            folder.write_summary({"complete": False, "kind": "sweep", "error": str(exc)},
-                                 final=True)
+            folder.note(JOURNAL, False, message)
+            folder.write_summary({"complete": False, "kind": "sweep", "error": message,
+                                  "rows": journal.rows}, final=True)
         finally:
             folder.release()
-        raise
-    return rows, interrupted
+            journal.close()
+        if isinstance(exc, SweepError) or message == str(exc):
+            raise
+        raise SweepError(message) from None
+    journal.close()
+    return interrupted
 
 
-def _report(folder: RunFolder, spec: SweepSpec, rows: list[dict], interrupted: bool,
-            all_points: list[dict], runs: list[str], out: Path) -> None:
-    """The results files and the folder's summary (the folder released), then the tables
-    printed."""
+def _lost(exc: BaseException, scheduler: str | None, rows: int, out: Path) -> str:
+    """What to say of a cluster failure: a lost scheduler by name, with the rows kept."""
+    if isinstance(exc, SweepError):
+        return str(exc)
+    name = type(exc).__name__
+    if isinstance(exc, OSError | TimeoutError) or "Comm" in name or "Closed" in name \
+            or "Cancelled" in name:
+        where = f"--scheduler {scheduler}" if scheduler else "the Dask cluster"
+        return (f"{where}: the scheduler stopped answering mid-sweep ({name}); every row "
+                f"finished before is kept in {out / JOURNAL} ({rows} this time): start it "
+                f"again and go on with the same command and --resume {out}")
+    return str(exc) or name
+
+
+def _report(folder: RunFolder, spec: SweepSpec, interrupted: bool, all_points: list[dict],
+            runs: list[str], out: Path, start: dict) -> Rows:
+    """The results files from the journal and the folder's summary (the folder released),
+    then the tables printed; returns the rows. A sweep stopped before its first row writes
+    no results files and says so."""
+    rows = Rows(read_table(out / JOURNAL))
+    failed = sum(s != "ok" for s in rows.column("status")) if len(rows) else 0
     table = safety_table(rows)
-    failed = sum(r["status"] != "ok" for r in rows)
     try:
-        write_results(folder, spec, rows, table, interrupted, len(all_points))
+        folder.note(JOURNAL, True)
+        if len(rows):
+            write_results(folder, spec, rows, table, interrupted, start)
         folder.write_summary({"complete": not interrupted, "kind": "sweep",
-                              "status_detail": "interrupted" if interrupted else "finished",
+                              "status_detail": ("interrupted" if interrupted and len(rows)
+                                                else "interrupted before any point finished"
+                                                if interrupted else "finished"),
                               "points": len(all_points), "runs": runs, "rows": len(rows),
                               "failed_rows": failed}, final=True)
     finally:
         folder.release()
+    if not len(rows):
+        return rows
     print(format_table(table))
     for key, entries in safety_by_value(rows, spec).items():
         print(format_table(entries, key))
@@ -210,18 +342,19 @@ def _report(folder: RunFolder, spec: SweepSpec, rows: list[dict], interrupted: b
             print(report.text(entries))
     print(f"{len(rows)} row(s) in {out / 'results.parquet'} and results.csv"
           + (f"; {failed} failed (see their error column)" if failed else ""))
+    return rows
 
 
-def _record(spec: SweepSpec, rows: list[dict], record: list[str], out: Path,
-            args: argparse.Namespace) -> None:
+def _record(spec: SweepSpec, rows: Rows, record: list[str], out: Path,
+            all_points: list[dict], args: argparse.Namespace) -> None:
     """--record: each run's best and/or worst point re-run with its recording."""
     if not any(r["status"] == "ok" and not math.isnan(margin(r)) for r in rows):
         raise SweepError(f"--record {args.record}: no row completed, so there is no "
                          f"point to record; the {len(rows)} row(s) and their errors are "
                          f"in {out / 'results.csv'}")
     try:
-        for path in record_points(spec, rows, record, out, not args.quiet):
-            print(f"recorded: {path}")
+        for written in record_points(spec, rows, record, out, all_points, not args.quiet):
+            print(f"recorded: {written}")
     except KeyboardInterrupt as exc:
         raise SweepError(f"{str(exc) or 'interrupted (Ctrl-C)'} while recording; the sweep's "
                          f"results are complete in {out}") from None

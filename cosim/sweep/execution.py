@@ -3,13 +3,24 @@ points grouped a few to a task, and the rows gathered as tasks finish."""
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import os
-from collections.abc import Callable
+import re
+import shutil
+import signal
+import sys
+import tempfile
+import time
+import warnings
+import weakref
+from collections.abc import Callable, Iterator
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..config import load_pipeline
 from .spec import SweepError, SweepSpec, assignments
-from .worker import point_row, run_points
+from .worker import WorkerMismatch, cosim_version, point_row, run_points
 
 if TYPE_CHECKING:
     from dask.distributed import Client, Future, LocalCluster
@@ -24,6 +35,10 @@ if TYPE_CHECKING:
 MAX_POINTS_PER_TASK = 8
 TASKS_PER_WORKER = 8
 STEPS_PER_TASK = 20_000  # ~0.6 s of the paper's closed loop, with its evaluation
+# Tasks submitted ahead per worker slot: enough that a worker never waits for the next one
+# (Dask sends a worker its next task while it runs one), few enough that a sweep of 10⁶
+# points is not 10⁶ futures in this process and the scheduler.
+TASKS_IN_FLIGHT = 4
 
 
 def points_per_task(points: int, slots: int, steps_per_point: int = 0) -> int:
@@ -36,37 +51,66 @@ def points_per_task(points: int, slots: int, steps_per_point: int = 0) -> int:
 
 def execute(spec: SweepSpec, all_points: list[dict], client: Client,
             on_rows: Callable[[int], None] | None = None,
-            per_task: int | None = None) -> tuple[list[dict], bool]:
-    """Every point on the Dask ``client``, ``per_task`` points a task (default
-    :func:`points_per_task` for the client's workers); returns (rows, interrupted).
-    ``on_rows(points)`` is told of each task's points as they finish. Ctrl-C cancels what
-    has not finished and keeps the rows of every finished task (the points of a task in
-    progress are dropped with it). A task whose worker died (a plant that crashes its
-    process) is run again point by point, so that only the point that killed it is a
-    failed row, one per run."""
+            per_task: int | None = None, sink: Callable[[list[dict]], None] | None = None,
+            indices: list[int] | None = None) -> tuple[list[dict], bool]:
+    """The points ``indices`` (default every one) of ``all_points`` on the Dask ``client``,
+    ``per_task`` points a task (default :func:`points_per_task` for the client's workers);
+    returns (rows, interrupted). With ``sink``, each task's rows are handed to it as they
+    come and not kept (the rows returned are none). ``on_rows(points)`` is told of each
+    task's points as they finish. A bounded number of tasks is in flight at a time
+    (:data:`TASKS_IN_FLIGHT` per worker), so neither this process nor the scheduler holds
+    the whole sweep. Ctrl-C cancels what has not finished and keeps the rows of every
+    finished task (the points of a task in progress are dropped with it). A task whose
+    worker died (a plant that crashes its process) is run again point by point, and such a
+    point again alone, so that only the point that kills its worker is a failed row, one per
+    run."""
     import uuid
 
     from dask.distributed import as_completed
 
     pipeline = load_pipeline(spec.pipeline, spec.base, warn=None)
     runs = spec.runs or list(pipeline.runs)
+    todo = list(range(len(all_points))) if indices is None else list(indices)
+    slots = sum(client.nthreads().values()) or 1  # the tasks that run at once
     if per_task is None:
-        slots = sum(client.nthreads().values()) or 1  # the tasks that run at once
-        per_task = points_per_task(len(all_points), slots,
-                                   pipeline.simulation.steps * len(runs))
+        per_task = points_per_task(len(todo), slots, pipeline.simulation.steps * len(runs))
     # Keys unique to this call: a scheduler still holding another sweep's (or an earlier
     # call's) "point 3" would hand back its result for this one.
     sweep_id = uuid.uuid4().hex[:12]
+    # Workers need not run where this process does: the pipeline by its absolute path (the
+    # same files on every machine: a shared folder).
+    pipeline_path = str(Path(spec.pipeline).resolve())
 
-    def submit(indices: list[int]) -> Future:
+    def submit(indices: list[int], again: bool = False) -> Future:
         jobs = [(i, assignments(spec, all_points[i]), all_points[i]) for i in indices]
-        return client.submit(run_points, spec.pipeline, spec.runs, jobs, pure=False,
-                             key=f"cosim-points-{sweep_id}-{indices[0]}-{len(indices)}")
+        # A point run again has a key of its own: the scheduler may still hold the failed
+        # task, and a submit of its key would hand back that failure.
+        key = f"cosim-points-{sweep_id}-{indices[0]}-{len(indices)}{'-again' * again}"
+        return client.submit(run_points, pipeline_path, spec.runs, jobs, cosim_version(),
+                             pure=False, key=key)
 
-    batches = [list(range(start, min(start + per_task, len(all_points))))
-               for start in range(0, len(all_points), per_task)]
-    futures = {submit(batch): batch for batch in batches}
-    pending = as_completed(list(futures))
+    batches = iter([todo[start:start + per_task] for start in range(0, len(todo), per_task)])
+    futures: dict = {}
+    pending = as_completed()
+
+    threads = {"count": slots, "asked": time.monotonic()}
+
+    def top_up() -> None:
+        """Tasks submitted up to TASKS_IN_FLIGHT per worker thread the scheduler has (asked
+        every few seconds, not at every task: workers may join mid-sweep)."""
+        if time.monotonic() - threads["asked"] > 2.0:
+            info = client.scheduler_info(n_workers=0)
+            threads.update(count=max(slots, info.get("total_threads", 0)),
+                           asked=time.monotonic())
+        while len(futures) < TASKS_IN_FLIGHT * max(1, threads["count"]):
+            batch = next(batches, None)
+            if batch is None:
+                return
+            future = submit(batch)
+            futures[future] = batch
+            pending.add(future)
+
+    top_up()
     # Points of a task whose worker died, run again one at a time: alone on a worker, the
     # point that kills it is the only one its death fails (Dask fails every task a dying
     # worker holds once it has died under them too often).
@@ -76,7 +120,7 @@ def execute(spec: SweepSpec, all_points: list[dict], client: Client,
     def next_alone() -> None:
         if again and not alone:
             index = again.pop(0)
-            single = submit([index])
+            single = submit([index], again=True)
             futures[single] = [index]
             alone.append(single)
             pending.add(single)
@@ -84,33 +128,104 @@ def execute(spec: SweepSpec, all_points: list[dict], client: Client,
     rows: list[dict] = []
     try:
         for future in pending:
-            batch = futures[future]
-            if future in alone:
+            batch = futures.pop(future)
+            was_alone = future in alone
+            if was_alone:
                 alone.remove(future)
             try:
-                rows.extend(future.result())
-            except Exception as exc:  # the worker itself failed
-                if len(batch) > 1:  # which point killed it is unknown: each on its own
+                made = future.result()
+            except WorkerMismatch as exc:
+                raise SweepError(str(exc)) from None
+            except Exception as exc:  # the worker itself failed, or the scheduler is gone
+                if client.status not in ("running", "connecting"):
+                    raise SchedulerLost(f"{type(exc).__name__}: {exc}") from None
+                if not was_alone:  # which point killed it is unknown: each on its own
                     again.extend(batch)
                     next_alone()
+                    top_up()
                     continue
-                for run in runs:  # one failed row per run
-                    rows.append({**point_row(batch[0], all_points[batch[0]], run),
-                                 "status": "failed", "error": f"{type(exc).__name__}: {exc}"})
+                made = [{**point_row(batch[0], all_points[batch[0]], run), "status": "failed",
+                         "error": worker_death(exc)} for run in runs]  # one per run
+            if sink is None:
+                rows.extend(made)
+            else:
+                sink(made)
             if on_rows is not None:
                 on_rows(len(batch))
             next_alone()
+            top_up()
     except KeyboardInterrupt:
         client.cancel(list(futures))
         return sorted(rows, key=_order), True
+    except SweepError:
+        client.cancel(list(futures))
+        raise
     return sorted(rows, key=_order), False
+
+
+class SchedulerLost(ConnectionError):
+    """The client lost its scheduler mid-sweep (Dask gave up reconnecting)."""
+
+
+def worker_death(exc: BaseException) -> str:
+    """A failed row's error for a point whose task failed on its own: the signal that ended
+    its worker process when this process saw it (a local cluster's nannies are here)."""
+    text = f"{type(exc).__name__}: {exc}"
+    if type(exc).__name__ != "KilledWorker":
+        return text
+    signal = DEATHS.last()
+    why = f"killed by signal {signal}" if signal else "died (its log says why)"
+    return (f"the point's worker process {why} every time it ran the point, alone: a crash "
+            f"of the plant FMU or a block's native code ({text})")
 
 
 def _order(row: dict) -> tuple:
     return (row["point"], row["run"])
 
 
-CONNECT_TIMEOUT = 15.0  # s, the whole connection and handshake
+class _DeathLog(logging.Handler):
+    """The signals that ended local worker processes, from their nannies' log (which lives
+    in this process with a LocalCluster): Dask's KilledWorker does not say it."""
+
+    def __init__(self) -> None:
+        super().__init__(logging.INFO)
+        self.signals: list[int] = []
+
+    def emit(self, record: logging.LogRecord) -> None:
+        found = re.search(r"killed by signal (\d+)", record.getMessage())
+        if found:
+            self.signals.append(int(found[1]))
+        if record.levelno >= logging.ERROR:  # what the cluster would have shown anyway
+            logging.getLogger("distributed").handle(record)
+
+    def last(self) -> str | None:
+        """The last signal seen, as "11 (SIGSEGV)"; None if none was."""
+        if not self.signals:
+            return None
+        number = self.signals[-1]
+        try:
+            return f"{number} ({signal.Signals(number).name})"
+        except ValueError:
+            return str(number)
+
+    def listen(self) -> None:
+        """Hear the nannies' deaths (INFO) while their other messages stay as quiet as the
+        cluster made them."""
+        nanny = logging.getLogger("distributed.nanny")
+        if self not in nanny.handlers:
+            nanny.addHandler(self)
+        nanny.setLevel(logging.INFO)
+        nanny.propagate = False
+
+
+DEATHS = _DeathLog()
+
+
+# s, the TCP connection (Client's own timeout), then HANDSHAKE_GRACE s more for the
+# handshake: a scheduler answers within a second on a cluster's network, so 10 s in all
+# says a silent port is not one without keeping the user waiting.
+CONNECT_TIMEOUT = 8.0
+HANDSHAKE_GRACE = 2.0
 
 
 def _connect(scheduler: str) -> Client:
@@ -133,7 +248,7 @@ def _connect(scheduler: str) -> Client:
 
     thread = threading.Thread(target=attempt, daemon=True, name="cosim-connect")
     thread.start()
-    thread.join(CONNECT_TIMEOUT + 5.0)
+    thread.join(CONNECT_TIMEOUT + HANDSHAKE_GRACE)
     if "client" in outcome:
         return outcome["client"]
     if "error" in outcome:
@@ -142,15 +257,86 @@ def _connect(scheduler: str) -> Client:
         raise SweepError(f"--scheduler {scheduler}: no Dask scheduler answered there "
                          f"({detail})")
     raise SweepError(f"--scheduler {scheduler}: something answers there but not as a Dask "
-                     f"scheduler (no handshake within {CONNECT_TIMEOUT + 5:g} s)")
+                     f"scheduler (no handshake within {CONNECT_TIMEOUT + HANDSHAKE_GRACE:g} s)")
 
 
-def cluster_client(workers: int | None, scheduler: str | None
+def check_versions(client: Client, scheduler: str | None) -> None:
+    """:class:`SweepError` naming a worker of the cluster whose cosim is not this one's,
+    and both versions (a worker joining later is checked by its first task)."""
+    if scheduler is None:
+        return  # a local cluster runs this very cosim
+    mine = cosim_version()
+    theirs = client.run(cosim_version)
+    for address, version in theirs.items():
+        if version != mine:
+            raise SweepError(f"--scheduler {scheduler}: the worker {address} runs cosim "
+                             f"{version}, this client cosim {mine}: install the same cosim "
+                             "on every worker (the same wheel, or a shared path), or stop "
+                             "that worker")
+
+
+@contextlib.contextmanager
+def quiet_dask() -> Iterator[None]:
+    """Dask's warnings while a cluster starts or closes (a port taken, a slow close) are
+    not the user's business and would land in the middle of a progress line."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", module=r"distributed(\.|$)")
+        warnings.filterwarnings("ignore", message=r"Port \d+ is already in use")
+        yield
+
+
+def close_cluster(client: Client | None, cluster: LocalCluster | None) -> None:
+    """Close the client and the local cluster, if any. A close that fails (a worker caught
+    starting as it was ended) is not the sweep's failure: the rows are on disk; Dask's own
+    close at exit is spared the same failure, as a traceback after the last line."""
+    with quiet_dask():
+        if client is not None:
+            with contextlib.suppress(Exception):
+                client.close()
+        if cluster is not None:
+            from distributed.deploy.spec import SpecCluster
+
+            try:
+                with contextlib.suppress(Exception):  # Dask's asserts on its workers' states
+                    cluster.close()
+            finally:
+                SpecCluster._instances.discard(cluster)
+
+
+def slurm_cluster(workers: int | None = None) -> object:
+    """A dask-jobqueue SLURMCluster from the user's Dask configuration (``jobqueue.slurm``
+    in ~/.config/dask/jobqueue.yaml or $DASK_CONFIG: queue, account, memory, walltime,
+    job_extra_directives...), each job one single-threaded worker (FMUs are not thread-safe),
+    scaled to ``workers`` jobs (none yet without). Its workers run this Python on the
+    cluster's nodes: this cosim and the pipeline's files at the same paths (a shared
+    folder)."""
+    try:
+        from dask_jobqueue import SLURMCluster
+    except ImportError:
+        raise SweepError("--cluster slurm needs dask-jobqueue: pip install 'cosim[slurm]' "
+                         "(or dask-jobqueue)") from None
+    try:
+        cluster = SLURMCluster(cores=1, processes=1, python=sys.executable,
+                               worker_extra_args=["--nthreads", "1"])
+    except ValueError as exc:  # jobqueue's own: e.g. no memory configured
+        raise SweepError(f"--cluster slurm: {exc} (set it under jobqueue.slurm in "
+                         "~/.config/dask/jobqueue.yaml, or in a file $DASK_CONFIG "
+                         "names)") from None
+    if workers:
+        cluster.scale(jobs=workers)
+    return cluster
+
+
+def cluster_client(workers: int | None, scheduler: str | None, kind: str = "local"
                    ) -> tuple[Client, LocalCluster | None]:
-    """A Dask client: on ``scheduler`` (an existing cluster), or a LocalCluster on
-    127.0.0.1 with one single-threaded process per worker (FMUs are not thread-safe)."""
+    """A Dask client: on ``scheduler`` (an existing cluster), on SLURM jobs (``kind``
+    "slurm": :func:`slurm_cluster`), or a LocalCluster on 127.0.0.1 with one
+    single-threaded process per worker (FMUs are not thread-safe)."""
     from dask.distributed import Client, LocalCluster
 
+    if kind == "slurm":
+        cluster = slurm_cluster(workers or 1)
+        return Client(cluster), cluster
     if scheduler:
         client = _connect(scheduler)
         try:
@@ -160,15 +346,21 @@ def cluster_client(workers: int | None, scheduler: str | None
             raise SweepError(f"--scheduler {scheduler}: no worker joined within 60 s "
                              "(start one: dask worker ADDRESS --nthreads 1)") from None
         return client, None
-    import logging
-
     import dask
 
+    # The scheduler's, nannies' and workers' scratch space: a folder of ours, removed with
+    # the cluster, not one left in the temporary folder.
+    scratch = tempfile.mkdtemp(prefix="cosim-sweep-dask-")
     # Quiet workers: a cancelled point (Ctrl-C) is not a warning the user needs to read.
-    with dask.config.set(WORKER_CONFIG):
+    with dask.config.set({**WORKER_CONFIG, "temporary-directory": scratch}):
+        # The scheduler serves HTTP even without a dashboard, on 8787 unless told: port 0,
+        # so a taken 8787 (another cluster) is no warning.
         cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
                                processes=True, host="127.0.0.1", dashboard_address=None,
-                               silence_logs=logging.ERROR)
+                               scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
+                               local_directory=scratch, silence_logs=logging.ERROR)
+        weakref.finalize(cluster, shutil.rmtree, scratch, ignore_errors=True)
+    DEATHS.listen()
     return Client(cluster), cluster
 
 

@@ -8,13 +8,17 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..config import load_pipeline
 from ..evaluate.reports import SWEEP_REPORTS
 from .checks import margin
+from .journal import CHUNK, Rows
+from .resume import SPEC_FILE
 from .spec import SweepSpec
 from .tables import safety_by_value
 
 if TYPE_CHECKING:
+    from pathlib import Path
+
+    import pyarrow as pa
     from matplotlib.axes import Axes
 
     from ..outputs.run_folder import RunFolder
@@ -25,36 +29,66 @@ def _listed(entry: dict) -> dict:
     return {k: (list(v) if isinstance(v, tuple) else v) for k, v in entry.items()}
 
 
-def write_results(folder: RunFolder, spec: SweepSpec, rows: list[dict], table: list[dict],
-                  interrupted: bool, total_points: int) -> None:
-    """results.parquet and results.csv (one row per point and run), sweep.json (the spec,
-    the resolved pipeline, the safety table), and sweep_safety.png."""
-    import pyarrow as pa
+def write_results(folder: RunFolder, spec: SweepSpec, rows: Rows, table: list[dict],
+                  interrupted: bool, start: dict) -> None:
+    """results.parquet (a row group per chunk of rows, each column's unit in its metadata)
+    and results.csv, one row per point and run; sweep.json (``start``: what the sweep is,
+    as written when it began, now with the safety tables); and sweep_safety.png."""
     import pyarrow.csv as pacsv
     import pyarrow.parquet as pq
 
-    columns = list(dict.fromkeys(k for r in rows for k in r))
-    arrow = pa.Table.from_pylist([{c: r.get(c) for c in columns} for r in rows])
-    folder.write("results.parquet", lambda tmp: pq.write_table(arrow, tmp))
+    arrow = with_units(rows.table)
+
+    def parquet(tmp: Path) -> None:
+        with pq.ParquetWriter(tmp, arrow.schema) as writer:
+            writer.write_table(arrow, row_group_size=CHUNK)
+
+    folder.write("results.parquet", parquet)
     folder.write("results.csv", lambda tmp: pacsv.write_csv(arrow, tmp))
-    resolved = load_pipeline(spec.pipeline, spec.base, warn=None).model_dump(by_alias=True)
-    document = {"pipeline_file": spec.pipeline, "base_sets": spec.base,
-                "grid": {a.key: a.values for a in spec.grid},
-                "samples": {a.key: list(a.distribution) for a in spec.samples},
-                "samples_per_grid_point": spec.count, "seed": spec.seed, "runs": spec.runs,
-                "points": total_points, "rows": len(rows), "interrupted": interrupted,
+    document = {**start, "rows": len(rows), "interrupted": interrupted,
                 "safety": [_listed(e) for e in table],
                 **{key: [_listed(e) for e in report.table(rows)]
                    for key, report in SWEEP_REPORTS.items()},
                 "safety_by_value": {key: [_listed(e) for e in entries]
-                                    for key, entries in safety_by_value(rows, spec).items()},
-                "resolved_pipeline": resolved}
+                                    for key, entries in safety_by_value(rows, spec).items()}}
+    write_spec(folder, document)
+    if len(rows) and spec.keys:
+        write_safety_plot(folder, spec, rows)
+
+
+def write_spec(folder: RunFolder, document: dict) -> None:
+    """sweep.json: ``document`` (what the sweep is; at the end, its tables too)."""
     from ..outputs.run_folder import jsonable
 
     text = json.dumps(jsonable(document), indent=2, default=str) + "\n"
-    folder.write("sweep.json", lambda tmp: tmp.write_text(text))
-    if rows and spec.keys:
-        write_safety_plot(folder, spec, rows)
+    folder.write(SPEC_FILE, lambda tmp: tmp.write_text(text))
+
+
+def column_units(rows: Rows) -> dict[str, str]:
+    """Each column's unit where the rows say it: a check's worst value and bound are in its
+    declared unit, times (``*_s``) in seconds."""
+    units = {}
+    for name in rows.names:
+        if name.endswith(".unit"):
+            check = name.removesuffix(".unit")
+            unit = next((u for u in rows.column(name) if u is not None), None)
+            if unit is not None:
+                units[f"{check}.worst"] = units[f"{check}.bound"] = unit
+        elif name.endswith("_s"):
+            units[name] = "s"
+    return units
+
+
+def with_units(table: pa.Table) -> pa.Table:
+    """``table`` with each column's unit in its field's metadata (``unit``) and all of them
+    in the schema's (``units``, JSON)."""
+    import pyarrow as pa
+
+    units = column_units(Rows(table))
+    fields = [field.with_metadata({"unit": units[field.name]}) if field.name in units
+              else field for field in table.schema]
+    schema = pa.schema(fields, metadata={"units": json.dumps(units, ensure_ascii=False)})
+    return table.cast(schema)
 
 
 def write_safety_plot(folder: RunFolder, spec: SweepSpec, rows: list[dict]) -> None:

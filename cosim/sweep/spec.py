@@ -76,6 +76,13 @@ def parse_sample(item: str) -> Axis:
     except ValueError:
         raise SweepError(f"--sample {item!r}: {match[2]!r} and {match[3]!r} must be "
                          "numbers") from None
+    if not (math.isfinite(a) and math.isfinite(b)):
+        raise SweepError(f"--sample {item!r}: {match[2]!r} and {match[3]!r} must be finite "
+                         "numbers")
+    if match[1] == "integers" and not (a.is_integer() and b.is_integer()):
+        raise SweepError(f"--sample {item!r}: integers(low,high) draws whole numbers from low "
+                         f"to high inclusive; give whole-number bounds (got {match[2]} and "
+                         f"{match[3]})")
     if (match[1] == "normal" and b < 0) or (match[1] != "normal" and b < a):
         raise SweepError(f"--sample {item!r}: the second value must be "
                          + ("≥ 0" if match[1] == "normal" else "≥ the first"))
@@ -174,7 +181,12 @@ def validate(spec: SweepSpec, all_points: list[dict]) -> None:
             pipeline = load_pipeline(spec.pipeline, assignments(spec, point),
                                      warn=once if index == 0 else None)
         except PipelineError as exc:
-            raise SweepError(f"point {index} ({_point_label(point)}): {exc}") from None
+            raise SweepError(f"point {index} ({point_label(point)}): {exc}") from None
+        except SystemExit as exc:  # a plugin's sys.exit() at import: not the sweep's end
+            raise SweepError(f"point {index} ({point_label(point)}): importing the "
+                             f"pipeline's plugins called sys.exit({exc.code!r}); a plugin "
+                             "must only define and register its blocks; nothing was "
+                             "run") from None
         missing = [r for r in spec.runs or [] if r not in pipeline.runs]
         if missing:
             raise SweepError(f"--runs {' '.join(missing)}: not a run of {spec.pipeline} (its "
@@ -183,10 +195,10 @@ def validate(spec: SweepSpec, all_points: list[dict]) -> None:
             try:
                 assemble(only_runs(pipeline, spec.runs)).close()
             except PipelineError as exc:
-                raise SweepError(f"point 0 ({_point_label(point)}): {exc}") from None
+                raise SweepError(f"point 0 ({point_label(point)}): {exc}") from None
 
 
-def _point_label(point: dict) -> str:
+def point_label(point: dict) -> str:
     """A point as its assignments, for messages."""
     return ", ".join(f"{k}={toml_value(v)}" for k, v in point.items()) or "as is"
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 
 from ..evaluate.reports import wilson
-from .checks import family_kept, table_checks
+from .checks import family_kept, margin, table_checks
 from .spec import SweepSpec, toml_value
 
 
@@ -20,13 +20,17 @@ def safety_table(rows: list[dict]) -> list[dict]:
         mine = [r for r in rows if r["run"] == run]
         ok = [r for r in mine if r["status"] == "ok"]
         entry = {"run": run, "points": len(mine), "failed": len(mine) - len(ok)}
-        columns = [("all sets", lambda r: bool(r.get("safe"))),
-                   *[(family, lambda r, checks=checks: family_kept(r, checks))
-                     for family, checks in table_checks(ok or mine)]]
-        for name, kept_in in columns:
+        families = table_checks(ok or mine)
+        columns = [("all sets", lambda r: bool(r.get("safe")), None),
+                   *[(family, lambda r, checks=checks: family_kept(r, checks), checks)
+                     for family, checks in families]]
+        entry["worst"] = {}  # per column: the largest worst value / bound over the points
+        for name, kept_in, checks in columns:
             kept = sum(kept_in(r) for r in ok)
             low, high = wilson(kept, len(ok))
             entry[name] = (kept / len(ok) if ok else math.nan, low, high)
+            entry["worst"][name] = max((m for r in ok if not math.isnan(m := margin(r, checks))),
+                                       default=math.nan)
         table.append(entry)
     return table
 
@@ -48,25 +52,36 @@ def safety_by_value(rows: list[dict], spec: SweepSpec) -> dict[str, list[dict]]:
 
 def format_table(table: list[dict], key: str | None = None, width: int = 100) -> str:
     """The safety-rate table; ``key``: a per-value table of that grid key (a first column
-    holds the value). Its columns are "all sets" and each family of checks, paged into
-    groups so that no line is wider than ``width``."""
+    holds the value). Its columns are "all sets" and each family of checks, each cell the
+    rate with its interval and the largest worst value / bound over the points (every joint
+    and the norm; ≤ 1: kept), paged into groups so that no line is wider than ``width``."""
     names = ["all sets", *dict.fromkeys(n for e in table for n in e
                                          if isinstance(e[n], tuple) and n != "all sets")]
     title = "safety rate per run (every joint's sets kept; Wilson 95 % interval)"
+    legend = "w: the largest worst value / bound over the completed points (≤ 1: kept)"
     value_width = max([len(key or ""), *(len(toml_value(e["value"])) for e in table
                                          if "value" in e)])
     first = f"{key:<{value_width}}  " if key else ""
     lead = len(first) + 32
-    per_line = max(1, (width - lead) // 24)
-    lines = [f"{title[:-1]}; by {key})" if key else title]
+    cell = 32
+    per_line = max(1, (width - lead) // (cell + 2))
+    lines = [f"{title[:-1]}; by {key})" if key else title, legend]
     for group in (names[i:i + per_line] for i in range(0, len(names), per_line)):
         lines.append(f"{first}{'run':<18}{'points':>7}{'failed':>7}  "
-                     + "  ".join(f"{n:<22}" for n in group).rstrip())
+                     + "  ".join(f"{n:<{cell}}" for n in group).rstrip())
         for entry in table:
-            cells = [f"{100 * r:5.1f} % [{100 * lo:5.1f}, {100 * hi:5.1f}]"
-                     if n in entry and not math.isnan(r) else "-"
-                     for n in group for r, lo, hi in [entry.get(n, (math.nan,) * 3)]]
+            cells = [_cell(entry, n) for n in group]
             value = f"{toml_value(entry['value']):<{value_width}}  " if key else ""
             lines.append(f"{value}{entry['run']:<18}{entry['points']:>7}{entry['failed']:>7}  "
-                         + "  ".join(f"{c:<22}" for c in cells).rstrip())
+                         + "  ".join(f"{c:<{cell}}" for c in cells).rstrip())
     return "\n".join(lines)
+
+
+def _cell(entry: dict, name: str) -> str:
+    """A rate, its interval and the worst over the points: "97.5 % [ 93.2,  99.1] w 0.93"."""
+    rate, low, high = entry.get(name, (math.nan,) * 3)
+    if name not in entry or math.isnan(rate):
+        return "-"
+    worst = entry.get("worst", {}).get(name, math.nan)
+    shown = f" w {worst:.3f}" if not math.isnan(worst) else ""
+    return f"{100 * rate:5.1f} % [{100 * low:5.1f}, {100 * high:5.1f}]{shown}"

@@ -5,6 +5,7 @@ Dask finds these functions on a worker by their module path (cosim.sweep.worker)
 from __future__ import annotations
 
 import json
+import os
 from typing import TYPE_CHECKING
 
 from ..config import Pipeline, PipelineError, load_pipeline
@@ -26,6 +27,12 @@ def _plant_for(pipeline: Pipeline) -> object:
     if key not in _PLANTS:
         _PLANTS[key] = open_plant(pipeline)
     return _PLANTS[key]
+
+
+def close_plants() -> None:
+    """Close this process's open plants (a worker's are closed as it ends)."""
+    while _PLANTS:
+        _PLANTS.popitem()[1].close()
 
 
 def point_row(index: int, point: dict, run: str) -> dict:
@@ -60,10 +67,35 @@ def run_point(pipeline_path: str, sets: list[str], runs: list[str] | None, index
     return rows
 
 
+class WorkerMismatch(RuntimeError):
+    """A worker that cannot run the client's sweep as the client would: another cosim (its
+    rows would not be comparable) or without the pipeline's files."""
+
+
+def cosim_version() -> str:
+    import cosim
+
+    return cosim.__version__
+
+
 def run_points(pipeline_path: str, runs: list[str] | None,
-               jobs: list[tuple[int, list[str], dict]]) -> list[dict]:
+               jobs: list[tuple[int, list[str], dict]], version: str | None = None
+               ) -> list[dict]:
     """Several points (index, --set assignments, point), one after another in one task:
-    their rows."""
+    their rows. ``version``: the client's cosim, which this worker's must be (a worker may
+    join a cluster mid-sweep)."""
+    import socket
+
+    if version is not None and cosim_version() != version:
+        raise WorkerMismatch(f"the Dask worker on {socket.gethostname()} (pid {os.getpid()}) "
+                           f"runs cosim {cosim_version()}, this client cosim {version}: "
+                           "install the same cosim on every worker (the same wheel, or a "
+                           "shared path), or stop that worker")
+    if not os.path.isfile(pipeline_path):
+        raise WorkerMismatch(f"the Dask worker on {socket.gethostname()} (pid {os.getpid()}) "
+                             f"cannot read the pipeline {pipeline_path}: every worker needs "
+                             "the pipeline's files at the same path as this client (a shared "
+                             "folder), or stop that worker")
     rows = []
     for index, sets, point in jobs:
         rows.extend(run_point(pipeline_path, sets, runs, index, point))
