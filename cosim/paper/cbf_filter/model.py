@@ -7,6 +7,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from ...dynamics.planar import com_kinematics
 from ...numba_compat import no_refcount_jit
 from ..inertia import chain_bias, chain_geometry, chain_mass
 from ..linalg import dot, invert, product, symmetric_eigen
@@ -66,27 +67,6 @@ def velocity_forms(q, m, l, lc, inertia):  # noqa: E741
     out = np.zeros((n, n, n))
     velocity_forms_into(q, m, l, lc, np.zeros((CHAIN_SCRATCH_ROWS, n)), out)
     return out
-
-
-@no_refcount_jit(cache=True)
-def com_kinematics(q, v, l, lc, gravity, jac, gamma):  # noqa: E741
-    """The last link's centre of mass c: its Jacobian J (2×n, into ``jac``) and
-    γ = J̇ v + g ŷ (into ``gamma``), the acceleration a point mass there needs beyond J q̈
-    (gravity along −y)."""
-    n = q.shape[0]
-    jac[:] = 0.0
-    gamma[0], gamma[1] = 0.0, gravity
-    theta, omega = 0.0, 0.0
-    for k in range(n):
-        theta += q[k]
-        omega += v[k]
-        length = lc[k] if k == n - 1 else l[k]
-        cx, cy = length * np.cos(theta), length * np.sin(theta)
-        for j in range(k + 1):
-            jac[0, j] -= cy
-            jac[1, j] += cx
-        gamma[0] -= omega**2 * cx
-        gamma[1] -= omega**2 * cy
 
 
 @no_refcount_jit(cache=True)
