@@ -45,8 +45,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...dynamics.model import model_bias, model_geometry, model_mass
 from ...numba_compat import no_refcount_jit
-from ..inertia import chain_bias, chain_geometry, chain_mass
 from ..linalg import invert, product
 from .model import acceleration_error_bound_into
 from .scratch import (
@@ -63,7 +63,6 @@ from .scratch import (
     R_HALF,
     R_LIMIT_Q,
     R_LIMIT_V,
-    R_MASSES,
     R_NEXT_HIGH,
     R_NEXT_LOW,
     R_PACC,
@@ -110,22 +109,22 @@ def backup_torque(k, a, q, v, mass, bias, out, policy):
     r = w.rollout
     target, desired = r[R_TARGET], r[R_SCRATCH]
     for i in range(n):
-        x = q[i] - a.q_s[k, i]
+        x = q[i] - a.centres[0, i]
         # within HOLD of the bound, or past it: back in at HOLD_RATE per rad of depth, up
         # to recovery_speed (a velocity the estimate gets wrong by ε then leaves the joint
         # ε/HOLD_RATE deep in that band, not drifting out)
-        depth = abs(x) + a.noise_bound - (a.viable_bounds[0] - HOLD)
+        depth = abs(x) + a.noise_bound - (a.viable_bounds[0, i] - HOLD)
         speed = 0.0
         if a.hard[0] and depth > 0.0:
             speed = -np.sign(x) * min(a.recovery_speed, HOLD_RATE * depth)
         target[i] = speed
-        desired[i] = a.backup_rate * (speed - (v[i] - a.qdot_s[k, i]))
+        desired[i] = a.backup_rate * (speed - (v[i] - a.centres[1, i]))
     # Weighted towards the joints near their position bound (what the limits cannot give
     # every joint, those get first): in z = √W q̈ the weights are the identity the solver
     # has, so q̈ = z/√W and a row's coefficients are divided by √W.
     scale = r[R_WEIGHT]
     for i in range(n):
-        distance = a.viable_bounds[0] - abs(q[i] - a.q_s[k, i]) - a.noise_bound
+        distance = a.viable_bounds[0, i] - abs(q[i] - a.centres[0, i]) - a.noise_bound
         scale[i] = np.sqrt(1.0 + NEAR_WEIGHT * policy * max(0.0, 1.0 - distance / NEAR))
         desired[i] *= scale[i]
     rows, limits, weights = w.backup_rows, w.backup_limits[0], w.backup_limits[1]
@@ -160,20 +159,17 @@ def backup_torque(k, a, q, v, mass, bias, out, policy):
 @no_refcount_jit(cache=True, inline="always")
 def _payload_deviation(a, q_dot, tau, acceleration, deviation):
     """D_i += max over the payload range's ends of |q̈(Δm)_i − q̈(0)_i| under τ (the
-    chain's geometry already at the rollout's state, its velocity ``q_dot``)."""
+    model's geometry already at the rollout's state, its velocity ``q_dot``)."""
     r = a.work.rollout
     matrices = a.work.matrices
-    masses, bias, moved = r[R_MASSES], r[R_PBIAS], r[R_PACC]
+    bias, moved = r[R_PBIAS], r[R_PACC]
     n = tau.shape[0]
     for end in range(2):
         payload = a.payload_low if end == 0 else a.payload_high
         if payload == 0.0:
             continue
-        for i in range(n):
-            masses[i] = a.m[i]
-        masses[n - 1] += payload
-        chain_mass(a.work.chain, masses, a.inertia, matrices[ROLL_MASS])
-        chain_bias(a.work.chain, q_dot, masses, a.gravity, bias)
+        model_mass(a.model, 1.0, payload, matrices[ROLL_MASS])
+        model_bias(a.model, q_dot, 1.0, payload, 1.0, bias)
         for i in range(n):
             bias[i] = tau[i] - bias[i] - a.tau_d[i]
         invert(matrices[ROLL_MASS], matrices[ROLL_MINV], matrices[ROLL_LU])
@@ -198,16 +194,16 @@ def _deviation(a, q_dot, spread, tau, acceleration, deviation):
 @no_refcount_jit(cache=True, inline="always")
 def _nominal_acceleration(k, a, first, backup, policy):
     """The rollout's torque (``first``, or the backup's if ``backup``) into R_TAU and the
-    nominal model's q̈ under it into R_ACC; the chain's geometry left at the rollout's q.
+    nominal model's q̈ under it into R_ACC; the model's geometry left at the rollout's q.
     Returns whether the torque is held or limited (the backup's feedback does not act)."""
     w = a.work
     r, matrices = w.rollout, w.matrices
     q, vel, tau, acc, bias = r[R_Q], r[R_V], r[R_TAU], r[R_ACC], r[R_BIAS]
     mass, minv = matrices[ROLL_MASS], matrices[ROLL_MINV]
     n = q.shape[0]
-    chain_geometry(q, a.l, a.lc, w.chain)
-    chain_mass(w.chain, a.m, a.inertia, mass)
-    chain_bias(w.chain, vel, a.m, a.gravity, bias)
+    model_geometry(a.model, q)
+    model_mass(a.model, 1.0, 0.0, mass)
+    model_bias(a.model, vel, 1.0, 0.0, 1.0, bias)
     for i in range(n):
         bias[i] += a.tau_d[i]
     binds = True  # a held torque: no feedback over its step
@@ -297,10 +293,10 @@ def inside(k, a):
     r = a.work.rollout
     y = a.position[k]
     for i in range(y.shape[0]):
-        if a.hard[0] and abs(y[i] - a.q_s[k, i]) + a.noise_bound > a.viable_bounds[0]:
+        if a.hard[0] and abs(y[i] - a.centres[0, i]) + a.noise_bound > a.viable_bounds[0, i]:
             return False
-        if a.hard[1] and abs(r[R_CENTRE, i] - a.qdot_s[k, i]) + r[R_HALF, i] \
-                > a.viable_bounds[1]:
+        if a.hard[1] and abs(r[R_CENTRE, i] - a.centres[1, i]) + r[R_HALF, i] \
+                > a.viable_bounds[1, i]:
             return False
     return True
 
@@ -317,8 +313,8 @@ def verified(k, a, y, v, eps, first, hold, policy):
     for i in range(n):
         q[i], vel[i], dq[i], dv[i] = y[i], v[i], a.noise_bound, eps[i]
         # what each set allows: its bound, or the excess it starts with (recovery)
-        limit_q[i] = max(a.viable_bounds[0], abs(y[i] - a.q_s[k, i]) + a.noise_bound)
-        limit_v[i] = max(a.viable_bounds[1], abs(v[i] - a.qdot_s[k, i]) + eps[i])
+        limit_q[i] = max(a.viable_bounds[0, i], abs(y[i] - a.centres[0, i]) + a.noise_bound)
+        limit_v[i] = max(a.viable_bounds[1, i], abs(v[i] - a.centres[1, i]) + eps[i])
         r[R_TARGET, i] = 0.0
     t = 0.0
     step = 0
@@ -346,14 +342,14 @@ def verified(k, a, y, v, eps, first, hold, policy):
             dq[i] += h * dv[i] + 0.5 * h * h * TUBE_SAFETY * deviation[i]
             # the feedback acts on the estimate: the true velocity keeps its error, ε
             dv[i] = max(dv[i] * (1.0 - feedback) + TUBE_SAFETY * deviation[i] * h, eps[i])
-            allowed_q = a.viable_bounds[0] + (limit_q[i] - a.viable_bounds[0]) * decay
-            allowed_v = a.viable_bounds[1] + (limit_v[i] - a.viable_bounds[1]) * decay
-            if a.hard[0] and max(abs(q[i] - a.q_s[k, i]), abs(turn - a.q_s[k, i])) + dq[i] \
+            allowed_q = a.viable_bounds[0, i] + (limit_q[i] - a.viable_bounds[0, i]) * decay
+            allowed_v = a.viable_bounds[1, i] + (limit_v[i] - a.viable_bounds[1, i]) * decay
+            if a.hard[0] and max(abs(q[i] - a.centres[0, i]), abs(turn - a.centres[0, i])) + dq[i] \
                     > allowed_q:
                 return False
-            if a.hard[1] and abs(vel[i] - a.qdot_s[k, i]) + dv[i] > allowed_v:
+            if a.hard[1] and abs(vel[i] - a.centres[1, i]) + dv[i] > allowed_v:
                 return False
-            stopped = stopped and abs(vel[i] - a.qdot_s[k, i] - r[R_TARGET, i]) <= STOPPED
+            stopped = stopped and abs(vel[i] - a.centres[1, i] - r[R_TARGET, i]) <= STOPPED
         t += h
         step += 1
         if stopped:
