@@ -63,12 +63,20 @@ def _shared_library_suffix() -> str:
     return {"win32": ".dll", "darwin": ".dylib"}.get(sys.platform, ".so")
 
 
+def _generated(model: ModuleType) -> dict[str, str]:
+    """A model's generated sources (name -> text): a URDF chain's constants, say."""
+    return getattr(model, "GENERATED", {})
+
+
 def _sources_digest(model: ModuleType) -> str:
     h = hashlib.sha256()
     for path in sorted(_source_files(model, 2) + _source_files(model, 3)
                        + [Path(model.__file__), Path(variables.__file__)]):
         h.update(path.name.encode())
         h.update(path.read_bytes())
+    for name, text in sorted(_generated(model).items()):
+        h.update(name.encode())
+        h.update(text.encode())
     return h.hexdigest()
 
 
@@ -84,6 +92,8 @@ def _build_key(model: ModuleType, links: int, fmi_version: int, cc: str) -> str:
              .encode())
     h.update(_sources_digest(model).encode())
     h.update(Path(description.__file__).read_bytes())
+    # The table itself: a URDF chain's start values (its damping, limits) are not in a file.
+    h.update(repr(model.variables(links)).encode())
     return h.hexdigest()[:16]
 
 
@@ -113,12 +123,36 @@ def build_fmu(links: int = 2, fmi_version: int = 2, output: str | Path | None = 
     elsewhere. Returns the path of the FMU: ``output`` if given, else the cached file.
     """
     chosen = _model(model)
+    return _build_cached(chosen, links, fmi_version, output, cache_dir,
+                         f"{chosen.MODEL_IDENTIFIER}{links}")
+
+
+def build_urdf_fmu(urdf: str | Path, base: str | None = None, tip: str | None = None,
+                   fixed: dict[str, float] | None = None, fmi_version: int = 2,
+                   output: str | Path | None = None,
+                   cache_dir: str | Path | None = None) -> Path:
+    """Build (or take from the cache) the FMU of the spatial chain that ``urdf`` describes
+    from link ``base`` to link ``tip``, the joints in ``fixed`` held at their value (rad or
+    m): see :func:`plant_fmu.urdf.read_urdf` and :mod:`plant_fmu.models.spatial_chain`.
+    Like :func:`build_fmu` otherwise; cached by everything the chain is made of (the URDF's
+    content among it). Raises :class:`plant_fmu.urdf.UrdfError` for a URDF it refuses."""
+    from .models.spatial_chain import SpatialChainModel
+    from .urdf import read_urdf
+
+    chain = read_urdf(urdf, base=base, tip=tip, fixed=fixed)
+    model = SpatialChainModel(chain, source=str(urdf))
+    stem = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in chain.name)
+    return _build_cached(model, chain.n, fmi_version, output, cache_dir, f"{stem}{chain.n}")
+
+
+def _build_cached(chosen: ModuleType, links: int, fmi_version: int,
+                  output: str | Path | None, cache_dir: str | Path | None, stem: str) -> Path:
     _check_options(chosen, links, fmi_version)
     cc = _compiler()
     cache = Path(cache_dir) if cache_dir else default_cache_dir()
     cache.mkdir(parents=True, exist_ok=True)
     key = _build_key(chosen, links, fmi_version, cc)
-    cached = cache / f"{chosen.MODEL_IDENTIFIER}{links}_fmi{fmi_version}_{key}.fmu"
+    cached = cache / f"{stem}_fmi{fmi_version}_{key}.fmu"
     if not cached.exists():
         _build_into(chosen, cached, links, fmi_version, cc)
     if output is None:
@@ -151,6 +185,8 @@ def _build_into(model: ModuleType, target: Path, links: int, fmi_version: int,
             shutil.copyfile(path, sources / path.name)
         (sources / "variables.h").write_text(description.variables_header(model, links, token))
         (sources / "variables.c").write_text(description.variables_source(model, links))
+        for name, text in _generated(model).items():
+            (sources / name).write_text(text)
         compiled = [*(path.name for path in model.SOURCES), *FMI_SOURCES, "variables.c",
                     f"fmi{fmi_version}.c"]
         (sources / "buildDescription.xml").write_text(

@@ -9,6 +9,7 @@ Names are the same in FMI 2.0 and 3.0 (scalar variables, 1-based indices): ``q[1
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -24,9 +25,11 @@ class Variable:
     unit: str | None
     description: str
     start: float | None = None
-    check: str | None = None  # positive | nonnegative | finite (parameters, inputs)
+    check: str | None = None  # positive | nonnegative | finite | limit (> 0 or inf)
     derivative_of: str | None = None  # name of the variable this is the derivative of
     group: str = ""  # base name: "m" for "m[1]"
+    min: float | None = None  # declared range (modelDescription min/max), where there is one
+    max: float | None = None
 
 
 @dataclass(frozen=True)
@@ -42,6 +45,11 @@ class VariableFamily:
     start: Callable[[int], float] | None = None  # link index (0-based) -> start value
     check: str | None = None
     derivative_of: str | None = None
+    # Where the unit differs by element (a chain of revolute and prismatic joints): the
+    # element's index -> its unit, in place of ``unit``.
+    unit_of: Callable[[tuple[int, ...]], str] | None = None
+    # link index -> (min, max) of the element; None or an infinite bound declares none.
+    bounds: Callable[[int], tuple[float, float]] | None = None
 
 
 def per_link(first_links: tuple[float, ...], rest: float) -> Callable[[int], float]:
@@ -75,15 +83,22 @@ def expand(families: Sequence[VariableFamily], links: int) -> list[Variable]:
             indices = [(i, j) for i in range(links) for j in range(links)]
         for index in indices:
             start = family.start(index[0] if index else 0) if family.start else None
+            low, high = family.bounds(index[0]) if family.bounds else (None, None)
             derivative_of = (element_name(family.derivative_of, index)
                              if family.derivative_of else None)
             out.append(Variable(
                 name=element_name(family.base, index), vr=len(out),
-                causality=family.causality, variability=family.variability, unit=family.unit,
+                causality=family.causality, variability=family.variability,
+                unit=family.unit_of(index) if family.unit_of else family.unit,
                 description=family.description, start=start, check=family.check,
                 derivative_of=derivative_of, group=family.base,
+                min=_finite_or_none(low), max=_finite_or_none(high),
             ))
     return out
+
+
+def _finite_or_none(bound: float | None) -> float | None:
+    return bound if bound is not None and math.isfinite(bound) else None
 
 
 def first_vr(table: list[Variable], group: str) -> int:

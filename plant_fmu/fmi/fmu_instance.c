@@ -54,6 +54,7 @@ static int check_value(unsigned vr, double value, char *msg, size_t len)
     case CHECK_FINITE: if (!isfinite(value)) rule = "a finite number"; break;
     case CHECK_POSITIVE: if (!(isfinite(value) && value > 0)) rule = "finite and > 0"; break;
     case CHECK_NONNEGATIVE: if (!(isfinite(value) && value >= 0)) rule = "finite and >= 0"; break;
+    case CHECK_LIMIT: if (!(value > 0)) rule = "> 0 (inf: no limit)"; break;
     }
     if (!rule) return 1;
     snprintf(msg, len, "%s = %g is not valid: it must be %s (unit %s)", var->name, value, rule,

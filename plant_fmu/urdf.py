@@ -1,0 +1,386 @@
+"""Read a URDF into the table of a spatial rigid-body chain (:class:`Chain`), the one input
+of the spatial-chain FMU (``plant_fmu/models/spatial_chain``) and of the blocks that model it.
+
+The XML is parsed by yourdfpy (without meshes); this module only turns its links and joints
+into the chain from a base link to a tip link:
+
+* every revolute, continuous or prismatic joint on the path from base to tip moves, unless
+  ``fixed`` holds it at a value;
+* fixed joints, held joints and every joint off that path (a gripper's fingers, say: held at
+  0, or at the nearest limit if 0 is outside them) are folded into the body they hang from:
+  their links' masses, centres of mass and inertias are lumped into it;
+* meshes are not needed for the dynamics and are ignored by the FMU; they must exist all the
+  same, since the 3-D view draws them (:func:`resolve_uri` finds them).
+
+A URDF the plant cannot honestly simulate is refused with :class:`UrdfError`, one message
+naming the element at fault. Units are the URDF's: SI, radians.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+GRAVITY = np.array([0.0, 0.0, -9.81])  # m/s^2 along the base's -z
+MOVING_TYPES = ("revolute", "continuous", "prismatic")
+SUPPORTED_TYPES = (*MOVING_TYPES, "fixed")
+REVOLUTE, PRISMATIC = 0, 1  # Chain.kind
+
+
+class UrdfError(ValueError):
+    """The URDF cannot be turned into a chain; the message names the element at fault."""
+
+
+@dataclass(frozen=True, eq=False)
+class Chain:
+    """A chain of moving joints from a base link to a tip link, fixed joints folded in.
+
+    Body ``i`` is the child link of moving joint ``i``; its frame is that joint's frame
+    (URDF puts the child link's frame at the joint). ``n`` arrays are indexed by joint.
+    """
+
+    name: str  # the robot's name from <robot name=...>
+    joints: tuple[str, ...]  # moving joints' URDF names, parents before children
+    links: tuple[str, ...]  # the child link of each moving joint
+    kind: np.ndarray  # (n,) int: 0 revolute (incl. continuous), 1 prismatic
+    continuous: np.ndarray  # (n,) bool: a continuous joint (no position limits)
+    parent: np.ndarray  # (n,) int: the parent moving joint's body, -1 the base
+    placement: np.ndarray  # (n,4,4): parent body frame -> this joint's frame at q = 0
+    axis: np.ndarray  # (n,3): unit axis in the joint frame
+    mass: np.ndarray  # (n,) kg, each body with its folded links
+    com: np.ndarray  # (n,3) m, centre of mass in the body frame
+    inertia: np.ndarray  # (n,3,3) kg m^2 about the centre of mass, body-frame axes
+    damping: np.ndarray  # (n,) N m s/rad or N s/m, <dynamics damping>
+    friction: np.ndarray  # (n,) N m or N, Coulomb, <dynamics friction>
+    lower: np.ndarray  # (n,) rad or m (-inf for continuous or none given)
+    upper: np.ndarray  # (n,) rad or m (+inf for continuous or none given)
+    velocity: np.ndarray  # (n,) rad/s or m/s, <limit velocity> (inf if none or 0)
+    effort: np.ndarray  # (n,) N m or N, <limit effort> (inf if none or 0)
+    tip: np.ndarray  # (4,4): the tip link's frame in the last body's frame
+    gravity: np.ndarray = field(default_factory=lambda: GRAVITY.copy())  # (3,) base frame
+    base_link: str = ""  # the link the chain is fixed to
+    tip_link: str = ""  # the link whose frame is ``tip``
+    held: tuple[tuple[str, float], ...] = ()  # joints folded at a value (rad or m), sorted
+
+    @property
+    def n(self) -> int:
+        """The number of moving joints."""
+        return len(self.joints)
+
+
+def package_dirs(package: str, near: Path | None = None) -> list[Path]:
+    """Where ``package://<package>/`` may point: a folder of that name above ``near`` (a
+    ROS workspace), in $ROS_PACKAGE_PATH, under $AMENT_PREFIX_PATH's share/, and under a
+    Python environment's ``cmeel.prefix/share`` (how example-robot-data installs)."""
+    candidates: list[Path] = []
+    if near is not None:
+        candidates += [p for p in Path(near).resolve().parents if p.name == package]
+    for entry in os.environ.get("ROS_PACKAGE_PATH", "").split(os.pathsep):
+        if entry:
+            candidates += [Path(entry) / package, Path(entry)]
+    for entry in os.environ.get("AMENT_PREFIX_PATH", "").split(os.pathsep):
+        if entry:
+            candidates.append(Path(entry) / "share" / package)
+    for entry in sys.path:
+        if entry:
+            candidates.append(Path(entry) / "cmeel.prefix" / "share" / package)
+    return [p for p in candidates if p.is_dir() and p.name == package]
+
+
+def resolve_uri(uri: str, relative_to: Path) -> Path:
+    """The file a URDF reference names: ``package://pkg/rest`` (see :func:`package_dirs`),
+    ``file://path`` or a path relative to the folder ``relative_to``. The returned path may
+    not exist (the caller says what was looked for)."""
+    if uri.startswith("package://"):
+        package, _, rest = uri[len("package://"):].partition("/")
+        for root in package_dirs(package, near=relative_to):
+            if (root / rest).exists():
+                return root / rest
+        return Path(relative_to) / rest
+    if uri.startswith("file://"):
+        uri = uri[len("file://"):]
+    path = Path(uri).expanduser()
+    return path if path.is_absolute() else Path(relative_to) / path
+
+
+def _load(path: Path):
+    import yourdfpy
+
+    if not path.is_file():
+        raise UrdfError(f"{path}: no such URDF file")
+    # yourdfpy logs what it recovers from; our own checks below say what is wrong instead.
+    logging.getLogger("yourdfpy").setLevel(logging.CRITICAL)
+    try:
+        urdf = yourdfpy.URDF.load(str(path), build_scene_graph=False,
+                                  build_collision_scene_graph=False, load_meshes=False,
+                                  load_collision_meshes=False)
+    except Exception as exc:  # lxml or yourdfpy: either way the file is not a URDF we read
+        raise UrdfError(f"{path}: not a readable URDF ({exc})") from None
+    if urdf.robot is None or not urdf.robot.links:
+        raise UrdfError(f"{path}: no <robot> with <link> elements")
+    return urdf.robot
+
+
+def _check_meshes(robot, path: Path) -> None:
+    for link in robot.links:
+        for element, items in (("visual", link.visuals), ("collision", link.collisions)):
+            for item in items:
+                mesh = item.geometry.mesh if item.geometry is not None else None
+                if mesh is None:
+                    continue
+                found = resolve_uri(mesh.filename, path.parent)
+                if not found.is_file():
+                    raise UrdfError(
+                        f"{path}: link '{link.name}' <{element}><mesh filename="
+                        f"'{mesh.filename}'>: no such file (looked for {found}). The FMU "
+                        "ignores meshes for its dynamics, but the 3-D view draws them: fix "
+                        "the path, or remove the <mesh>")
+
+
+def _tree(robot, path: Path) -> tuple[dict, dict]:
+    """parent_joint[link] and child_joints[link] (in file order), checked to be a tree."""
+    links = {link.name for link in robot.links}
+    parent_joint: dict = {}
+    child_joints: dict = {name: [] for name in links}
+    for joint in robot.joints:
+        for role in ("parent", "child"):
+            if getattr(joint, role) not in links:
+                raise UrdfError(f"{path}: joint '{joint.name}' names {role} link "
+                                f"'{getattr(joint, role)}', which no <link> defines")
+        if joint.child in parent_joint:
+            raise UrdfError(
+                f"{path}: link '{joint.child}' is the child of joints "
+                f"'{parent_joint[joint.child].name}' and '{joint.name}': a loop; a URDF "
+                "is a tree (each link has at most one parent joint)")
+        parent_joint[joint.child] = joint
+        child_joints[joint.parent].append(joint)
+    if len(parent_joint) == len(links):
+        raise UrdfError(f"{path}: every link has a parent joint, so the joints form a loop; "
+                        "a URDF is a tree with one root link")
+    return parent_joint, child_joints
+
+
+def _root(robot, parent_joint: dict, path: Path) -> str:
+    roots = [link.name for link in robot.links if link.name not in parent_joint]
+    if len(roots) > 1:
+        raise UrdfError(f"{path}: links {roots} have no parent joint: a URDF has one root "
+                        "link (or give --base)")
+    return roots[0]
+
+
+def _path(base: str, tip: str | None, parent_joint: dict, child_joints: dict,
+          path: Path) -> list:
+    """The joints from base to tip. Without a tip: from the base, follow the one child joint
+    that moves or leads to a moving joint; past the last moving joint, follow fixed joints
+    while a link has just one; stop where the way forks."""
+    if tip is None:
+        def moves(joint) -> bool:
+            return joint.type != "fixed" or any(moves(j) for j in child_joints[joint.child])
+
+        joints, link = [], base
+        while True:
+            ahead = [j for j in child_joints[link] if moves(j)]
+            if len(ahead) > 1 or (not ahead and len(child_joints[link]) != 1):
+                return joints
+            joints.append(ahead[0] if ahead else child_joints[link][0])
+            link = joints[-1].child
+    if tip not in child_joints:
+        raise UrdfError(f"{path}: tip link '{tip}' is not a <link> of the URDF; links: "
+                        f"{sorted(child_joints)}")
+    joints, link = [], tip
+    while link != base:
+        if link not in parent_joint:
+            raise UrdfError(f"{path}: tip link '{tip}' is not below base link '{base}'")
+        joints.append(parent_joint[link])
+        link = parent_joint[link].parent
+    return joints[::-1]
+
+
+def _subtree(base: str, child_joints: dict) -> list:
+    """Every joint below ``base``, parents before children."""
+    order, stack = [], list(reversed(child_joints[base]))
+    while stack:
+        joint = stack.pop()
+        order.append(joint)
+        stack.extend(reversed(child_joints[joint.child]))
+    return order
+
+
+def _limits(joint) -> tuple[float, float, float, float]:
+    """lower, upper, velocity, effort; a missing or zero velocity or effort limit is none
+    given (some URDFs write 0 for it): inf."""
+    limit = joint.limit
+    lower = -np.inf if limit is None or limit.lower is None else float(limit.lower)
+    upper = np.inf if limit is None or limit.upper is None else float(limit.upper)
+    if joint.type == "continuous":
+        lower, upper = -np.inf, np.inf
+    velocity = float(limit.velocity) if limit is not None and limit.velocity else np.inf
+    effort = float(limit.effort) if limit is not None and limit.effort else np.inf
+    return lower, upper, velocity, effort
+
+
+def _motion(joint, value: float, path: Path) -> np.ndarray:
+    """The joint's motion at ``value`` (rad or m) as a 4x4 transform."""
+    transform = np.eye(4)
+    if joint.type == "fixed" or value == 0.0:
+        return transform
+    axis = _unit_axis(joint, path)
+    if joint.type == "prismatic":
+        transform[:3, 3] = axis * value
+    else:
+        k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+        transform[:3, :3] = np.eye(3) + np.sin(value) * k + (1 - np.cos(value)) * k @ k
+    return transform
+
+
+def _unit_axis(joint, path: Path) -> np.ndarray:
+    axis = np.array([1.0, 0.0, 0.0]) if joint.axis is None else np.asarray(joint.axis, float)
+    norm = np.linalg.norm(axis)
+    if not np.isfinite(norm) or norm == 0.0:
+        raise UrdfError(f"{path}: joint '{joint.name}' <axis xyz='{joint.axis}'>: the axis "
+                        "must be a non-zero vector")
+    return axis / norm
+
+
+def _origin(element) -> np.ndarray:
+    return np.eye(4) if element.origin is None else np.asarray(element.origin, float)
+
+
+def _check_inertial(link, carried_by, path: Path) -> None:
+    """A link's <inertial>: required, with a positive mass, where a moving joint carries
+    the link (``carried_by``); elsewhere (massless frames such as a flange) it may be
+    absent or massless, but never negative."""
+    inertial = link.inertial
+    if inertial is None or inertial.mass is None:
+        if carried_by is not None:
+            raise UrdfError(f"{path}: link '{link.name}' has no <inertial> (with <mass>), but "
+                            f"moving joint '{carried_by}' carries it: give its mass, centre "
+                            "of mass and inertia")
+        return
+    mass = float(inertial.mass)
+    if not np.isfinite(mass) or mass < 0 or (carried_by is not None and mass == 0):
+        raise UrdfError(f"{path}: link '{link.name}' <inertial><mass value='{inertial.mass}'>"
+                        ": a mass in kg must be positive" +
+                        (f" (moving joint '{carried_by}' carries it)" if mass == 0 else ""))
+    inertia = np.asarray(inertial.inertia, float) if inertial.inertia is not None else None
+    if inertia is None or not np.all(np.isfinite(inertia)) or \
+            np.linalg.eigvalsh(inertia).min() < -1e-12 * max(1.0, np.abs(inertia).max()):
+        raise UrdfError(f"{path}: link '{link.name}' <inertial><inertia>: the inertia tensor "
+                        "(kg m^2) must be symmetric positive semi-definite")
+
+
+def _lumped(parts: list[tuple[float, np.ndarray, np.ndarray]]):
+    """Mass, centre of mass and inertia about it of rigidly joined parts, each given as
+    (mass, centre of mass, inertia about its centre of mass) in one frame."""
+    mass = sum(m for m, _, _ in parts)
+    if mass == 0.0:
+        return 0.0, np.zeros(3), np.zeros((3, 3))
+    com = sum(m * c for m, c, _ in parts) / mass
+    inertia = np.zeros((3, 3))
+    for m, c, i in parts:
+        d = c - com
+        inertia += i + m * (d @ d * np.eye(3) - np.outer(d, d))  # parallel axis
+    return mass, com, inertia
+
+
+def read_urdf(path: str | os.PathLike, base: str | None = None, tip: str | None = None,
+              fixed: dict[str, float] | None = None) -> Chain:
+    """The chain of ``path`` from link ``base`` (default: the root link) to link ``tip``
+    (default: from the base, follow the links while each has one child joint), with the
+    joints in ``fixed`` held at their value (rad or m). Raises :class:`UrdfError`."""
+    path = Path(path)
+    robot = _load(path)
+    fixed = dict(fixed or {})
+    parent_joint, child_joints = _tree(robot, path)
+    if base is None:
+        base = _root(robot, parent_joint, path)
+    elif base not in child_joints:
+        raise UrdfError(f"{path}: base link '{base}' is not a <link> of the URDF; links: "
+                        f"{sorted(child_joints)}")
+    subtree = _subtree(base, child_joints)
+    for joint in subtree:
+        if joint.type not in SUPPORTED_TYPES:
+            raise UrdfError(f"{path}: joint '{joint.name}' has type '{joint.type}': the plant "
+                            f"supports {', '.join(SUPPORTED_TYPES)} joints")
+    _check_meshes(robot, path)
+    by_name = {joint.name: joint for joint in subtree}
+    for name, value in fixed.items():
+        if name not in by_name or by_name[name].type == "fixed":
+            raise UrdfError(f"{path}: --fix {name}: not a moving joint below base link "
+                            f"'{base}'; moving joints: "
+                            f"{[j.name for j in subtree if j.type != 'fixed']}")
+        lower, upper, _, _ = _limits(by_name[name])
+        if not lower <= value <= upper:
+            raise UrdfError(f"{path}: --fix {name}={value}: outside the joint's limits "
+                            f"[{lower}, {upper}] (rad or m)")
+    chain_path = _path(base, tip, parent_joint, child_joints, path)
+    on_path = {joint.name for joint in chain_path}
+    tip_link = chain_path[-1].child if chain_path else base
+
+    # Walk the subtree: each link's body (-1 the base) and its frame in that body's frame.
+    body_of, frame_in_body = {base: -1}, {base: np.eye(4)}
+    moving, placements, held = [], [], {}
+    for joint in subtree:
+        body, frame = body_of[joint.parent], frame_in_body[joint.parent] @ _origin(joint)
+        if joint.type != "fixed" and joint.name in on_path and joint.name not in fixed:
+            if joint.mimic is not None:
+                raise UrdfError(f"{path}: joint '{joint.name}' mimics '{joint.mimic.joint}': "
+                                "a mimic joint on the chain is not supported; hold it with "
+                                f"--fix {joint.name}=VALUE")
+            moving.append((joint, body))
+            placements.append(frame)
+            body_of[joint.child], frame_in_body[joint.child] = len(moving) - 1, np.eye(4)
+            continue
+        if joint.type != "fixed":
+            lower, upper, _, _ = _limits(joint)
+            held[joint.name] = fixed.get(joint.name, float(np.clip(0.0, lower, upper)))
+        body_of[joint.child] = body
+        frame_in_body[joint.child] = frame @ _motion(joint, held.get(joint.name, 0.0), path)
+    if not moving:
+        raise UrdfError(f"{path}: no revolute, continuous or prismatic joint moves between "
+                        f"base link '{base}' and tip link '{tip_link}'")
+
+    carried_by = {j.child: j.name for j, _ in moving}
+    links_by_name = {link.name: link for link in robot.links}
+    parts: list[list] = [[] for _ in moving]
+    for link_name, body in body_of.items():
+        link = links_by_name[link_name]
+        _check_inertial(link, carried_by.get(link_name), path)
+        if body < 0 or link.inertial is None or not link.inertial.mass:
+            continue
+        to_body = frame_in_body[link_name] @ _origin(link.inertial)
+        rotation = to_body[:3, :3]
+        parts[body].append((float(link.inertial.mass), to_body[:3, 3],
+                            rotation @ np.asarray(link.inertial.inertia, float) @ rotation.T))
+    lumped = [_lumped(p) for p in parts]
+    limits = np.array([_limits(j) for j, _ in moving]).reshape(-1, 4)
+
+    def dynamics(attribute: str) -> np.ndarray:
+        values = [getattr(j.dynamics, attribute, None) if j.dynamics else None for j, _ in moving]
+        return np.array([float(v) if v is not None else 0.0 for v in values])
+
+    return Chain(
+        name=robot.name or path.stem,
+        joints=tuple(j.name for j, _ in moving),
+        links=tuple(j.child for j, _ in moving),
+        kind=np.array([PRISMATIC if j.type == "prismatic" else REVOLUTE for j, _ in moving]),
+        continuous=np.array([j.type == "continuous" for j, _ in moving]),
+        parent=np.array([body for _, body in moving]),
+        placement=np.array(placements),
+        axis=np.array([_unit_axis(j, path) for j, _ in moving]),
+        mass=np.array([m for m, _, _ in lumped]),
+        com=np.array([c for _, c, _ in lumped]),
+        inertia=np.array([i for _, _, i in lumped]),
+        damping=dynamics("damping"),
+        friction=dynamics("friction"),
+        lower=limits[:, 0], upper=limits[:, 1], velocity=limits[:, 2], effort=limits[:, 3],
+        tip=frame_in_body[tip_link],
+        base_link=base,
+        tip_link=tip_link,
+        held=tuple(sorted(held.items())),
+    )
