@@ -199,7 +199,7 @@ def assemble_run(pipeline: Pipeline, name: str, plant) -> RunPlan:
     links, dt = plant.links, pipeline.simulation.step
     file = getattr(getattr(plant, "path", None), "name", "the plant")
     context = BlockContext(links, dt, name, plant_outputs(plant), pipeline.safety,
-                           pipeline.uncertainty, file)
+                           pipeline.uncertainty, file, pipeline.simulation.duration)
     check_sizes(run, name, plant)
     blocks = []
     for instance, kind in run.chain():

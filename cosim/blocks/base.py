@@ -69,6 +69,7 @@ class BlockContext:
     safety: Safety = field(default_factory=Safety)
     uncertainty: Uncertainty = field(default_factory=Uncertainty)
     plant_file: str = "the plant"
+    duration: float = 20.0
 
 
 @dataclass

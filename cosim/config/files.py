@@ -43,6 +43,8 @@ def read_toml(path: Path, chain: tuple[Path, ...] = ()) -> dict:
     if isinstance(plugins, list):  # a .py file relative to this file; a module name as is
         data["plugins"] = [plugin_path(p, path.parent) if isinstance(p, str) else p
                            for p in plugins]
+    for table in reference_tables(data):  # reference.csv: relative to this file
+        table["csv"] = str(absolute(table["csv"], path.parent))
     plant = data.get("plant")
     if isinstance(plant, dict) and isinstance(plant.get("fmu"), str):
         fmu = Path(plant["fmu"]).expanduser()
@@ -69,6 +71,21 @@ def read_toml(path: Path, chain: tuple[Path, ...] = ()) -> dict:
             if key in plant and other not in plant:
                 merged["plant"].pop(other, None)
     return merged
+
+
+def reference_tables(data: dict) -> list[dict]:
+    """The ``[reference]`` tables of a pipeline's data (top level and runs) naming a CSV."""
+    runs = data.get("runs")
+    tables = [data.get("reference"),
+              *(run.get("reference") for run in (runs.values() if isinstance(runs, dict)
+                                                 else ()) if isinstance(run, dict))]
+    return [t for t in tables if isinstance(t, dict) and isinstance(t.get("csv"), str)]
+
+
+def absolute(name: str, folder: Path) -> Path:
+    """A path as given if absolute, else from ``folder`` (``~`` expanded)."""
+    path = Path(name).expanduser()
+    return path if path.is_absolute() else (folder / path).resolve()
 
 
 def plugin_path(name: str, folder: Path) -> str:

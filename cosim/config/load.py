@@ -8,7 +8,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from ..blocks.plugins import load_entry_points, load_plugins
-from .files import plugin_path, read_toml
+from .files import absolute, plugin_path, read_toml
 from .overrides import apply_override, shadowed
 from .pipeline import Pipeline
 from .validation import validate
@@ -44,4 +44,8 @@ def load_pipeline(path: str | Path | None, overrides: list[str] | None = None,
     if pipeline.plant.fmu is not None:
         fmu = Path(pipeline.plant.fmu).expanduser()
         pipeline.plant.fmu = str(fmu if fmu.is_absolute() else (base / fmu).resolve())
+    for table in [pipeline, *pipeline.runs.values()]:  # a CSV given by --set: from ``base``
+        reference = getattr(table, "reference", None)
+        if reference is not None and reference.csv is not None:
+            reference.csv = str(absolute(reference.csv, base))
     return pipeline
