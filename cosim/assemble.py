@@ -137,8 +137,8 @@ class Scenario:
 
 
 def plant_path(pipeline: Pipeline) -> Path:
-    """The plant FMU file: the pipeline's ``plant.fmu``, or the built-in plant, built on
-    demand and cached by its build options."""
+    """The plant FMU file: the pipeline's ``plant.fmu``, or the built-in plant or the
+    ``plant.urdf`` robot, built on demand and cached by its build options."""
     if pipeline.plant.fmu is not None:
         path = Path(pipeline.plant.fmu)
         if path.is_dir():
@@ -147,8 +147,23 @@ def plant_path(pipeline: Pipeline) -> Path:
         if not path.is_file():
             raise PipelineError(f"plant.fmu: {path} does not exist")
         return path
+    if pipeline.plant.urdf is not None:
+        return urdf_plant_path(pipeline.plant.urdf)
     b = pipeline.plant.builtin
     return build_fmu(links=b.links, fmi_version=b.fmi_version, model=b.model)
+
+
+def urdf_plant_path(urdf) -> Path:
+    """The FMU of ``plant.urdf`` (a :class:`~cosim.config.sections.UrdfPlant`), built on
+    demand and cached by the URDF's chain; a URDF it refuses is a :class:`PipelineError`."""
+    from plant_fmu import UrdfError, build_urdf_fmu
+    from plant_fmu.urdf import resolve_uri
+
+    try:
+        return build_urdf_fmu(resolve_uri(urdf.file, Path.cwd()), base=urdf.base, tip=urdf.tip,
+                              fixed=dict(urdf.fixed), fmi_version=urdf.fmi_version)
+    except UrdfError as exc:
+        raise PipelineError(f"plant.urdf: {exc}") from None
 
 
 def open_plant(pipeline: Pipeline) -> Fmu:

@@ -1,12 +1,15 @@
 """The plants: built-in models as C-source FMUs (FMI 2.0 and 3.0, CS and ME) — the n-link
-planar arm, and the arm with elastic joints.
+planar arm, the arm with elastic joints, and the spatial chain of a robot's URDF.
 
-    from plant_fmu import build_fmu
+    from plant_fmu import build_fmu, build_urdf_fmu
     path = build_fmu(links=2, fmi_version=2)                          # the rigid arm
     path = build_fmu(links=2, fmi_version=3, model="elastic_joints")
+    path = build_urdf_fmu("panda.urdf", tip="panda_hand")             # a real arm
 """
 
-from .build import BuildError, build_fmu
+from .build import BuildError, build_fmu, build_urdf_fmu
 from .models import DEFAULT_MODEL, MODELS
+from .urdf import Chain, UrdfError, read_urdf
 
-__all__ = ["BuildError", "DEFAULT_MODEL", "MODELS", "build_fmu"]
+__all__ = ["BuildError", "Chain", "DEFAULT_MODEL", "MODELS", "UrdfError", "build_fmu",
+           "build_urdf_fmu", "read_urdf"]

@@ -63,6 +63,11 @@ def _shared_library_suffix() -> str:
     return {"win32": ".dll", "darwin": ".dylib"}.get(sys.platform, ".so")
 
 
+def _cflags(model: ModuleType) -> list[str]:
+    """The compiler options: the common ones, then the model's own (a later -O wins)."""
+    return [*CFLAGS, *getattr(model, "CFLAGS", ())]
+
+
 def _generated(model: ModuleType) -> dict[str, str]:
     """A model's generated sources (name -> text): a URDF chain's constants, say."""
     return getattr(model, "GENERATED", {})
@@ -88,7 +93,7 @@ def _source_files(model: ModuleType, fmi_version: int) -> list[Path]:
 
 def _build_key(model: ModuleType, links: int, fmi_version: int, cc: str) -> str:
     h = hashlib.sha256()
-    h.update(f"{model.MODEL_IDENTIFIER}|{links}|{fmi_version}|{cc}|{' '.join(CFLAGS)}|"
+    h.update(f"{model.MODEL_IDENTIFIER}|{links}|{fmi_version}|{cc}|{' '.join(_cflags(model))}|"
              .encode())
     h.update(_sources_digest(model).encode())
     h.update(Path(description.__file__).read_bytes())
@@ -142,7 +147,7 @@ def build_urdf_fmu(urdf: str | Path, base: str | None = None, tip: str | None = 
     chain = read_urdf(urdf, base=base, tip=tip, fixed=fixed)
     model = SpatialChainModel(chain, source=str(urdf))
     stem = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in chain.name)
-    return _build_cached(model, chain.n, fmi_version, output, cache_dir, f"{stem}{chain.n}")
+    return _build_cached(model, chain.n, fmi_version, output, cache_dir, stem)
 
 
 def _build_cached(chosen: ModuleType, links: int, fmi_version: int,
@@ -197,7 +202,7 @@ def _build_into(model: ModuleType, target: Path, links: int, fmi_version: int,
         binary_dir = root / "binaries" / _platform_dir(fmi_version)
         binary_dir.mkdir(parents=True)
         binary = binary_dir / (model.MODEL_IDENTIFIER + _shared_library_suffix())
-        command = [cc, *CFLAGS, f"-I{sources}", f"-I{_fmi_headers()}",
+        command = [cc, *_cflags(model), f"-I{sources}", f"-I{_fmi_headers()}",
                    *[str(sources / s) for s in compiled], "-o", str(binary), "-lm"]
         result = subprocess.run(command, capture_output=True, text=True)
         if result.returncode != 0:

@@ -264,7 +264,7 @@ def _check_inertial(link, carried_by, path: Path) -> None:
         return
     mass = float(inertial.mass)
     if not np.isfinite(mass) or mass < 0 or (carried_by is not None and mass == 0):
-        raise UrdfError(f"{path}: link '{link.name}' <inertial><mass value='{inertial.mass}'>"
+        raise UrdfError(f"{path}: link '{link.name}' <inertial><mass value='{mass:g}'>"
                         ": a mass in kg must be positive" +
                         (f" (moving joint '{carried_by}' carries it)" if mass == 0 else ""))
     inertia = np.asarray(inertial.inertia, float) if inertial.inertia is not None else None
@@ -291,8 +291,9 @@ def _lumped(parts: list[tuple[float, np.ndarray, np.ndarray]]):
 def read_urdf(path: str | os.PathLike, base: str | None = None, tip: str | None = None,
               fixed: dict[str, float] | None = None) -> Chain:
     """The chain of ``path`` from link ``base`` (default: the root link) to link ``tip``
-    (default: from the base, follow the links while each has one child joint), with the
-    joints in ``fixed`` held at their value (rad or m). Raises :class:`UrdfError`."""
+    (default: from the base, the one way on to a moving joint, stopping where the arm forks;
+    see ``_path``), with the joints in ``fixed`` held at their value (rad or m). Raises
+    :class:`UrdfError`."""
     path = Path(path)
     robot = _load(path)
     fixed = dict(fixed or {})

@@ -48,6 +48,8 @@ class VariableFamily:
     # Where the unit differs by element (a chain of revolute and prismatic joints): the
     # element's index -> its unit, in place of ``unit``.
     unit_of: Callable[[tuple[int, ...]], str] | None = None
+    # The same for the description (a joint's own name in it, say).
+    description_of: Callable[[tuple[int, ...]], str] | None = None
     # link index -> (min, max) of the element; None or an infinite bound declares none.
     bounds: Callable[[int], tuple[float, float]] | None = None
 
@@ -90,7 +92,9 @@ def expand(families: Sequence[VariableFamily], links: int) -> list[Variable]:
                 name=element_name(family.base, index), vr=len(out),
                 causality=family.causality, variability=family.variability,
                 unit=family.unit_of(index) if family.unit_of else family.unit,
-                description=family.description, start=start, check=family.check,
+                description=(family.description_of(index) if family.description_of
+                             else family.description),
+                start=start, check=family.check,
                 derivative_of=derivative_of, group=family.base,
                 min=_finite_or_none(low), max=_finite_or_none(high),
             ))

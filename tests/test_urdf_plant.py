@@ -1,45 +1,63 @@
-"""The URDF plant: the reader (plant_fmu/urdf.py) against Pinocchio's own URDF parser, on
-real arms from example-robot-data (a test extra, never copied into the repo)."""
+"""The URDF plant (plant_fmu/urdf.py, plant_fmu/models/spatial_chain, `cosim build-fmu
+--urdf`, ``plant.urdf``), checked against what we did not write: Pinocchio's URDF parser and
+its CRBA, RNEA and ABA on real arms from example-robot-data (a test extra, never copied into
+the repo) and on our own test robot, SciPy's solve_ivp, FMPy's validator. The 1000-state
+figures and the speed are benchmarks/bench_urdf.py's."""
 
 from __future__ import annotations
+
+import re
 
 import numpy as np
 import pinocchio as pin
 import pytest
+from fmpy import read_model_description
+from fmpy.fmi1 import FMICallException
+from fmpy.validation import validate_fmu
+from fmu_helpers import FmuInstance
+from scipy.integrate import solve_ivp
+from urdf_helpers import (
+    ARMS,
+    OWN_ROBOT,
+    ChainFmu,
+    configuration,
+    pinocchio_model,
+    pinocchio_terms,
+    random_states,
+    relative_error,
+)
 
-from plant_fmu.urdf import Chain, package_dirs, read_urdf
+from cosim.assemble import plant_path
+from cosim.cli import main
+from cosim.config import PipelineError, load_pipeline
+from plant_fmu import build_urdf_fmu
+from plant_fmu.build import _build_key
+from plant_fmu.models.spatial_chain import SpatialChainModel
+from plant_fmu.urdf import read_urdf
 
-ROBOTS = package_dirs("example-robot-data")[0] / "robots"
-ARMS = {
-    "ur5": ROBOTS / "ur_description/urdf/ur5_robot.urdf",
-    "ur10": ROBOTS / "ur_description/urdf/ur10_robot.urdf",
-    "panda": ROBOTS / "panda_description/urdf/panda.urdf",
-    "kinova": ROBOTS / "kinova_description/robots/kinova.urdf",
-    "xarm7": ROBOTS / "xarm_description/urdf/xarm7.urdf",
-    "z1": ROBOTS / "z1_description/urdf/z1.urdf",
-    "so101": ROBOTS / "so_arm_description/urdf/so101.urdf",
-}
-
-
-def pinocchio_model(path, chain: Chain) -> pin.Model:
-    """Pinocchio's model of the same URDF, with the joints the chain holds locked at the
-    same values (Pinocchio lumps them into their parent, as our reader does)."""
-    model = pin.buildModelFromUrdf(str(path))
-    held = dict(chain.held)
-    if not held:
-        return model
-    q_ref = pin.neutral(model)
-    for name, value in held.items():
-        q_ref[model.joints[model.getJointId(name)].idx_q] = value
-    return pin.buildReducedModel(model, [model.getJointId(n) for n in held], q_ref)
+# Five arms of example-robot-data and our own robot, built for FMI 2 or 3 (UR10 and SO-101
+# too in benchmarks/bench_urdf.py).
+DYNAMICS = {"ur5": 2, "kinova": 2, "z1": 2, "panda": 3, "xarm7": 3, "own": 2}
+PAYLOAD = 0.7  # kg at the tip frame, so that its placement is checked too
+STATES = 50
 
 
-def joint_axis(model: pin.Model, i: int) -> tuple[int, np.ndarray]:
-    """(kind, unit axis) of Pinocchio's joint i from its motion subspace S."""
-    data = model.createData()
-    pin.forwardKinematics(model, data, pin.neutral(model))
-    s = np.asarray(data.joints[i].S).reshape(6, -1)[:, 0]
-    return (0, s[3:]) if np.linalg.norm(s[3:]) > 0 else (1, s[:3])
+def urdf_of(name: str):
+    return OWN_ROBOT if name == "own" else ARMS[name]
+
+
+@pytest.fixture(scope="module")
+def fmus(fmu_cache):
+    """name -> the plant FMU of that URDF (built once, on demand)."""
+    built = {}
+
+    def fmu(name: str, fmi_version: int | None = None):
+        key = (name, fmi_version or DYNAMICS[name])
+        if key not in built:
+            built[key] = build_urdf_fmu(urdf_of(name), fmi_version=key[1], cache_dir=fmu_cache)
+        return built[key]
+
+    return fmu
 
 
 @pytest.mark.parametrize("arm", sorted(ARMS))
@@ -48,10 +66,13 @@ def test_reader_matches_pinocchio_parser(arm):
     chain = read_urdf(path)
     model = pinocchio_model(path, chain)
     assert tuple(model.names[1:]) == chain.joints
+    data = model.createData()
+    pin.forwardKinematics(model, data, pin.neutral(model))
     for i in range(chain.n):
-        kind, axis = joint_axis(model, i + 1)
-        assert kind == chain.kind[i]
-        np.testing.assert_allclose(chain.axis[i], axis, atol=1e-15)
+        s = np.asarray(data.joints[i + 1].S).reshape(6, -1)[:, 0]  # [v; ω] in Pinocchio
+        prismatic = np.linalg.norm(s[3:]) == 0
+        assert chain.kind[i] == int(prismatic)
+        np.testing.assert_allclose(chain.axis[i], s[:3] if prismatic else s[3:], atol=1e-15)
         np.testing.assert_allclose(chain.placement[i], model.jointPlacements[i + 1].homogeneous,
                                    atol=1e-14)
         body = model.inertias[i + 1]
@@ -73,5 +94,211 @@ def test_panda_chain_stops_at_the_hand_with_the_fingers_folded():
     # link7 0.735522 kg + hand 0.73 kg + two fingers 0.015 kg each
     assert chain.mass[-1] == pytest.approx(0.735522 + 0.73 + 0.03, rel=1e-14)
     np.testing.assert_allclose(chain.gravity, [0, 0, -9.81])
-    np.testing.assert_allclose(chain.lower[3:4], [-3.0718])
+    np.testing.assert_allclose(chain.lower[3], -3.0718)
     np.testing.assert_allclose(chain.effort, [87] * 4 + [12] * 3)
+    # --tip and --fix: the UR5 to its flange, its wrist held at 0.5 rad
+    ur5 = read_urdf(ARMS["ur5"], tip="tool0", fixed={"wrist_3_joint": 0.5})
+    assert ur5.joints[-1] == "wrist_2_joint" and ur5.tip_link == "tool0"
+    assert ur5.held == (("wrist_3_joint", 0.5),)
+
+
+def test_own_robot_prismatic_continuous_and_fixed_joints():
+    chain = read_urdf(OWN_ROBOT)
+    assert chain.joints == ("lift", "turret", "shoulder", "wrist")
+    assert chain.kind.tolist() == [1, 0, 0, 0]
+    assert chain.continuous.tolist() == [False, True, False, False]
+    assert (chain.base_link, chain.tip_link) == ("world", "tool0")
+    np.testing.assert_allclose(chain.mass, [2.0, 1.2, 1.5 + 0.8, 0.3])  # forearm folded in
+    np.testing.assert_allclose(chain.axis[2], [0, 0.6, 0.8])
+    np.testing.assert_allclose(chain.tip[:3, 3], [0.05, 0, 0])
+    assert (chain.lower[1], chain.upper[1]) == (-np.inf, np.inf)
+    np.testing.assert_allclose(chain.damping, [5.0, 0.1, 0.0, 0.02])
+    np.testing.assert_allclose(chain.friction, [2.0, 0.0, 0.0, 0.1])
+
+
+@pytest.mark.parametrize("arm", sorted(DYNAMICS))
+def test_dynamics_match_pinocchio(fmus, arm):
+    """M (CRBA), h (RNEA) and q̈ (ABA, with the URDF's friction and a payload) at random
+    states, each within 1e-10 of Pinocchio's, relative to its largest entry."""
+    path = urdf_of(arm)
+    chain = read_urdf(path)
+    model = pinocchio_model(path, chain, payload=PAYLOAD)
+    data = model.createData()
+    plant = ChainFmu(fmus(arm), {"payload": PAYLOAD})
+    try:
+        rng = np.random.default_rng(abs(hash(arm)) % 2**32)
+        worst = np.zeros(3)
+        for q, qd, tau in zip(*random_states(chain, rng, STATES), strict=True):
+            ours = plant.terms(q, qd, tau)
+            theirs = pinocchio_terms(model, data, chain, q, qd, tau)
+            worst = np.maximum(worst, [relative_error(a, b)
+                                       for a, b in zip(ours, theirs, strict=True)])
+    finally:
+        plant.free()
+    assert worst.max() <= 1e-10, dict(zip(("M", "h", "qdd"), worst, strict=True))
+
+
+def test_trajectory_matches_solve_ivp(fmus):
+    """The Panda (FMI 3, Co-Simulation, RK4 at its default 1e-4 s) swinging freely (τ = 0)
+    for 2 s from a pose away from its neutral one, against SciPy's DOP853 on Pinocchio's
+    ABA: ≤ 1e-6 rad. The joints' damping is 0.1 N·m·s/rad in both: with the URDF's 0.003
+    the wrist whips up to 74 rad/s (30 times its limit) and RK4 at 1e-4 s is 1.2e-6 rad off
+    (benchmarks/bench_urdf.py reports both)."""
+    chain = read_urdf(ARMS["panda"])
+    model = pinocchio_model(ARMS["panda"], chain)
+    data = model.createData()
+    q0 = np.array([0.3, -0.5, 0.2, -1.8, 0.4, 1.2, -0.3])
+    qdot0 = np.array([0.5, -0.3, 0.2, 0.4, -0.6, 0.3, 0.8])
+    damping = 0.1
+
+    def rhs(_, x):
+        q, qd = x[:7], x[7:]
+        return np.concatenate([qd, pin.aba(model, data, q, qd, -damping * qd)])
+
+    times = np.linspace(0.0, 2.0, 201)
+    reference = solve_ivp(rhs, (0.0, 2.0), np.concatenate([q0, qdot0]), method="DOP853",
+                          t_eval=times, rtol=1e-13, atol=1e-13).y[:7].T
+    start = {f"q0[{i + 1}]": q for i, q in enumerate(q0)}
+    start.update({f"qdot0[{i + 1}]": v for i, v in enumerate(qdot0)})
+    start.update({f"b[{i + 1}]": damping for i in range(7)})
+    plant = FmuInstance(fmus("panda", 3), "CoSimulation", start)
+    try:
+        trace = [plant.get(plant.names("q"))]
+        for t in times[:-1]:
+            plant.do_step(t, times[1] - times[0])
+            trace.append(plant.get(plant.names("q")))
+    finally:
+        plant.free()
+    assert np.abs(np.array(trace) - reference).max() <= 1e-6
+    assert np.abs(reference[-1] - q0).max() > 5.0  # it did swing
+
+
+def test_directional_derivative_is_the_inverse_inertia(fmus):
+    """∂q̈/∂τ of the complex-step directional derivatives is M⁻¹, Pinocchio's."""
+    chain = read_urdf(OWN_ROBOT)
+    model = pinocchio_model(OWN_ROBOT, chain)
+    plant = FmuInstance(fmus("own"), "ModelExchange")
+    try:
+        q, qd = np.array([0.2, 1.0, -0.4, 0.7]), np.array([0.1, -0.5, 0.8, 0.3])
+        plant.set_states(np.concatenate([q, qd]))
+        accelerations = [f"der(qdot[{i + 1}])" for i in range(chain.n)]
+        columns = [plant.directional_derivative(accelerations, [f"tau[{j + 1}]"],
+                                                [1.0]) for j in range(chain.n)]
+    finally:
+        plant.free()
+    expected = pin.computeMinverse(model, model.createData(), configuration(model, q))
+    np.testing.assert_allclose(np.array(columns).T, np.triu(expected) + np.triu(expected, 1).T,
+                               rtol=1e-12, atol=1e-12)
+
+
+@pytest.mark.parametrize("arm", ["own", "panda"])  # FMI 2, FMI 3
+def test_fmpy_validate_finds_no_problems(fmus, arm):
+    path = fmus(arm)
+    assert validate_fmu(str(path)) == []
+    md = read_model_description(str(path))
+    assert md.fmiVersion == f"{DYNAMICS[arm]}.0"
+    assert md.coSimulation is not None and md.modelExchange is not None
+
+
+def test_model_description_limits_and_units(fmus):
+    md = read_model_description(str(fmus("own")))
+    var = {v.name: v for v in md.modelVariables}
+    # the lift is prismatic: metres and newtons; M mixes the two
+    assert [var[n].unit for n in ("q[1]", "qdot[1]", "tau[1]", "b[1]", "M[1,2]", "M[1,1]")] \
+        == ["m", "m/s", "N", "N.s/m", "kg.m", "kg"]
+    assert [var[n].unit for n in ("q[2]", "tau[2]", "M[2,2]")] == ["rad", "N.m", "kg.m2"]
+    # position limits on the start positions; none for the continuous turret
+    assert (float(var["q0[1]"].min), float(var["q0[1]"].max)) == (0.0, 0.5)
+    assert (var["q0[2]"].min, var["q0[2]"].max) == (None, None)
+    assert (float(var["q0[3]"].min), float(var["q0[3]"].max)) == (-2.0, 2.0)
+    # velocity and effort limits and friction as parameters a pipeline reads or sets
+    assert [float(var[f"qdot_max[{i}]"].start) for i in range(1, 5)] == [0.3, 2.0, 3.0, 4.0]
+    assert [float(var[f"tau_max[{i}]"].start) for i in range(1, 5)] == [200, 50, 30, 10]
+    assert var["payload"].causality == "parameter" and var["payload"].unit == "kg"
+    assert "slider_turret" in md.description and "lift" in md.description
+
+
+def test_start_outside_the_limits_is_refused(fmus):
+    with pytest.raises(FMICallException):
+        FmuInstance(fmus("own"), "CoSimulation", {"q0[1]": 0.6})  # the lift's range is 0..0.5 m
+
+
+def test_build_is_cached_by_the_urdf_content(fmus, fmu_cache, tmp_path):
+    first = fmus("own")
+    assert build_urdf_fmu(OWN_ROBOT, cache_dir=fmu_cache) == first
+    heavier = tmp_path / "slider_turret.urdf"
+    heavier.write_text(OWN_ROBOT.read_text().replace('<mass value="0.3"/>',
+                                                     '<mass value="0.4"/>'))
+    (tmp_path / "meshes").symlink_to(OWN_ROBOT.parent / "meshes")
+    keys = [_build_key(SpatialChainModel(read_urdf(urdf)), 4, 2, "cc")
+            for urdf in (OWN_ROBOT, heavier, OWN_ROBOT)]
+    assert keys[0] != keys[1] and keys[0] == keys[2]
+
+
+# Each malformed URDF (our robot, edited) and the element its one message names.
+MALFORMED = {
+    "missing inertial": (
+        lambda t: re.sub(r'(<link name="carriage">\s*)<inertial>.*?</inertial>', r"\1", t,
+                         flags=re.S),
+        "link 'carriage' has no <inertial> (with <mass>), but moving joint 'lift' carries it"),
+    "zero mass": (
+        lambda t: t.replace('<mass value="1.2"/>', '<mass value="0"/>'),
+        "link 'turret_link' <inertial><mass value='0'>: a mass in kg must be positive "
+        "(moving joint 'turret' carries it)"),
+    "loop": (
+        lambda t: t.replace("</robot>", '<joint name="strut" type="fixed"><parent '
+                            'link="pedestal"/><child link="hand"/></joint></robot>'),
+        "link 'hand' is the child of joints 'wrist' and 'strut': a loop"),
+    "floating joint": (
+        lambda t: t.replace('name="turret" type="continuous"', 'name="turret" type="floating"'),
+        "joint 'turret' has type 'floating': the plant supports revolute, continuous, "
+        "prismatic, fixed joints"),
+    "planar joint": (
+        lambda t: t.replace('name="wrist" type="revolute"', 'name="wrist" type="planar"'),
+        "joint 'wrist' has type 'planar'"),
+    "missing mesh": (
+        lambda t: t.replace("meshes/block.stl", "meshes/gone.stl"),
+        "link 'pedestal' <visual><mesh filename='meshes/gone.stl'>: no such file"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(MALFORMED))
+def test_malformed_urdf_refused_with_one_message(case, tmp_path, capsys, fmu_cache,
+                                                 monkeypatch):
+    edit, expected = MALFORMED[case]
+    robot = tmp_path / "robot.urdf"
+    robot.write_text(edit(OWN_ROBOT.read_text()))
+    (tmp_path / "meshes").symlink_to(OWN_ROBOT.parent / "meshes")
+    monkeypatch.setenv("COSIM_CACHE", str(tmp_path / "cache"))
+    assert main(["build-fmu", "--urdf", str(robot), "--output", str(tmp_path / "x.fmu")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith(f"cosim: error: --urdf {robot}: ")
+    assert expected in err
+    assert not (tmp_path / "x.fmu").exists() and not (tmp_path / "cache").exists()
+
+
+def test_pipeline_names_a_urdf_plant(tmp_path, monkeypatch, fmu_cache):
+    monkeypatch.setenv("COSIM_CACHE", str(fmu_cache))
+    (tmp_path / "robots").mkdir()
+    (tmp_path / "robots" / "meshes").symlink_to(OWN_ROBOT.parent / "meshes")
+    robot = tmp_path / "robots" / "robot.urdf"
+    robot.write_text(OWN_ROBOT.read_text())
+    pipeline = tmp_path / "p.toml"
+    pipeline.write_text('[plant]\nurdf = { file = "robots/robot.urdf", tip = "hand", '
+                        'fixed = { wrist = 0.2 } }\n')
+    loaded = load_pipeline(pipeline)
+    assert loaded.plant.builtin is None and loaded.plant.urdf.file == str(robot)
+    fmu = plant_path(loaded)
+    assert fmu == build_urdf_fmu(robot, tip="hand", fixed={"wrist": 0.2}, cache_dir=fmu_cache)
+    assert sum(v.name.startswith("q[") for v in read_model_description(fmu).modelVariables) == 3
+    # package:// addresses, --set swapping the plant, and one plant at a time
+    panda = "package://example-robot-data/robots/panda_description/urdf/panda.urdf"
+    swapped = load_pipeline(pipeline, [f'plant.urdf="{panda}"'])
+    assert swapped.plant.urdf.file == panda and swapped.plant.urdf.tip is None
+    assert load_pipeline(pipeline, ['plant.builtin={links=3}']).plant.urdf is None
+    with pytest.raises(PipelineError, match="give one of plant.builtin, plant.fmu or "
+                       "plant.urdf, not plant.builtin and plant.urdf"):
+        load_pipeline(None, ['plant={builtin={links=3}, urdf="robot.urdf"}'])
+    robot.write_text(OWN_ROBOT.read_text().replace('type="continuous"', 'type="floating"'))
+    with pytest.raises(PipelineError, match=r"^plant.urdf: .*joint 'turret' has type"):
+        plant_path(load_pipeline(pipeline))

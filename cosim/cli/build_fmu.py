@@ -1,4 +1,4 @@
-"""`cosim build-fmu`: build a built-in plant FMU (FMI 2.0 or 3.0)."""
+"""`cosim build-fmu`: build a built-in plant FMU, or one from a URDF (FMI 2.0 or 3.0)."""
 
 from __future__ import annotations
 
@@ -14,15 +14,34 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
     max_links = max(model.MAX_LINKS for model in MODELS.values())
     p = commands.add_parser(
-        "build-fmu", help="build a built-in plant FMU (FMI 2.0 or 3.0)",
-        description="Compile a built-in plant model with the system C compiler into an FMU "
-        "with Co-Simulation and Model Exchange. Prints the FMU's path.")
-    p.add_argument("--model", default=DEFAULT_MODEL, choices=list(MODELS),
+        "build-fmu", help="build a plant FMU: a built-in model, or a robot's URDF (FMI 2.0 or "
+        "3.0)",
+        description="Compile a built-in plant model, or the spatial rigid-body chain of a "
+        "URDF (--urdf), with the system C compiler into an FMU with Co-Simulation and Model "
+        "Exchange. Prints the FMU's path.")
+    p.add_argument("--model", default=None, choices=list(MODELS),
                    help=f"the plant model: the rigid n-link planar arm (planar_arm), or the "
                    f"arm with elastic joints, motors driving the links through springs "
                    f"(elastic_joints) (default {DEFAULT_MODEL})")
-    p.add_argument("--links", type=int, default=2, choices=range(1, max_links + 1),
+    p.add_argument("--links", type=int, default=None, choices=range(1, max_links + 1),
                    metavar="N", help=f"number of links, 1 to {max_links} (default 2)")
+    urdf = p.add_argument_group(
+        "a robot's URDF", "The chain from --base to --tip: revolute, continuous and prismatic "
+        "joints move, fixed joints (and joints off that path, held at 0 or their nearest "
+        "limit) are folded into their parent body. Meshes are not needed for the dynamics "
+        "(the FMU ignores them) but must exist: the 3-D view draws them.")
+    urdf.add_argument("--urdf", default=None, metavar="ROBOT.urdf",
+                      help="the robot's URDF: a path, or package://PKG/... (found above the "
+                      "file, in $ROS_PACKAGE_PATH, $AMENT_PREFIX_PATH or an installed "
+                      "example-robot-data)")
+    urdf.add_argument("--base", default=None, metavar="LINK",
+                      help="the link the chain is fixed to (default: the URDF's root link)")
+    urdf.add_argument("--tip", default=None, metavar="LINK",
+                      help="the chain's last link, where the payload sits (default: from the "
+                      "base, follow the one way on to a moving joint; stop where it forks)")
+    urdf.add_argument("--fix", action="append", default=[], metavar="JOINT=VALUE",
+                      help="hold a moving joint at VALUE (rad, or m for a prismatic joint), "
+                      "folding it into its parent body (repeatable)")
     p.add_argument("--fmi-version", type=int, default=2, choices=(2, 3),
                    help="FMI version (default 2)")
     p.add_argument("--output", default=None, metavar="FILE.fmu|FOLDER/",
@@ -31,9 +50,23 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     p.set_defaults(func=handle)
 
 
-def handle(args: argparse.Namespace) -> None:
-    from plant_fmu import MODELS, build_fmu
+def fixed_joints(items: list[str]) -> dict[str, float]:
+    """``--fix JOINT=VALUE`` options as {joint: value}."""
+    fixed = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        try:
+            fixed[name.strip()] = float(value)
+        except ValueError:
+            sep = ""
+        if not sep or not name.strip():
+            raise UserError(f"--fix {item}: give JOINT=VALUE, the value a number in rad (m for "
+                            "a prismatic joint), e.g. --fix panda_finger_joint1=0.02")
+    return fixed
 
+
+def _folder(args: argparse.Namespace) -> Path | None:
+    """The folder --output names (made if missing), or None for a file or the cache."""
     output = Path(args.output) if args.output is not None else None
     if output is not None and (output.is_dir() or args.output.endswith(os.sep)):
         try:  # a folder (one ending in / is made): the FMU goes into it
@@ -41,15 +74,49 @@ def handle(args: argparse.Namespace) -> None:
         except OSError as exc:
             raise UserError(f"--output {args.output}: cannot make the folder: "
                             f"{exc.strerror or exc}") from None
-        identifier = MODELS[args.model].MODEL_IDENTIFIER
-        output = output / f"{identifier}{args.links}_fmi{args.fmi_version}.fmu"
-    elif output is not None and output.suffix.lower() != ".fmu":
+        return output
+    if output is not None and output.suffix.lower() != ".fmu":
         raise UserError(f"--output {args.output}: an FMU's file name ends in .fmu (e.g. "
                         f"{output.with_suffix('.fmu')}); for a folder, end it with "
                         f"{os.sep} and the FMU is written into it; nothing was written")
+    return None
+
+
+def _build(args: argparse.Namespace) -> Path:
+    from plant_fmu import DEFAULT_MODEL, MODELS, UrdfError, build_fmu, build_urdf_fmu
+    from plant_fmu.urdf import resolve_uri
+
+    folder = _folder(args)
+    output = Path(args.output) if args.output is not None and folder is None else None
+    if args.urdf is None:
+        for option, given in (("--base", args.base), ("--tip", args.tip), ("--fix", args.fix)):
+            if given:
+                raise UserError(f"{option} chooses a part of a URDF: give --urdf ROBOT.urdf too")
+        model, links = args.model or DEFAULT_MODEL, args.links or 2
+        if folder is not None:
+            identifier = MODELS[model].MODEL_IDENTIFIER
+            output = folder / f"{identifier}{links}_fmi{args.fmi_version}.fmu"
+        return build_fmu(links=links, fmi_version=args.fmi_version, output=output, model=model)
+    for option, given in (("--model", args.model), ("--links", args.links)):
+        if given is not None:
+            raise UserError(f"{option} is for the built-in planar models; --urdf builds the "
+                            "robot the URDF describes (its joints are the URDF's): drop one")
+    urdf = resolve_uri(args.urdf, Path.cwd())
+    options = dict(base=args.base, tip=args.tip, fixed=fixed_joints(args.fix),
+                   fmi_version=args.fmi_version)
     try:
-        path = build_fmu(links=args.links, fmi_version=args.fmi_version, output=output,
-                         model=args.model)
+        path = build_urdf_fmu(urdf, output=output, **options)
+        if folder is not None:  # named as in the cache, without its digest
+            path = build_urdf_fmu(urdf, output=folder / (path.name.rsplit("_", 1)[0] + ".fmu"),
+                                  **options)
+    except UrdfError as exc:
+        raise UserError(f"--urdf {exc}; nothing was written") from None
+    return path
+
+
+def handle(args: argparse.Namespace) -> None:
+    try:
+        path = _build(args)
     except OSError as exc:
         raise UserError(f"--output {args.output}: cannot write the FMU there: "
                         f"{exc.strerror or exc}") from None

@@ -83,7 +83,8 @@ def _crashed_run(args: list[str]) -> tuple[Path, str]:
         pipeline = load_pipeline(ns.pipeline, ns.set)
     except PipelineError:
         return Path(ns.out or "runs"), ""
-    plant = Path(pipeline.plant.fmu).name if pipeline.plant.fmu else "the built-in plant"
+    plant = (Path(pipeline.plant.fmu).name if pipeline.plant.fmu else
+             Path(pipeline.plant.urdf.file).name if pipeline.plant.urdf else "the built-in plant")
     # without --out, the run made runs/NAME/TIME and pointed runs/NAME/latest at it
     return Path(ns.out or (Path("runs") / pipeline.name / "latest").resolve()), plant
 

@@ -17,7 +17,8 @@ def read_toml(path: Path, chain: tuple[Path, ...] = ()) -> dict:
     """A pipeline file's tables, with ``extends = "other.toml"`` (relative to it) resolved:
     the other file's tables first, this file's merged over them key by key (runs by name).
     Paths in a file (``plant.fmu``) are relative to the file that declares them; a file that
-    names a plant (``plant.fmu`` or ``plant.builtin``) replaces the one it extends."""
+    names a plant (``plant.fmu``, ``plant.builtin`` or ``plant.urdf``) replaces the one it
+    extends."""
     where = f" (extended by {chain[-1]})" if chain else ""
     if len(chain) >= MAX_EXTENDS:
         raise PipelineError(f"{path}: the 'extends' chain is more than {MAX_EXTENDS} files "
@@ -49,6 +50,8 @@ def read_toml(path: Path, chain: tuple[Path, ...] = ()) -> dict:
     if isinstance(plant, dict) and isinstance(plant.get("fmu"), str):
         fmu = Path(plant["fmu"]).expanduser()
         plant["fmu"] = str(fmu if fmu.is_absolute() else (path.parent / fmu).resolve())
+    if isinstance(plant, dict) and "urdf" in plant:
+        plant["urdf"] = urdf_relative_to(plant["urdf"], path.parent)
     parent = data.pop("extends", None)
     if parent is None:
         return data
@@ -67,9 +70,11 @@ def read_toml(path: Path, chain: tuple[Path, ...] = ()) -> dict:
         # both files' plugins, the parent's first
         merged["plugins"] = list(dict.fromkeys([*inherited["plugins"], *data["plugins"]]))
     if isinstance(plant, dict) and isinstance(merged.get("plant"), dict):
-        for key, other in PLANT_SOURCES.items():  # this file's plant, not the parent's too
-            if key in plant and other not in plant:
-                merged["plant"].pop(other, None)
+        for key, others in PLANT_SOURCES.items():  # this file's plant, not the parent's too
+            if key in plant:
+                for other in others:
+                    if other not in plant:
+                        merged["plant"].pop(other, None)
     return merged
 
 
@@ -86,6 +91,18 @@ def absolute(name: str, folder: Path) -> Path:
     """A path as given if absolute, else from ``folder`` (``~`` expanded)."""
     path = Path(name).expanduser()
     return path if path.is_absolute() else (folder / path).resolve()
+
+
+def urdf_relative_to(urdf, folder: Path):
+    """``plant.urdf`` (a file, or a table with ``file``) with a relative path made absolute
+    from ``folder``; a package:// or file:// address as is; anything else as is (the schema
+    says what is wrong with it)."""
+    file = urdf.get("file") if isinstance(urdf, dict) else urdf
+    if not isinstance(file, str) or "://" in file:
+        return urdf
+    path = Path(file).expanduser()
+    file = str(path if path.is_absolute() else (folder / path).resolve())
+    return {**urdf, "file": file} if isinstance(urdf, dict) else file
 
 
 def plugin_path(name: str, folder: Path) -> str:

@@ -8,7 +8,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from ..blocks.plugins import load_entry_points, load_plugins
-from .files import absolute, plugin_path, read_toml
+from .files import absolute, plugin_path, read_toml, urdf_relative_to
 from .overrides import apply_override, shadowed
 from .pipeline import Pipeline
 from .validation import validate
@@ -33,6 +33,8 @@ def load_pipeline(path: str | Path | None, overrides: list[str] | None = None,
         source, base = str(path), path.parent
     for assignment in overrides or []:
         data = apply_override(data, assignment)
+        if assignment.split("=", 1)[0].strip().startswith("plant.urdf"):
+            data["plant"]["urdf"] = urdf_relative_to(data["plant"]["urdf"], Path.cwd())
         for warning in shadowed(data, assignment) if warn else ():
             warn(warning)
     plugins = data.get("plugins")

@@ -50,7 +50,8 @@ def apply_override(data: dict, assignment: str) -> dict:
     else:
         node[keys[-1]] = value
     if keys[:-1] == ["plant"] and keys[-1] in PLANT_SOURCES:  # swap the plant, not add one
-        node.pop(PLANT_SOURCES[keys[-1]], None)
+        for other in PLANT_SOURCES[keys[-1]]:
+            node.pop(other, None)
     return out
 
 

@@ -40,7 +40,8 @@ class Pipeline(Section):
     @model_validator(mode="after")
     def _bounded_plant_work(self) -> Pipeline:
         internal = self.plant.parameters.get("rk4_step")
-        if self.plant.builtin is not None and internal is not None and internal > 0:
+        built = self.plant.builtin is not None or self.plant.urdf is not None
+        if built and internal is not None and internal > 0:
             substeps = self.simulation.step / internal
             if substeps > self.simulation.max_plant_substeps:
                 raise ValueError(

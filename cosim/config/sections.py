@@ -64,6 +64,28 @@ class BuiltinPlant(Section):
     fmi_version: Literal[2, 3] = 2  # the FMI version it is built for, 2 or 3 (a name)
 
 
+class UrdfPlant(Section):
+    """A robot's URDF, built into a spatial-chain FMU at run time (cached, as ``cosim
+    build-fmu --urdf``). ``plant.urdf = "robot.urdf"`` is short for ``[plant.urdf] file =
+    "robot.urdf"``."""
+
+    # the URDF: a path relative to the pipeline file, or package://PKG/... (e.g.
+    # package://example-robot-data/robots/panda_description/urdf/panda.urdf), a path
+    file: str
+    base: str | None = None  # the link the chain is fixed to (default: the root link), a name
+    # the chain's last link, where the payload sits (default: from the base, the one way on
+    # to a moving joint, stopping where it forks), a name
+    tip: str | None = None
+    # joints held at a value and folded into their parent body, rad (m for a prismatic joint)
+    fixed: dict[str, FiniteFloat] = {}
+    fmi_version: Literal[2, 3] = 2  # the FMI version it is built for, 2 or 3 (a name)
+
+    @model_validator(mode="before")
+    @classmethod
+    def _file_alone(cls, data):
+        return {"file": data} if isinstance(data, str) else data
+
+
 class _VariableMapping(Section):
     """The plant's ports in the FMU's names, one name per joint (n×n row-major for M), a
     key per port of cosim.plant.ports.PORTS. Unset: the built-in plants' names (``tau[1]``,
@@ -81,6 +103,9 @@ VariableMapping = create_model(
 class Plant(Section):
     builtin: BuiltinPlant | None = None
     fmu: str | None = None  # the plant FMU's file, relative to the pipeline file, a path
+    # a robot's URDF built into the plant FMU at run time: its file, relative to the pipeline
+    # file or package://..., a path (or a table: file, base, tip, fixed, fmi_version)
+    urdf: UrdfPlant | None = None
     # FMU parameter and start values by the FMU's variable name, each in that variable's own
     # unit (cosim inspect lists them), mixed units
     parameters: dict[str, FiniteFloat] = {}
@@ -88,12 +113,16 @@ class Plant(Section):
 
     @model_validator(mode="after")
     def _one_source(self) -> Plant:
-        if self.builtin is not None and self.fmu is not None:
-            raise ValueError("give either plant.builtin or plant.fmu, not both")
-        if self.builtin is None and self.fmu is None:
+        given = [key for key in PLANT_SOURCES if getattr(self, key) is not None]
+        if len(given) > 1:
+            raise ValueError(f"give one of plant.builtin, plant.fmu or plant.urdf, not "
+                             f"{' and '.join('plant.' + key for key in given)}")
+        if not given:
             self.builtin = BuiltinPlant()
         return self
 
 
-# plant.fmu and plant.builtin are alternatives: a file or --set naming one drops the other.
-PLANT_SOURCES = {"fmu": "builtin", "builtin": "fmu"}
+# plant.builtin, plant.fmu and plant.urdf are alternatives: a file or --set naming one drops
+# the others.
+PLANT_SOURCES = {"builtin": ("fmu", "urdf"), "fmu": ("builtin", "urdf"),
+                 "urdf": ("builtin", "fmu")}

@@ -20,14 +20,14 @@
 #define SPATIAL_CHAIN_COMMON
 /* The parameters the algorithms read, as views into the model's variables. */
 typedef struct {
-    const double *b, *fc, *tau_d;
-    double fc_vel, payload;
+    const double *b, *fc, *fc_vel, *tau_d;
+    double payload;
 } ChainParams;
 
 static ChainParams chain_params(const ModelState *s)
 {
     const double *v = s->v;
-    ChainParams p = {&v[VR_b], &v[VR_fc], &v[VR_tau_d], v[VR_fc_vel], v[VR_payload]};
+    ChainParams p = {&v[VR_b], &v[VR_fc], &v[VR_fc_vel], &v[VR_tau_d], v[VR_payload]};
     return p;
 }
 
@@ -63,56 +63,48 @@ static void body_inertias(double payload, BodyInertia *body)
 #endif
 
 /* a x b */
-static void FN(cross)(const SCALAR *a, const SCALAR *b, SCALAR *out)
+static inline void FN(cross)(const SCALAR *a, const SCALAR *b, SCALAR *out)
 {
     out[0] = a[1] * b[2] - a[2] * b[1];
     out[1] = a[2] * b[0] - a[0] * b[2];
     out[2] = a[0] * b[1] - a[1] * b[0];
 }
 
-/* The transform parent -> body i at joint position q: the placement then the joint's
- * motion (a rotation about, or a translation along, its axis). */
-static void FN(joint_transform)(int i, SCALAR q, SCALAR *E, SCALAR *r)
+/* The transform parent -> body i at joint position q: the placement R, t then the joint's
+ * motion. Revolute, by Rodrigues: R Rot(a, q) = R + sin q (R K) + (1 - cos q) (R K^2),
+ * K = [a]x, with R K and R K^2 from chain.h; prismatic: origin t + (R a) q. */
+static inline void FN(joint_transform)(int i, SCALAR q, SCALAR *E, SCALAR *r)
 {
-    const double *R = CHAIN_ROTATION[i], *a = CHAIN_AXIS[i];
-    SCALAR rot[9]; /* parent <- body rotation, R Rot(a, q) */
+    const double *R = CHAIN_ROTATION[i], *t = CHAIN_TRANSLATION[i];
     if (CHAIN_KIND[i] == 0) {
+        const double *RK = CHAIN_ROTATION_K[i], *RKK = CHAIN_ROTATION_KK[i];
         const SCALAR s = sin(q), c1 = 1 - cos(q);
-        /* Rodrigues: Rot = 1 + s K + (1 - cos) K^2, K = [a]x */
-        const double K[9] = {0, -a[2], a[1], a[2], 0, -a[0], -a[1], a[0], 0};
-        SCALAR J[9];
-        for (int k = 0; k < 3; k++)
-            for (int l = 0; l < 3; l++) {
-                double k2 = 0;
-                for (int m = 0; m < 3; m++) k2 += K[3 * k + m] * K[3 * m + l];
-                J[3 * k + l] = (k == l) + s * K[3 * k + l] + c1 * k2;
-            }
-        for (int k = 0; k < 3; k++)
-            for (int l = 0; l < 3; l++)
-                rot[3 * k + l] = R[3 * k] * J[l] + R[3 * k + 1] * J[3 + l] + R[3 * k + 2] * J[6 + l];
-        for (int k = 0; k < 3; k++) r[k] = CHAIN_TRANSLATION[i][k];
+        for (int k = 0; k < 3; k++) {
+            r[k] = t[k];
+            for (int l = 0; l < 3; l++) /* E = (R Rot)^T */
+                E[3 * k + l] = R[3 * l + k] + s * RK[3 * l + k] + c1 * RKK[3 * l + k];
+        }
     } else {
-        for (int k = 0; k < 9; k++) rot[k] = R[k];
-        for (int k = 0; k < 3; k++)
-            r[k] = CHAIN_TRANSLATION[i][k] + (R[3 * k] * a[0] + R[3 * k + 1] * a[1] + R[3 * k + 2] * a[2]) * q;
+        for (int k = 0; k < 3; k++) {
+            r[k] = t[k] + CHAIN_ROTATED_AXIS[i][k] * q;
+            for (int l = 0; l < 3; l++) E[3 * k + l] = R[3 * l + k];
+        }
     }
-    for (int k = 0; k < 3; k++)
-        for (int l = 0; l < 3; l++) E[3 * k + l] = rot[3 * l + k];
 }
 
 /* out = E x for 3-vectors; FN(rotate_back): out = E^T x */
-static void FN(rotate)(const SCALAR *E, const SCALAR *x, SCALAR *out)
+static inline void FN(rotate)(const SCALAR *E, const SCALAR *x, SCALAR *out)
 {
     for (int k = 0; k < 3; k++) out[k] = E[3 * k] * x[0] + E[3 * k + 1] * x[1] + E[3 * k + 2] * x[2];
 }
 
-static void FN(rotate_back)(const SCALAR *E, const SCALAR *x, SCALAR *out)
+static inline void FN(rotate_back)(const SCALAR *E, const SCALAR *x, SCALAR *out)
 {
     for (int k = 0; k < 3; k++) out[k] = E[k] * x[0] + E[3 + k] * x[1] + E[6 + k] * x[2];
 }
 
 /* A motion vector from the parent's coordinates into the body's: X m. */
-static void FN(motion_to_body)(const SCALAR *E, const SCALAR *r, const SCALAR *m, SCALAR *out)
+static inline void FN(motion_to_body)(const SCALAR *E, const SCALAR *r, const SCALAR *m, SCALAR *out)
 {
     SCALAR rw[3], v[3];
     FN(cross)(r, m, rw);
@@ -122,7 +114,7 @@ static void FN(motion_to_body)(const SCALAR *E, const SCALAR *r, const SCALAR *m
 }
 
 /* A force from the body's coordinates into the parent's: X^T f. */
-static void FN(force_to_parent)(const SCALAR *E, const SCALAR *r, const SCALAR *f, SCALAR *out)
+static inline void FN(force_to_parent)(const SCALAR *E, const SCALAR *r, const SCALAR *f, SCALAR *out)
 {
     SCALAR rf[3];
     FN(rotate_back)(E, &f[3], &out[3]);
@@ -132,7 +124,7 @@ static void FN(force_to_parent)(const SCALAR *E, const SCALAR *r, const SCALAR *
 }
 
 /* v x* f (the spatial force cross product) */
-static void FN(cross_force)(const SCALAR *v, const SCALAR *f, SCALAR *out)
+static inline void FN(cross_force)(const SCALAR *v, const SCALAR *f, SCALAR *out)
 {
     SCALAR a[3], b[3];
     FN(cross)(v, f, a);
@@ -142,7 +134,7 @@ static void FN(cross_force)(const SCALAR *v, const SCALAR *f, SCALAR *out)
 }
 
 /* v x m (the spatial motion cross product) */
-static void FN(cross_motion)(const SCALAR *v, const SCALAR *m, SCALAR *out)
+static inline void FN(cross_motion)(const SCALAR *v, const SCALAR *m, SCALAR *out)
 {
     SCALAR a[3], b[3];
     FN(cross)(v, m, out);
@@ -152,7 +144,7 @@ static void FN(cross_motion)(const SCALAR *v, const SCALAR *m, SCALAR *out)
 }
 
 /* A body's spatial inertia times a motion vector. */
-static void FN(inertia_times)(const BodyInertia *b, const SCALAR *m, SCALAR *out)
+static inline void FN(inertia_times)(const BodyInertia *b, const SCALAR *m, SCALAR *out)
 {
     const SCALAR h[3] = {b->h[0], b->h[1], b->h[2]};
     SCALAR hv[3], hw[3];
@@ -165,7 +157,7 @@ static void FN(inertia_times)(const BodyInertia *b, const SCALAR *m, SCALAR *out
 }
 
 /* The 6x6 matrix of a body's spatial inertia. */
-static void FN(inertia_matrix)(const BodyInertia *b, SCALAR *out)
+static inline void FN(inertia_matrix)(const BodyInertia *b, SCALAR *out)
 {
     const double *h = b->h;
     const double hx[9] = {0, -h[2], h[1], h[2], 0, -h[0], -h[1], h[0], 0};
@@ -178,44 +170,78 @@ static void FN(inertia_matrix)(const BodyInertia *b, SCALAR *out)
         }
 }
 
-/* out += X^T I X: a 6x6 inertia in the body's coordinates added to the parent's. With the
- * blocks child = [A B; B^T C]: rotate each block back (E^T . E), then shift by r:
- * A + r x B^T - B r x - r x C r x, B + r x C, C. */
-static void FN(inertia_to_parent)(const SCALAR *E, const SCALAR *r, const SCALAR *child, SCALAR *out)
+/* M = r x M, column by column (3x3, row-major). */
+static inline void FN(cross_columns)(const SCALAR *r, const SCALAR *M, SCALAR *out)
 {
-    SCALAR blk[3][9], rx[9] = {0, -r[2], r[1], r[2], 0, -r[0], -r[1], r[0], 0};
-    for (int b = 0; b < 3; b++) { /* A, B, C rotated back */
-        const int row = b == 2 ? 3 : 0, col = b == 0 ? 0 : 3;
-        SCALAR t[9];
-        for (int k = 0; k < 3; k++)
-            for (int l = 0; l < 3; l++)
-                t[3 * k + l] = child[6 * (row + k) + col] * E[l] + child[6 * (row + k) + col + 1] * E[3 + l] +
-                               child[6 * (row + k) + col + 2] * E[6 + l];
-        for (int k = 0; k < 3; k++)
-            for (int l = 0; l < 3; l++)
-                blk[b][3 * k + l] = E[k] * t[l] + E[3 + k] * t[3 + l] + E[6 + k] * t[6 + l];
+    for (int l = 0; l < 3; l++) {
+        out[l] = r[1] * M[6 + l] - r[2] * M[3 + l];
+        out[3 + l] = r[2] * M[l] - r[0] * M[6 + l];
+        out[6 + l] = r[0] * M[3 + l] - r[1] * M[l];
     }
-    const SCALAR *A = blk[0], *B = blk[1], *C = blk[2];
-    SCALAR rxC[9], Bn[9];
+}
+
+/* out = E^T S E (3x3, row-major); S symmetric if `symmetric` (then only half is computed). */
+static inline void FN(rotate_block)(const SCALAR *E, const SCALAR *S, int symmetric, SCALAR *out)
+{
+    SCALAR t[9]; /* S E */
     for (int k = 0; k < 3; k++)
-        for (int l = 0; l < 3; l++) {
-            rxC[3 * k + l] = rx[3 * k] * C[l] + rx[3 * k + 1] * C[3 + l] + rx[3 * k + 2] * C[6 + l];
-        }
-    for (int k = 0; k < 9; k++) Bn[k] = B[k] + rxC[k];
+        for (int l = 0; l < 3; l++)
+            t[3 * k + l] = S[3 * k] * E[l] + S[3 * k + 1] * E[3 + l] + S[3 * k + 2] * E[6 + l];
     for (int k = 0; k < 3; k++)
-        for (int l = 0; l < 3; l++) {
-            /* A - B rx + rx B^T - rx C rx = A + rx B^T - Bn rx (Bn = B + rx C) */
-            SCALAR a = A[3 * k + l];
-            for (int m = 0; m < 3; m++) a += rx[3 * k + m] * B[3 * l + m] - Bn[3 * k + m] * rx[3 * m + l];
-            out[6 * k + l] += a;
-            out[6 * k + 3 + l] += Bn[3 * k + l];
-            out[6 * (3 + l) + k] += Bn[3 * k + l];
-            out[6 * (3 + k) + 3 + l] += C[3 * k + l];
+        for (int l = symmetric ? k : 0; l < 3; l++) {
+            out[3 * k + l] = E[k] * t[l] + E[3 + k] * t[3 + l] + E[6 + k] * t[6 + l];
+            if (symmetric) out[3 * l + k] = out[3 * k + l];
         }
 }
 
+/* out += X^T I X: a symmetric 6x6 inertia in the body's coordinates, I = child - U U^T inv_d
+ * (ABA's articulated inertia seen through the joint; U = NULL for child alone), added to the
+ * parent's. X = [1 0; -r'x 1] diag(E, E) with r' = E r (the body's origin in its own frame),
+ * so with the blocks I = [A B; B^T C]: first shift, A + (r'x B^T) + (r'x B^T)^T - r'x C r'x,
+ * B + r'x C, C, then rotate each block back, E^T . E. */
+static void FN(inertia_to_parent)(const SCALAR *E, const SCALAR *r, const SCALAR *child,
+                                  const SCALAR *U, SCALAR inv_d, SCALAR *out)
+{
+    SCALAR A[9], B[9], C[9], rp[3], Bt[9], rBt[9], rC[9], rCr[9], As[9], Bs[9], blk[9];
+    SCALAR w[6] = {0, 0, 0, 0, 0, 0}; /* U inv_d */
+    if (U)
+        for (int k = 0; k < 6; k++) w[k] = U[k] * inv_d;
+    for (int k = 0; k < 3; k++)
+        for (int l = 0; l < 3; l++) {
+            A[3 * k + l] = child[6 * k + l] - (U ? w[k] * U[l] : 0);
+            B[3 * k + l] = Bt[3 * l + k] = child[6 * k + 3 + l] - (U ? w[k] * U[3 + l] : 0);
+            C[3 * k + l] = child[6 * (3 + k) + 3 + l] - (U ? w[3 + k] * U[3 + l] : 0);
+        }
+    FN(rotate)(E, r, rp);
+    FN(cross_columns)(rp, Bt, rBt);
+    FN(cross_columns)(rp, C, rC);
+    /* rC r'x = -(r'x (rC)^T)^T: rCr = r'x C r'x */
+    SCALAR rCt[9], t[9];
+    for (int k = 0; k < 3; k++)
+        for (int l = 0; l < 3; l++) rCt[3 * k + l] = rC[3 * l + k];
+    FN(cross_columns)(rp, rCt, t);
+    for (int k = 0; k < 3; k++)
+        for (int l = 0; l < 3; l++) rCr[3 * k + l] = -t[3 * l + k];
+    for (int k = 0; k < 9; k++) Bs[k] = B[k] + rC[k];
+    for (int k = 0; k < 3; k++)
+        for (int l = 0; l < 3; l++)
+            As[3 * k + l] = A[3 * k + l] + rBt[3 * k + l] + rBt[3 * l + k] - rCr[3 * k + l];
+    FN(rotate_block)(E, As, 1, blk);
+    for (int k = 0; k < 3; k++)
+        for (int l = 0; l < 3; l++) out[6 * k + l] += blk[3 * k + l];
+    FN(rotate_block)(E, Bs, 0, blk);
+    for (int k = 0; k < 3; k++)
+        for (int l = 0; l < 3; l++) {
+            out[6 * k + 3 + l] += blk[3 * k + l];
+            out[6 * (3 + l) + k] += blk[3 * k + l];
+        }
+    FN(rotate_block)(E, C, 1, blk);
+    for (int k = 0; k < 3; k++)
+        for (int l = 0; l < 3; l++) out[6 * (3 + k) + 3 + l] += blk[3 * k + l];
+}
+
 /* S^T f: the joint's share of a spatial force (revolute: the moment about its axis). */
-static SCALAR FN(joint_component)(int i, const SCALAR *f)
+static inline SCALAR FN(joint_component)(int i, const SCALAR *f)
 {
     const double *a = CHAIN_AXIS[i];
     const SCALAR *part = CHAIN_KIND[i] == 0 ? f : &f[3];
@@ -223,7 +249,7 @@ static SCALAR FN(joint_component)(int i, const SCALAR *f)
 }
 
 /* out = S * s, the joint's motion at speed s. */
-static void FN(joint_motion)(int i, SCALAR s, SCALAR *out)
+static inline void FN(joint_motion)(int i, SCALAR s, SCALAR *out)
 {
     const double *a = CHAIN_AXIS[i];
     const int at = CHAIN_KIND[i] == 0 ? 0 : 3;
@@ -304,7 +330,8 @@ static void FN(mass_matrix)(const BodyInertia *body, const SCALAR *q, SCALAR *M)
         FN(inertia_matrix)(&body[i], Ic[i]);
     }
     for (int i = N_LINKS - 1; i >= 0; i--)
-        if (CHAIN_PARENT[i] >= 0) FN(inertia_to_parent)(E[i], r[i], Ic[i], Ic[CHAIN_PARENT[i]]);
+        if (CHAIN_PARENT[i] >= 0)
+            FN(inertia_to_parent)(E[i], r[i], Ic[i], NULL, 0, Ic[CHAIN_PARENT[i]]);
     for (int i = 0; i < N_LINKS * N_LINKS; i++) M[i] = 0;
     for (int i = 0; i < N_LINKS; i++) {
         SCALAR s[6], F[6];
@@ -328,7 +355,8 @@ static void FN(mass_matrix)(const BodyInertia *body, const SCALAR *q, SCALAR *M)
  * fc tanh(qd / fc_vel), as the planar arm) and the constant disturbance tau_d. */
 static SCALAR FN(joint_losses)(const ChainParams *p, int i, SCALAR qd)
 {
-    return p->b[i] * qd + p->fc[i] * tanh(qd / p->fc_vel) + p->tau_d[i];
+    const SCALAR viscous = p->b[i] * qd + p->tau_d[i];
+    return p->fc[i] == 0 ? viscous : viscous + p->fc[i] * tanh(qd / p->fc_vel[i]);
 }
 
 /* Articulated-body algorithm: qdd from M qdd + h(q, qd) + losses(qd) = tau. 0 where a
@@ -356,14 +384,16 @@ static int FN(forward_dynamics)(const ChainParams *p, const BodyInertia *body, c
         u[i] = tau[i] - FN(joint_losses)(p, i, qd[i]) - FN(joint_component)(i, pA[i]);
         const int parent = CHAIN_PARENT[i];
         if (parent < 0) continue;
-        SCALAR Ia[36], pa[6], pp[6];
-        for (int k = 0; k < 6; k++)
-            for (int l = 0; l < 6; l++) Ia[6 * k + l] = IA[i][6 * k + l] - U[i][k] * U[i][l] / D[i];
+        /* pa = pA + Ia c + U u / D with Ia = IA - U U^T / D */
+        const SCALAR inv_d = 1 / D[i];
+        SCALAR Uc = 0, pa[6], pp[6];
+        for (int k = 0; k < 6; k++) Uc += U[i][k] * c[i][k];
+        const SCALAR share = (u[i] - Uc) * inv_d;
         for (int k = 0; k < 6; k++) {
-            pa[k] = pA[i][k] + U[i][k] * u[i] / D[i];
-            for (int l = 0; l < 6; l++) pa[k] += Ia[6 * k + l] * c[i][l];
+            pa[k] = pA[i][k] + U[i][k] * share;
+            for (int l = 0; l < 6; l++) pa[k] += IA[i][6 * k + l] * c[i][l];
         }
-        FN(inertia_to_parent)(E[i], r[i], Ia, IA[parent]);
+        FN(inertia_to_parent)(E[i], r[i], IA[i], U[i], inv_d, IA[parent]);
         FN(force_to_parent)(E[i], r[i], pa, pp);
         for (int k = 0; k < 6; k++) pA[parent][k] += pp[k];
     }
