@@ -6,9 +6,11 @@ spatial arm's pipeline run end to end through the real FMU with every joint chec
 from __future__ import annotations
 
 import importlib.metadata
+import json
 
 import numpy as np
 import pytest
+from cli_helpers import cosim_cli, error_line
 
 from cosim.dynamics.model import (
     chain_model,
@@ -129,3 +131,54 @@ def test_the_planar_chain_is_one_instance_bit_for_bit():
         numeric = np.column_stack([(point(q + h) - point(q - h)) / 2e-6
                                    for h in np.eye(3) * 1e-6])
         np.testing.assert_allclose(jac, numeric, atol=1e-8)
+
+
+UR5 = "pipelines/ur5.toml"
+
+
+@pytest.fixture(scope="module")
+def ur5_runs(tmp_path_factory):
+    """pipelines/ur5.toml's output-feedback and PD runs, 1.5 s, through `cosim run`: the
+    spatial-chain FMU built from the URDF (FMPy), the blocks on its 6 joints."""
+    out = tmp_path_factory.mktemp("ur5")
+    result = cosim_cli("run", UR5, "--set", "simulation.duration=1.5", "--run", "proposed",
+                       "--run", "pd", "--out", str(out), "--no-recording", "--no-figures")
+    assert result.returncode == 0, result.stderr[-3000:]
+    return json.loads((out / "summary.json").read_text())
+
+
+def test_a_urdf_arm_is_checked_on_every_joint_against_its_own_limits(ur5_runs):
+    """Every joint's position (the URDF's limits less the declared margin), true velocity and
+    effort are hard checks with the URDF's own bounds (read here by plant_fmu.urdf, not by the
+    evaluation's code path), no norm of a box; both controllers keep them all, and the
+    output-feedback controller tracks the waypoints (its error within 0.3 rad per joint)."""
+    chain = urdf.read_urdf(robot_urdf(ARMS["ur5"][0]), tip="tool0")
+    margin = 0.05
+    for name in ("proposed", "pd"):
+        safety = ur5_runs["runs"][name]["safety"]
+        for j in range(chain.n):
+            position = safety[f"position_joint{j + 1}"]
+            half = 0.5 * (chain.upper[j] - chain.lower[j]) - margin
+            assert position["kind"] == "hard" and position["bound"] == pytest.approx(half)
+            velocity = safety[f"velocity_true_joint{j + 1}"]
+            assert velocity["bound"] == pytest.approx(chain.velocity[j])
+            effort = safety[f"effort_joint{j + 1}"]
+            assert effort["kind"] == "hard" and effort["bound"] == pytest.approx(chain.effort[j])
+            for entry in (position, velocity, effort):
+                assert entry["satisfied"] is True, (name, j, entry)
+            assert 0.0 < velocity["worst"] < chain.velocity[j]  # the arm moved
+        assert not any(key.startswith(("position_norm", "velocity_true_norm", "effort_norm"))
+                       for key in safety)
+    errors = ur5_runs["runs"]["proposed"]["metrics"]["max_error"]
+    assert len(errors) == chain.n and max(errors) < 0.3
+
+
+def test_a_waypoint_past_a_joint_limit_is_refused_naming_it():
+    """A waypoint past the elbow's limit (π rad, less the margin) is refused before the run:
+    exit 2, one message naming the joint and the URDF's limits."""
+    result = cosim_cli("run", UR5, "--dry-run", "--set",
+                       "reference.waypoints.positions=[[0,-1.571,1.571,-1.571,-1.571,0],"
+                       "[0,-1.571,3.12,-1.571,-1.571,0]]",
+                       "--set", "reference.waypoints.times=[0,2]")
+    message = error_line(result)
+    assert "joint 3" in message and "ur5_robot.urdf's <limit>" in message, message
