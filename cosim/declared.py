@@ -42,19 +42,21 @@ class Safety(Section):
     # the robot's own limits (``urdf``'s <limit>: lower + position_margin ≤ q_i ≤ upper −
     # position_margin, |q̇_i| ≤ velocity, |τ_i| ≤ effort), each overridable below
     limits: Literal["radii", "urdf"] = "radii"
-    # the robot whose joint limits are the safe sets (limits = "urdf"): a URDF path
-    # (relative to where cosim runs) or package://…; its chain from ``urdf_base`` to
-    # ``urdf_tip`` (link names), as inertia_model.urdf reads it
+    # the robot whose joint limits are the safe sets (limits = "urdf"), its chain from
+    # ``urdf_base`` to ``urdf_tip`` as inertia_model.urdf reads it: a URDF file relative to
+    # where cosim runs, or package://…, a path
     urdf: str | None = None
     urdf_base: str | None = None  # the limits' URDF's base link (a name)
     urdf_tip: str | None = None  # the limits' URDF's tip link (a name)
     # the margin kept inside each URDF position limit (limits = "urdf"), rad (m: prismatic)
     position_margin: NonNegativeFloat = 0.0
-    # per joint, instead of the URDF's: the position set's lower and upper ends (before the
-    # margin), rad; the velocity bound, rad/s; the effort bound |τ_i|, N·m
+    # per joint, instead of the URDF's: the position set's lower end (before the margin), rad
     position_lower: list[FiniteFloat] | None = None
+    # per joint, instead of the URDF's: the position set's upper end (before the margin), rad
     position_upper: list[FiniteFloat] | None = None
+    # per joint, instead of the URDF's: the velocity bound |q̇_i|, rad/s
     velocity_limit: list[PositiveFloat] | None = None
+    # per joint, instead of the URDF's: the effort bound |τ_i|, N·m
     effort_limit: list[PositiveFloat] | None = None
 
     @model_validator(mode="after")
