@@ -13,9 +13,10 @@ test-venv: $(VENV)/.installed-test warm-up
 # first `cosim run` starts at once. It runs every time: a warm cache is recognised in a
 # fraction of a second, and an edit recompiles only the kernels it changed. The tests also
 # step the safety filter's kernels (~1 min to compile on one core): warmed in parallel here,
-# rather than one after the other in whichever test needs them first.
+# rather than one after the other in whichever test needs them first. The UR5 pipeline
+# (tests/test_spatial_blocks.py) adds its FMU and its PD run's fused loop.
 WARM_PIPELINES := pipelines/paper_two_link.toml
-test-venv: WARM_PIPELINES += pipelines/paper_safety.toml
+test-venv: WARM_PIPELINES += pipelines/paper_safety.toml pipelines/ur5.toml
 warm-up: $(VENV)/.installed
 	$(BIN)/cosim warm-up $(WARM_PIPELINES)
 

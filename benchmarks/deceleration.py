@@ -80,8 +80,8 @@ def main() -> None:
 
 def least_deceleration(a, distances: list[float], spread: float) -> tuple[float, tuple]:
     """(a̲, where) over the grid (module docstring)."""
-    bound_q, bound_v = a.viable_bounds
-    n = len(a.m)
+    bound_q, bound_v = a.viable_bounds[:, 0]
+    n = a.position.shape[1]
     angles = np.linspace(-np.pi, np.pi, 9)
     speeds = np.array([-1.0, -0.5, 0.0, 0.5, 1.0]) * 0.95 * (bound_v - spread)
     top = 0.999 * (bound_v - spread)

@@ -72,11 +72,11 @@ MUTANTS = [
      "limit = a.k_velocity * max(h - eps[i], 0.0)", "limit = a.k_velocity * h", FILTER),
     ("cbf-bias-error-dropped", "cosim/paper/cbf_filter/rows.py",
      "                limit -= scale * rows_error[i]\n", "", FILTER),
-    # (Dropping the box corner (g+1, g) instead is an equivalent mutant: s2 = s1/(1 + (λ2 −
-    # λ1)s1) is concave in s1 with λ1 ≤ λ2, so the curve never leaves the other three.)
+    # (It drops the plane's box corner (g, g+1), mask 2. Dropping (g+1, g) instead is an
+    # equivalent mutant: s2 = s1/(1 + (λ2 − λ1)s1) is concave in s1 with λ1 ≤ λ2, so the
+    # curve never leaves the other three.)
     ("cbf-payload-corners", "cosim/paper/cbf_filter/scratch.py",
-     "corner_index[corners, 0], corner_index[corners, 1] = g, g + 1",
-     "corner_index[corners, 0], corner_index[corners, 1] = g + 1, g", FILTER),
+     "for mask in range(2**d - 2, 0, -1):", "for mask in range(2**d - 3, 0, -1):", FILTER),
     ("cbf-hold-end-dropped", "cosim/paper/cbf_filter/rows.py",
      "    count = hard_rows(a, count, k, y_end, v_end, eps, minv_end, base_end, True)\n", "",
      FILTER),
@@ -93,14 +93,13 @@ MUTANTS = [
      "q[i], vel[i], dq[i], dv[i] = y[i], v[i], a.noise_bound, eps[i]",
      "q[i], vel[i], dq[i], dv[i] = y[i], v[i], a.noise_bound, 0.0", VIABILITY),
     ("cbf-payload-deviation-dropped", "cosim/paper/cbf_filter/backup.py",
-     "    _payload_deviation(a, a.work.rollout[R_Q], q_dot, acceleration, deviation)\n", "",
-     VIABILITY),
+     "    _payload_deviation(a, q_dot, acceleration, deviation)\n", "", VIABILITY),
     # the payload's departure at the range's ends only (the grid's first and last point)
     ("cbf-payload-ends-only", "cosim/paper/cbf_filter/backup.py",
      "start, end = weight * s_grid[g, j], weight * s_grid[g + 1, j]",
      "start = end = weight * s_grid[grid, j]", VIABILITY),
     ("cbf-turning-point", "cosim/paper/cbf_filter/backup.py",
-     "max(abs(q[i] - a.q_s[k, i]), abs(turn - a.q_s[k, i]))", "abs(q[i] - a.q_s[k, i])",
+     "max(abs(q[i] - a.centres[0, i]), abs(turn - a.centres[0, i]))", "abs(q[i] - a.centres[0, i])",
      VIABILITY),
     ("cbf-viable-inside", "cosim/paper/cbf_filter/block.py",
      "kept = inside(k, a)", "kept = True", VIABILITY),

@@ -4,11 +4,15 @@ They import nothing of the blocks, so blocks may import them. SI units, radians.
 
 from __future__ import annotations
 
-from typing import Annotated
+import functools
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Annotated, Literal
 
+import numpy as np
 from pydantic import Field, model_validator
 
-from .schema import FiniteFloat, NonNegativeFloat, PositiveFloat, Section
+from .schema import FiniteFloat, NonNegativeFloat, PipelineError, PositiveFloat, Section
 
 
 class Safety(Section):
@@ -33,6 +37,36 @@ class Safety(Section):
     z_vc_tilde: PositiveFloat = 50.0
     # rate α of the barrier condition Ḣ + α·H ≥ 0 (class-K, linear), 1/s
     barrier_alpha: PositiveFloat = 1.0
+    # where the per-joint position and velocity sets come from (a name): "radii", the
+    # paper's |q_i − q_s,i| ≤ position_bound and |q̇_i − q̇_s,i| ≤ velocity_bound; "urdf",
+    # the robot's own limits (``urdf``'s <limit>: lower + position_margin ≤ q_i ≤ upper −
+    # position_margin, |q̇_i| ≤ velocity, |τ_i| ≤ effort), each overridable below
+    limits: Literal["radii", "urdf"] = "radii"
+    # the robot whose joint limits are the safe sets (limits = "urdf"), its chain from
+    # ``urdf_base`` to ``urdf_tip`` as inertia_model.urdf reads it: a URDF file relative to
+    # where cosim runs, or package://…, a path
+    urdf: str | None = None
+    urdf_base: str | None = None  # the limits' URDF's base link (a name)
+    urdf_tip: str | None = None  # the limits' URDF's tip link (a name)
+    # the margin kept inside each URDF position limit (limits = "urdf"), rad (m: prismatic)
+    position_margin: NonNegativeFloat = 0.0
+    # per joint, instead of the URDF's: the position set's lower end (before the margin), rad
+    position_lower: list[FiniteFloat] | None = None
+    # per joint, instead of the URDF's: the position set's upper end (before the margin), rad
+    position_upper: list[FiniteFloat] | None = None
+    # per joint, instead of the URDF's: the velocity bound |q̇_i|, rad/s
+    velocity_limit: list[PositiveFloat] | None = None
+    # per joint, instead of the URDF's: the effort bound |τ_i|, N·m
+    effort_limit: list[PositiveFloat] | None = None
+
+    @model_validator(mode="after")
+    def _limits_source(self) -> Safety:
+        if self.limits == "urdf" and self.urdf is None and not (
+                self.position_lower and self.position_upper and self.velocity_limit):
+            raise ValueError('safety.limits = "urdf" needs safety.urdf (the robot\'s URDF, '
+                             "a path or package://…), or position_lower, position_upper and "
+                             "velocity_limit given per joint")
+        return self
 
 
 class Uncertainty(Section):
@@ -71,4 +105,71 @@ class Uncertainty(Section):
         return self
 
 
-__all__ = ["PositiveFloat", "Safety", "Uncertainty"]
+@dataclass(frozen=True)
+class JointBoxes:
+    """The per-joint safe sets of the robot's own limits: |q_i − position_centre_i| ≤
+    position_half_i (rad), |q̇_i − velocity_centre_i| ≤ velocity_half_i (rad/s) and
+    |τ_i| ≤ effort_i (N·m; inf: none), each an (n,) array, and where they come from."""
+
+    position_centre: np.ndarray
+    position_half: np.ndarray
+    velocity_centre: np.ndarray
+    velocity_half: np.ndarray
+    effort: np.ndarray
+    source: str
+
+
+@functools.lru_cache(maxsize=8)
+def _urdf_limits(urdf: str, base: str | None, tip: str | None) -> tuple:
+    from plant_fmu.urdf import UrdfError, read_urdf, resolve_uri
+
+    try:
+        chain = read_urdf(resolve_uri(urdf, Path.cwd()), base=base, tip=tip)
+    except UrdfError as exc:
+        raise PipelineError(f"safety.urdf: {exc}") from None
+    return chain.joints, chain.lower, chain.upper, chain.velocity, chain.effort
+
+
+def joint_boxes(safety: Safety, n: int) -> JointBoxes | None:
+    """The robot's own limits as per-joint boxes (``safety.limits = "urdf"``), the URDF's
+    overridden by the pipeline's per-joint values, a margin kept inside each position
+    limit; None for the paper's radii. PipelineError naming the key when a joint has no
+    finite position limit, a margin leaves no room, or a list has the wrong length."""
+    if safety.limits != "urdf":
+        return None
+    source = "the pipeline's safety.position_lower/upper, velocity_limit"
+    lower = upper = velocity = effort = None
+    if safety.urdf is not None:
+        joints, lower, upper, velocity, effort = _urdf_limits(safety.urdf, safety.urdf_base,
+                                                              safety.urdf_tip)
+        if len(joints) != n:
+            raise PipelineError(f"safety.urdf = {safety.urdf!r}: its chain has {len(joints)} "
+                                f"moving joints ({', '.join(joints)}), the plant {n}")
+        source = f"{safety.urdf}'s <limit> (overridden where the pipeline gives values)"
+    given = {"position_lower": lower, "position_upper": upper, "velocity_limit": velocity,
+             "effort_limit": effort if effort is not None else np.full(n, np.inf)}
+    values = {}
+    for key, default in given.items():
+        value = getattr(safety, key)
+        if value is not None and len(value) != n:
+            raise PipelineError(f"safety.{key}: {len(value)} values for {n} joints")
+        values[key] = np.asarray(value if value is not None else default, float)
+    lower = values["position_lower"] + safety.position_margin
+    upper = values["position_upper"] - safety.position_margin
+    if not np.all(np.isfinite(lower) & np.isfinite(upper)):
+        bad = int(np.flatnonzero(~(np.isfinite(lower) & np.isfinite(upper)))[0]) + 1
+        raise PipelineError(f"safety.limits = \"urdf\": joint {bad} has no finite position "
+                            "limit (a continuous joint); give safety.position_lower and "
+                            "position_upper, rad")
+    if np.any(upper <= lower):
+        bad = int(np.flatnonzero(upper <= lower)[0]) + 1
+        raise PipelineError(f"safety.position_margin = {safety.position_margin:g} rad leaves "
+                            f"joint {bad} no room between its position limits")
+    if not np.all(np.isfinite(values["velocity_limit"])):
+        raise PipelineError("safety.limits = \"urdf\": a joint has no velocity limit in the "
+                            "URDF; give safety.velocity_limit per joint, rad/s")
+    return JointBoxes(0.5 * (lower + upper), 0.5 * (upper - lower), np.zeros(n),
+                      values["velocity_limit"], values["effort_limit"], source)
+
+
+__all__ = ["JointBoxes", "PositiveFloat", "Safety", "Uncertainty", "joint_boxes"]

@@ -13,9 +13,10 @@ import pytest
 
 from cosim.assemble import assemble
 from cosim.config import load_pipeline
+from cosim.dynamics.model import planar_model
+from cosim.dynamics.planar import CHAIN_ROWS
 from cosim.engine import simulate
 from cosim.paper import cbf_filter as cf
-from cosim.paper.cbf_filter.scratch import CHAIN_SCRATCH_ROWS
 from cosim.paper.inertia import (
     chain_bias,
     chain_geometry,
@@ -62,7 +63,7 @@ def test_the_chain_model_is_one_kernel_and_its_closed_form(links):
     rng = np.random.default_rng(links)
     m, lengths = rng.uniform(0.5, 3, links), rng.uniform(0.5, 1.5, links)
     lc, inertia = rng.uniform(0.2, 1, links), rng.uniform(0, 0.1, links)
-    chain = np.zeros((CHAIN_SCRATCH_ROWS, links))
+    chain = np.zeros((CHAIN_ROWS, links))
     for _ in range(50):
         q, v = rng.uniform(-3, 3, links), rng.uniform(-15, 15, links)
         mass, bias = np.zeros((links, links)), np.zeros(links)
@@ -78,7 +79,7 @@ def test_the_chain_model_is_one_kernel_and_its_closed_form(links):
                                    atol=1e-12 * np.abs(expected_mass).max())
         np.testing.assert_allclose(bias, expected_bias, rtol=1e-12,
                                    atol=1e-12 * np.abs(expected_bias).max())
-        forms = cf.velocity_forms(q, m, lengths, lc, inertia)
+        forms = cf.velocity_forms(planar_model(m, lengths, lc, inertia, 9.8), q)
         no_gravity = np.zeros(links)
         planar_bias(q, v, m, lengths, lc, inertia, 0.0, no_gravity)
         np.testing.assert_allclose(np.einsum("ijk,j,k->i", forms, v, v), no_gravity,

@@ -154,7 +154,7 @@ def test_each_hard_constraint_is_sound_at_arbitrary_states_with_wide_margins():
         y = centre_q + rng.uniform(-0.9, 0.9, 2) * (alpha_q - noise)
         v = centre_v + rng.uniform(-0.9, 0.9, 2) * (alpha_v - eps)
         a.position[0], a.velocity[0], a.velocity_bound[0] = y, v, eps
-        a.q_s[0], a.qdot_s[0] = centre_q, centre_v
+        a.centres[0], a.centres[1] = centre_q, centre_v
         a.M_model[0] = closed_form(y, v, M2)[0]  # M̂: the nominal arm at y
         cbf_rows(0, a)
         minv = np.linalg.inv(a.M_model[0])
@@ -231,7 +231,7 @@ def test_the_payload_rows_hold_between_their_corners():
         y[1] = rng.choice([rng.uniform(-0.3, 0.3), rng.uniform(-3, 3)])  # stretched, or not
         v = centre_v + rng.uniform(-0.9, 0.9, 2) * alpha_v
         a.position[0], a.velocity[0], a.velocity_bound[0] = y, v, 0.0
-        a.q_s[0], a.qdot_s[0] = centre_q, centre_v
+        a.centres[0], a.centres[1] = centre_q, centre_v
         a.M_model[0] = closed_form(y, v, M2)[0]
         cbf_rows(0, a)
         models = [closed_form(y, v, M2 + payload) for payload in np.linspace(low, high, 101)]
@@ -267,7 +267,7 @@ def test_the_bias_error_bound_holds_against_brute_force():
         mass, _ = closed_form(q, v, M2)
         minv = np.linalg.inv(mass)
         bound = acceleration_error_bound(q, v, eps, minv, a,
-                                         velocity_forms(q, a.m, a.l, a.lc, a.inertia))
+                                         velocity_forms(a.model, q))
         signs = np.array([[1, 1], [1, -1], [-1, 1], [-1, -1]])
         deltas = np.vstack([signs * eps, rng.uniform(-1, 1, (20, 2)) * eps])
         for payload in (0.0, 1.0):
@@ -377,8 +377,8 @@ def test_an_infeasible_hard_part_raises_the_flag_and_the_backup_brakes():
     for k in flagged[:50]:  # the braking torque, recomputed from the signals
         y, centre = trace["q_meas"][k], trace["cbf_velocity_centre"][k]
         mass, bias = np.zeros((2, 2)), np.zeros(2)
-        planar_mass_matrix(y, a.m, a.l, a.lc, a.inertia, mass)
-        planar_bias(y, centre, a.m, a.l, a.lc, a.inertia, 9.8, bias)
+        planar_mass_matrix(y, a.model.m, a.model.l, a.model.lc, a.model.inertia, mass)
+        planar_bias(y, centre, a.model.m, a.model.l, a.model.lc, a.model.inertia, 9.8, bias)
         bias += 0.01
         desired = -a.backup_rate * (centre - trace["qdot_s"][k])
         u = qpsolvers.solve_qp(np.eye(2), -desired, np.vstack([mass, -mass]),

@@ -75,7 +75,7 @@ def brake_apart(a, q, v, seconds: float = 1.0, payload: float = 0.0,
         mass, bias = two_link_closed_form(q, v, **plant)
         return np.linalg.solve(mass, tau - bias - TAU_D)
 
-    bound = a.viable_bounds[0]
+    bound = a.viable_bounds[0, 0]
     for _ in range(int(seconds / 1e-3)):
         seen = v + offset
         # inward within HOLD of the bound (the backup's position hold), HOLD_RATE per rad
@@ -110,7 +110,7 @@ def test_the_viable_boundary_is_where_the_true_arm_can_just_stop(filter_args, di
                                                                  joint2):
     pytest.importorskip("qpsolvers")
     a = filter_args
-    bound_q, bound_v = a.viable_bounds
+    bound_q, bound_v = a.viable_bounds[:, 0]
     q = [bound_q - distance, joint2[0]]
     low, high = 0.0, 13.4  # rad/s: joint 1's outward speed, verified at low
     assert is_verified(a, q, [low, joint2[1]])
@@ -133,7 +133,7 @@ def test_the_viable_boundary_is_where_the_true_arm_can_just_stop(filter_args, di
 def uncertain_boundary(a, distance: float, joint2: tuple, spread: float) -> float:
     """The fastest outward speed of joint 1 the check verifies, the velocity known to
     ±``spread``, from ``distance`` inside its bound (rad/s)."""
-    q = [a.viable_bounds[0] - distance, joint2[0]]
+    q = [a.viable_bounds[0, 0] - distance, joint2[0]]
     low, high = 0.0, 13.4 - spread
     assert is_verified(a, q, [low, joint2[1]], spread)
     for _ in range(16):
@@ -156,7 +156,7 @@ def test_under_the_declared_payload_the_verified_starts_stop_for_every_plant(
     pytest.importorskip("qpsolvers")
     a = uncertain_args
     boundary = uncertain_boundary(a, distance, joint2, spread)
-    q = [a.viable_bounds[0] - distance, joint2[0]]
+    q = [a.viable_bounds[0, 0] - distance, joint2[0]]
     bound_q, bound_v = 20.0, 13.5  # the hard sets themselves (rad, rad/s)
     for payload in (0.0, 1.0):
         for truth in (boundary + spread, boundary - spread):
@@ -175,7 +175,7 @@ def payload_deviation_bound(a, q, v, tau) -> np.ndarray:
     r[R_Q], r[R_V] = q, v
     _nominal_acceleration(0, a, np.asarray(tau, float), False, 0)
     out = np.zeros(2)
-    _deviation(a, r[R_V], np.zeros(2), np.asarray(tau, float), r[R_ACC], out)
+    _deviation(a, r[R_V], np.zeros(2), r[R_ACC], out)
     return out
 
 
@@ -224,7 +224,7 @@ def test_a_velocity_estimate_wrong_by_epsilon_throughout_with_the_payload_still_
     spread, (distance, joint2) = 0.5, STARTS[0]
     bound_q, bound_v = 20.0, 13.5  # the hard sets themselves (rad, rad/s)
     boundary = uncertain_boundary(a, distance, joint2, spread)
-    worst_q, worst_v = brake_apart(a, [a.viable_bounds[0] - distance, joint2[0]],
+    worst_q, worst_v = brake_apart(a, [a.viable_bounds[0, 0] - distance, joint2[0]],
                                    [boundary + spread, joint2[1]], payload=1.0,
                                    estimate_error=np.array([-spread, spread]))
     assert worst_q <= bound_q and worst_v <= bound_v, (boundary, worst_q, worst_v)

@@ -63,6 +63,16 @@ class Declaration:
                                          else np.linalg.norm(reference, axis=1))
         return out
 
+    def joints(self, signal: np.ndarray, bounds: np.ndarray,
+               reference: np.ndarray | None = None) -> dict[str, Check]:
+        """One check per joint j of ``signal`` (rows × joints, signed, within ±bounds[j]) and
+        no norm: a box of per-joint bounds (a robot's own joint limits) has none that means
+        anything."""
+        return {self.name(j + 1): Check(signal[:, j], float(bounds[j]), -float(bounds[j]),
+                                        None if reference is None else reference[:, j],
+                                        self, j + 1)
+                for j in range(signal.shape[1])}
+
     def norm(self, value: np.ndarray, bound: float,
              reference: np.ndarray | None = None) -> Check:
         """The norm check alone: ``value`` ≥ 0 within [0, bound]."""

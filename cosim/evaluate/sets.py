@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from .. import interface as io
+from ..declared import joint_boxes
 from .checks import Check, Declaration, Kind
 from .parts import Part, register_evaluator
 from .safety import SafeSet, Signals, torque_reversals
@@ -25,6 +26,9 @@ ERROR_RATE = Declaration("error_rate", "velocity error ė", "rad/s", Kind.SOFT,
                          figure="fig3_errors")
 ERROR_RATE_TRUE = Declaration("error_rate_true", "true velocity error q̇_d − q̇", "rad/s",
                               Kind.SOFT)
+# The robot's own limits (safety.limits = "urdf"): the position set's centre is the middle of
+# the joint's limits (the margin kept), the velocity's 0, and the torque within the effort.
+EFFORT = Declaration("effort", "torque τ within the joint's effort limit", "N·m", Kind.HARD)
 
 
 def estimates_velocity(constants: Mapping[str, Any]) -> bool:
@@ -55,13 +59,26 @@ class SafeSets(Part):
             self.note = ("the true-velocity sets unavailable: the plant does not map its "
                          "joint velocities qdot")
 
+    def _centres(self, rows: Signals) -> tuple[np.ndarray, np.ndarray, Any, Any]:
+        """The position and velocity sets' centres and bounds: the paper's radii around
+        q_s, q̇_s, or the robot's own limits per joint (safety.limits = "urdf")."""
+        safe = self.safe
+        n = rows[io.DESIRED_POSITION].shape[1]
+        boxes = joint_boxes(safe, n)
+        if boxes is None:
+            return (rows[io.SAFE_CENTRE], rows[io.SAFE_VELOCITY_CENTRE], safe.position_bound,
+                    safe.velocity_bound)
+        return (boxes.position_centre, boxes.velocity_centre, boxes.position_half,
+                boxes.velocity_half)
+
     def _sets(self, rows: Signals, with_signals: bool):
         safe = self.safe
-        ref_pos = rows[io.DESIRED_POSITION] - rows[io.SAFE_CENTRE]
-        ref_vel = rows[io.DESIRED_VELOCITY] - rows[io.SAFE_VELOCITY_CENTRE]
-        out = [(POSITION, safe.position_bound, ref_pos),
-               (VELOCITY_ESTIMATED, safe.velocity_bound, ref_vel),
-               (VELOCITY_TRUE, safe.velocity_bound, ref_vel),
+        position_centre, velocity_centre, position_bound, velocity_bound = self._centres(rows)
+        ref_pos = rows[io.DESIRED_POSITION] - position_centre
+        ref_vel = rows[io.DESIRED_VELOCITY] - velocity_centre
+        out = [(POSITION, position_bound, ref_pos),
+               (VELOCITY_ESTIMATED, velocity_bound, ref_vel),
+               (VELOCITY_TRUE, velocity_bound, ref_vel),
                (ERROR, safe.error_bound, None),
                (ERROR_RATE, safe.error_rate_bound, None)]
         if estimates_velocity(self.given):
@@ -70,11 +87,10 @@ class SafeSets(Part):
             return [(declared, None, bound, ref) for declared, bound, ref in out]
         desired = rows[io.DESIRED_VELOCITY]
         signals = {
-            "position": rows["q"] - rows[io.SAFE_CENTRE],
+            "position": rows["q"] - position_centre,
             # x̂2 (output feedback) or q̇ (full state): the velocity the controller used
-            "velocity_estimated": desired - rows[io.TRACKING_ERROR_RATE]
-            - rows[io.SAFE_VELOCITY_CENTRE],
-            "velocity_true": rows["qdot"] - rows[io.SAFE_VELOCITY_CENTRE],
+            "velocity_estimated": desired - rows[io.TRACKING_ERROR_RATE] - velocity_centre,
+            "velocity_true": rows["qdot"] - velocity_centre,
             "error": rows[io.TRACKING_ERROR],
             "error_rate": rows[io.TRACKING_ERROR_RATE],
             "error_rate_true": desired - rows["qdot"],
@@ -85,17 +101,39 @@ class SafeSets(Part):
     def checks(self, rows: Signals) -> dict[str, Check]:
         out = {}
         for declared, signal, bound, ref in self._sets(rows, True):
-            out.update(declared.joints_and_norm(signal, bound, ref))
+            if np.ndim(bound):  # per-joint bounds: a box, no norm
+                out.update(declared.joints(signal, bound, ref))
+            else:
+                out.update(declared.joints_and_norm(signal, bound, ref))
         return out
 
     def references(self, trace: Signals) -> dict[str, np.ndarray]:
         out = {}
-        for declared, _, _, ref in self._sets(trace, False):
+        for declared, _, bound, ref in self._sets(trace, False):
             if ref is not None:
                 for j in range(ref.shape[1]):
                     out[declared.name(j + 1)] = ref[:, j]
-                out[declared.name(None)] = np.linalg.norm(ref, axis=1)
+                if not np.ndim(bound):
+                    out[declared.name(None)] = np.linalg.norm(ref, axis=1)
         return out
+
+
+@register_evaluator
+class EffortLimits(Part):
+    """|τ_i| ≤ the joint's effort limit, every joint, where the safe sets are the robot's own
+    limits (safety.limits = "urdf"); nothing otherwise."""
+
+    name = "effort_limits"
+    meaning = "torque within each joint's effort limit (the robot's own limits)"
+    inputs = ("tau",)
+    declarations = (EFFORT,)
+
+    def checks(self, rows: Signals) -> dict[str, Check]:
+        tau = rows["tau"]
+        boxes = joint_boxes(self.safe, tau.shape[1])
+        if boxes is None:
+            return {}
+        return EFFORT.joints(tau, boxes.effort)
 
 
 def per_joint(x: np.ndarray) -> list[float]:

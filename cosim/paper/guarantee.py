@@ -82,14 +82,18 @@ def rigid_chain_parameters(links: int) -> frozenset[str] | None:
     return frozenset(v.name for v in rigid_arm_variables(links) if v.causality == "parameter")
 
 
-def plant_payload(parameters: dict, chain, modelled: frozenset[str] | None = None
-                  ) -> tuple[float | None, list[str]]:
+def plant_payload(parameters: dict, chain, modelled: frozenset[str] | None = None,
+                  urdf: bool = False) -> tuple[float | None, list[str]]:
     """The payload the plant carries against the nominal chain (m[n] − m_n, kg), and what
     else sets the plant apart from it: link parameters that differ, and parameters the
     rigid chain's model does not have (``modelled``: its parameter names; the joint
-    springs of the elastic-joint arm, say). (None, []) when the plant does not expose the
-    chain's parameters (a foreign FMU)."""
+    springs of the elastic-joint arm, say). For a spatial chain from a URDF (``urdf``: the
+    nominal model is a URDF's), its ``payload`` parameter at the tip, the URDF compiled into
+    both (the plant's and the nominal must be the same file: not checked here). (None, [])
+    when the plant does not expose the chain's parameters (a foreign FMU)."""
     if chain is None:
+        if urdf and "payload" in parameters:
+            return float(parameters["payload"]), []
         return None, []
     n = len(chain.m)
     names = {"m": chain.m, "l": chain.l, "lc": chain.lc, "I": chain.inertia}
@@ -392,7 +396,8 @@ class Guarantee(Part):
         chain = self.given.get(io.PLANT_MODEL)
         assumes = self.given.get(FILTER_ASSUMES)
         parameters, uncertainty = self.given[io.PLANT_PARAMETERS], self.given[io.UNCERTAINTY]
-        payload, other = plant_payload(parameters, chain, rigid_chain_parameters(trace.links))
+        payload, other = plant_payload(parameters, chain, rigid_chain_parameters(trace.links),
+                                       urdf="nominal_urdf" in self.given)
         # the τ_d the filter's model assumes: its own, else the observer's (its default)
         tau_d = assumes.tau_d if assumes is not None else self.given.get(OBSERVER_TAU_D)
         other += undeclared_differences(parameters, chain, uncertainty, tau_d, trace.links)

@@ -6,18 +6,13 @@ known). Two sources, written to the trace's ``M_model`` for row k:
   measured position ``q_meas`` — all an output-feedback controller can know. A plant whose
   masses differ from these is how a model mismatch is studied.
 
-The chain is the built-in plant's: link i of mass m_i, length l_i, centre of mass lc_i
-along it and rotational inertia I_i; joint angles relative, link 1 from the horizontal.
-With absolute angles θ_k = q_1 + … + q_k, joint origins o_i and centres of mass p_k,
-
-    M_ij = Σ_{k ≥ max(i, j)} [ m_k (p_k − o_i)·(p_k − o_j) + I_k ],
-
-since a rotation about joint i moves p_k by ẑ × (p_k − o_i) and (ẑ × a)·(ẑ × b) = a·b.
+The planar chain is the built-in plant's (its kernels in cosim.dynamics.planar).
 SI units, radians.
 """
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Literal, NamedTuple
 
 import numpy as np
@@ -26,6 +21,30 @@ from numba import njit
 from plant_fmu.models.planar_arm import PAPER_MASSES
 
 from ..blocks.base import Block, BlockContext, Ports, kernel_args, register_block
+from ..dynamics.model import (
+    RigidBodyModel,
+    chain_model,
+    model_geometry,
+    model_mass,
+    own_scratch,
+    planar_model,
+)
+from ..dynamics.planar import (  # noqa: F401  (re-exported: the planar chain's kernels)
+    CHAIN_ROWS,
+    CX,
+    CY,
+    FX,
+    FY,
+    LX,
+    LY,
+    OX,
+    OY,
+    chain_bias,
+    chain_geometry,
+    chain_mass,
+    planar_bias,
+    planar_mass_matrix,
+)
 from ..schema import FiniteFloat, NonNegativeFloat, PipelineError, PositiveFloat, Section
 from ..signals import Signal
 
@@ -48,6 +67,16 @@ class InertiaModelParams(Section):
     I: list[NonNegativeFloat] | None = None  # noqa: E741
     # gravitational acceleration of the nominal chain's bias b̂ = C q̇ + G, m/s²
     gravity: FiniteFloat = 9.8
+    # a nominal URDF instead of the planar chain (a path, relative to where cosim runs, or
+    # package://…, e.g. package://example-robot-data/robots/ur_description/urdf/
+    # ur5_robot.urdf): its spatial chain from ``base`` to ``tip`` (link names; defaults as
+    # cosim build-fmu --urdf), ``fixed`` joints held at a value (rad or m); the payload's
+    # point is the tip link's origin
+    urdf: str | None = None
+    base: str | None = None  # the nominal URDF's base link (a name)
+    tip: str | None = None  # the nominal URDF's tip link, where the payload is (a name)
+    # joints of the nominal URDF held at a value, by name, rad or m
+    fixed: dict[str, FiniteFloat] | None = None
 
 
 class Chain(NamedTuple):
@@ -70,108 +99,41 @@ def default_links(links: int) -> dict[str, list[float]]:
             "l": [1.0] * links, "lc": [1.0] * links, "I": [0.0] * links}
 
 
-# The chain's geometry at one position and the forces of its bias, per link: the rows of a
-# (CHAIN_ROWS, n) scratch array, so that a kernel evaluating the chain every step allocates
-# nothing. Joint i's centre-of-mass offset (CX, CY) and link vector (LX, LY), its origin
-# (OX, OY), and m_i a_ci, the force link i's own motion needs (FX, FY).
-CX, CY, LX, LY, OX, OY, FX, FY = range(8)
-CHAIN_ROWS = 8
-
-
-@njit(cache=True, inline="always")
-def chain_geometry(q, l, lc, chain):  # noqa: E741
-    """The chain's geometry at q into rows CX … OY of ``chain``."""
-    theta, x, y = 0.0, 0.0, 0.0
-    for k in range(q.shape[0]):
-        theta += q[k]
-        c, s = np.cos(theta), np.sin(theta)
-        chain[CX, k], chain[CY, k] = lc[k] * c, lc[k] * s
-        chain[LX, k], chain[LY, k] = l[k] * c, l[k] * s
-        chain[OX, k], chain[OY, k] = x, y
-        x += l[k] * c
-        y += l[k] * s
-
-
-@njit(cache=True, inline="always")
-def chain_mass(chain, m, inertia, out):
-    """M of the chain whose geometry ``chain`` holds, into ``out`` (n×n):
-    M_ij = Σ_{k ≥ max(i, j)} [m_k (p_k − o_i)·(p_k − o_j) + I_k]."""
-    n = m.shape[0]
-    for i in range(n):
-        for j in range(i, n):
-            total = 0.0
-            for k in range(j, n):
-                px, py = chain[OX, k] + chain[CX, k], chain[OY, k] + chain[CY, k]
-                total += (m[k] * ((px - chain[OX, i]) * (px - chain[OX, j])
-                                  + (py - chain[OY, i]) * (py - chain[OY, j])) + inertia[k])
-            out[i, j] = total
-            out[j, i] = total
-
-
-@njit(cache=True, inline="always")
-def chain_bias(chain, qdot, m, gravity, out):
-    """b(q, q̇) = C(q, q̇) q̇ + G(q) of the chain whose geometry ``chain`` holds, into
-    ``out`` (n,): recursive Newton–Euler with q̈ = 0 and the base accelerating upwards at
-    ``gravity`` (m/s²), link 1 from the horizontal, gravity along −y."""
-    n = qdot.shape[0]
-    omega = 0.0
-    ax, ay = 0.0, gravity  # acceleration of joint i's origin
-    for i in range(n):
-        omega += qdot[i]
-        w2 = omega * omega  # no angular acceleration: q̈ = 0
-        chain[FX, i] = m[i] * (ax - w2 * chain[CX, i])
-        chain[FY, i] = m[i] * (ay - w2 * chain[CY, i])
-        ax -= w2 * chain[LX, i]
-        ay -= w2 * chain[LY, i]
-    force_x, force_y, moment = 0.0, 0.0, 0.0  # what link i+1 exerts, about joint i+1
-    for i in range(n - 1, -1, -1):
-        # moment about joint i: the next link's moment, its force at the link's end, and
-        # this link's own inertial force at its centre of mass (I α = 0)
-        moment += (chain[LX, i] * force_y - chain[LY, i] * force_x
-                   + chain[CX, i] * chain[FY, i] - chain[CY, i] * chain[FX, i])
-        force_x += chain[FX, i]
-        force_y += chain[FY, i]
-        out[i] = moment
-
-
-@njit(cache=True)
-def planar_mass_matrix(q, m, l, lc, inertia, out):  # noqa: E741
-    """M(q) of a planar serial chain into ``out`` (n×n), its scratch allocated here."""
-    chain = np.empty((CHAIN_ROWS, q.shape[0]))
-    chain_geometry(q, l, lc, chain)
-    chain_mass(chain, m, inertia, out)
-
-
-@njit(cache=True)
-def planar_bias(q, qdot, m, l, lc, inertia, gravity, out):  # noqa: E741
-    """b(q, q̇) = C(q, q̇) q̇ + G(q) of the same chain into ``out`` (n,), its scratch
-    allocated here. (A link's rotational ``inertia`` adds nothing to b in the plane: the
-    argument keeps the chain's signature.)"""
-    chain = np.empty((CHAIN_ROWS, q.shape[0]))
-    chain_geometry(q, l, lc, chain)
-    chain_bias(chain, qdot, m, gravity, out)
-
-
 class NominalArgs(NamedTuple):
     q_meas: np.ndarray
-    m: np.ndarray  # kg
-    l: np.ndarray  # m  # noqa: E741
-    lc: np.ndarray  # m
-    inertia: np.ndarray  # kg·m²
+    model: RigidBodyModel
     M_model: np.ndarray
-    chain: np.ndarray  # (CHAIN_ROWS, n) scratch
 
 
 @njit(cache=True)
 def nominal_step(k, a):
-    chain_geometry(a.q_meas[k], a.l, a.lc, a.chain)
-    chain_mass(a.chain, a.m, a.inertia, a.M_model[k])
+    model_geometry(a.model, a.q_meas[k])
+    model_mass(a.model, 1.0, 0.0, a.M_model[k])
     return True  # a non-finite M̂ makes the observer's output non-finite: caught there
 
 
 # M̂ is not recorded: it is n² series per run of little use on their own (the plant's M is
 # in the trace files).
 M_MODEL = Signal("nn", "kg·m²", "the controller's inertia model M̂(q)")
+
+
+def read_nominal_urdf(params: InertiaModelParams, context: BlockContext):
+    """The chain of the nominal URDF (``urdf``, ``base``, ``tip``, ``fixed``), its joint
+    count checked against the plant's; a URDF the reader refuses is a PipelineError naming
+    the key."""
+    from plant_fmu.urdf import UrdfError, read_urdf, resolve_uri
+
+    path = resolve_uri(params.urdf, Path.cwd())
+    try:
+        chain = read_urdf(path, base=params.base, tip=params.tip, fixed=params.fixed)
+    except UrdfError as exc:
+        raise PipelineError(f"inertia_model.urdf (run '{context.run}'): {exc}") from None
+    if chain.n != context.links:
+        raise PipelineError(
+            f"inertia_model.urdf = {params.urdf!r} (run '{context.run}'): its chain has "
+            f"{chain.n} moving joints ({', '.join(chain.joints)}), the plant {context.links}; "
+            "give the plant's URDF, or hold joints with inertia_model.fixed")
+    return chain
 
 
 @register_block
@@ -181,9 +143,14 @@ class InertiaModel(Block):
     kind = "inertia_model"
     Params = InertiaModelParams
     per_joint = ("m", "l", "lc", "I")
-    # nominal_chain: Chain; inertia_is_plant: True when M̂ is the plant's own M (so it
-    # includes any payload), False when it is the nominal chain's.
-    PUBLISHES = {"nominal_chain": Chain, "inertia_is_plant": bool}
+    # nominal_model: the rigid-body model (planar chain or a URDF's spatial chain) the
+    # observer, the PD controller and the filter compute M̂, b̂ and the payload's point with;
+    # nominal_chain: the planar chain's parameters (planar only), for the guarantee's
+    # comparison with the plant's; inertia_is_plant: True when M̂ is the plant's own M (so it
+    # includes any payload), False when it is the nominal model's; nominal_urdf: the
+    # nominal URDF's chain (spatial only: its joint limits are the safe sets' defaults).
+    PUBLISHES = {"nominal_model": RigidBodyModel, "nominal_chain": Chain,
+                 "inertia_is_plant": bool, "nominal_urdf": object}
 
     def __init__(self, params: InertiaModelParams, context: BlockContext):
         super().__init__(params, context)
@@ -202,11 +169,18 @@ class InertiaModel(Block):
         self.outputs = {"M_model": M_MODEL}
         if source == "nominal":
             self.kernel = nominal_step
-        links = self.nominal_links()
-        self.publishes = {
-            "nominal_chain": kernel_args(Chain, **self.chain_arrays(links),
-                                         gravity=params.gravity),
-            "inertia_is_plant": source == "fmu"}
+        self.publishes = {"inertia_is_plant": source == "fmu"}
+        if params.urdf is not None:
+            self.urdf_chain = read_nominal_urdf(params, context)
+            self.model = chain_model(self.urdf_chain)
+            self.publishes["nominal_urdf"] = self.urdf_chain
+        else:
+            self.urdf_chain = None
+            links = self.nominal_links()
+            self.model = planar_model(**self.chain_arrays(links), gravity=params.gravity)
+            self.publishes["nominal_chain"] = kernel_args(
+                Chain, **self.chain_arrays(links), gravity=params.gravity)
+        self.publishes["nominal_model"] = self.model
 
     def nominal_links(self) -> dict[str, list[float]]:
         """The nominal chain as used: given values, else the defaults."""
@@ -225,19 +199,26 @@ class InertiaModel(Block):
             # has nothing to copy.
             ports.trace.arrays["M_model"] = ports.inputs["M"]
             return
-        links = self.nominal_links()
-        self.args = kernel_args(
-            NominalArgs, q_meas=ports.inputs["q_meas"], **self.chain_arrays(links),
-            M_model=ports.outputs["M_model"], chain=np.empty((CHAIN_ROWS, self.context.links)))
+        self.args = kernel_args(NominalArgs, q_meas=ports.inputs["q_meas"],
+                                model=own_scratch(self.model), M_model=ports.outputs["M_model"])
 
     def describe(self) -> dict:
-        return ({"source": "nominal", **self.nominal_links()} if self.source == "nominal"
-                else {"source": "fmu"})
+        if self.source == "fmu":
+            return {"source": "fmu"}
+        if self.urdf_chain is not None:
+            return {"source": "nominal", "urdf": self.params.urdf,
+                    "joints": list(self.urdf_chain.joints),
+                    "tip": self.urdf_chain.tip_link}
+        return {"source": "nominal", **self.nominal_links()}
 
     def headline(self) -> str:
         file = self.context.plant_file
         if self.source == "fmu":
             return f"inertia model from {file}'s M outputs"
+        if self.urdf_chain is not None:
+            return (f"inertia model nominal from {self.params.urdf} ({self.urdf_chain.n} "
+                    f"joints, payload point at {self.urdf_chain.tip_link}) at the measured "
+                    "position")
         links = self.nominal_links()
         return (f"inertia model nominal (m = {links['m']} kg, l = {links['l']} m, "
                 f"lc = {links['lc']} m, I = {links['I']} kg·m²) at the measured position"

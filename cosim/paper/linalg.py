@@ -87,3 +87,53 @@ def symmetric_eigen(kmat, lam, vec):
     vec[0, 0], vec[1, 0] = -s, c
     vec[0, 1], vec[1, 1] = c, s
 
+
+
+@no_refcount_jit(cache=True, inline="always")
+def small_symmetric_eigen(kmat, lam, vec, work):
+    """The eigenvalues (ascending, into ``lam``) and unit eigenvectors (columns of ``vec``)
+    of a small symmetric d×d matrix (``work``: d×d scratch): d = 2 in closed form
+    (:func:`symmetric_eigen`), else by cyclic Jacobi rotations to machine precision."""
+    d = kmat.shape[0]
+    if d == 2:
+        symmetric_eigen(kmat, lam, vec)
+        return
+    for i in range(d):
+        for j in range(d):
+            work[i, j] = kmat[i, j] if i >= j else kmat[j, i]
+            vec[i, j] = 1.0 if i == j else 0.0
+    for _ in range(50):
+        off = 0.0
+        for i in range(d):
+            for j in range(i + 1, d):
+                off += work[i, j] * work[i, j]
+        if off == 0.0:
+            break
+        for p in range(d):
+            for q in range(p + 1, d):
+                if work[p, q] == 0.0:
+                    continue
+                theta = 0.5 * (work[q, q] - work[p, p]) / work[p, q]
+                t = np.sign(theta) / (abs(theta) + np.sqrt(theta * theta + 1.0))
+                if theta == 0.0:
+                    t = 1.0
+                c = 1.0 / np.sqrt(t * t + 1.0)
+                s = t * c
+                for r in range(d):  # A ← A J (columns p, q)
+                    arp, arq = work[r, p], work[r, q]
+                    work[r, p], work[r, q] = c * arp - s * arq, s * arp + c * arq
+                for r in range(d):  # A ← Jᵀ A (rows p, q)
+                    apr, aqr = work[p, r], work[q, r]
+                    work[p, r], work[q, r] = c * apr - s * aqr, s * apr + c * aqr
+                for r in range(d):
+                    vrp, vrq = vec[r, p], vec[r, q]
+                    vec[r, p], vec[r, q] = c * vrp - s * vrq, s * vrp + c * vrq
+    for i in range(d):
+        lam[i] = work[i, i]
+    for i in range(1, d):  # ascending, the vectors with them (insertion sort)
+        j = i
+        while j > 0 and lam[j - 1] > lam[j]:
+            lam[j - 1], lam[j] = lam[j], lam[j - 1]
+            for r in range(d):
+                vec[r, j - 1], vec[r, j] = vec[r, j], vec[r, j - 1]
+            j -= 1

@@ -32,17 +32,20 @@ which holds whatever x̂2 does. The interval:
 1. starts at x̂2(0) ± the declared initial error (ε(0) is that error);
 2. is propagated over each step [t_k−1, t_k] by a bound q̈ ∈ [a_lo, a_hi] on the true
    acceleration: the torque τ applied over the step is known (the input ``tau``), and the
-   plant is the nominal chain (inertia_model's ``nominal_chain``) plus a payload Δm in the
-   declared range at the last link's centre of mass plus a disturbance |d| ≤ d̄, so
+   plant is the nominal model (inertia_model's ``nominal_model``: the planar chain or a
+   URDF's spatial chain, cosim.dynamics) plus a payload Δm in the declared range at its
+   payload point (the planar chain's last centre of mass, a URDF's tip frame) plus a
+   disturbance |d| ≤ d̄, so
    q̈ = M(Δm)⁻¹(τ − τ_d − d − b(q, q̇, Δm)). With J the payload point's Jacobian,
    K = J M̂⁻¹ Jᵀ = VΛVᵀ and s_j(Δm) = Δm/(1 + Δm λ_j) (each increasing in Δm), at a velocity c
-   q̈ = u − Σ_j s_j R_j v_jᵀ(J u + γ), u = M̂⁻¹(τ − τ_d − b̂(c)), R = M̂⁻¹JᵀV, γ = J̇c + g ŷ:
+   q̈ = u − Σ_j s_j R_j v_jᵀ(J u + γ), u = M̂⁻¹(τ − τ_d − b̂(c)), R = M̂⁻¹JᵀV, γ = J̇c − g:
    linear in each s_j, so exact at the ends of their ranges. For the true q̇ = c + δ,
    |δ_j| ≤ r_j: b's velocity part is a quadratic form (Γ, affine in Δm), and
    M(Δm)⁻¹ = M̂⁻¹ − R diag(s) Rᵀ, so the linear part M(Δm)⁻¹B(Δm)δ is bounded at the
-   vertices of (s_1, s_2, Δm) (multilinear), the quadratic part and d̄ through
-   max |M(Δm)⁻¹| entrywise. The velocity box itself is an a-priori enclosure of q̇ over the
-   step (the interval widened by ρ) that the resulting bound must confirm
+   vertices of (s_1 … s_d, Δm) (multilinear; d = 2 in the plane, 3 in space), the
+   quadratic part and d̄ through max |M(Δm)⁻¹| entrywise. The velocity box itself is an
+   a-priori enclosure of q̇ over the step (the interval widened by ρ) that the resulting
+   bound must confirm
    (dt·max(−a_lo, a_hi, 0) ≤ ρ), widened until it does;
 3. is intersected with the estimates from the measured positions over the last N = 1 …
    ``window`` steps: q̇(t_k) = (q(t_k) − q(t_k−N))/T + (1/T)∫(s − t_k−N) q̈(s) ds with
@@ -82,25 +85,20 @@ from numba import njit
 from pydantic import Field
 
 from ..blocks.base import Block, BlockContext, Ports, kernel_args, register_block
+from ..dynamics.model import (
+    RigidBodyModel,
+    model_bias,
+    model_geometry,
+    model_mass,
+    model_payload,
+    own_scratch,
+    planar_model,
+)
 from ..numba_compat import no_refcount_jit
 from ..schema import FiniteFloat, NonNegativeFloat, PositiveFloat, Section
 from ..signals import Signal
-from .inertia import (
-    CHAIN_ROWS,
-    CX,
-    CY,
-    LX,
-    LY,
-    OX,
-    OY,
-    Chain,
-    InertiaModel,
-    chain_bias,
-    chain_geometry,
-    chain_mass,
-    default_links,
-)
-from .linalg import invert, solve, symmetric_eigen
+from .inertia import InertiaModel, default_links
+from .linalg import invert, small_symmetric_eigen, solve
 
 LAWS = {"paper": 0, "error_driven": 1}
 BASES = {"lagged": 0, "no_acceleration": 1}
@@ -218,14 +216,10 @@ def error_envelope(kp, kd, k0):
 
 class Envelope(NamedTuple):
     """The certified envelope's constants, its state, its per-position cache (two slots: the
-    step's two ends, slot k % 2 for y_k) and its scratch."""
+    step's two ends, slot k % 2 for y_k) and its scratch. d is the payload point's
+    dimension (the model's: 2 for the planar chain, 3 for a spatial one)."""
 
-    m: np.ndarray  # the nominal chain (inertia_model's nominal_chain): masses, kg
-    l: np.ndarray  # lengths, m  # noqa: E741
-    lc: np.ndarray  # centres of mass, m
-    inertia: np.ndarray  # kg·m²
-    gravity: float  # m/s²
-    unit: np.ndarray  # (n,) a unit mass on the last link (the payload's direction), kg
+    model: RigidBodyModel  # the nominal model (inertia_model's nominal_model)
     zeros: np.ndarray  # (n,)
     payload_low: float  # declared payload range, kg
     payload_high: float
@@ -239,109 +233,137 @@ class Envelope(NamedTuple):
     rho: np.ndarray  # (P, n) the a-priori enclosure's widening of the last step, rad/s
     acc: np.ndarray  # (P, steps, 2, n): q̈ ∈ [lo, hi] over [t_j, t_j+1], rad/s²
     minv: np.ndarray  # (2, n, n) M̂⁻¹ at the slot's position
-    corner: np.ndarray  # (2, P, 4, n, n) M(Δm)⁻¹ at the corners of (s_1, s_2), per cell
+    corner: np.ndarray  # (2, P, 2^d, n, n) M(Δm)⁻¹ at the corners of (s_1 … s_d), per cell
     pabs: np.ndarray  # (2, P, n, n) max over the corners of |M(Δm)⁻¹|, entrywise
-    rmat: np.ndarray  # (2, n, 2) M̂⁻¹JᵀV
-    vec: np.ndarray  # (2, 2, 2) V, K = J M̂⁻¹ Jᵀ = V Λ Vᵀ
-    s: np.ndarray  # (2, P, 2, 2) s_j(Δm) = Δm/(1 + Δm λ_j) at [slot, cell, end, j]
-    forms: np.ndarray  # (2, 2, n, n, n) Γ of the nominal chain [0] and of a unit payload [1]
-    grav: np.ndarray  # (2, n) the nominal chain's gravity torque G(y)
-    jac: np.ndarray  # (2, 2, n) the payload point's Jacobian J
-    arm: np.ndarray  # (2, 2, n) the link vectors whose rotation moves the payload point
+    rmat: np.ndarray  # (2, n, d) M̂⁻¹JᵀV
+    vec: np.ndarray  # (2, d, d) V, K = J M̂⁻¹ Jᵀ = V Λ Vᵀ
+    s: np.ndarray  # (2, P, 2, d) s_j(Δm) = Δm/(1 + Δm λ_j) at [slot, cell, end, j]
+    forms: np.ndarray  # (2, 2, n, n, n) Γ of the nominal model [0] and of a unit payload [1]
+    grav: np.ndarray  # (2, n) the nominal model's gravity torque G(y)
+    jac: np.ndarray  # (2, d, n) the payload point's Jacobian J
+    point_forms: np.ndarray  # (2, d, n, n) J̇v = (vᵀP_r v)_r, the point's velocity part
+    lift: np.ndarray  # (2, d) −g at the point: γ = J̇v − g
     # scratch
-    chain: np.ndarray  # (CHAIN_ROWS, n)
     mass: np.ndarray  # (n, n)
     lu: np.ndarray  # (n, n)
-    kmat: np.ndarray  # (2, 2)
-    lam: np.ndarray  # (2,)
+    kmat: np.ndarray  # (d, d)
+    lam: np.ndarray  # (d,)
+    eigen_work: np.ndarray  # (d, d)
     work: np.ndarray  # (8, n): e, plus, minus, u, centre, radius, acc lo, acc hi
-    bmat: np.ndarray  # (2, n, n): B of the nominal chain and of a unit payload
-    point: np.ndarray  # (2,): J u + γ
+    bmat: np.ndarray  # (2, n, n): B of the nominal model and of a unit payload
+    point: np.ndarray  # (d,): J u + γ
+    jac_work: np.ndarray  # (d, n)
 
 
 E_, PLUS_, MINUS_, U_, CENTRE_, RADIUS_, ALO_, AHI_ = range(8)
 
 
 @no_refcount_jit(cache=True, inline="always")
-def _forms(env, masses, out):
-    """Γ (n, n, n) of the chain whose geometry env.chain holds, for ``masses``: b's velocity
-    part b_l(v) = vᵀΓ_l v, from the bias without gravity at e_i (Γ_l,ii) and at e_i + e_j
-    (Γ_l,ii + Γ_l,jj + 2Γ_l,ij): n(n + 1)/2 evaluations."""
-    n = masses.shape[0]
+def _forms(env, bodies, payload, out):
+    """Γ (n, n, n) of the model at its last geometry (the bodies times ``bodies``, a point
+    mass ``payload`` at the payload's point): b's velocity part b_l(v) = vᵀΓ_l v, from the
+    bias without gravity at e_i (Γ_l,ii) and at e_i + e_j (Γ_l,ii + Γ_l,jj + 2Γ_l,ij):
+    n(n + 1)/2 evaluations."""
+    n = out.shape[0]
     e, plus = env.work[E_], env.work[PLUS_]
     for i in range(n):
         e[:] = 0.0
         e[i] = 1.0
-        chain_bias(env.chain, e, masses, 0.0, plus)
+        model_bias(env.model, e, bodies, payload, 0.0, plus)
         for l in range(n):  # noqa: E741
             out[l, i, i] = plus[l]
     for i in range(n):
         for j in range(i + 1, n):
             e[:] = 0.0
             e[i] = e[j] = 1.0
-            chain_bias(env.chain, e, masses, 0.0, plus)
+            model_bias(env.model, e, bodies, payload, 0.0, plus)
             for l in range(n):  # noqa: E741
                 out[l, i, j] = out[l, j, i] = 0.5 * (plus[l] - out[l, i, i] - out[l, j, j])
 
 
 @no_refcount_jit(cache=True, inline="always")
+def _point_forms(env, out, lift):
+    """The payload point's J̇v = (vᵀP_r v)_r into ``out`` (d, n, n) by the same
+    polarisation, and −g there into ``lift`` (d,), at the model's last geometry."""
+    n = out.shape[1]
+    d = out.shape[0]
+    e, jac, gamma = env.work[E_], env.jac_work, env.point
+    e[:] = 0.0
+    model_payload(env.model, e, 1.0, jac, gamma)
+    for r in range(d):
+        lift[r] = gamma[r]
+    for i in range(n):
+        e[:] = 0.0
+        e[i] = 1.0
+        model_payload(env.model, e, 0.0, jac, gamma)
+        for r in range(d):
+            out[r, i, i] = gamma[r]
+    for i in range(n):
+        for j in range(i + 1, n):
+            e[:] = 0.0
+            e[i] = e[j] = 1.0
+            model_payload(env.model, e, 0.0, jac, gamma)
+            for r in range(d):
+                out[r, i, j] = out[r, j, i] = 0.5 * (gamma[r] - out[r, i, i] - out[r, j, j])
+
+
+@no_refcount_jit(cache=True, inline="always")
 def envelope_position(env, y, slot):
     """What the acceleration bound needs of the position y, into cache ``slot``: M̂⁻¹, the
-    payload point's J and link vectors, K = J M̂⁻¹ Jᵀ = VΛVᵀ, s_j at the ends of the payload
-    range, M(Δm)⁻¹ = M̂⁻¹ − R diag(s) Rᵀ (R = M̂⁻¹JᵀV) at the corners of (s_1, s_2) and their
-    entrywise largest magnitude, the Γ forms and the gravity torque."""
+    payload point's J and the quadratic form of J̇v, K = J M̂⁻¹ Jᵀ = VΛVᵀ, s_j at the ends of
+    the payload range, M(Δm)⁻¹ = M̂⁻¹ − R diag(s) Rᵀ (R = M̂⁻¹JᵀV) at the corners of
+    (s_1 … s_d) and their entrywise largest magnitude, the Γ forms and the gravity torque."""
     n = y.shape[0]
-    chain = env.chain
-    chain_geometry(y, env.l, env.lc, chain)
-    chain_mass(chain, env.m, env.inertia, env.mass)
+    model = env.model
+    d = env.kmat.shape[0]
+    model_geometry(model, y)
+    model_mass(model, 1.0, 0.0, env.mass)
     minv = env.minv[slot]
     invert(env.mass, minv, env.lu)
-    jac, arm = env.jac[slot], env.arm[slot]
-    px = chain[OX, n - 1] + chain[CX, n - 1]  # the last link's centre of mass
-    py = chain[OY, n - 1] + chain[CY, n - 1]
-    for j in range(n):
-        jac[0, j] = -(py - chain[OY, j])
-        jac[1, j] = px - chain[OX, j]
-        last = j == n - 1
-        arm[0, j] = chain[CX, j] if last else chain[LX, j]
-        arm[1, j] = chain[CY, j] if last else chain[LY, j]
+    jac = env.jac[slot]
+    model_payload(model, env.zeros, 0.0, jac, env.point)
     kmat = env.kmat
-    for r in range(2):
-        for c in range(2):
+    for r in range(d):
+        for c in range(d):
             total = 0.0
             for i in range(n):
                 for j in range(n):
                     total += jac[r, i] * minv[i, j] * jac[c, j]
             kmat[r, c] = total
     vec = env.vec[slot]
-    symmetric_eigen(kmat, env.lam, vec)
+    small_symmetric_eigen(kmat, env.lam, vec, env.eigen_work)
     rmat = env.rmat[slot]
     for i in range(n):
-        for j in range(2):
+        for j in range(d):
             total = 0.0
             for col in range(n):
-                total += minv[i, col] * (jac[0, col] * vec[0, j] + jac[1, col] * vec[1, j])
+                direction = 0.0
+                for r in range(d):
+                    direction += jac[r, col] * vec[r, j]
+                total += minv[i, col] * direction
             rmat[i, j] = total
+    corners = env.corner.shape[2]
     for cell in range(env.cells.shape[0] - 1):
         s = env.s[slot, cell]
         for end in range(2):
             payload = env.cells[cell + end]
-            for j in range(2):
+            for j in range(d):
                 s[end, j] = payload / (1.0 + payload * max(env.lam[j], 0.0))
         pabs = env.pabs[slot, cell]
         pabs[:] = 0.0
-        for c in range(4):
+        for c in range(corners):
             corner = env.corner[slot, cell, c]
-            s0, s1 = s[c & 1, 0], s[c >> 1, 1]
             for i in range(n):
                 for col in range(n):
-                    value = minv[i, col] - s0 * rmat[i, 0] * rmat[col, 0] \
-                        - s1 * rmat[i, 1] * rmat[col, 1]
+                    value = minv[i, col]
+                    for j in range(d):  # corner c takes end (c >> j) & 1 of s_j
+                        value -= s[(c >> j) & 1, j] * rmat[i, j] * rmat[col, j]
                     corner[i, col] = value
                     pabs[i, col] = max(pabs[i, col], abs(value))
-    _forms(env, env.m, env.forms[slot, 0])
-    _forms(env, env.unit, env.forms[slot, 1])
-    chain_bias(chain, env.zeros, env.m, env.gravity, env.grav[slot])
+    _forms(env, 1.0, 0.0, env.forms[slot, 0])
+    _forms(env, 0.0, 1.0, env.forms[slot, 1])
+    _point_forms(env, env.point_forms[slot], env.lift[slot])
+    model_bias(model, env.zeros, 1.0, 0.0, 1.0, env.grav[slot])
 
 
 @no_refcount_jit(cache=True, inline="always")
@@ -350,12 +372,15 @@ def envelope_acceleration(env, slot, cell, tau, tau_d, centre, radius, lo, hi):
     cached position ``slot`` for every q̇ with |q̇ − centre| ≤ radius, Δm in the payload
     ``cell`` and |d| ≤ d̄ (per joint): the payload exactly at q̇ = centre (q̈ = u − R diag(s)
     Rᵀ... linear in each s_j), the velocity's linear part through M(Δm)⁻¹B(Δm) at the vertices
-    of (s_1, s_2, Δm) (multilinear: its extremes are there), its quadratic part and d̄
+    of (s_1 … s_d, Δm) (multilinear: its extremes are there), its quadratic part and d̄
     through max |M(Δm)⁻¹| row by row."""
     n = centre.shape[0]
+    d = env.kmat.shape[0]
     minv, rmat, vec, s = env.minv[slot], env.rmat[slot], env.vec[slot], env.s[slot, cell]
-    forms, arm, jac = env.forms[slot], env.arm[slot], env.jac[slot]
+    forms, jac = env.forms[slot], env.jac[slot]
+    point_forms, lift = env.point_forms[slot], env.lift[slot]
     corner, pabs = env.corner[slot, cell], env.pabs[slot, cell]
+    corners = corner.shape[0]
     payload_low, payload_high = env.cells[cell], env.cells[cell + 1]
     u, work = env.work[U_], env.work[E_]
     bmat = env.bmat
@@ -377,14 +402,15 @@ def envelope_acceleration(env, slot, cell, tau, tau_d, centre, radius, lo, hi):
         for l in range(n):  # noqa: E741
             total += minv[i, l] * work[l]
         u[i] = total
-    # J u + γ, γ = J̇q̇ + g ŷ = −Σ ω_k² a_k + g ŷ (a_k: the link vectors, ω_k absolute rates)
+    # J u + γ, γ = J̇q̇ − g
     point = env.point
-    point[0], point[1] = 0.0, env.gravity
-    omega = 0.0
-    for k in range(n):
-        omega += centre[k]
-        point[0] += jac[0, k] * u[k] - omega * omega * arm[0, k]
-        point[1] += jac[1, k] * u[k] - omega * omega * arm[1, k]
+    for r in range(d):
+        total = lift[r]
+        for k in range(n):
+            total += jac[r, k] * u[k]
+            for j in range(n):
+                total += point_forms[r, j, k] * centre[j] * centre[k]
+        point[r] = total
     size = 0.0
     for l in range(n):  # noqa: E741 — the quadratic part plus d̄, per equation l
         worst = 0.0
@@ -399,15 +425,18 @@ def envelope_acceleration(env, slot, cell, tau, tau_d, centre, radius, lo, hi):
         work[l] = worst + env.disturbance
     for i in range(n):
         low, high = u[i], u[i]
-        for j in range(2):  # −s_j R_ij (v_jᵀ(J u + γ)), s_j over its range
-            z = rmat[i, j] * (vec[0, j] * point[0] + vec[1, j] * point[1])
+        for j in range(d):  # −s_j R_ij (v_jᵀ(J u + γ)), s_j over its range
+            projected = 0.0
+            for r in range(d):
+                projected += vec[r, j] * point[r]
+            z = rmat[i, j] * projected
             a, b = -s[0, j] * z, -s[1, j] * z
             low += min(a, b)
             high += max(a, b)
         spread = 0.0
         for j in range(n):
             worst = 0.0
-            for c in range(4):
+            for c in range(corners):
                 for end in range(2):
                     mass = payload_low if end == 0 else payload_high
                     value = 0.0
@@ -708,7 +737,7 @@ class FlnnObserver(Block):
         super().__init__(params, context)
         self.inputs = ("q_meas", "M_model", "q_d", "qdot_d")
         self.delayed = ("tau",)  # τ held over the previous step
-        self.requires = ("nominal_chain",)  # the certified envelope's model (ε(t))
+        self.requires = ("nominal_model",)  # the certified envelope's model (ε(t))
         self.outputs = {
             "q_hat": Signal("n", "rad", "position estimate x̂1", "observer/q_hat",
                             estimates="q"),
@@ -755,28 +784,27 @@ class FlnnObserver(Block):
             env=self._envelope(ports, len(inp["q_meas"])))
 
     def _envelope(self, ports: Ports, steps: int) -> Envelope:
-        """The envelope's constants (the nominal chain the inertia model publishes, or the
+        """The envelope's constants (the nominal model the inertia model publishes, or the
         default chain when none is given, as in a unit test), state and scratch."""
         n, u = self.context.links, self.context.uncertainty
-        chain = ports.constants.get("nominal_chain")
-        if chain is None:
-            chain = Chain(**InertiaModel.chain_arrays(default_links(n)), gravity=9.8)
+        model = ports.constants.get("nominal_model")
+        if model is None:
+            links = InertiaModel.chain_arrays(default_links(n))
+            model = planar_model(**links, gravity=9.8)
+        d = model.dim
         low, high = map(float, u.payload)
         cells = self.params.payload_cells if high > low else 1
-        unit = np.zeros(n)
-        unit[n - 1] = 1.0
         return kernel_args(
-            Envelope, m=chain.m, l=chain.l, lc=chain.lc, inertia=chain.inertia,
-            gravity=float(chain.gravity), unit=unit, zeros=np.zeros(n), payload_low=low,
+            Envelope, model=own_scratch(model), zeros=np.zeros(n), payload_low=low,
             payload_high=high, cells=np.linspace(low, high, cells + 1),
             disturbance=u.disturbance, window=self.params.window,
             interval=np.zeros((cells, 2, n)), alive=np.ones(cells),
             since=np.zeros(cells, np.int64), hull=np.zeros((2, n)),
             rho=np.zeros((cells, n)), acc=np.zeros((cells, max(steps, 1), 2, n)),
-            minv=np.zeros((2, n, n)), corner=np.zeros((2, cells, 4, n, n)),
-            pabs=np.zeros((2, cells, n, n)), rmat=np.zeros((2, n, 2)), vec=np.zeros((2, 2, 2)),
-            s=np.zeros((2, cells, 2, 2)), forms=np.zeros((2, 2, n, n, n)), grav=np.zeros((2, n)),
-            jac=np.zeros((2, 2, n)), arm=np.zeros((2, 2, n)),
-            chain=np.zeros((CHAIN_ROWS, n)), mass=np.zeros((n, n)), lu=np.zeros((n, n)),
-            kmat=np.zeros((2, 2)), lam=np.zeros(2), work=np.zeros((8, n)),
-            bmat=np.zeros((2, n, n)), point=np.zeros(2))
+            minv=np.zeros((2, n, n)), corner=np.zeros((2, cells, 2**d, n, n)),
+            pabs=np.zeros((2, cells, n, n)), rmat=np.zeros((2, n, d)), vec=np.zeros((2, d, d)),
+            s=np.zeros((2, cells, 2, d)), forms=np.zeros((2, 2, n, n, n)), grav=np.zeros((2, n)),
+            jac=np.zeros((2, d, n)), point_forms=np.zeros((2, d, n, n)), lift=np.zeros((2, d)),
+            mass=np.zeros((n, n)), lu=np.zeros((n, n)), kmat=np.zeros((d, d)), lam=np.zeros(d),
+            eigen_work=np.zeros((d, d)), work=np.zeros((8, n)), bmat=np.zeros((2, n, n)),
+            point=np.zeros(d), jac_work=np.zeros((d, n)))

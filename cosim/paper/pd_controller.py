@@ -2,10 +2,11 @@
 
     τ = Kp e + Kd ė + Ĝ(q),  e = q_d − q,  ė = q̇_d − q̇,
 
-with Ĝ(q) the nominal chain's gravity torque (constant ``nominal_chain``, published by the
-inertia model) at the position the controller reads. Two velocity sources: the plant's true
-q̇ with its true q (``plant``, full state), or the backward difference of the measured
-position (``finite_difference``, (y_k − y_k−1)/h, which amplifies sensor noise). With
+with Ĝ(q) the nominal model's gravity torque (constant ``nominal_model``, published by the
+inertia model: the planar chain or a URDF's spatial chain) at the position the controller
+reads. Two velocity sources: the plant's true q̇ with its true q (``plant``, full state), or
+the backward difference of the measured position (``finite_difference``, (y_k − y_k−1)/h,
+which amplifies sensor noise). With
 Kp, Kd > 0 and exact gravity the set-point error converges (Takegaki & Arimoto 1981); it
 tracks a moving reference with an error that grows with its speed. SI units, radians.
 """
@@ -18,14 +19,20 @@ import numpy as np
 from numba import njit
 
 from ..blocks.base import Block, BlockContext, Ports, kernel_args, register_block
+from ..dynamics.model import (
+    RigidBodyModel,
+    model_bias,
+    model_geometry,
+    own_scratch,
+    planar_model,
+)
 from ..schema import GainVector, NonNegativeFloat, Section
 from ..signals import Signal
-from .inertia import CHAIN_ROWS, Chain, chain_bias, chain_geometry
 
 
 class PdControllerParams(Section):
     """Kp [N·m/rad] and Kd [N·m·s/rad], per joint or one scalar for all; where ė comes from;
-    whether the nominal chain's gravity torque is added (needs an inertia_model block
+    whether the nominal model's gravity torque is added (needs an inertia_model block
     before this one)."""
 
     # proportional gain Kp on the position error e, per joint or one for all, N·m/rad
@@ -35,7 +42,7 @@ class PdControllerParams(Section):
     # where ė comes from (a name): "plant", the true q̇, or "finite_difference", the
     # measured position's backward difference
     velocity: Literal["plant", "finite_difference"] = "plant"
-    # whether the nominal chain's gravity torque Ĝ(q) is added to τ (a flag)
+    # whether the nominal model's gravity torque Ĝ(q) is added to τ (a flag)
     gravity_compensation: bool = True
 
 
@@ -45,13 +52,8 @@ class PdArgs(NamedTuple):
     gravity_compensation: bool
     kp: np.ndarray  # (n,)
     kd: np.ndarray  # (n,)
-    m: np.ndarray  # the nominal chain, for Ĝ(q)
-    l: np.ndarray  # noqa: E741
-    lc: np.ndarray
-    inertia: np.ndarray
-    gravity: float
+    model: RigidBodyModel  # the nominal model, for Ĝ(q)
     gravity_torque: np.ndarray  # scratch (n,)
-    chain: np.ndarray  # scratch (CHAIN_ROWS, n)
     zero_velocity: np.ndarray  # (n,) zeros: Ĝ is the bias at q̇ = 0
     position: np.ndarray  # q (plant) or q_meas (finite difference)
     velocity: np.ndarray  # q̇ (plant); unused for the finite difference
@@ -75,8 +77,8 @@ def pd_step(k, a):
     a.edot[k] = edot
     a.tau[k] = a.kp * e + a.kd * edot
     if a.gravity_compensation:
-        chain_geometry(q, a.l, a.lc, a.chain)
-        chain_bias(a.chain, a.zero_velocity, a.m, a.gravity, a.gravity_torque)
+        model_geometry(a.model, q)
+        model_bias(a.model, a.zero_velocity, 1.0, 0.0, 1.0, a.gravity_torque)
         a.tau[k] += a.gravity_torque
     return np.isfinite(np.sum(a.tau[k]))
 
@@ -94,7 +96,7 @@ class PdController(Block):
         self.position, self.velocity = (("q", "qdot") if params.velocity == "plant"
                                         else ("q_meas", "q_meas"))
         self.inputs = tuple(dict.fromkeys((self.position, self.velocity, "q_d", "qdot_d")))
-        self.requires = ("nominal_chain",) if params.gravity_compensation else ()
+        self.requires = ("nominal_model",) if params.gravity_compensation else ()
         self.outputs = {
             "tau": Signal("n", "N·m", "joint torque τ", "pd_controller/tau"),
             "e": Signal("n", "rad", "tracking error e = q_d − q", "pd_controller/e"),
@@ -105,19 +107,16 @@ class PdController(Block):
 
     def reset(self, ports: Ports) -> None:
         p, n = self.params, self.context.links
-        chain = ports.constants.get("nominal_chain")
-        if chain is None:  # no gravity compensation: the chain is never read
+        model = ports.constants.get("nominal_model")
+        if model is None:  # no gravity compensation: the model is never read
             zeros = np.zeros(n)
-            chain = kernel_args(Chain, m=zeros, l=zeros, lc=zeros, inertia=zeros, gravity=0.0)
+            model = planar_model(zeros, zeros, zeros, zeros, 0.0)
         inp, out = ports.inputs, ports.outputs
         self.args = kernel_args(
             PdArgs, dt=self.context.dt, finite_difference=p.velocity == "finite_difference",
             gravity_compensation=p.gravity_compensation,
             kp=np.broadcast_to(np.asarray(p.kp, float), (n,)).copy(),
             kd=np.broadcast_to(np.asarray(p.kd, float), (n,)).copy(),
-            m=np.asarray(chain.m, float), l=np.asarray(chain.l, float),
-            lc=np.asarray(chain.lc, float), inertia=np.asarray(chain.inertia, float),
-            gravity=float(chain.gravity), gravity_torque=np.zeros(n),
-            chain=np.zeros((CHAIN_ROWS, n)), zero_velocity=np.zeros(n),
+            model=own_scratch(model), gravity_torque=np.zeros(n), zero_velocity=np.zeros(n),
             position=inp[self.position], velocity=inp[self.velocity], q_d=inp["q_d"],
             qdot_d=inp["qdot_d"], tau=out["tau"], e=out["e"], edot=out["edot"])

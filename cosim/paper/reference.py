@@ -13,9 +13,10 @@ import numpy as np
 from pydantic import Field, model_validator
 
 from ..blocks.base import Block, BlockContext, Ports, register_block
+from ..declared import joint_boxes
 from ..schema import FiniteFloat, NonNegativeFloat, PipelineError, PositiveFloat, Section
 from ..signals import Signal
-from .reference_limits import breaches, refusal, safe_set_limits
+from .reference_limits import JointLimits, breaches, refusal, safe_set_limits
 from .trajectory import Trajectory, minimum_jerk
 from .trajectory_file import read_trajectory
 
@@ -215,8 +216,14 @@ class Reference(Block):
         mode = p.limits or ("refuse" if p.source != "sinusoids" else None)
         if mode is None or p.safe_case == "tracking":
             return []
-        q_s, qdot_s = self.centres()
-        limits = safe_set_limits(self.context.safety, q_s, qdot_s)
+        boxes = joint_boxes(self.context.safety, self.context.links)
+        if boxes is None:
+            q_s, qdot_s = self.centres()
+            limits = safe_set_limits(self.context.safety, q_s, qdot_s)
+        else:  # the robot's own limits (safety.limits = "urdf"), the margin kept
+            limits = JointLimits(boxes.position_centre - boxes.position_half,
+                                 boxes.position_centre + boxes.position_half,
+                                 boxes.velocity_half, boxes.velocity_centre, boxes.source)
         left = breaches(self.trajectory, limits, self.context.duration)
         if left and mode == "refuse":
             what = {"waypoints": "reference.waypoints", "sinusoids": "the reference",

@@ -14,23 +14,26 @@ exponential CBF, critically damped) and ḣ + k h ≥ 0 (degree 1).
 
 What the filter knows: the measured y, the velocity v it is given (the observer's x̂2, or the
 plant's q̇ for a full-state run), the observer's bound ε(t) on |q̇ − v| and the drift of x̂2,
-the inertia model M̂, and the nominal chain (published by the inertia model) for
+the inertia model M̂, and the nominal model (``nominal_model``, published by the inertia
+model: the planar chain or a URDF's spatial chain, cosim.dynamics) for
 b̂ = C(y, v) v + G(y) + τ_d. The plant is q̈ = M⁻¹(τ − b − τ_d), and what is declared
 (``[uncertainty]``) bounds the difference:
 
 - |q − y| ≤ n̄ (noise bound) and |q̇ − v| ≤ ε(t): the hard rows take the worst case of
   each (p²·n̄, 2p·ε and k·ε), and a velocity row the worst case of the true barrier,
   max(h − ε, 0) (it is ≥ 0 until the set is first left);
-- a payload Δm ∈ [low, high] at the last link's centre of mass c, Jacobian J (2×n):
-  M = M̂ + Δm JᵀJ, b = b̂ + Δm Jᵀγ with γ = J̇q̇ + g ŷ. Then exactly
+- a payload Δm ∈ [low, high] at the model's payload point c (the planar chain's last
+  centre of mass, d = 2; a URDF's tip frame, d = 3), Jacobian J (d×n):
+  M = M̂ + Δm JᵀJ, b = b̂ + Δm Jᵀγ with γ = J̇q̇ − g. Then exactly
   q̈ = u − M̂⁻¹Jᵀ S (J u + γ), u = M̂⁻¹(τ − b̂), S = Δm (I + Δm K)⁻¹, K = J M̂⁻¹ Jᵀ;
   in K's eigenvectors S is diagonal with entries s_j(Δm) increasing in Δm, and a row is
-  linear in (s_1, s_2). Split the range in ``payload_grid`` intervals: on each, (s_1, s_2)
-  lies in the box of its end values, so the worst case is at a box corner: 3G + 1 linear
-  rows in τ, never optimistic, exact as G grows. (When M̂ is the plant's own M, only b
+  linear in (s_1 … s_d). Split the range in ``payload_grid`` intervals: on each,
+  (s_1 … s_d) lies in the box of its end values, so the worst case is at a box corner:
+  (2^d − 1)G + 1 linear rows in τ (3G + 1 in the plane), never optimistic, exact as G
+  grows. (When M̂ is the plant's own M, only b
   differs: q̈ = u − Δm M̂⁻¹Jᵀγ, the worst case at one end of the range.)
 - b̂'s own error from the velocity error: b's velocity part is a quadratic form vᵀΓ_l v, so
-  Δb = B δ + (δᵀΓ_l δ)_l with B_lj = 2 Σ_k Γ_l,jk v_k (Γ of the nominal chain plus the
+  Δb = B δ + (δᵀΓ_l δ)_l with B_lj = 2 Σ_k Γ_l,jk v_k (Γ of the nominal model plus the
   payload's); a row of joint i is tightened by Σ_j |(M̂⁻¹B)_ij| ε_j (its worst end of the
   payload range) + Σ_l |(M̂⁻¹)_il| (Σ_jk |Γ_l,jk| ε_j ε_k + d̄), d̄ the disturbance bound.
 

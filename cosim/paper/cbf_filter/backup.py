@@ -46,10 +46,10 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...dynamics.model import model_bias, model_geometry, model_mass, model_payload
 from ...numba_compat import no_refcount_jit
-from ..inertia import chain_bias, chain_geometry, chain_mass
 from ..linalg import dot, invert, product
-from .model import acceleration_error_bound_into, com_kinematics, payload_structure
+from .model import acceleration_error_bound_into, payload_structure
 from .scratch import (
     ALPHA,
     BACKUP_FACTOR,
@@ -113,22 +113,22 @@ def backup_torque(k, a, q, v, mass, bias, out, policy):
     r = w.rollout
     target, desired = r[R_TARGET], r[R_SCRATCH]
     for i in range(n):
-        x = q[i] - a.q_s[k, i]
+        x = q[i] - a.centres[0, i]
         # within HOLD of the bound, or past it: back in at HOLD_RATE per rad of depth, up
         # to recovery_speed (a velocity the estimate gets wrong by ε then leaves the joint
         # ε/HOLD_RATE deep in that band, not drifting out)
-        depth = abs(x) + a.noise_bound - (a.viable_bounds[0] - HOLD)
+        depth = abs(x) + a.noise_bound - (a.viable_bounds[0, i] - HOLD)
         speed = 0.0
         if a.hard[0] and depth > 0.0:
             speed = -np.sign(x) * min(a.recovery_speed, HOLD_RATE * depth)
         target[i] = speed
-        desired[i] = a.backup_rate * (speed - (v[i] - a.qdot_s[k, i]))
+        desired[i] = a.backup_rate * (speed - (v[i] - a.centres[1, i]))
     # Weighted towards the joints near their position bound (what the limits cannot give
     # every joint, those get first): in z = √W q̈ the weights are the identity the solver
     # has, so q̈ = z/√W and a row's coefficients are divided by √W.
     scale = r[R_WEIGHT]
     for i in range(n):
-        distance = a.viable_bounds[0] - abs(q[i] - a.q_s[k, i]) - a.noise_bound
+        distance = a.viable_bounds[0, i] - abs(q[i] - a.centres[0, i]) - a.noise_bound
         scale[i] = np.sqrt(1.0 + NEAR_WEIGHT * policy * max(0.0, 1.0 - distance / NEAR))
         desired[i] *= scale[i]
     rows, limits, weights = w.backup_rows, w.backup_limits[0], w.backup_limits[1]
@@ -161,11 +161,12 @@ def backup_torque(k, a, q, v, mass, bias, out, policy):
 
 
 @no_refcount_jit(cache=True, inline="always")
-def _payload_deviation(a, q, q_dot, acceleration, deviation):
+def _payload_deviation(a, q_dot, acceleration, deviation):
     """D_i += the largest |q̈(Δm)_i − q̈(0)_i| over the payload range under the rollout's
-    torque (the chain's M̂⁻¹ in ROLL_MINV and its q̈ ``acceleration`` at (q, ``q_dot``)).
+    torque (the model's geometry at the rollout's state, its M̂⁻¹ in ROLL_MINV and its q̈
+    ``acceleration`` at the velocity ``q_dot``).
 
-    A point mass Δm at the last link's centre of mass (Jacobian J, γ = J̇v + g ŷ) moves q̈ by
+    A point mass Δm at the payload point (Jacobian J, γ = J̇v − g) moves q̈ by
     −(M̂ + ΔmJᵀJ)⁻¹ΔmJᵀ(Jq̈(0) + γ) = −Σ_j α_j s_j(Δm) v_jᵀ(Jq̈(0) + γ), with
     K = JM̂⁻¹Jᵀ = Σ_j λ_j v_j v_jᵀ, α_j = v_jᵀJM̂⁻¹ and s_j = Δm/(1 + Δmλ_j) (Woodbury; the
     hard rows' structure, :func:`.model.payload_structure`). Linear in the s_j, which all
@@ -178,26 +179,27 @@ def _payload_deviation(a, q, q_dot, acceleration, deviation):
         return
     w = a.work
     minv = w.matrices[ROLL_MINV]
-    jac, gamma = w.planar[JAC], w.pairs[GAMMA]
-    com_kinematics(q, q_dot, a.l, a.lc, a.gravity, jac, gamma)
-    n = q.shape[0]
+    jac, gamma = w.point_rows[JAC], w.point_vectors[GAMMA]
+    model_payload(a.model, q_dot, 1.0, jac, gamma)
+    n, d = q_dot.shape[0], jac.shape[0]
     if a.inertia_is_plant:
         size = max(abs(a.payload_low), abs(a.payload_high))
         for i in range(n):
             shift = 0.0
             for col in range(n):
-                shift += minv[i, col] * (jac[0, col] * gamma[0] + jac[1, col] * gamma[1])
+                for r in range(d):
+                    shift += minv[i, col] * jac[r, col] * gamma[r]
             deviation[i] += size * abs(shift)
         return
     # γ + Jq̈(0) into γ: the point's acceleration the payload's force is proportional to
-    for r in range(2):
+    for r in range(d):
         gamma[r] += dot(jac[r], acceleration)
-    structure = w.pairs[BETA]  # v_jᵀ(Jq̈(0) + γ), per eigenvector j
-    payload_structure(a.payload_low, a.payload_high, minv, acceleration, w.planar, w.pairs,
-                      w.squares, w.s_grid)
+    structure = w.point_vectors[BETA]  # v_jᵀ(Jq̈(0) + γ), per eigenvector j
+    payload_structure(a.payload_low, a.payload_high, minv, acceleration, w.point_rows,
+                      w.point_vectors, w.squares, w.s_grid)
     vec = w.squares[VEC]
-    alpha, s_grid = w.planar[ALPHA], w.s_grid
-    d, grid = vec.shape[0], s_grid.shape[0] - 1
+    alpha, s_grid = w.point_rows[ALPHA], w.s_grid
+    grid = s_grid.shape[0] - 1
     for j in range(d):
         structure[j] = 0.0
         for r in range(d):
@@ -216,7 +218,7 @@ def _payload_deviation(a, q, q_dot, acceleration, deviation):
 
 
 @no_refcount_jit(cache=True, inline="always")
-def _deviation(a, q_dot, spread, tau, acceleration, deviation):
+def _deviation(a, q_dot, spread, acceleration, deviation):
     """D at the rollout's state into ``deviation``: the bound on |M̂⁻¹(Δb + d)| for a
     velocity error up to ``spread`` at the velocity ``q_dot`` (b's velocity forms Γ as the
     hard rows took them at row k: the configuration's drift over the rollout is left out),
@@ -226,22 +228,22 @@ def _deviation(a, q_dot, spread, tau, acceleration, deviation):
     acceleration_error_bound_into(q_dot, spread, w.matrices[ROLL_MINV], a.payload_low,
                                   a.payload_high, a.disturbance, w.forms[0], w.forms[1],
                                   w.linear, w.vectors[QUADRATIC], deviation)
-    _payload_deviation(a, a.work.rollout[R_Q], q_dot, acceleration, deviation)
+    _payload_deviation(a, q_dot, acceleration, deviation)
 
 
 @no_refcount_jit(cache=True, inline="always")
 def _nominal_acceleration(k, a, first, backup, policy):
     """The rollout's torque (``first``, or the backup's if ``backup``) into R_TAU and the
-    nominal model's q̈ under it into R_ACC; the chain's geometry left at the rollout's q.
+    nominal model's q̈ under it into R_ACC; the model's geometry left at the rollout's q.
     Returns whether the torque is held or limited (the backup's feedback does not act)."""
     w = a.work
     r, matrices = w.rollout, w.matrices
     q, vel, tau, acc, bias = r[R_Q], r[R_V], r[R_TAU], r[R_ACC], r[R_BIAS]
     mass, minv = matrices[ROLL_MASS], matrices[ROLL_MINV]
     n = q.shape[0]
-    chain_geometry(q, a.l, a.lc, w.chain)
-    chain_mass(w.chain, a.m, a.inertia, mass)
-    chain_bias(w.chain, vel, a.m, a.gravity, bias)
+    model_geometry(a.model, q)
+    model_mass(a.model, 1.0, 0.0, mass)
+    model_bias(a.model, vel, 1.0, 0.0, 1.0, bias)
     for i in range(n):
         bias[i] += a.tau_d[i]
     binds = True  # a held torque: no feedback over its step
@@ -312,7 +314,7 @@ def predict_interval(k, a, tau):
     deviation, acceleration = r[R_DEV], r[R_ACC]
     for end in range(2):
         _nominal_acceleration(k, a, tau, False, 0)
-        _deviation(a, r[R_V], r[R_HALF], r[R_TAU], acceleration, deviation)
+        _deviation(a, r[R_V], r[R_HALF], acceleration, deviation)
         for i in range(n):
             low[i] = min(low[i], acceleration[i] - TUBE_SAFETY * deviation[i])
             high[i] = max(high[i], acceleration[i] + TUBE_SAFETY * deviation[i])
@@ -333,10 +335,10 @@ def inside(k, a):
     r = a.work.rollout
     y = a.position[k]
     for i in range(y.shape[0]):
-        if a.hard[0] and abs(y[i] - a.q_s[k, i]) + a.noise_bound > a.viable_bounds[0]:
+        if a.hard[0] and abs(y[i] - a.centres[0, i]) + a.noise_bound > a.viable_bounds[0, i]:
             return False
-        if a.hard[1] and abs(r[R_CENTRE, i] - a.qdot_s[k, i]) + r[R_HALF, i] \
-                > a.viable_bounds[1]:
+        if a.hard[1] and abs(r[R_CENTRE, i] - a.centres[1, i]) + r[R_HALF, i] \
+                > a.viable_bounds[1, i]:
             return False
     return True
 
@@ -353,8 +355,8 @@ def verified(k, a, y, v, eps, first, hold, policy):
     for i in range(n):
         q[i], vel[i], dq[i], dv[i] = y[i], v[i], a.noise_bound, eps[i]
         # what each set allows: its bound, or the excess it starts with (recovery)
-        limit_q[i] = max(a.viable_bounds[0], abs(y[i] - a.q_s[k, i]) + a.noise_bound)
-        limit_v[i] = max(a.viable_bounds[1], abs(v[i] - a.qdot_s[k, i]) + eps[i])
+        limit_q[i] = max(a.viable_bounds[0, i], abs(y[i] - a.centres[0, i]) + a.noise_bound)
+        limit_v[i] = max(a.viable_bounds[1, i], abs(v[i] - a.centres[1, i]) + eps[i])
         r[R_TARGET, i] = 0.0
     t = 0.0
     step = 0
@@ -364,7 +366,7 @@ def verified(k, a, y, v, eps, first, hold, policy):
         clipped = _nominal_acceleration(k, a, first, backup, policy)
         # the bias error's velocity error is the estimate's, ε: the backup acts on the
         # state as measured, whatever the tube (the true state's spread about the rollout)
-        _deviation(a, vel, eps, r[R_TAU], acc, deviation)
+        _deviation(a, vel, eps, acc, deviation)
         decay = np.exp(-a.recovery_rate * (t + h))
         stopped = backup and not clipped
         for i in range(n):
@@ -382,14 +384,14 @@ def verified(k, a, y, v, eps, first, hold, policy):
             dq[i] += h * dv[i] + 0.5 * h * h * TUBE_SAFETY * deviation[i]
             # the feedback acts on the estimate: the true velocity keeps its error, ε
             dv[i] = max(dv[i] * (1.0 - feedback) + TUBE_SAFETY * deviation[i] * h, eps[i])
-            allowed_q = a.viable_bounds[0] + (limit_q[i] - a.viable_bounds[0]) * decay
-            allowed_v = a.viable_bounds[1] + (limit_v[i] - a.viable_bounds[1]) * decay
-            if a.hard[0] and max(abs(q[i] - a.q_s[k, i]), abs(turn - a.q_s[k, i])) + dq[i] \
+            allowed_q = a.viable_bounds[0, i] + (limit_q[i] - a.viable_bounds[0, i]) * decay
+            allowed_v = a.viable_bounds[1, i] + (limit_v[i] - a.viable_bounds[1, i]) * decay
+            if a.hard[0] and max(abs(q[i] - a.centres[0, i]), abs(turn - a.centres[0, i])) + dq[i] \
                     > allowed_q:
                 return False
-            if a.hard[1] and abs(vel[i] - a.qdot_s[k, i]) + dv[i] > allowed_v:
+            if a.hard[1] and abs(vel[i] - a.centres[1, i]) + dv[i] > allowed_v:
                 return False
-            stopped = stopped and abs(vel[i] - a.qdot_s[k, i] - r[R_TARGET, i]) <= STOPPED
+            stopped = stopped and abs(vel[i] - a.centres[1, i] - r[R_TARGET, i]) <= STOPPED
         t += h
         step += 1
         if stopped:

@@ -9,6 +9,8 @@ import numpy as np
 from pydantic import Field
 
 from ...blocks.base import Block, BlockContext, Ports, kernel_args, register_block
+from ...declared import joint_boxes
+from ...dynamics.model import own_scratch
 from ...numba_compat import no_refcount_jit
 from ...schema import FiniteFloat, PipelineError, PositiveFloat, Section
 from ...signals import Signal
@@ -274,7 +276,7 @@ class CbfFilter(Block):
         extra = ("qdot_hat_bound", "qdot_hat_drift") if observer else ()
         self.inputs = (self.position, self.velocity, *extra, "q_s", "qdot_s", "q_d", "qdot_d",
                        "qddot_d", "M_model", "tau")
-        self.requires = ("nominal_chain", "inertia_is_plant",
+        self.requires = ("nominal_model", "inertia_is_plant",
                          *(("tau_d_model",) if params.tau_d is None else ()))
         self.outputs = {"tau": Signal("n", "N·m", "filtered torque τ", "cbf_filter/tau")}
         for name in SETS:
@@ -313,9 +315,17 @@ class CbfFilter(Block):
                                    "the QP as given (its conditions; the backup's check is "
                                    "apart)", "cbf_filter/rows_met"),
         })
-        limit = np.broadcast_to(np.asarray(np.inf if params.torque_limit is None
-                                           else params.torque_limit, float),
-                                (context.links,)).copy()
+        boxes = joint_boxes(context.safety, context.links)
+        if params.torque_limit is not None:
+            limit = params.torque_limit
+        else:  # the robot's effort limits where the safe sets are its own limits, else none
+            limit = np.inf if boxes is None else boxes.effort
+        limit = np.broadcast_to(np.asarray(limit, float), (context.links,)).copy()
+        if boxes is not None and {"position", "velocity"} & set(params.soft_norms):
+            raise PipelineError(
+                f"run '{context.run}': cbf_filter.soft_norms names the position or velocity "
+                "set, but safety.limits = \"urdf\" makes them per-joint boxes, which have "
+                "no norm; drop them from cbf_filter.soft_norms")
         self.publishes = {FILTER_ASSUMES: FilterAssumptions(
             self.position, self.velocity, limit, np.zeros(context.links))}
         if params.solver == "newton":
@@ -353,11 +363,19 @@ class CbfFilter(Block):
         p, n = self.params, self.context.links
         safety, uncertainty = self.context.safety, self.context.uncertainty
         inp, out, const = ports.inputs, ports.outputs, ports.constants
-        chain = const["nominal_chain"]
+        model = const["nominal_model"]
         tau_d = const["tau_d_model"] if p.tau_d is None else p.tau_d
         bounds = np.array([safety.position_bound, safety.velocity_bound, safety.error_bound,
                            safety.error_rate_bound]) * (1.0 - p.bound_margin)
-        corners = 3 * p.payload_grid + 1 if any(uncertainty.payload) else 1
+        boxes = joint_boxes(safety, n)
+        if boxes is None:  # the paper's radii about the (constant) centres q_s, q̇_s
+            joint_bounds = np.broadcast_to(bounds[:2, None], (2, n)).copy()
+            centres = np.array([inp["q_s"][0], inp["qdot_s"][0]], float).reshape(2, n)
+        else:  # the robot's own limits, per joint
+            joint_bounds = np.array([boxes.position_half, boxes.velocity_half]) \
+                * (1.0 - p.bound_margin)
+            centres = np.array([boxes.position_centre, boxes.velocity_centre])
+        corners = (2**model.dim - 1) * p.payload_grid + 1 if any(uncertainty.payload) else 1
         rows = 2 * (2 * n * 2 * corners) + 2 * n * 2 + 4 + 2 * n
         steps = len(ports.trace.time)
         if p.velocity == "observer":
@@ -369,8 +387,9 @@ class CbfFilter(Block):
             CbfArgs,
             **{name: np.array([float(s in getattr(p, name)) for s in SETS])
                for name in ("hard", "soft", "soft_norms")},
-            bounds=bounds, viable_bounds=bounds[:2] * (1.0 - 0.5 * p.bound_margin)
-            / (1.0 - p.bound_margin), k1=2.0 * p.position_rate, k0=p.position_rate**2,
+            bounds=bounds, joint_bounds=joint_bounds,
+            viable_bounds=joint_bounds * (1.0 - 0.5 * p.bound_margin) / (1.0 - p.bound_margin),
+            centres=centres, k1=2.0 * p.position_rate, k0=p.position_rate**2,
             tracking_k1=2.0 * p.tracking_rate, tracking_k0=p.tracking_rate**2,
             k_velocity=p.velocity_rate, dt=self.context.dt,
             torque_limit=self.publishes[FILTER_ASSUMES].torque_limit,
@@ -383,8 +402,7 @@ class CbfFilter(Block):
             noise_bound=uncertainty.noise_bound, payload_low=payload_low,
             payload_high=payload_high, disturbance=uncertainty.disturbance,
             inertia_is_plant=bool(const["inertia_is_plant"]),
-            m=chain.m, l=chain.l, lc=chain.lc, inertia=chain.inertia,
-            gravity=float(chain.gravity),
+            model=own_scratch(model),
             tau_d=np.broadcast_to(np.asarray(tau_d, float), (n,)).copy(),
             rows=np.zeros((rows, n)), limits=np.zeros(rows), weights=np.zeros(rows),
             is_hard=np.zeros(rows), kinds=np.zeros(rows, np.int64),
@@ -404,7 +422,7 @@ class CbfFilter(Block):
             viable=out[VIABLE], backup_share=out[BACKUP], rows_met=out["cbf_rows_met"],
             velocity_centre=out["cbf_velocity_centre"],
             velocity_spread=out["cbf_velocity_spread"],
-            work=cbf_work(n, rows, p.payload_grid))
+            work=cbf_work(n, rows, p.payload_grid, model.dim))
 
     def step(self, k: int) -> bool:
         """With a qpsolvers solver (no kernel): the same rows, the hard ones as hard

@@ -1,19 +1,26 @@
-"""The filter's model of the plant at one state: the nominal chain's M̂ and b̂ (by
-cosim.paper.inertia's chain kernels), b's velocity part and the bound on its error, the
-payload's Jacobian and structure (see the package docstring)."""
+"""The filter's model of the plant at one state: the nominal model's M̂ and b̂ (the
+inertia model's ``nominal_model``, cosim.dynamics: the planar chain or a URDF's spatial
+chain), b's velocity part and the bound on its error, the payload point's Jacobian and the
+payload's structure (see the package docstring)."""
 
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
 
+from ...dynamics.model import (
+    model_bias,
+    model_geometry,
+    model_mass,
+    model_payload,
+    own_scratch,
+)
 from ...numba_compat import no_refcount_jit
-from ..inertia import chain_bias, chain_geometry, chain_mass
-from ..linalg import dot, invert, product, symmetric_eigen
+from ..linalg import dot, invert, product, small_symmetric_eigen
 from .scratch import (
     ALPHA,
     BETA,
-    CHAIN_SCRATCH_ROWS,
+    EIGEN,
     GAMMA,
     JAC,
     JB,
@@ -27,66 +34,43 @@ from .scratch import (
     NOMINAL_NOW,
     PLANT_SHIFT,
     PLUS,
+    POLAR_ROWS,
     QUADRATIC,
     ROWS_ERROR,
     SHIFTED,
-    UNIT,
     VEC,
     E,
 )
 
 
 @no_refcount_jit(cache=True)
-def velocity_forms_into(q, m, l, lc, chain, out):  # noqa: E741
-    """Γ of the chain at q into ``out`` (n, n, n), ``chain`` its scratch
-    (CHAIN_SCRATCH_ROWS, n)."""
+def velocity_forms_into(model, q, bodies, payload, polar, out):
+    """Γ of the model at q (its bodies times ``bodies``, a point mass ``payload`` at its
+    payload point) into ``out`` (n, n, n), ``polar`` (POLAR_ROWS, n) its scratch."""
     n = q.shape[0]
-    chain_geometry(q, l, lc, chain)
-    e, plus, minus = chain[E], chain[PLUS], chain[MINUS]
+    model_geometry(model, q)
+    e, plus, minus = polar[E], polar[PLUS], polar[MINUS]
     for j in range(n):
         for k in range(j, n):
             for i in range(n):
                 e[i] = 0.0
             e[j] += 1.0
             e[k] += 1.0
-            chain_bias(chain, e, m, 0.0, plus)
+            model_bias(model, e, bodies, payload, 0.0, plus)
             e[k] -= 2.0
-            chain_bias(chain, e, m, 0.0, minus)
+            model_bias(model, e, bodies, payload, 0.0, minus)
             for i in range(n):
                 # b_i(a + c) − b_i(a − c) = 4 aᵀΓ_i c (and e_j ± e_j = 2e_j, 0 for j = k)
                 out[i, j, k] = out[i, k, j] = (plus[i] - minus[i]) / 4.0
 
 
-@njit(cache=True)
-def velocity_forms(q, m, l, lc, inertia):  # noqa: E741
-    """Γ (n, n, n): b's velocity part b_i(v) = vᵀ Γ_i v of the chain (gravity 0), by
-    polarisation of the recursive Newton–Euler bias. (A link's rotational ``inertia`` adds
-    nothing to b in the plane: the argument keeps the chain's signature.)"""
+def velocity_forms(model, q) -> np.ndarray:
+    """Γ (n, n, n): b's velocity part b_i(v) = vᵀ Γ_i v of the model (gravity 0), by
+    polarisation of the recursive Newton–Euler bias."""
     n = q.shape[0]
     out = np.zeros((n, n, n))
-    velocity_forms_into(q, m, l, lc, np.zeros((CHAIN_SCRATCH_ROWS, n)), out)
+    velocity_forms_into(own_scratch(model), q, 1.0, 0.0, np.zeros((POLAR_ROWS, n)), out)
     return out
-
-
-@no_refcount_jit(cache=True)
-def com_kinematics(q, v, l, lc, gravity, jac, gamma):  # noqa: E741
-    """The last link's centre of mass c: its Jacobian J (2×n, into ``jac``) and
-    γ = J̇ v + g ŷ (into ``gamma``), the acceleration a point mass there needs beyond J q̈
-    (gravity along −y)."""
-    n = q.shape[0]
-    jac[:] = 0.0
-    gamma[0], gamma[1] = 0.0, gravity
-    theta, omega = 0.0, 0.0
-    for k in range(n):
-        theta += q[k]
-        omega += v[k]
-        length = lc[k] if k == n - 1 else l[k]
-        cx, cy = length * np.cos(theta), length * np.sin(theta)
-        for j in range(k + 1):
-            jac[0, j] -= cy
-            jac[1, j] += cx
-        gamma[0] -= omega**2 * cx
-        gamma[1] -= omega**2 * cy
 
 
 @no_refcount_jit(cache=True)
@@ -96,7 +80,7 @@ def acceleration_error_bound_into(v, eps, minv, low, high, disturbance, nominal,
     and ``linear`` (2, n, n), ``quadratic`` (n,) as scratch."""
     n = v.shape[0]
     size = max(abs(low), abs(high))
-    linear[:] = 0.0  # B for the nominal chain plus each end of the payload range
+    linear[:] = 0.0  # B for the nominal model plus each end of the payload range
     quadratic[:] = disturbance
     for l in range(n):  # noqa: E741
         for j in range(n):
@@ -129,10 +113,8 @@ def acceleration_error_bound(q, v, eps, minv, a, nominal):
     stretched arm most of the Coriolis force is radial: no torque), the quadratic part and
     d̄ are bounded row by row. Affine in Δm, so the worst case is at an end of its range."""
     n = q.shape[0]
-    unit = np.zeros(n)
-    unit[n - 1] = 1.0
     payload = np.zeros((n, n, n))
-    velocity_forms_into(q, unit, a.l, a.lc, np.zeros((CHAIN_SCRATCH_ROWS, n)), payload)
+    velocity_forms_into(a.model, q, 0.0, 1.0, np.zeros((POLAR_ROWS, n)), payload)
     out = np.zeros(n)
     acceleration_error_bound_into(v, eps, minv, a.payload_low, a.payload_high, a.disturbance,
                                   nominal, payload, np.zeros((2, n, n)), np.zeros(n), out)
@@ -141,12 +123,11 @@ def acceleration_error_bound(q, v, eps, minv, a, nominal):
 
 @no_refcount_jit(cache=True, inline="always")
 def nominal_model(a, y, v, nominal, bias):
-    """The nominal chain at (y, v): its M(y) into ``nominal`` and b̂ = C(y, v) v + G(y) + τ_d
+    """The nominal model at (y, v): its M(y) into ``nominal`` and b̂ = C(y, v) v + G(y) + τ_d
     into ``bias``."""
-    chain = a.work.chain
-    chain_geometry(y, a.l, a.lc, chain)
-    chain_mass(chain, a.m, a.inertia, nominal)
-    chain_bias(chain, v, a.m, a.gravity, bias)
+    model_geometry(a.model, y)
+    model_mass(a.model, 1.0, 0.0, nominal)
+    model_bias(a.model, v, 1.0, 0.0, 1.0, bias)
     for i in range(y.shape[0]):
         bias[i] += a.tau_d[i]
 
@@ -154,7 +135,7 @@ def nominal_model(a, y, v, nominal, bias):
 @no_refcount_jit(cache=True, inline="always")
 def moved_model(a, y, v, mass, minv, base):
     """At a predicted state (y, v): M̂⁻¹ into ``minv`` and M̂⁻¹b̂ into ``base`` (so that
-    q̈ = M̂⁻¹τ − base), with M̂ moved from row k's by the nominal chain's change."""
+    q̈ = M̂⁻¹τ − base), with M̂ moved from row k's by the nominal model's change."""
     matrices, moved_bias = a.work.matrices, a.work.vectors[MOVED_BIAS]
     nominal, shifted = matrices[NOMINAL], matrices[SHIFTED]
     nominal_model(a, y, v, nominal, moved_bias)
@@ -167,35 +148,44 @@ def moved_model(a, y, v, mass, minv, base):
 
 
 @no_refcount_jit(cache=True)
-def payload_structure(low, high, minv, base, planar, pairs, squares, s_grid):
+def payload_structure(low, high, minv, base, point_rows, point_vectors, squares, s_grid):
     """The payload's structure (see the package docstring) at one state, J and γ given (in
-    ``planar`` and ``pairs``): K's eigenvalues and eigenvectors, s_j(Δm) on the grid, and the
-    α_j = v_jᵀJM̂⁻¹ and β_j = v_jᵀ(γ − JM̂⁻¹b̂) a row is linear in."""
+    ``point_rows`` and ``point_vectors``): K's eigenvalues and eigenvectors, s_j(Δm) on the
+    grid, and the α_j = v_jᵀJM̂⁻¹ and β_j = v_jᵀ(γ − JM̂⁻¹b̂) a row is linear in."""
     n = minv.shape[0]
-    jac, jm, alpha = planar[JAC], planar[JM], planar[ALPHA]
-    gamma, jb, lam, beta = pairs[GAMMA], pairs[JB], pairs[LAM], pairs[BETA]
+    jac, jm, alpha = point_rows[JAC], point_rows[JM], point_rows[ALPHA]
+    gamma, jb, lam, beta = (point_vectors[GAMMA], point_vectors[JB], point_vectors[LAM],
+                            point_vectors[BETA])
     kmat, vec = squares[KMAT], squares[VEC]
-    for r in range(2):
+    d = kmat.shape[0]
+    for r in range(d):
         for col in range(n):
             total = 0.0
             for l in range(n):  # noqa: E741
                 total += jac[r, l] * minv[l, col]
             jm[r, col] = total
         jb[r] = dot(jac[r], base)
-    for r in range(2):
-        for c in range(2):
+    for r in range(d):
+        for c in range(d):
             kmat[r, c] = dot(jm[r], jac[c])
-    symmetric_eigen(kmat, lam, vec)
+    small_symmetric_eigen(kmat, lam, vec, squares[EIGEN])
     grid = s_grid.shape[0] - 1
     for g in range(grid + 1):
         payload = low + (high - low) * g / grid
-        for j in range(2):
+        for j in range(d):
             s_grid[g, j] = payload / (1.0 + payload * lam[j])
-    for j in range(2):
+    for j in range(d):
         for col in range(n):
-            alpha[j, col] = vec[0, j] * jm[0, col] + vec[1, j] * jm[1, col]
-        beta[j] = (-(vec[0, j] * jb[0] + vec[1, j] * jb[1])
-                   + vec[0, j] * gamma[0] + vec[1, j] * gamma[1])
+            total = 0.0
+            for r in range(d):
+                total += vec[r, j] * jm[r, col]
+            alpha[j, col] = total
+        projected = 0.0
+        for r in range(d):
+            projected += vec[r, j] * jb[r]
+        beta[j] = -projected
+        for r in range(d):
+            beta[j] += vec[r, j] * gamma[r]
 
 
 @no_refcount_jit(cache=True, inline="always")
@@ -207,26 +197,28 @@ def robust_model(a, y, v, eps, minv, base):
     w = a.work
     vectors, forms = w.vectors, w.forms
     robust = a.payload_high != 0.0 or a.payload_low != 0.0
-    velocity_forms_into(y, a.m, a.l, a.lc, w.chain, forms[0])
+    velocity_forms_into(a.model, y, 1.0, 0.0, w.polar, forms[0])
     if robust:  # else the payload's forms stay zero, as its range is
-        velocity_forms_into(y, vectors[UNIT], a.l, a.lc, w.chain, forms[1])
+        velocity_forms_into(a.model, y, 0.0, 1.0, w.polar, forms[1])
     acceleration_error_bound_into(v, eps, minv, a.payload_low, a.payload_high, a.disturbance,
                                   forms[0], forms[1], w.linear, vectors[QUADRATIC],
                                   vectors[ROWS_ERROR])
     # the payload's structure (see the package docstring)
     corners = 1
-    jac, gamma = w.planar[JAC], w.pairs[GAMMA]
+    jac, gamma = w.point_rows[JAC], w.point_vectors[GAMMA]
     plant_shift = vectors[PLANT_SHIFT]
     plant_shift[:] = 0.0
     if robust:
-        com_kinematics(y, v, a.l, a.lc, a.gravity, jac, gamma)
+        model_payload(a.model, v, 1.0, jac, gamma)
     if robust and not a.inertia_is_plant:
-        payload_structure(a.payload_low, a.payload_high, minv, base, w.planar, w.pairs,
-                          w.squares, w.s_grid)
+        payload_structure(a.payload_low, a.payload_high, minv, base, w.point_rows,
+                          w.point_vectors, w.squares, w.s_grid)
         corners = w.corner_index.shape[0]
     elif robust:  # q̈ = u − Δm·M̂⁻¹Jᵀγ
         for i in range(n):
             for col in range(n):
-                plant_shift[i] += minv[i, col] * (jac[0, col] * gamma[0]
-                                                  + jac[1, col] * gamma[1])
+                projected = 0.0
+                for r in range(gamma.shape[0]):
+                    projected += jac[r, col] * gamma[r]
+                plant_shift[i] += minv[i, col] * projected
     return corners

@@ -72,7 +72,7 @@ def hard_rows(a, count, k, y, v, eps, minv, base, at_end):
     corners = robust_model(a, y, v, eps, minv, base)
     rows_error, plant_shift = vectors[ROWS_ERROR], vectors[PLANT_SHIFT]
     s_grid, corner_index = w.s_grid, w.corner_index
-    alpha, beta = w.planar[ALPHA], w.pairs[BETA]
+    alpha, beta = w.point_rows[ALPHA], w.point_vectors[BETA]
     y0, v0, dt = a.position[k], a.velocity[k], a.dt
     row = vectors[ROW]
     qp = (a.rows, a.limits, a.weights, a.is_hard, a.kinds, a.joints)
@@ -83,7 +83,7 @@ def hard_rows(a, count, k, y, v, eps, minv, base, at_end):
             for side in (1.0, -1.0):
                 # side·q̈_i ≤ limit for every q, q̇ within the bounds
                 if s == 0:
-                    h = a.bounds[0] - side * (y0[i] - a.q_s[k, i])
+                    h = a.joint_bounds[0, i] - side * (y0[i] - a.centres[0, i])
                     limit = a.k0 * (h - a.noise_bound) - a.k1 * (side * v0[i] + eps[i])
                     scale = 1.0 + a.k1 * dt + 0.5 * a.k0 * dt * dt if at_end else 1.0
                     if at_end:
@@ -93,7 +93,7 @@ def hard_rows(a, count, k, y, v, eps, minv, base, at_end):
                     # least h − ε: its worst case is max(h − ε, 0), not h − ε. So an estimate
                     # that may lie outside asks only "do not approach", not recovery at rate
                     # k from a state the plant may not be in.
-                    h = a.bounds[1] - side * (v0[i] - a.qdot_s[k, i])
+                    h = a.joint_bounds[1, i] - side * (v0[i] - a.centres[1, i])
                     limit = a.k_velocity * max(h - eps[i], 0.0)
                     scale = 1.0 + a.k_velocity * dt if at_end else 1.0
                 limit -= scale * rows_error[i]
@@ -105,7 +105,7 @@ def hard_rows(a, count, k, y, v, eps, minv, base, at_end):
                     for col in range(n):
                         row[col] = side * minv[i, col]
                     if corners > 1:
-                        for j in range(2):
+                        for j in range(alpha.shape[0]):
                             weight = s_grid[corner_index[corner, j], j] * side * alpha[j, i]
                             for col in range(n):
                                 row[col] -= weight * alpha[j, col]
@@ -182,8 +182,8 @@ def _set_states(k, a, y, v, observed, base_mid):
     drift, x = vectors[DRIFT], vectors[X:X + 4]
     for i in range(y.shape[0]):
         drift[i] = a.drift[k, i] if observed else -base_mid[i]
-        x[0, i] = y[i] - a.q_s[k, i]
-        x[1, i] = v[i] - a.qdot_s[k, i]
+        x[0, i] = y[i] - a.centres[0, i]
+        x[1, i] = v[i] - a.centres[1, i]
         x[2, i] = a.q_d[k, i] - y[i]
         x[3, i] = a.qdot_d[k, i] - v[i]
 
@@ -201,7 +201,8 @@ def _barrier_values(k, a, eps):
                 tight = a.noise_bound
             elif s == 1:
                 tight = eps[i]
-            a.h_sets[s, k, i] = beta_s - abs(x[s, i]) - tight
+            beta_i = a.joint_bounds[s, i] if s < 2 else beta_s
+            a.h_sets[s, k, i] = beta_i - abs(x[s, i]) - tight
             a.active_sets[s, k, i] = 0.0
         xs = x[s]
         a.h_norms[s, k] = beta_s - np.sqrt(dot(xs, xs))
@@ -220,8 +221,9 @@ def _soft_rows(k, a, count, s, rate_minv, minv_mid, base_mid):
     n = row.shape[0]
     if a.soft[s]:
         for i in range(n):
+            beta_i = a.joint_bounds[s, i] if s < 2 else beta_s
             for side in (1.0, -1.0):
-                h = beta_s - side * x[s, i]
+                h = beta_i - side * x[s, i]
                 if s == 2:  # e = q_d − y: −side·q̈_i ≤ −side q̈_d − 2p side ė + p² h
                     for col in range(n):
                         row[col] = -side * minv_mid[i, col]

@@ -8,7 +8,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ...blocks.base import kernel_args
-from ..inertia import CHAIN_ROWS
+from ...dynamics.model import RigidBodyModel
 
 SETS = ("position", "velocity", "error", "error_rate")
 SET_UNITS = {"position": "rad", "velocity": "rad/s", "error": "rad", "error_rate": "rad/s"}
@@ -18,22 +18,20 @@ SET_UNITS = {"position": "rad", "velocity": "rad/s", "error": "rad", "error_rate
 # array in them costs (measured: a call with these arguments took 0.67 µs with the scratch as
 # 58 arrays, 0.11 µs as these 13, 80 ns without any).
 
-# Rows of CbfWork.chain (CHAIN_ROWS + 3, n): the chain's geometry at one position, per link
-# (m), and the forces of the recursive Newton–Euler bias (N), cosim.paper.inertia's rows;
-# then the polarisation's velocity and biases.
-E, PLUS, MINUS = range(CHAIN_ROWS, CHAIN_ROWS + 3)
-CHAIN_SCRATCH_ROWS = CHAIN_ROWS + 3
+# Rows of CbfWork.polar (n each): the polarisation's velocity and biases.
+E, PLUS, MINUS = range(3)
+POLAR_ROWS = 3
 # Of CbfWork.solver (5, n): the iterate (then the answer), the line search's point, the
 # gradient, the step, a row being rotated into R.
 TAU, TRIAL, GRADIENT, DIRECTION, ROTATED = range(5)
 # Of CbfWork.vectors (n each): b̂ at (y, v) and at a predicted state; M̂⁻¹b̂ at (y, v), at the
 # hold's end and at its midpoint; the nominal model's q̈ under the held torque; the states
 # predicted at the hold's end and midpoint; dv/dt − M̂⁻¹τ; a row before its scaling; the bias
-# error's quadratic part, and its bound on |M̂⁻¹(Δb + d)|; link masses of a unit payload (1 kg
-# on the last link); M̂⁻¹Jᵀγ when M̂ is the plant's; from X, 4 rows: each set's x, SETS order.
+# error's quadratic part, and its bound on |M̂⁻¹(Δb + d)|; M̂⁻¹Jᵀγ when M̂ is the plant's;
+# from X, 4 rows: each set's x, SETS order.
 (BIAS, MOVED_BIAS, BASE, BASE_END, BASE_MID, ACCELERATION, Y_END, V_END, Y_MID, V_MID, DRIFT,
- ROW, QUADRATIC, ROWS_ERROR, UNIT, PLANT_SHIFT, X) = range(17)
-# Of CbfWork.matrices (n×n each): the nominal chain's M at y and at a predicted position, M̂
+ ROW, QUADRATIC, ROWS_ERROR, PLANT_SHIFT, X) = range(16)
+# Of CbfWork.matrices (n×n each): the nominal model's M at y and at a predicted position, M̂
 # moved there, M̂⁻¹ at y, at the hold's end and at its midpoint, elimination scratch, and R.
 NOMINAL_NOW, NOMINAL, SHIFTED, MINV, MINV_END, MINV_MID, LU, FACTOR = range(8)
 # … then the backup's rollout (cosim.paper.cbf_filter.backup): M at its state, M⁻¹, scratch.
@@ -49,27 +47,28 @@ ROLLOUT_ROWS = 19
 # R_FLAGS[CONSISTENT]: 1 where the velocity's intervals met at this step; R_FLAGS[PLAN]: the
 # backup policy of the last torque verified
 CONSISTENT, PLAN = 0, 1
-# The payload's structure: of CbfWork.planar (2×n each) J of its point, J M̂⁻¹ and α; of
-# .pairs (2 each) γ = J̇v + g ŷ, J M̂⁻¹b̂, K's eigenvalues (ascending) and β; of .squares
-# (2×2 each) K = J M̂⁻¹ Jᵀ and its eigenvectors (columns).
+# The payload's structure, its point of d coordinates (the model's dim: 2 in the plane, 3 in
+# space): of CbfWork.point_rows (d×n each) J of its point, J M̂⁻¹ and α; of .point_vectors (d each)
+# γ = J̇v − g, J M̂⁻¹b̂, K's eigenvalues (ascending) and β; of .squares (d×d each)
+# K = J M̂⁻¹ Jᵀ, its eigenvectors (columns) and the eigensolver's scratch.
 JAC, JM, ALPHA = range(3)
 GAMMA, JB, LAM, BETA = range(4)
-KMAT, VEC = range(2)
+KMAT, VEC, EIGEN = range(3)
 
 
 class CbfWork(NamedTuple):
-    chain: np.ndarray  # (CHAIN_SCRATCH_ROWS, n) inertia.CX …, then E, PLUS, MINUS
+    polar: np.ndarray  # (POLAR_ROWS, n) E, PLUS, MINUS
     solver: np.ndarray  # (5, n) TAU …
     vectors: np.ndarray  # (X + 4, n) BIAS …
     matrices: np.ndarray  # (12, n, n) NOMINAL_NOW …, ROLL_MASS …
-    forms: np.ndarray  # (2, n, n, n) Γ of the nominal chain, of a unit payload (zero
+    forms: np.ndarray  # (2, n, n, n) Γ of the nominal model, of a unit payload (zero
     # without a payload range)
     linear: np.ndarray  # (2, n, n) B at each end of the payload range
-    planar: np.ndarray  # (3, 2, n) JAC …
-    pairs: np.ndarray  # (4, 2) GAMMA …
-    squares: np.ndarray  # (2, 2, 2) KMAT, VEC
-    s_grid: np.ndarray  # (grid + 1, 2) s_j(Δm) at Δm = low … high
-    corner_index: np.ndarray  # (3 grid + 1, 2) the grid points of each box corner
+    point_rows: np.ndarray  # (3, d, n) JAC …
+    point_vectors: np.ndarray  # (4, d) GAMMA …
+    squares: np.ndarray  # (3, d, d) KMAT, VEC, EIGEN
+    s_grid: np.ndarray  # (grid + 1, d) s_j(Δm) at Δm = low … high
+    corner_index: np.ndarray  # ((2^d − 1) grid + 1, d) the grid points of each box corner
     per_row: np.ndarray  # (2, rows) the limits and the weights the QP is solved with
     binding: np.ndarray  # (rows,) the rows violated at the solver's iterate
     rollout: np.ndarray  # (ROLLOUT_ROWS, n) R_Q …
@@ -82,31 +81,33 @@ class CbfWork(NamedTuple):
     backup_binding: np.ndarray
 
 
-def payload_corners(grid: int) -> np.ndarray:
-    """The grid points (of s_1, of s_2) of the box corners the payload's rows are taken at:
-    s_j increases with Δm, so between two grid points (s_1, s_2) lies in their box, whose
-    corners are (g, g), (g+1, g+1), (g, g+1), (g+1, g). 3 grid + 1 corners."""
-    corner_index = np.zeros((3 * grid + 1, 2), np.int64)
+def payload_corners(grid: int, d: int) -> np.ndarray:
+    """The grid points (of s_1 … s_d) of the box corners the payload's rows are taken at:
+    s_j increases with Δm, so between two grid points (s_1 … s_d) lies in their box: its
+    corner (g, …, g), then its 2^d − 2 mixed corners ((g, g+1), (g+1, g) in the plane); the
+    last grid point's at the end. (2^d − 1) grid + 1 corners."""
+    corner_index = np.zeros(((2**d - 1) * grid + 1, d), np.int64)
     corners = 0
     for g in range(grid + 1):
-        corner_index[corners, 0] = corner_index[corners, 1] = g
+        corner_index[corners, :] = g
         corners += 1
         if g < grid:
-            corner_index[corners, 0], corner_index[corners, 1] = g, g + 1
-            corner_index[corners + 1, 0], corner_index[corners + 1, 1] = g + 1, g
-            corners += 2
+            for mask in range(2**d - 2, 0, -1):  # coordinate j at g + bit j of the mask
+                for j in range(d):
+                    corner_index[corners, j] = g + ((mask >> j) & 1)
+                corners += 1
     return corner_index
 
 
-def cbf_work(n: int, rows: int, grid: int) -> CbfWork:
-    """The scratch of a filter on n joints with at most ``rows`` rows."""
-    vectors = np.zeros((X + 4, n))
-    vectors[UNIT, n - 1] = 1.0
+def cbf_work(n: int, rows: int, grid: int, d: int) -> CbfWork:
+    """The scratch of a filter on n joints with at most ``rows`` rows, the payload's point
+    of d coordinates."""
     return kernel_args(
-        CbfWork, chain=np.zeros((CHAIN_SCRATCH_ROWS, n)), solver=np.zeros((5, n)), vectors=vectors,
-        matrices=np.zeros((12, n, n)), forms=np.zeros((2, n, n, n)), linear=np.zeros((2, n, n)),
-        planar=np.zeros((3, 2, n)), pairs=np.zeros((4, 2)), squares=np.zeros((2, 2, 2)),
-        s_grid=np.zeros((grid + 1, 2)), corner_index=payload_corners(grid),
+        CbfWork, polar=np.zeros((POLAR_ROWS, n)), solver=np.zeros((5, n)),
+        vectors=np.zeros((X + 4, n)), matrices=np.zeros((12, n, n)),
+        forms=np.zeros((2, n, n, n)), linear=np.zeros((2, n, n)), point_rows=np.zeros((3, d, n)),
+        point_vectors=np.zeros((4, d)), squares=np.zeros((3, d, d)), s_grid=np.zeros((grid + 1, d)),
+        corner_index=payload_corners(grid, d),
         per_row=np.zeros((2, rows)), binding=np.zeros(rows, np.bool_),
         rollout=np.zeros((ROLLOUT_ROWS, n)), backup_rows=np.zeros((2 * n, n)),
         backup_limits=np.zeros((2, 2 * n)), backup_solver=np.zeros((5, n)),
@@ -117,8 +118,13 @@ class CbfArgs(NamedTuple):
     hard: np.ndarray  # (4,) 1 where the set is a hard per-joint set, SETS order
     soft: np.ndarray  # (4,) 1 where it is a soft per-joint set
     soft_norms: np.ndarray  # (4,) 1 where it is a soft norm set
-    bounds: np.ndarray  # (4,) β per set, bound_margin applied
-    viable_bounds: np.ndarray  # (2,) position, velocity: half of bound_margin applied
+    bounds: np.ndarray  # (4,) β per set, bound_margin applied (position, velocity: norms)
+    # (2, n) per joint, position and velocity: the hard sets' half-widths β_i (bound_margin
+    # applied), the check's (half of it applied) and their centres (q_s, q̇_s, or the
+    # middle of the robot's own limits)
+    joint_bounds: np.ndarray
+    viable_bounds: np.ndarray
+    centres: np.ndarray
     k1: float  # 2p
     k0: float  # p²
     tracking_k1: float  # 2p of the soft error rows
@@ -143,11 +149,7 @@ class CbfArgs(NamedTuple):
     payload_high: float
     disturbance: float  # d̄, N·m
     inertia_is_plant: bool
-    m: np.ndarray  # the nominal chain
-    l: np.ndarray  # noqa: E741
-    lc: np.ndarray
-    inertia: np.ndarray
-    gravity: float
+    model: RigidBodyModel  # the nominal model (inertia_model's nominal_model)
     tau_d: np.ndarray
     rows: np.ndarray  # scratch: (rows, n) G, unit rows
     limits: np.ndarray  # scratch: (rows,) h

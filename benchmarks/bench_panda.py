@@ -1,0 +1,111 @@
+"""The Panda's closed loop against its own FMU floor, and the blocks' nominal model against
+Pinocchio (issue 32), in one process:
+
+1. pipelines/panda.toml's runs ``proposed`` (observer + NN controller) and ``proposed_cbf``
+   (+ the safety filter) in the fused compiled engine, µs per step, against the floor: the
+   same spatial-chain FMU alone in one compiled call (benchmarks/bench_cosim.py's
+   ``fmu_only_compiled``), and their ratio;
+2. M̂ + b̂ of the Panda's nominal model (cosim.dynamics: CRBA + RNEA in numba), called from
+   compiled code as the blocks call it, against Pinocchio's crba + rnea through its Python
+   bindings (what the blocks could call instead, from Python only), µs per call.
+
+Each figure is the best of ``--repeat`` repetitions.
+
+Run: .venv/bin/python benchmarks/bench_panda.py [--duration 3] [--repeat 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+from bench_cosim import fmu_only_compiled
+from numba import njit
+
+from cosim.assemble import assemble_run, open_plant
+from cosim.config import load_pipeline
+from cosim.dynamics.model import chain_model, model_bias, model_geometry, model_mass
+from cosim.engine import simulate
+
+PIPELINE = Path(__file__).resolve().parent.parent / "pipelines" / "panda.toml"
+
+
+@njit
+def _model_loop(model, q, v, mass, bias, reps):
+    for r in range(reps):
+        q[0] = 1e-3 * r  # a new position each call
+        model_geometry(model, q)
+        model_mass(model, 1.0, 0.0, mass)
+        model_bias(model, v, 1.0, 0.0, 1.0, bias)
+
+
+def nominal_model_cost(repeat: int) -> tuple[float, float]:
+    """(µs per M̂ + b̂ in our compiled kernels, µs per crba + rnea through Pinocchio)."""
+    import pinocchio as pin
+
+    from plant_fmu.urdf import read_urdf, resolve_uri
+
+    path = resolve_uri("package://example-robot-data/robots/panda_description/urdf/panda.urdf",
+                       Path.cwd())
+    chain = read_urdf(path, tip="panda_hand")
+    model = chain_model(chain)
+    reference = pin.buildModelFromUrdf(str(path))
+    locked = [reference.getJointId(name) for name in reference.names[1:]
+              if name not in chain.joints]
+    reference = pin.buildReducedModel(reference, locked, pin.neutral(reference))
+    data = reference.createData()
+    n = chain.n
+    rng = np.random.default_rng(0)
+    q, v = rng.uniform(-1, 1, n), rng.uniform(-1, 1, n)
+    mass, bias = np.zeros((n, n)), np.zeros(n)
+    reps = 20000
+    _model_loop(model, q, v, mass, bias, 10)
+    ours = theirs = np.inf
+    zeros = np.zeros(n)
+    for _ in range(repeat):
+        start = time.perf_counter()
+        _model_loop(model, q, v, mass, bias, reps)
+        ours = min(ours, (time.perf_counter() - start) / reps)
+        start = time.perf_counter()
+        for _ in range(reps):
+            pin.crba(reference, data, q)
+            pin.rnea(reference, data, q, v, zeros)
+        theirs = min(theirs, (time.perf_counter() - start) / reps)
+    return 1e6 * ours, 1e6 * theirs
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--duration", type=float, default=3.0, help="simulated seconds")
+    parser.add_argument("--repeat", type=int, default=3, help="repetitions (best is kept)")
+    args = parser.parse_args()
+    pipeline = load_pipeline(PIPELINE, [f"simulation.duration={args.duration}"])
+    steps = int(round(args.duration / pipeline.simulation.step))
+    plant = open_plant(pipeline)
+    try:
+        us = {}
+        for run in ("proposed", "proposed_cbf"):
+            plan = assemble_run(pipeline, run, plant)
+            best = np.inf
+            for _ in range(args.repeat):
+                best = min(best, simulate(plant, plan, plan.new_trace(steps), engine="fused"))
+            us[run] = 1e6 * best / steps
+        floor = min(1e6 * fmu_only_compiled(plant, args.duration) for _ in range(args.repeat))
+    finally:
+        plant.close()
+    ours, theirs = nominal_model_cost(args.repeat)
+    print(f"Panda, {args.duration:g} s at 1 kHz, fused engine (best of {args.repeat}):")
+    for run, value in us.items():
+        print(f"  {run:<14} {value:8.2f} us/step   {value / floor:6.2f} x the floor")
+    print(f"  {'floor':<14} {floor:8.2f} us/step   (the FMU alone, one compiled call)")
+    print(f"nominal model M + b (7 joints): {ours:.2f} us compiled (cosim.dynamics), "
+          f"{theirs:.2f} us Pinocchio crba + rnea through Python")
+    print(f"panda_closed_loop_us_per_step={us['proposed_cbf']:.2f} floor_us_per_step="
+          f"{floor:.2f} ratio={us['proposed_cbf'] / floor:.2f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

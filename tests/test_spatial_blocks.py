@@ -1,0 +1,184 @@
+"""The blocks on real arms (issue 32): the nominal rigid-body model of a URDF's chain
+(cosim.dynamics: M̂ by CRBA, b̂ by RNEA, the payload as a point mass at the tip) against
+Pinocchio on the same URDF, the planar chain as one instance of the same record, and a
+spatial arm's pipeline run end to end through the real FMU with every joint checked."""
+
+from __future__ import annotations
+
+import importlib.metadata
+import json
+
+import numpy as np
+import pytest
+from cli_helpers import cosim_cli, error_line
+
+from cosim.dynamics.model import (
+    chain_model,
+    model_bias,
+    model_geometry,
+    model_mass,
+    model_payload,
+    own_scratch,
+    planar_model,
+)
+from cosim.paper.inertia import planar_bias, planar_mass_matrix
+
+pin = pytest.importorskip("pinocchio")
+urdf = pytest.importorskip("plant_fmu.urdf")
+
+# (URDF under example-robot-data's robots/, tip link): five real arms, revolute joints about
+# aligned and unaligned axes, a 7-joint one with its hand's fingers folded in
+ARMS = {
+    "ur5": ("ur_description/urdf/ur5_robot.urdf", "tool0"),
+    "ur10": ("ur_description/urdf/ur10_robot.urdf", "tool0"),
+    "panda": ("panda_description/urdf/panda.urdf", "panda_hand"),
+    "z1": ("z1_description/urdf/z1.urdf", None),
+    "xarm7": ("xarm_description/urdf/xarm7.urdf", None),
+}
+
+
+def robot_urdf(relative: str):
+    """A URDF of example-robot-data (a test extra; never copied into the repository)."""
+    root = importlib.metadata.distribution("example-robot-data").locate_file(
+        "cmeel.prefix/share/example-robot-data/robots")
+    return root / relative
+
+
+def pinocchio_model(chain, path):
+    """Pinocchio's model of the same URDF, the joints our chain does not move locked where
+    the reader holds them (fingers at 0), so that both fold the same bodies in."""
+    model = pin.buildModelFromUrdf(str(path))
+    moving = set(chain.joints)
+    locked = [model.getJointId(name) for name in model.names[1:] if name not in moving]
+    if locked:
+        model = pin.buildReducedModel(model, locked, pin.neutral(model))
+    assert [model.names[j] for j in range(1, model.njoints)] == list(chain.joints)
+    return model
+
+
+@pytest.mark.parametrize("arm", sorted(ARMS))
+def test_the_nominal_model_is_pinocchios(arm):
+    """M̂(q) (CRBA), b̂(q, v) = C v + G (RNEA), and with a payload Δm at the tip link's origin
+    M̂ + Δm JᵀJ and b̂ + Δm Jᵀγ (J, γ = J̇v − g of that point), each as the model computes them
+    in one call, equal Pinocchio's crba and rnea on the same URDF (the payload added to the
+    last body as a point inertia there) to 1e-12 relative, at 200 random states."""
+    relative, tip = ARMS[arm]
+    path = robot_urdf(relative)
+    chain = urdf.read_urdf(path, tip=tip)
+    model = own_scratch(chain_model(chain))
+    reference = pinocchio_model(chain, path)
+    data = reference.createData()
+    loaded = reference.copy()
+    payload = 2.5  # kg
+    loaded.inertias[chain.n] = loaded.inertias[chain.n] + pin.Inertia(
+        payload, chain.tip[:3, 3], np.zeros((3, 3)))
+    loaded_data = loaded.createData()
+    n = chain.n
+    rng = np.random.default_rng(32)
+    mass, bias = np.zeros((n, n)), np.zeros(n)
+    mass_loaded, bias_loaded = np.zeros((n, n)), np.zeros(n)
+    jac, gamma = np.zeros((3, n)), np.zeros(3)
+    for _ in range(200):
+        q, v = rng.uniform(-np.pi, np.pi, n), rng.uniform(-4, 4, n)
+        model_geometry(model, q)
+        model_mass(model, 1.0, 0.0, mass)
+        model_bias(model, v, 1.0, 0.0, 1.0, bias)
+        model_mass(model, 1.0, payload, mass_loaded)
+        model_bias(model, v, 1.0, payload, 1.0, bias_loaded)
+        model_payload(model, v, 1.0, jac, gamma)
+        expected = pin.crba(reference, data, q)
+        expected = np.triu(expected) + np.triu(expected, 1).T
+        expected_bias = pin.rnea(reference, data, q, v, np.zeros(n))
+        loaded_mass = pin.crba(loaded, loaded_data, q)
+        loaded_mass = np.triu(loaded_mass) + np.triu(loaded_mass, 1).T
+        loaded_bias = pin.rnea(loaded, loaded_data, q, v, np.zeros(n))
+        for ours, theirs in ((mass, expected), (bias, expected_bias),
+                             (mass_loaded, loaded_mass), (bias_loaded, loaded_bias),
+                             (mass + payload * jac.T @ jac, loaded_mass),
+                             (bias + payload * jac.T @ gamma, loaded_bias)):
+            np.testing.assert_allclose(ours, theirs, rtol=0, atol=1e-12 * np.abs(theirs).max())
+
+
+def test_the_planar_chain_is_one_instance_bit_for_bit():
+    """The planar chain through the model record (what the blocks now call) gives the planar
+    kernels' M and b bit for bit, with and without a payload on the last link, and its
+    payload's point (the last centre of mass) the Jacobian of the closed form."""
+    m, lengths, lc, inertia = [0.8, 2.3, 1.1], [1.0, 1.0, 0.7], [1.0, 1.0, 0.4], [0.0, 0.1, 0.02]
+    model = own_scratch(planar_model(m, lengths, lc, inertia, 9.8))
+    arms = np.array([lengths[0], lengths[1], lc[2]])
+
+    def point(angles):  # the last centre of mass in the plane
+        return np.array([np.sum(arms * np.cos(np.cumsum(angles))),
+                         np.sum(arms * np.sin(np.cumsum(angles)))])
+
+    rng = np.random.default_rng(2)
+    for _ in range(50):
+        q, v = rng.uniform(-3, 3, 3), rng.uniform(-10, 10, 3)
+        ours_mass, ours_bias = np.zeros((3, 3)), np.zeros(3)
+        model_geometry(model, q)
+        for payload in (0.0, 1.5):
+            model_mass(model, 1.0, payload, ours_mass)
+            model_bias(model, v, 1.0, payload, 1.0, ours_bias)
+            masses = np.array(m) + np.array([0.0, 0.0, payload])
+            mass, bias = np.zeros((3, 3)), np.zeros(3)
+            planar_mass_matrix(q, masses, np.array(lengths), np.array(lc), np.array(inertia),
+                               mass)
+            planar_bias(q, v, masses, np.array(lengths), np.array(lc), np.array(inertia), 9.8,
+                        bias)
+            assert np.array_equal(ours_mass, mass) and np.array_equal(ours_bias, bias)
+        jac, gamma = np.zeros((2, 3)), np.zeros(2)
+        model_payload(model, v, 1.0, jac, gamma)
+        numeric = np.column_stack([(point(q + h) - point(q - h)) / 2e-6
+                                   for h in np.eye(3) * 1e-6])
+        np.testing.assert_allclose(jac, numeric, atol=1e-8)
+
+
+UR5 = "pipelines/ur5.toml"
+
+
+@pytest.fixture(scope="module")
+def ur5_runs(tmp_path_factory):
+    """pipelines/ur5.toml's output-feedback and PD runs, 1.5 s, through `cosim run`: the
+    spatial-chain FMU built from the URDF (FMPy), the blocks on its 6 joints."""
+    out = tmp_path_factory.mktemp("ur5")
+    result = cosim_cli("run", UR5, "--set", "simulation.duration=1.5", "--run", "proposed",
+                       "--run", "pd", "--out", str(out), "--no-recording", "--no-figures")
+    assert result.returncode == 0, result.stderr[-3000:]
+    return json.loads((out / "summary.json").read_text())
+
+
+def test_a_urdf_arm_is_checked_on_every_joint_against_its_own_limits(ur5_runs):
+    """Every joint's position (the URDF's limits less the declared margin), true velocity and
+    effort are hard checks with the URDF's own bounds (read here by plant_fmu.urdf, not by the
+    evaluation's code path), no norm of a box; both controllers keep them all, and the
+    output-feedback controller tracks the waypoints (its error within 0.3 rad per joint)."""
+    chain = urdf.read_urdf(robot_urdf(ARMS["ur5"][0]), tip="tool0")
+    margin = 0.05
+    for name in ("proposed", "pd"):
+        safety = ur5_runs["runs"][name]["safety"]
+        for j in range(chain.n):
+            position = safety[f"position_joint{j + 1}"]
+            half = 0.5 * (chain.upper[j] - chain.lower[j]) - margin
+            assert position["kind"] == "hard" and position["bound"] == pytest.approx(half)
+            velocity = safety[f"velocity_true_joint{j + 1}"]
+            assert velocity["bound"] == pytest.approx(chain.velocity[j])
+            effort = safety[f"effort_joint{j + 1}"]
+            assert effort["kind"] == "hard" and effort["bound"] == pytest.approx(chain.effort[j])
+            for entry in (position, velocity, effort):
+                assert entry["satisfied"] is True, (name, j, entry)
+            assert 0.0 < velocity["worst"] < chain.velocity[j]  # the arm moved
+        assert not any(key.startswith(("position_norm", "velocity_true_norm", "effort_norm"))
+                       for key in safety)
+    errors = ur5_runs["runs"]["proposed"]["metrics"]["max_error"]
+    assert len(errors) == chain.n and max(errors) < 0.3
+
+
+def test_a_waypoint_past_a_joint_limit_is_refused_naming_it():
+    """A waypoint past the elbow's limit (π rad, less the margin) is refused before the run:
+    exit 2, one message naming the joint and the URDF's limits."""
+    result = cosim_cli("run", UR5, "--dry-run", "--set",
+                       "reference.waypoints.positions=[[0,-1.571,1.571,-1.571,-1.571,0],"
+                       "[0,-1.571,3.12,-1.571,-1.571,0]]",
+                       "--set", "reference.waypoints.times=[0,2]")
+    message = error_line(result)
+    assert "joint 3" in message and "ur5_robot.urdf's <limit>" in message, message
