@@ -96,8 +96,8 @@ MUTANTS = [
      "    _payload_deviation(a, q_dot, acceleration, deviation)\n", "", VIABILITY),
     # the payload's departure at the range's ends only (the grid's first and last point)
     ("cbf-payload-ends-only", "cosim/paper/cbf_filter/backup.py",
-     "first, last = low + span * g / PAYLOAD_BOXES, low + span * (g + 1) / PAYLOAD_BOXES",
-     "first = last = low + span", VIABILITY),
+     "start, end = weight * s_grid[g, j], weight * s_grid[g + 1, j]",
+     "start = end = weight * s_grid[grid, j]", VIABILITY),
     ("cbf-turning-point", "cosim/paper/cbf_filter/backup.py",
      "max(abs(q[i] - a.centres[0, i]), abs(turn - a.centres[0, i]))", "abs(q[i] - a.centres[0, i])",
      VIABILITY),

@@ -57,7 +57,6 @@ from .scratch import (
     CONSISTENT,
     GAMMA,
     JAC,
-    LAM,
     QUADRATIC,
     R_ACC,
     R_BIAS,
@@ -99,10 +98,6 @@ HOLD, HOLD_RATE = 0.2, 10.0
 # velocity's interval, D alone let joint 1 pass its bound by 0.015 rad
 # (tests/test_viability.py), 1.5 D keeps it inside. An empirical factor, stated as such.
 TUBE_SAFETY = 1.5
-# The payload range is cut into this many boxes for the bound on its departure (each box's
-# conservatism is its share of the terms' size: at 4, the QP rows' grid, a̲ at 1000 N·m fell
-# to 0.11 rad/s²), dimensionless (a count)
-PAYLOAD_BOXES = 32
 
 
 @no_refcount_jit(cache=True, inline="always")
@@ -176,8 +171,7 @@ def _payload_deviation(a, q_dot, acceleration, deviation):
     K = JM̂⁻¹Jᵀ = Σ_j λ_j v_j v_jᵀ, α_j = v_jᵀJM̂⁻¹ and s_j = Δm/(1 + Δmλ_j) (Woodbury; the
     hard rows' structure, :func:`.model.payload_structure`). Linear in the s_j, which all
     increase with Δm: between two points of the payload grid the curve lies in their box,
-    where a linear function's extremes are the sums of its terms' (each at one end), over
-    PAYLOAD_BOXES boxes. Not at
+    where a linear function's extremes are the sums of its terms' (each at one end). Not at
     the range's ends alone: the terms may cancel at both ends and not between (measured on
     the paper's arm braking near its bound: 0.75 rad/s² at the ends, 4.7 at Δm = 0.38 kg).
     Where M̂ is the plant's, the shift is −ΔmM̂⁻¹Jᵀγ: linear in Δm, largest at an end."""
@@ -203,22 +197,20 @@ def _payload_deviation(a, q_dot, acceleration, deviation):
     structure = w.point_vectors[BETA]  # v_jᵀ(Jq̈(0) + γ), per eigenvector j
     payload_structure(a.payload_low, a.payload_high, minv, acceleration, w.point_rows,
                       w.point_vectors, w.squares, w.s_grid)
-    vec, lam = w.squares[VEC], w.point_vectors[LAM]
-    alpha = w.point_rows[ALPHA]
-    low, span = a.payload_low, a.payload_high - a.payload_low
+    vec = w.squares[VEC]
+    alpha, s_grid = w.point_rows[ALPHA], w.s_grid
+    grid = s_grid.shape[0] - 1
     for j in range(d):
         structure[j] = 0.0
         for r in range(d):
             structure[j] += vec[r, j] * gamma[r]
     for i in range(n):
         worst = 0.0
-        for g in range(PAYLOAD_BOXES):  # the box between grid points g and g + 1: extremes
+        for g in range(grid):  # the box between grid points g and g + 1: its extremes
             largest = least = 0.0
-            first, last = low + span * g / PAYLOAD_BOXES, low + span * (g + 1) / PAYLOAD_BOXES
             for j in range(d):
                 weight = -alpha[j, i] * structure[j]
-                start = weight * first / (1.0 + first * lam[j])
-                end = weight * last / (1.0 + last * lam[j])
+                start, end = weight * s_grid[g, j], weight * s_grid[g + 1, j]
                 largest += max(start, end)
                 least += min(start, end)
             worst = max(worst, largest, -least)
