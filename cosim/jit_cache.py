@@ -308,10 +308,10 @@ def _tolerate_damaged_entries() -> None:
 
 
 def kernel_modules() -> list[tuple[str, Path]]:
-    """cosim's own kernel modules (name, file): the blocks', the paper's and the engine's,
-    also those of their subpackages."""
+    """cosim's own kernel modules (name, file): the blocks', the nominal models'
+    (cosim.dynamics), the paper's and the engine's, also those of their subpackages."""
     found = []
-    for folder in ("blocks", "paper", "engine"):
+    for folder in ("blocks", "dynamics", "paper", "engine"):
         for path in sorted((_PACKAGE / folder).rglob("*.py")):
             if _is_kernel_module(path):
                 parts = path.relative_to(_PACKAGE).with_suffix("").parts

@@ -637,13 +637,16 @@ def test_sigterm_mid_sweep_keeps_the_finished_rows_and_ends_every_worker(tmp_pat
     child = subprocess.Popen(
         [sys.executable, "-m", "cosim.cli", "sweep", PAPER, "--out", str(out), "--quiet",
          "--grid", f"controller.kv={','.join(str(10 + i) for i in range(300))}",
-         "--workers", "2", *SHORT], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        process_group=0)
+         # 5 s runs: the 300 points take ~30 s on 2 idle cores (at 0.5 s, as the other
+         # sweeps here, they had all finished within the 8 s below, and the signal found
+         # the results being written)
+         "--workers", "2", "--set", "simulation.duration=5"], stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE, text=True, process_group=0)
     try:
         line = child.stderr.readline()
         while line and not line.startswith("sweeping"):
             line = child.stderr.readline()
-        time.sleep(8.0)  # some points finish (~0.1 s each once the kernels are loaded)
+        time.sleep(8.0)  # some points finish (~0.2 s each once the kernels are loaded)
         child.send_signal(signal.SIGTERM)
         _, err = child.communicate(timeout=120)
     finally:

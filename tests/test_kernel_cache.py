@@ -16,7 +16,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 
 # A kernel module of the test's own, in the copied package: a kernel that calls another
-# module's kernel (the inertia model's mass matrix), as the blocks and the fused loop do.
+# module's kernel (the planar chain's mass matrix), as the blocks and the fused loop do.
 CALLER = '''"""A kernel calling another module's kernel (tests/test_kernel_cache.py)."""
 import numpy as np
 from numba import njit
@@ -37,7 +37,7 @@ def first_entry(q):
 COMPILE = """
 import json, numpy as np
 from cosim.paper.sensor import SensorArgs, sensor_step
-from cosim.paper.inertia import planar_mass_matrix
+from cosim.dynamics.planar import planar_mass_matrix
 from cosim.paper.cache_probe import first_entry
 q = np.zeros((2, 2))
 sensor_step(0, SensorArgs(q, np.zeros((2, 2)), 0.0, np.zeros((2, 2))))
@@ -48,7 +48,7 @@ print(json.dumps({f.py_func.__module__: [f.stats.cache_path, sum(f.stats.cache_h
                                         sum(f.stats.cache_misses.values())]
                   for f in (sensor_step, planar_mass_matrix, first_entry)}))
 """
-SENSOR, INERTIA, CALLER_MODULE = "cosim.paper.sensor", "cosim.paper.inertia", \
+SENSOR, INERTIA, CALLER_MODULE = "cosim.paper.sensor", "cosim.dynamics.planar", \
     "cosim.paper.cache_probe"
 
 
@@ -106,9 +106,9 @@ def test_a_changed_kernel_source_recompiles_only_its_kernels_in_a_fresh_process(
         assert third[module][1] >= 1 and third[module][2] == 0, (module, third)
     assert {p: t for folder in folders for p, t in entries(folder).items()} == before
 
-    # The inertia model's source changes: its kernels and its caller's compile anew (the
+    # The planar chain's source changes: its kernels and its caller's compile anew (the
     # caller's machine code holds the callee's), the sensor's loads.
-    edit(source / "cosim" / "paper" / "inertia.py")
+    edit(source / "cosim" / "dynamics" / "planar.py")
     fourth = compile_in_fresh_process(source, cache)
     for module in (INERTIA, CALLER_MODULE):
         assert fourth[module][0] not in (first[module][0], third[module][0]), (module, fourth)
@@ -130,9 +130,11 @@ def test_a_fused_loop_is_versioned_by_the_kernels_it_calls(tmp_path, monkeypatch
     monkeypatch.setattr(jit_cache, "_closures", {})
     monkeypatch.setattr(jit_cache, "_digests", {})
     closure = jit_cache._closure("cosim_fused_probe", loop)
-    # pd_controller calls the inertia model's kernels: they are part of the loop's code
-    assert closure == ("cosim.paper.inertia", "cosim.paper.pd_controller",
-                       "cosim.paper.sensor", "cosim_fused_probe")
+    # pd_controller calls the nominal model's kernels (cosim.dynamics, with what they import):
+    # they are part of the loop's code
+    assert closure == ("cosim.dynamics.model", "cosim.dynamics.planar", "cosim.dynamics.spatial",
+                       "cosim.numba_compat", "cosim.paper.pd_controller", "cosim.paper.sensor",
+                       "cosim_fused_probe")
     digest = jit_cache.module_digest("cosim_fused_probe", loop)
     assert jit_cache._ours("cosim_fused_probe", str(loop))
     import numpy
@@ -142,9 +144,9 @@ def test_a_fused_loop_is_versioned_by_the_kernels_it_calls(tmp_path, monkeypatch
     sensor = jit_cache.module_digest("cosim.paper.sensor")
     monkeypatch.setattr(jit_cache, "_digests", {})
     real = jit_cache.module_file
-    copy = tmp_path / "inertia.py"
-    copy.write_text(real("cosim.paper.inertia").read_text() + "\n# an edit\n")
+    copy = tmp_path / "planar.py"
+    copy.write_text(real("cosim.dynamics.planar").read_text() + "\n# an edit\n")
     monkeypatch.setattr(jit_cache, "module_file",
-                        lambda name: copy if name == "cosim.paper.inertia" else real(name))
+                        lambda name: copy if name == "cosim.dynamics.planar" else real(name))
     assert jit_cache.module_digest("cosim_fused_probe", loop) != digest
     assert jit_cache.module_digest("cosim.paper.sensor") == sensor

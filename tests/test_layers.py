@@ -13,7 +13,7 @@ ROOT = Path(__file__).resolve().parent.parent
 LAYERS = (
     ("cosim.schema", "cosim.declared", "cosim.signals", "cosim.numba_compat", "cosim.jit_cache",
      "cosim.progress", "cosim.interface", "cosim.run_note", "plant_fmu"),
-    ("cosim.plant", "cosim.evaluate"),
+    ("cosim.plant", "cosim.evaluate", "cosim.dynamics"),
     ("cosim.blocks", "cosim.paper"),
     ("cosim.config", "cosim.engine"),
     ("cosim.memory", "cosim.assemble"),

@@ -74,7 +74,7 @@ class Evaluator:
     barrier_values: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        chosen, self.skipped = select(self.trace, self.constants, self.unmapped)
+        chosen, self.skipped = select(self.trace, self.constants, self.unmapped, self.safe)
         available = frozenset(self.trace.arrays) - self.unmapped
         self.parts: list[Part] = [cls(self.trace, self.safe, self.constants, available)
                                   for cls in chosen]

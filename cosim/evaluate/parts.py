@@ -45,6 +45,12 @@ class Part:
         self.available = available  # the run's signals that hold values
         self.note: str | None = None  # what summary.json adds to "ran" (a part left out)
 
+    @classmethod
+    def undeclared(cls, safe: SafeSet) -> str | None:
+        """Why this evaluator has nothing to judge under these declarations (it then does not
+        run, and says so), or None."""
+        return None
+
     def checks(self, rows: Signals) -> dict[str, Check]:
         """Safety checks of these rows (each joint and the norm against their bounds), each
         made by a :class:`Declaration` (:meth:`Declaration.joints_and_norm`)."""
@@ -94,12 +100,17 @@ def evaluated_signals() -> frozenset[str]:
 
 
 def select(trace: Signals, constants: Mapping[str, Any],
-           unmapped: frozenset[str] = frozenset()
+           unmapped: frozenset[str] = frozenset(), safe: SafeSet | None = None
            ) -> tuple[list[type[Part]], dict[str, str]]:
     """(the evaluators whose inputs this run has, why each other one does not run);
-    ``unmapped``: plant outputs in the trace that the plant does not map (NaN, absent)."""
+    ``unmapped``: plant outputs in the trace that the plant does not map (NaN, absent);
+    ``safe``, given: an evaluator with nothing declared to judge does not run either."""
     chosen, skipped = [], {}
     for name, cls in EVALUATORS.items():
+        reason = cls.undeclared(safe) if safe is not None else None
+        if reason:
+            skipped[name] = reason
+            continue
         signals = [s for s in cls.inputs if s not in trace]
         ports = [s for s in cls.inputs if s in unmapped]
         missing = [c for c in cls.constants if c not in constants]

@@ -128,12 +128,16 @@ class EffortLimits(Part):
     inputs = ("tau",)
     declarations = (EFFORT,)
 
+    @classmethod
+    def undeclared(cls, safe: SafeSet) -> str | None:
+        if getattr(safe, "limits", None) != "urdf":
+            return ("no effort limits declared: they are the robot's own (safety.limits = "
+                    '"urdf")')
+        return None
+
     def checks(self, rows: Signals) -> dict[str, Check]:
         tau = rows["tau"]
-        boxes = joint_boxes(self.safe, tau.shape[1])
-        if boxes is None:
-            return {}
-        return EFFORT.joints(tau, boxes.effort)
+        return EFFORT.joints(tau, joint_boxes(self.safe, tau.shape[1]).effort)
 
 
 def per_joint(x: np.ndarray) -> list[float]:
