@@ -62,4 +62,4 @@ def describe(links: int) -> str:
 
 
 SOURCES = (Path(__file__).parent / "model.c",)
-HEADERS = (COMMON / "planar_chain.h", COMMON / "rk4.h")
+HEADERS = (COMMON / "planar_chain.h", COMMON / "rk4.h", COMMON / "joint_state.h")

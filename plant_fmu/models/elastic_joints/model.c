@@ -15,6 +15,7 @@
 
 #include "model.h"
 #include "rk4.h"
+#include "joint_state.h"
 
 #define TWO_PI 6.283185307179586
 /* Complex-step size: derivatives are Im(f(x + i h v)) / h, free of cancellation error. */
@@ -152,11 +153,6 @@ int model_do_step(ModelState *s, double h, char *msg, size_t len)
     v[VR_time] += h;
     s->outputs_current = 0;
     return 1;
-}
-
-static int in_group(unsigned vr, unsigned first, unsigned count)
-{
-    return vr >= first && vr < first + count;
 }
 
 int model_directional_derivative(const ModelState *s, const unsigned *unknowns, size_t n_unknowns,

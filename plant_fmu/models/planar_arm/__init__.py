@@ -97,4 +97,4 @@ def describe(links: int) -> str:
 # The model's C sources: its equations (model.c) against the FMI glue's contract
 # (plant_fmu/fmi/model.h), and what it shares with the other built-in models.
 SOURCES = (Path(__file__).parent / "model.c",)
-HEADERS = (COMMON / "planar_chain.h", COMMON / "rk4.h")
+HEADERS = (COMMON / "planar_chain.h", COMMON / "rk4.h", COMMON / "joint_state.h")

@@ -34,7 +34,8 @@ SOURCES = (HERE / "model.c",)
 # -O2 alone (callgrind, Panda), as few as -O3 at half its compile time. No fast-math: the
 # same IEEE arithmetic.
 CFLAGS = ("-funroll-loops", "-ftree-vectorize")
-HEADERS = (HERE / "spatial_chain.h", HERE.parent / "common" / "rk4.h")
+HEADERS = (HERE / "spatial_chain.h", HERE.parent / "common" / "rk4.h",
+           HERE.parent / "common" / "joint_state.h")
 
 # A joint's units: revolute, prismatic.
 POSITION = ("rad", "m")

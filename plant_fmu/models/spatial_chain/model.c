@@ -10,6 +10,7 @@
 #include "model.h"
 #include "chain.h"
 #include "rk4.h"
+#include "joint_state.h"
 
 /* Complex-step size: derivatives are Im(f(x + i h v)) / h, free of cancellation error. */
 #define COMPLEX_STEP 1e-30
@@ -28,8 +29,7 @@
 
 void model_apply_initial_state(ModelState *s)
 {
-    memcpy(&s->v[VR_q], &s->v[VR_q0], N_LINKS * sizeof(double));
-    memcpy(&s->v[VR_qdot], &s->v[VR_qdot0], N_LINKS * sizeof(double));
+    start_joints(s);
     s->outputs_current = 0;
 }
 
@@ -97,11 +97,6 @@ int model_do_step(ModelState *s, double h, char *msg, size_t len)
     v[VR_time] += h;
     s->outputs_current = 0;
     return 1;
-}
-
-static int in_group(unsigned vr, unsigned first, unsigned count)
-{
-    return vr >= first && vr < first + count;
 }
 
 int model_directional_derivative(const ModelState *s, const unsigned *unknowns, size_t n_unknowns,
