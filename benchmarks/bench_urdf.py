@@ -30,7 +30,6 @@ from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
-from scipy.integrate import solve_ivp
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "tests"))
 from fmu_helpers import FmuInstance  # noqa: E402
@@ -38,8 +37,9 @@ from urdf_helpers import (  # noqa: E402
     ARMS,
     OWN_ROBOT,
     ChainFmu,
+    dynamics_errors,
+    panda_swing,
     pinocchio_model,
-    pinocchio_terms,
     random_states,
     relative_error,
 )
@@ -49,54 +49,20 @@ from plant_fmu import build_urdf_fmu, read_urdf  # noqa: E402
 PAYLOAD = 0.7  # kg
 
 
-def dynamics_errors(path, states: int, cache: Path) -> np.ndarray:
-    chain = read_urdf(path)
-    model = pinocchio_model(path, chain, payload=PAYLOAD)
-    data = model.createData()
-    plant = ChainFmu(build_urdf_fmu(path, cache_dir=cache), {"payload": PAYLOAD})
-    worst = np.zeros(3)
-    try:
-        for q, qd, tau in zip(*random_states(chain, np.random.default_rng(0), states),
-                              strict=True):
-            pairs = zip(plant.terms(q, qd, tau), pinocchio_terms(model, data, chain, q, qd, tau),
-                        strict=True)
-            worst = np.maximum(worst, [relative_error(a, b) for a, b in pairs])
-    finally:
-        plant.free()
-    return worst
+def arm_errors(path, states: int, cache: Path) -> np.ndarray:
+    """The FMU's M, h, q̈ against Pinocchio's at ``states`` random states, 0.7 kg at the
+    tip (relative; urdf_helpers.dynamics_errors)."""
+    return dynamics_errors(path, build_urdf_fmu(path, cache_dir=cache), read_urdf(path),
+                           PAYLOAD, np.random.default_rng(0), states)
 
 
 def trajectory_error(cache: Path, damping: float | None, rk4_step: float) -> tuple[float, float]:
     """Largest |q_FMU - q_solve_ivp| over 2 s (rad) and the fastest joint speed (rad/s)."""
-    path = ARMS["panda"]
-    chain = read_urdf(path)
-    model = pinocchio_model(path, chain)
-    data = model.createData()
+    chain = read_urdf(ARMS["panda"])
     b = chain.damping if damping is None else np.full(chain.n, damping)
-    q0 = np.array([0.3, -0.5, 0.2, -1.8, 0.4, 1.2, -0.3])
-    qdot0 = np.array([0.5, -0.3, 0.2, 0.4, -0.6, 0.3, 0.8])
-
-    def rhs(_, x):
-        q, qd = x[:7], x[7:]
-        return np.concatenate([qd, pin.aba(model, data, q, qd, -b * qd)])
-
-    times = np.linspace(0.0, 2.0, 201)
-    reference = solve_ivp(rhs, (0.0, 2.0), np.concatenate([q0, qdot0]), method="DOP853",
-                          t_eval=times, rtol=1e-13, atol=1e-13).y.T
-    start = {"rk4_step": rk4_step}
-    for i in range(7):
-        start.update({f"q0[{i + 1}]": q0[i], f"qdot0[{i + 1}]": qdot0[i], f"b[{i + 1}]": b[i]})
-    plant = FmuInstance(build_urdf_fmu(path, fmi_version=3, cache_dir=cache), "CoSimulation",
-                        start)
-    try:
-        trace = [plant.get(plant.names("q"))]
-        for t in times[:-1]:
-            plant.do_step(t, times[1] - times[0])
-            trace.append(plant.get(plant.names("q")))
-    finally:
-        plant.free()
-    return float(np.abs(np.array(trace) - reference[:, :7]).max()), \
-        float(np.abs(reference[:, 7:]).max())
+    trace, q, qdot = panda_swing(build_urdf_fmu(ARMS["panda"], fmi_version=3, cache_dir=cache),
+                                 chain, b, rk4_step)
+    return float(np.abs(trace - q).max()), float(np.abs(qdot).max())
 
 
 def mujoco_errors(states: int) -> np.ndarray | None:
@@ -174,7 +140,7 @@ def main() -> None:
         print(f"1. M, h, q̈ against Pinocchio at {args.states} random states (relative)")
         overall = 0.0
         for name, path in {**ARMS, "own (slider_turret)": OWN_ROBOT}.items():
-            worst = dynamics_errors(path, args.states, cache)
+            worst = arm_errors(path, args.states, cache)
             overall = max(overall, worst.max())
             print(f"   {name:<20} n={read_urdf(path).n}  M {worst[0]:.1e}  h {worst[1]:.1e}  "
                   f"q̈ {worst[2]:.1e}")

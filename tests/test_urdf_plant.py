@@ -7,6 +7,7 @@ figures and the speed are benchmarks/bench_urdf.py's."""
 from __future__ import annotations
 
 import re
+import zlib
 
 import numpy as np
 import pinocchio as pin
@@ -15,16 +16,14 @@ from fmpy import read_model_description
 from fmpy.fmi1 import FMICallException
 from fmpy.validation import validate_fmu
 from fmu_helpers import FmuInstance
-from scipy.integrate import solve_ivp
 from urdf_helpers import (
     ARMS,
     OWN_ROBOT,
-    ChainFmu,
+    SWING_Q0,
     configuration,
+    dynamics_errors,
+    panda_swing,
     pinocchio_model,
-    pinocchio_terms,
-    random_states,
-    relative_error,
 )
 
 from cosim.assemble import plant_path
@@ -121,20 +120,9 @@ def test_dynamics_match_pinocchio(fmus, arm):
     """M (CRBA), h (RNEA) and q̈ (ABA, with the URDF's friction and a payload) at random
     states, each within 1e-10 of Pinocchio's, relative to its largest entry."""
     path = urdf_of(arm)
-    chain = read_urdf(path)
-    model = pinocchio_model(path, chain, payload=PAYLOAD)
-    data = model.createData()
-    plant = ChainFmu(fmus(arm), {"payload": PAYLOAD})
-    try:
-        rng = np.random.default_rng(abs(hash(arm)) % 2**32)
-        worst = np.zeros(3)
-        for q, qd, tau in zip(*random_states(chain, rng, STATES), strict=True):
-            ours = plant.terms(q, qd, tau)
-            theirs = pinocchio_terms(model, data, chain, q, qd, tau)
-            worst = np.maximum(worst, [relative_error(a, b)
-                                       for a, b in zip(ours, theirs, strict=True)])
-    finally:
-        plant.free()
+    # a seed of the arm's name that stays the same from run to run (str's hash does not)
+    rng = np.random.default_rng(zlib.crc32(arm.encode()))
+    worst = dynamics_errors(path, fmus(arm), read_urdf(path), PAYLOAD, rng, STATES)
     assert worst.max() <= 1e-10, dict(zip(("M", "h", "qdd"), worst, strict=True))
 
 
@@ -144,33 +132,10 @@ def test_trajectory_matches_solve_ivp(fmus):
     ABA: ≤ 1e-6 rad. The joints' damping is 0.1 N·m·s/rad in both: with the URDF's 0.003
     the wrist whips up to 74 rad/s (30 times its limit) and RK4 at 1e-4 s is 1.2e-6 rad off
     (benchmarks/bench_urdf.py reports both)."""
-    chain = read_urdf(ARMS["panda"])
-    model = pinocchio_model(ARMS["panda"], chain)
-    data = model.createData()
-    q0 = np.array([0.3, -0.5, 0.2, -1.8, 0.4, 1.2, -0.3])
-    qdot0 = np.array([0.5, -0.3, 0.2, 0.4, -0.6, 0.3, 0.8])
-    damping = 0.1
-
-    def rhs(_, x):
-        q, qd = x[:7], x[7:]
-        return np.concatenate([qd, pin.aba(model, data, q, qd, -damping * qd)])
-
-    times = np.linspace(0.0, 2.0, 201)
-    reference = solve_ivp(rhs, (0.0, 2.0), np.concatenate([q0, qdot0]), method="DOP853",
-                          t_eval=times, rtol=1e-13, atol=1e-13).y[:7].T
-    start = {f"q0[{i + 1}]": q for i, q in enumerate(q0)}
-    start.update({f"qdot0[{i + 1}]": v for i, v in enumerate(qdot0)})
-    start.update({f"b[{i + 1}]": damping for i in range(7)})
-    plant = FmuInstance(fmus("panda", 3), "CoSimulation", start)
-    try:
-        trace = [plant.get(plant.names("q"))]
-        for t in times[:-1]:
-            plant.do_step(t, times[1] - times[0])
-            trace.append(plant.get(plant.names("q")))
-    finally:
-        plant.free()
-    assert np.abs(np.array(trace) - reference).max() <= 1e-6
-    assert np.abs(reference[-1] - q0).max() > 5.0  # it did swing
+    trace, reference, _ = panda_swing(fmus("panda", 3), read_urdf(ARMS["panda"]),
+                                      np.full(7, 0.1))
+    assert np.abs(trace - reference).max() <= 1e-6
+    assert np.abs(reference[-1] - SWING_Q0).max() > 5.0  # it did swing
 
 
 def test_directional_derivative_is_the_inverse_inertia(fmus):

@@ -1,7 +1,8 @@
 """The URDF plant's references, shared by tests/test_urdf_plant.py and
 benchmarks/bench_urdf.py: Pinocchio's model of the same URDF (its own parser, our folding of
-held joints done by its buildReducedModel), random states within the joints' limits, and the
-plant FMU's M, h and q̈ at a state through FMPy's Model Exchange calls."""
+held joints done by its buildReducedModel), random states within the joints' limits, the
+plant FMU's M, h and q̈ at a state through FMPy's Model Exchange calls, and both compared:
+at random states, and along the Panda's free swing against SciPy's solve_ivp."""
 
 from __future__ import annotations
 
@@ -10,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pinocchio as pin
 from fmu_helpers import FmuInstance
+from scipy.integrate import solve_ivp
 
 from plant_fmu.urdf import Chain, package_dirs
 
@@ -105,3 +107,56 @@ def relative_error(value, reference) -> float:
     """The largest difference relative to the reference's largest magnitude."""
     reference = np.asarray(reference)
     return float(np.abs(np.asarray(value) - reference).max() / np.abs(reference).max())
+
+
+def dynamics_errors(path, fmu: Path, chain: Chain, payload: float, rng: np.random.Generator,
+                    states: int) -> np.ndarray:
+    """The largest relative error of the FMU's M, h and q̈ against Pinocchio's, carrying
+    ``payload`` kg at the tip, over ``states`` random states."""
+    model = pinocchio_model(path, chain, payload=payload)
+    data = model.createData()
+    plant = ChainFmu(fmu, {"payload": payload})
+    worst = np.zeros(3)
+    try:
+        for q, qd, tau in zip(*random_states(chain, rng, states), strict=True):
+            pairs = zip(plant.terms(q, qd, tau), pinocchio_terms(model, data, chain, q, qd, tau),
+                        strict=True)
+            worst = np.maximum(worst, [relative_error(a, b) for a, b in pairs])
+    finally:
+        plant.free()
+    return worst
+
+
+# The Panda's free swing (τ = 0) for 2 s from a pose away from its neutral one
+SWING_Q0 = np.array([0.3, -0.5, 0.2, -1.8, 0.4, 1.2, -0.3])  # rad
+SWING_QDOT0 = np.array([0.5, -0.3, 0.2, 0.4, -0.6, 0.3, 0.8])  # rad/s
+
+
+def panda_swing(fmu: Path, chain: Chain, damping: np.ndarray,
+                rk4_step: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The Panda FMU's q every 10 ms over the swing (Co-Simulation, its RK4 at ``rk4_step``
+    s or its default) and SciPy's DOP853 (tolerances 1e-13) on Pinocchio's ABA with the
+    same joint ``damping`` (N·m·s/rad): (the FMU's q, the reference's q and q̇), rad, rad/s."""
+    model = pinocchio_model(ARMS["panda"], chain)
+    data = model.createData()
+
+    def rhs(_, x):
+        q, qd = x[:7], x[7:]
+        return np.concatenate([qd, pin.aba(model, data, q, qd, -damping * qd)])
+
+    times = np.linspace(0.0, 2.0, 201)
+    reference = solve_ivp(rhs, (0.0, 2.0), np.concatenate([SWING_Q0, SWING_QDOT0]),
+                          method="DOP853", t_eval=times, rtol=1e-13, atol=1e-13).y.T
+    start = {} if rk4_step is None else {"rk4_step": rk4_step}
+    for i in range(7):
+        start.update({f"q0[{i + 1}]": SWING_Q0[i], f"qdot0[{i + 1}]": SWING_QDOT0[i],
+                      f"b[{i + 1}]": damping[i]})
+    plant = FmuInstance(fmu, "CoSimulation", start)
+    try:
+        trace = [plant.get(plant.names("q"))]
+        for t in times[:-1]:
+            plant.do_step(t, times[1] - times[0])
+            trace.append(plant.get(plant.names("q")))
+    finally:
+        plant.free()
+    return np.array(trace), reference[:, :7], reference[:, 7:]

@@ -232,16 +232,8 @@ def spatial_forward(s, v, gravity):
             for r in range(3):
                 w[r], al[r], a[r] = 0.0, 0.0, -gravity * s.gravity[r]
         else:
-            wp, ap, acc = kin[W, p], kin[AL, p], kin[A, p]
-            op = kin[O, p]
-            # a_i = a_p + α_p × r + ω_p × (ω_p × r), r = o_i − o_p
-            rx, ry, rz = o[0] - op[0], o[1] - op[1], o[2] - op[2]
-            cx = wp[1] * rz - wp[2] * ry
-            cy = wp[2] * rx - wp[0] * rz
-            cz = wp[0] * ry - wp[1] * rx
-            a[0] = acc[0] + ap[1] * rz - ap[2] * ry + wp[1] * cz - wp[2] * cy
-            a[1] = acc[1] + ap[2] * rx - ap[0] * rz + wp[2] * cx - wp[0] * cz
-            a[2] = acc[2] + ap[0] * ry - ap[1] * rx + wp[0] * cy - wp[1] * cx
+            wp, ap = kin[W, p], kin[AL, p]
+            _point_acceleration(s, p, o, a)  # o_i's, as a point of body p
             for r in range(3):
                 w[r], al[r] = wp[r], ap[r]
         if s.kind[i] == PRISMATIC:  # the Coriolis term 2 ω_p × z q̇
@@ -256,7 +248,8 @@ def spatial_forward(s, v, gravity):
 
 @no_refcount_jit(cache=True, inline="always")
 def _point_acceleration(s, i, point, out):
-    """The acceleration of ``point`` (base frame) fixed to body i, from the forward pass."""
+    """The acceleration of ``point`` (base frame) fixed to body i, from the forward pass:
+    a_i + α_i × r + ω_i × (ω_i × r), r = point − o_i."""
     kin = s.kin
     w, al, a, o = kin[W, i], kin[AL, i], kin[A, i], kin[O, i]
     rx, ry, rz = point[0] - o[0], point[1] - o[1], point[2] - o[2]
