@@ -24,7 +24,15 @@ from typing import NamedTuple
 import numpy as np
 
 from ..numba_compat import no_refcount_jit
-from .planar import CHAIN_ROWS, chain_bias, chain_geometry, chain_mass, com_kinematics
+from .planar import (
+    CHAIN_ROWS,
+    CX,
+    LX,
+    chain_bias,
+    chain_geometry,
+    chain_mass,
+    com_kinematics,
+)
 from .spatial import (
     SpatialChain,
     spatial_bias,
@@ -150,6 +158,45 @@ def model_payload(model, v, gravity, jac, gamma):
         spatial_payload(model.body, v, gravity, jac, gamma)
     else:
         com_kinematics(model.q, v, model.l, model.lc, gravity * model.gravity, jac, gamma)
+
+
+@no_refcount_jit(cache=True, inline="always")
+def model_point_forms(model, e, jac, gamma, out, lift):
+    """The payload point's J̇v = (vᵀP_r v)_r into ``out`` (dim, n, n) and −g there into
+    ``lift`` (dim,), at the last geometry (``e``, ``jac``, ``gamma``: scratch of n, dim × n
+    and dim). The planar chain's from its link vectors a_k (the last link's to its centre of
+    mass), which the geometry holds: J̇v = −Σ_k ω_k² a_k with ω_k = v_1 + … + v_k, so
+    P_r,ij = −Σ_{k ≥ max(i, j)} a_k,r; a spatial chain's by polarisation of
+    :func:`model_payload` (n(n + 1)/2 + 1 calls)."""
+    n = out.shape[1]
+    if not model.spatial:
+        chain = model.chain
+        lift[0], lift[1] = 0.0, model.gravity
+        for r in range(2):
+            tail = 0.0  # Σ_{k ≥ j} a_k,r, from the last link down
+            for j in range(n - 1, -1, -1):
+                tail += chain[CX + r, j] if j == n - 1 else chain[LX + r, j]
+                for i in range(j + 1):
+                    out[r, i, j] = out[r, j, i] = -tail
+        return
+    d = out.shape[0]
+    e[:] = 0.0
+    model_payload(model, e, 1.0, jac, gamma)
+    for r in range(d):
+        lift[r] = gamma[r]
+    for i in range(n):
+        e[:] = 0.0
+        e[i] = 1.0
+        model_payload(model, e, 0.0, jac, gamma)
+        for r in range(d):
+            out[r, i, i] = gamma[r]
+    for i in range(n):
+        for j in range(i + 1, n):
+            e[:] = 0.0
+            e[i] = e[j] = 1.0
+            model_payload(model, e, 0.0, jac, gamma)
+            for r in range(d):
+                out[r, i, j] = out[r, j, i] = 0.5 * (gamma[r] - out[r, i, i] - out[r, j, j])
 
 
 @no_refcount_jit(cache=True)

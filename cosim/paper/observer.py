@@ -91,6 +91,7 @@ from ..dynamics.model import (
     model_geometry,
     model_mass,
     model_payload,
+    model_point_forms,
     own_scratch,
     planar_model,
 )
@@ -282,32 +283,6 @@ def _forms(env, bodies, payload, out):
 
 
 @no_refcount_jit(cache=True, inline="always")
-def _point_forms(env, out, lift):
-    """The payload point's J̇v = (vᵀP_r v)_r into ``out`` (d, n, n) by the same
-    polarisation, and −g there into ``lift`` (d,), at the model's last geometry."""
-    n = out.shape[1]
-    d = out.shape[0]
-    e, jac, gamma = env.work[E_], env.jac_work, env.point
-    e[:] = 0.0
-    model_payload(env.model, e, 1.0, jac, gamma)
-    for r in range(d):
-        lift[r] = gamma[r]
-    for i in range(n):
-        e[:] = 0.0
-        e[i] = 1.0
-        model_payload(env.model, e, 0.0, jac, gamma)
-        for r in range(d):
-            out[r, i, i] = gamma[r]
-    for i in range(n):
-        for j in range(i + 1, n):
-            e[:] = 0.0
-            e[i] = e[j] = 1.0
-            model_payload(env.model, e, 0.0, jac, gamma)
-            for r in range(d):
-                out[r, i, j] = out[r, j, i] = 0.5 * (gamma[r] - out[r, i, i] - out[r, j, j])
-
-
-@no_refcount_jit(cache=True, inline="always")
 def envelope_position(env, y, slot):
     """What the acceleration bound needs of the position y, into cache ``slot``: M̂⁻¹, the
     payload point's J and the quadratic form of J̇v, K = J M̂⁻¹ Jᵀ = VΛVᵀ, s_j at the ends of
@@ -362,7 +337,8 @@ def envelope_position(env, y, slot):
                     pabs[i, col] = max(pabs[i, col], abs(value))
     _forms(env, 1.0, 0.0, env.forms[slot, 0])
     _forms(env, 0.0, 1.0, env.forms[slot, 1])
-    _point_forms(env, env.point_forms[slot], env.lift[slot])
+    model_point_forms(model, env.work[E_], env.jac_work, env.point, env.point_forms[slot],
+                      env.lift[slot])
     model_bias(model, env.zeros, 1.0, 0.0, 1.0, env.grav[slot])
 
 
