@@ -20,6 +20,7 @@ from plant_fmu import build_fmu
 
 from . import interface as io
 from .blocks import BLOCKS, Block, BlockContext, Ports
+from .blocks.plugins import offered
 from .config import Pipeline, PipelineError
 from .declared import Uncertainty
 from .evaluate import Declaration, Evaluator, SafeSet, evaluated_signals
@@ -222,23 +223,34 @@ def assemble_run(pipeline: Pipeline, name: str, plant) -> RunPlan:
         if instance != kind:  # a named instance: its messages, kept signals and entities
             block.instance, block.name = instance, instance.replace("_", " ")
         blocks.append(block)
-    signals, inputs, outputs, plant_input = wire(blocks, context, name, plant)
-    constants = wire_constants(blocks, name)
+    kinds = offered_kinds(pipeline.plugins)
+    signals, inputs, outputs, plant_input = wire(blocks, context, name, plant, kinds)
+    constants = wire_constants(blocks, name, kinds)
     return RunPlan(name, blocks, signals, inputs, outputs, plant_input,
                    safe_set(pipeline), links, dt, run, constants, pipeline.uncertainty,
                    context.plant_outputs)
 
 
-def wire_constants(blocks: list[Block], run: str) -> list[dict]:
+def offered_kinds(plugins: list[str]) -> dict[str, type[Block]]:
+    """The registered blocks a pipeline naming ``plugins`` may use (for its messages'
+    hints): the built-in and entry-point ones and its own plugins', not another pipeline's
+    loaded earlier in this process."""
+    return {kind: cls for kind, cls in BLOCKS.items() if offered(cls, plugins)}
+
+
+def wire_constants(blocks: list[Block], run: str,
+                   kinds: dict[str, type[Block]] | None = None) -> list[dict]:
     """Per block, the constants it ``requires``, each from the nearest block before it that
-    ``publishes`` it; :class:`PipelineError` naming the run, block and constant if none."""
+    ``publishes`` it; :class:`PipelineError` naming the run, block and constant (and which
+    of ``kinds``, default every registered block, publish it) if none."""
     published: dict = {}
     out = []
     for block in blocks:
         needed = {}
         for name in block.requires:
             if name not in published:
-                makers = [kind for kind, cls in BLOCKS.items() if name in _published_by(cls)]
+                makers = [kind for kind, cls in (kinds or BLOCKS).items()
+                          if name in _published_by(cls)]
                 hint = f"published by: {', '.join(makers)}" if makers else "no block publishes it"
                 raise PipelineError(f"run '{run}': the {block.instance} block needs the constant "
                                     f"'{name}', which no block before it publishes ({hint})")
@@ -260,9 +272,11 @@ def _published_by(cls: type[Block]) -> tuple[str, ...]:
     return tuple(getattr(cls, "PUBLISHES", {}))
 
 
-def wire(blocks: list[Block], context: BlockContext, run: str, plant
+def wire(blocks: list[Block], context: BlockContext, run: str, plant,
+         kinds: dict[str, type[Block]] | None = None
          ) -> tuple[dict[str, Signal], list[dict[str, str]], list[dict[str, str]], str]:
-    """Resolve every port to a trace key; :class:`PipelineError` on the first problem."""
+    """Resolve every port to a trace key; :class:`PipelineError` on the first problem (its
+    hint names which of ``kinds``, default every registered block, would produce a port)."""
     file = getattr(getattr(plant, "path", None), "name", "the plant")
     where = f"run '{run}'"
     signals: dict[str, Signal] = traced_outputs(context.plant_outputs)  # NaN where not mapped
@@ -276,7 +290,7 @@ def wire(blocks: list[Block], context: BlockContext, run: str, plant
         for port in block.inputs:
             if port not in current:
                 hint = (f"{file} does not map it (plant.variables.{port})" if port in PLANT_OUTPUTS
-                        else _producers_hint(port, blocks))
+                        else _producers_hint(port, blocks, kinds or BLOCKS))
                 raise PipelineError(f"{where}: the {block.instance} block reads '{port}', which "
                                     f"nothing before it produces ({hint})")
             ins[port] = current[port]
@@ -319,7 +333,7 @@ def wire(blocks: list[Block], context: BlockContext, run: str, plant
             if port not in current:
                 raise PipelineError(f"{where}: the {block.instance} block reads '{port}' of the "
                                     f"previous step, which no block produces "
-                                    f"({_producers_hint(port, blocks)})")
+                                    f"({_producers_hint(port, blocks, kinds or BLOCKS)})")
             ins[port] = current[port]
             read.add(current[port])
     if PLANT_INPUT not in current or producer[PLANT_INPUT] == "plant":
@@ -342,11 +356,11 @@ def wire(blocks: list[Block], context: BlockContext, run: str, plant
     return signals, inputs, outputs, current[PLANT_INPUT]
 
 
-def _producers_hint(port: str, chain: list[Block]) -> str:
-    """Which registered blocks would produce ``port``, for the message."""
+def _producers_hint(port: str, chain: list[Block], kinds: dict[str, type[Block]]) -> str:
+    """Which of ``kinds`` would produce ``port``, for the message."""
     context = chain[0].context if chain else None
     makers = []
-    for kind, cls in BLOCKS.items():
+    for kind, cls in kinds.items():
         try:
             block = cls(cls.Params(), context)
         except Exception:  # a block that cannot be built with its defaults here

@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet
+import pytest
 from cli_helpers import assert_message, error_line
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -130,6 +131,32 @@ def test_plugins_add_up_through_extends_each_relative_to_its_own_file(tmp_path):
     assert base.__module__ in sys.modules and mine.__module__ in sys.modules
     load_pipeline(tmp_path / "mine" / "mine.toml")
     assert BLOCKS["plugin_gain_base"] is base and BLOCKS["plugin_gain_mine"] is mine
+
+
+def test_one_pipelines_plugin_is_not_offered_to_another_in_the_same_process(tmp_path):
+    """A process that loaded a pipeline with a plugin (a notebook, a sweep's worker, a test
+    session) keeps the plugin's blocks registered; another pipeline's wiring message names
+    only the blocks it may use, and the plugin's own pipeline still names its block."""
+    from cosim.assemble import assemble_run
+    from cosim.config import PipelineError, load_pipeline
+
+    class TwoLinkArm:  # what assembly needs to know of a plant
+        links, mapped = 2, frozenset({"q", "qdot", "M"})
+
+    gain_block(tmp_path / "blocks.py", "plugin_gain_elsewhere")
+    (tmp_path / "p.toml").write_text(f'extends = "{ROOT / "pipelines/paper_two_link.toml"}"\n'
+                                     'plugins = ["blocks.py"]\n')
+    no_tau = ['runs.proposed.blocks=["reference", "sensor", "inertia_model", "observer"]']
+    hints = {}
+    for pipeline in (tmp_path / "p.toml", ROOT / "pipelines/paper_two_link.toml"):
+        with pytest.raises(PipelineError) as info:
+            assemble_run(load_pipeline(pipeline, no_tau), "proposed", TwoLinkArm())
+        hints[pipeline.name] = set(str(info.value).partition("produced by: ")[2]
+                                   .rstrip(")").split(", "))
+    assert "plugin_gain_elsewhere" in hints["p.toml"]
+    paper = hints["paper_two_link.toml"]
+    assert {"cbf_filter", "controller", "pd_controller"} <= paper  # the built-in ones
+    assert not any(kind.startswith("plugin_") for kind in paper), paper
 
 
 def test_a_plugin_block_runs_on_a_sweeps_dask_workers(tmp_path):

@@ -55,17 +55,30 @@ def load_entry_points() -> None:
         _guarded(where, point.load)
 
 
+def offered(cls: type, plugins: list[str]) -> bool:
+    """Whether the registered block class ``cls`` is offered to a pipeline naming these
+    ``plugins``: built-in and entry-point blocks always, a plugin's only where the pipeline
+    names that plugin. A process that loaded several pipelines (a sweep's worker, a test
+    session, a notebook) keeps every plugin registered; one pipeline's messages must not
+    suggest another's blocks."""
+    mine = {_LOADED[key].__name__ for key in map(_key, plugins) if key in _LOADED}
+    return not any(cls.__module__ == module.__name__
+                   or cls.__module__.startswith(module.__name__ + ".")
+                   for module in _LOADED.values() if module.__name__ not in mine)
+
+
+def _key(plugin: str) -> str:
+    """A plugin's key in _LOADED: a file's resolved path, a module's name."""
+    return str(Path(plugin).resolve()) if plugin.endswith(".py") else plugin
+
+
 def _load(plugin: str) -> ModuleType:
     if not isinstance(plugin, str) or not plugin:
         raise PipelineError(f"plugins: {plugin!r} is neither a .py file nor a module name")
-    if plugin.endswith(".py"):
-        path = Path(plugin)
-        if not path.is_file():
-            raise PipelineError(f"plugins: {plugin}: no such file (a .py file is relative "
-                                "to the pipeline file that names it)")
-        key = str(path.resolve())
-    else:
-        key = plugin
+    if plugin.endswith(".py") and not Path(plugin).is_file():
+        raise PipelineError(f"plugins: {plugin}: no such file (a .py file is relative "
+                            "to the pipeline file that names it)")
+    key = _key(plugin)
     if key not in _LOADED:
         _announce(f"plugin {plugin}")
         _LOADED[key] = _guarded(f"plugins: {plugin}", lambda: _import(key))
