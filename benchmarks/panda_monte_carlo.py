@@ -5,6 +5,7 @@ effort limit (Wilson 95 %), and the broken guarantees (a covered run that left a
 was infeasible, exceeded ε(t) or its torque limit).
 
     .venv/bin/python benchmarks/panda_monte_carlo.py --samples 200 --out runs/panda_mc
+    .venv/bin/python benchmarks/panda_monte_carlo.py --samples 200 --out runs/panda_mc --resume
     .venv/bin/python benchmarks/panda_monte_carlo.py --results runs/panda_mc   # report only
 
 Sampled per run: the payload at the flange, 0-3 kg (the declared range); each joint's q(0)
@@ -39,11 +40,14 @@ RUN = "proposed_cbf"
 LIMITS = ("position", "velocity_true", "effort")  # check families, every joint
 
 
-def sweep(samples: int, out: Path, seed: int, workers: int, duration: float) -> None:
+def sweep(samples: int, out: Path, seed: int, workers: int, duration: float | None,
+          resume: bool = False) -> None:
+    """The sweep into ``out`` (replacing it), or, with ``resume``, the points it lacks."""
     command = [str(Path(sys.executable).parent / "cosim"), "sweep", PIPELINE,
                "--samples", str(samples), "--seed", str(seed), "--runs", RUN,
-               "--workers", str(workers), "--out", str(out), "--force",
-               "--set", f"simulation.duration={duration}"]
+               "--workers", str(workers),
+               *(["--resume", str(out)] if resume else ["--out", str(out), "--force"]),
+               *(["--set", f"simulation.duration={duration}"] if duration else [])]
     for setting in SETTINGS:
         command += ["--set", setting]
     for sample in SAMPLES:
@@ -80,13 +84,16 @@ def main() -> int:
     parser.add_argument("--samples", type=int, default=200)
     parser.add_argument("--seed", type=int, default=32)
     parser.add_argument("--workers", type=int, default=2)
-    parser.add_argument("--duration", type=float, default=3.0, help="s per run")
+    parser.add_argument("--duration", type=float,
+                        help="s per run (default: the pipeline's, 8.5 s: the whole waypoints)")
     parser.add_argument("--out", type=Path, default=Path("runs/panda_mc"))
+    parser.add_argument("--resume", action="store_true",
+                        help="go on with the interrupted sweep in --out (same other flags)")
     parser.add_argument("--results", type=Path, help="an existing sweep folder: report only")
     args = parser.parse_args()
     folder = args.results
     if folder is None:
-        sweep(args.samples, args.out, args.seed, args.workers, args.duration)
+        sweep(args.samples, args.out, args.seed, args.workers, args.duration, args.resume)
         folder = args.out
     rows = pq.read_table(folder / "results.parquet").to_pylist()
     print(report(rows))
