@@ -141,29 +141,9 @@ def per_step_both(points_count: int, duration: float | None, repeat: int) -> Non
     per_step("monte_carlo.toml", monte_carlo, repeat)
 
 
-CPU: dict[str, list[float]] = {"in_process": [], "sweep": []}  # CPU seconds, per repeat
-
-
-def cpu_seconds(processes: list) -> float:
-    """CPU seconds (user + system) of ``processes`` (psutil) and their children so far."""
-    import psutil
-
-    total = 0.0
-    for process in processes:
-        try:
-            for p in [process, *process.children(recursive=True)]:
-                times = p.cpu_times()
-                total += times.user + times.system
-        except psutil.NoSuchProcess:
-            pass
-    return total
-
-
 def in_process(spec: SweepSpec, all_points: list[dict], keep_plant: bool) -> float:
-    """Seconds for every point's one row through run() in this process (and its CPU
-    seconds, kept open, in CPU["in_process"])."""
+    """Seconds for every point's one row through run() in this process."""
     plant = None
-    cpu = time.process_time()
     began = time.perf_counter()
     for point in all_points:
         pipeline = load_pipeline(spec.pipeline, assignments(spec, point), warn=None)
@@ -174,7 +154,6 @@ def in_process(spec: SweepSpec, all_points: list[dict], keep_plant: bool) -> flo
     wall = time.perf_counter() - began
     if plant is not None:
         plant.close()
-        CPU["in_process"].append(time.process_time() - cpu)
     return wall
 
 
@@ -223,15 +202,10 @@ def on_dask(spec: SweepSpec, all_points: list[dict], workers: int, repeat: int,
         client.run(run_point, spec.pipeline, assignments(spec, point), spec.runs, 0, point)
         first = time.perf_counter() - began
         walls = []
-        import psutil
-
-        others = [psutil.Process(p.pid) for p in EXTERNAL]  # scheduler and workers
         for _ in range(repeat):
-            cpu = time.process_time() + cpu_seconds(others)
             began = time.perf_counter()
             rows, _ = execute(spec, all_points, client, per_task=per_task)
             walls.append(time.perf_counter() - began)
-            CPU["sweep"].append(time.process_time() + cpu_seconds(others) - cpu)
             assert all(r["status"] == "ok" for r in rows), rows
         return walls, started, first
     finally:
@@ -348,12 +322,6 @@ def main() -> None:
           f"{per_task} point(s) a task)")
     print(f"  sweep efficiency = {sweep_rate:.2f} / ({args.workers} × {rate:.2f}) = "
           f"{efficiency:.3f} (target ≥ {TARGET}: {'met' if efficiency >= TARGET else 'NOT met'})")
-    if CPU["sweep"] and args.external:
-        cpu_efficiency = min(CPU["in_process"]) / min(CPU["sweep"])
-        print(f"  CPU seconds for the {n} rows: in-process {min(CPU['in_process']):.2f}, the "
-              f"sweep (client, scheduler and workers) {min(CPU['sweep']):.2f}: CPU efficiency "
-              f"{cpu_efficiency:.3f} (what the wall-clock one would be on {args.workers} idle "
-              "cores)")
     print(f"  apart (paid once per sweep, not in the steady state): cluster start-up "
           f"{started:.2f} s; each worker's first point (imports, kernels from the cache, the "
           f"FMU) {first:.2f} s; the whole `cosim sweep` command {end_to_end:.1f} s = "
