@@ -4,9 +4,12 @@ checked against the trace and summary.json, and rendered in the real viewer (hea
 from __future__ import annotations
 
 import json
+import os
 import signal
 import subprocess
 import sys
+import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -367,6 +370,45 @@ def test_recording_renders_in_the_real_viewer(paper, tmp_path):
     assert colour_pixels(image, BOUND_COLOR) > 2000
     assert colour_pixels(image, JOINT_COLORS[0]) > 2000
     assert colour_pixels(image, VIOLATION_COLOR) > 100
+
+
+def _running(pid: str) -> bool:
+    """Whether process ``pid`` still runs (a zombie's command line is empty)."""
+    try:
+        return bool((Path("/proc") / pid / "cmdline").read_bytes())
+    except OSError:
+        return False
+
+
+def test_a_viewer_that_dies_while_rendering_is_one_message_and_no_png(paper, tmp_path,
+                                                                      monkeypatch):
+    """The real viewer, killed once it shows the recording: its client's ConnectionError
+    becomes one message naming what happened, and no screenshot is left behind."""
+    _renderer_or_skip()
+    import cosim.outputs.viewer as viewer
+
+    shown = viewer.wait_for_recording
+
+    def shown_then_killed(client, timeout: float = 60.0) -> None:
+        shown(client, timeout)
+        for pid in (p.name for p in Path("/proc").iterdir() if p.name.isdigit()):
+            try:
+                command = (Path("/proc") / pid / "cmdline").read_bytes().split(b"\0")
+                parent = (Path("/proc") / pid / "stat").read_text().rsplit(")", 1)[1].split()[1]
+            except OSError:
+                continue
+            if int(parent) == os.getpid() and b"--headless" in command:
+                os.kill(int(pid), signal.SIGKILL)
+                while _running(pid):
+                    time.sleep(0.05)
+
+    monkeypatch.setattr(viewer, "wait_for_recording", shown_then_killed)
+    png = tmp_path / "viewer.png"
+    with pytest.raises(ViewerError) as error:
+        screenshot(paper[0] / "recording.rrd", png)
+    assert str(error.value).startswith("the viewer stopped answering while rendering (")
+    assert str(error.value).endswith("); nothing was saved"), error.value
+    assert not png.exists()
 
 
 def test_live_viewer_follows_a_run(tmp_path):
