@@ -49,11 +49,12 @@ demo: venv
 	$(BIN)/cosim run pipelines/paper_two_link.toml --out runs/paper --force
 
 # The documentation site into build/site, strictly: a broken link or an API reference that
-# does not resolve fails the build (~2 s).
+# does not resolve fails the build (~2 s). The suite runs on every core (pytest-xdist), a test
+# file per worker so that a module's shared runs are made once.
 test: test-venv render-deps
 	$(BIN)/ruff check .
 	$(BIN)/mkdocs build --strict --quiet
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n auto --dist loadfile
 
 lint: test-venv
 	$(BIN)/ruff check .
