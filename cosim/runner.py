@@ -17,6 +17,7 @@ from .assemble import RunPlan, Scenario, assemble, link_lengths
 from .config import Pipeline, PipelineError
 from .engine import Diverged, simulate
 from .evaluate import Evaluation
+from .evaluate.parts import LOOP_METRIC_UNITS
 from .outputs.figures import FIGURE_FILES, write_figures
 from .outputs.recording import Recorder, RunSpec, UrdfArm
 from .outputs.recording.layout import check_views, derived_entities
@@ -52,8 +53,9 @@ class RunResult:
 
     def summary(self) -> dict:
         out = {"complete": self.complete, "inertia_model": self.inertia_model,
-               "blocks": self.blocks, "metrics": self.metrics, "safety": self.safety,
-               "evaluators": self.evaluation.evaluators}
+               "blocks": self.blocks, "metrics": self.metrics,
+               "metric_units": {**self.evaluation.metric_units, **LOOP_METRIC_UNITS},
+               "safety": self.safety, "evaluators": self.evaluation.evaluators}
         if self.error:
             out["error"] = self.error
         return out

@@ -199,3 +199,27 @@ def test_every_export_format_has_its_writer_and_is_offered_by_the_command():
     assert all(name in offered for name in EXPORT_FORMATS)
     assert {f"export_paper{suffix}" for suffix in EXPORT_FORMATS.values()} <= \
         _our_entries({"runs": {"paper": {}}})
+
+
+def test_every_metric_has_its_unit_in_the_summary_and_in_compare(folders):
+    """Each number a run's metrics give has the unit its evaluator declares (summary.json's
+    metric_units), and `cosim compare` shows it beside the metric, in text and JSON."""
+    from cosim.evaluate.parts import metric_unit
+    from cosim.outputs.compare import _numbers
+
+    a, b = folders
+    for run in json.loads((a / "summary.json").read_text())["runs"].values():
+        bare = [m for m in _numbers(run["metrics"]) if metric_unit(run["metric_units"], m) is None]
+        assert not bare, bare
+        assert metric_unit(run["metric_units"], "peak_torque[2]") == "N·m"
+        assert metric_unit(run["metric_units"], "theorem1.R") == "rad/s"
+    assert metric_unit({"a": "s"}, "b") is None and metric_unit({}, "a.b[1]") is None
+    text = cosim_cli("compare", str(a), str(b), "--run", "proposed")
+    assert text.returncode == 1 and "metric (unit)" in text.stdout
+    assert re.search(r"^  rms_error\[1\] \(rad\) ", text.stdout, re.M), text.stdout
+    assert re.search(r"^  peak_torque\[1\] \(N·m\) ", text.stdout, re.M), text.stdout
+    document = json.loads(cosim_cli("compare", str(a), str(b), "--run", "proposed",
+                                    "--json").stdout)
+    metrics = document["runs"]["proposed"]["metrics"]
+    assert metrics["rms_error_rate[2]"]["unit"] == "rad/s"
+    assert metrics["wall_time_s"]["unit"] == "s"

@@ -146,6 +146,10 @@ def test_results_parquet_says_each_columns_unit(killed_and_resumed):
     assert units["velocity_true_joint1.worst"] == "rad/s"
     assert units["wall_time_s"] == "s"
     assert schema.field("position_joint1.worst").metadata == {b"unit": b"rad"}
+    # every metric's, as its evaluator declares it (a flag or a text has none)
+    assert units["rms_error.2"] == "rad" and units["peak_torque.1"] == "N·m"
+    assert units["theorem1.R"] == "rad/s" and units["feedback_gain.median"] == "N·m·s/rad"
+    assert "guarantee.covered" not in units and "hard_sets_kept" not in units
 
 
 # -- separately started scheduler and workers ------------------------------------------

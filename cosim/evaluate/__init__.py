@@ -50,6 +50,7 @@ class Evaluation:
     # what `cosim run` prints: headlines of their own, then lines beside each other
     headlines: list[str] = field(default_factory=list)
     lines: list[str] = field(default_factory=list)
+    metric_units: dict[str, str] = field(default_factory=dict)  # Part.metric_units, merged
 
 
 @dataclass
@@ -139,8 +140,9 @@ class Evaluator:
         said = {name: ("ran" + (f" ({notes[name]})" if name in notes else "")) if name in ran
                 else f"not run: {self.skipped[name]}"
                 for name in EVALUATORS if name in ran or name in self.skipped}
+        units = {name: unit for part in self.parts for name, unit in part.metric_units.items()}
         return Evaluation(checks, h, metrics, safety_entries(checks, self.trace.dt), said,
-                          headlines, lines)
+                          headlines, lines, units)
 
 
 def _refuse_shared(parts: list[Part]) -> None:

@@ -12,6 +12,7 @@ evaluators for evaluation only, never for control.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Mapping
 from typing import Any, ClassVar
 
@@ -37,6 +38,10 @@ class Part:
     # stay ≥ 0 (drawn apart, their failing rows marked).
     series_meanings: ClassVar[Mapping[str, str]] = {}
     conditions: ClassVar[tuple[str, ...]] = ()
+    # The unit of each number its metrics give, by dotted name (a per-joint list's entries
+    # share their list's; a name not listed takes its nearest listed parent's): what
+    # summary.json's ``metric_units`` and `cosim compare` say. "1" for a fraction.
+    metric_units: ClassVar[Mapping[str, str]] = {}
 
     def __init__(self, trace: Signals, safe: SafeSet, constants: Mapping[str, Any],
                  available: frozenset[str] = frozenset()):
@@ -87,6 +92,30 @@ def register_evaluator(cls: type[Part]) -> type[Part]:
         raise ValueError(f"an evaluator named {cls.name!r} is registered already")
     EVALUATORS[cls.name] = cls
     return cls
+
+
+# The units of the metrics the loop itself adds to every run's (the evaluators declare theirs).
+LOOP_METRIC_UNITS = {"wall_time_s": "s", "steps_per_second": "1/s", "simulated_time_s": "s",
+                     "recording_handoff_s": "s"}
+
+
+def declared_metric_units() -> dict[str, str]:
+    """Every registered evaluator's metric units, and the loop's."""
+    return {**{name: unit for cls in EVALUATORS.values()
+               for name, unit in cls.metric_units.items()}, **LOOP_METRIC_UNITS}
+
+
+def metric_unit(units: Mapping[str, str], metric: str) -> str | None:
+    """A metric's unit: its own dotted name's in ``units``, else its nearest listed
+    parent's; a per-joint entry (``rms_error[2]`` in a summary, ``rms_error.2`` in a sweep's
+    row) takes its list's. None where nothing declares one (an evaluator that declares no
+    units, a folder of an older cosim)."""
+    name = re.sub(r"(\[\d+\]|\.\d+)$", "", metric)
+    while name:
+        if name in units:
+            return units[name]
+        name = name.rpartition(".")[0]
+    return None
 
 
 def series_names() -> frozenset[str]:

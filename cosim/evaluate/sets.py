@@ -151,6 +151,8 @@ class Tracking(Part):
     name = "tracking"
     meaning = "tracking error e and error rate ė (RMS, largest)"
     inputs = (io.TRACKING_ERROR, io.TRACKING_ERROR_RATE)
+    metric_units = {"rms_error": "rad", "max_error": "rad", "rms_error_rate": "rad/s",
+                    "max_error_rate": "rad/s"}
 
     def metrics(self, trace: Signals, series: Mapping[str, np.ndarray]) -> dict:
         e, edot = trace[io.TRACKING_ERROR], trace[io.TRACKING_ERROR_RATE]
@@ -167,6 +169,7 @@ class Torque(Part):
     name = "torque"
     meaning = "torque τ (peak, RMS, reversals per second)"
     inputs = ("tau",)
+    metric_units = {"peak_torque": "N·m", "rms_torque": "N·m", "torque_reversals_per_s": "1/s"}
 
     def metrics(self, trace: Signals, series: Mapping[str, np.ndarray]) -> dict:
         tau = trace["tau"]

@@ -18,6 +18,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from ..evaluate.checks import VERDICT_KINDS, Kind, is_left, kind, unit
+from ..evaluate.parts import metric_unit
 from .run_folder import _ours_summary
 
 # Metrics that measure the machine, not the controller: shown, never called a change.
@@ -161,8 +162,8 @@ def compare(a: str | Path, b: str | Path, runs: list[str] | None = None,
     result.document = {"a": str(a), "b": str(b), "tolerance": tolerance, "runs": {}}
     result.lines += [f"A: {a} ({first.get('status', '?')})",
                      f"B: {b} ({second.get('status', '?')})",
-                     "per run: each check's worst value (unit) and verdict, then the metrics "
-                     "that differ; SI units"]
+                     "per run: each check's worst value and verdict, then the metrics that "
+                     "differ; each with its unit"]
     plants = [(s.get("plant") or {}) for s in (first, second)]
     if plants[0].get("guid") != plants[1].get("guid"):  # judged, but say it: not the change
         names = [f"{p.get('model_name', '?')} ({Path(p.get('path') or '?').name})"
@@ -202,19 +203,22 @@ def compare(a: str | Path, b: str | Path, runs: list[str] | None = None,
                 "change": change.lower() or None, "regression": regressed}
         result.lines.extend(_table(rows))
         ma, mb = _numbers(run_a.get("metrics", {})), _numbers(run_b.get("metrics", {}))
-        rows = [["metric (SI units)", "A", "B", "B - A", ""]]
+        units = {**(run_a.get("metric_units") or {}), **(run_b.get("metric_units") or {})}
+        rows = [["metric (unit)", "A", "B", "B - A", ""]]
         same = 0
         for metric in dict.fromkeys([*ma, *mb]):
             va, vb = ma.get(metric), mb.get(metric)
             delta = vb - va if va is not None and vb is not None else None
-            entries["metrics"][metric] = {"a": va, "b": vb, "b_minus_a": delta,
-                                          "timing": metric in TIMING}
+            declared = metric_unit(units, metric)
+            entries["metrics"][metric] = {"unit": declared, "a": va, "b": vb,
+                                          "b_minus_a": delta, "timing": metric in TIMING}
             if va == vb:
                 same += 1
                 continue
             cells = [f"{v:.6g}" if v is not None else "-" for v in (va, vb)]
             note = "timing" if metric in TIMING else ""
-            rows.append([metric, *cells, f"{delta:+.4g}" if delta is not None else "", note])
+            rows.append([f"{metric} ({declared})" if declared else metric, *cells,
+                         f"{delta:+.4g}" if delta is not None else "", note])
         if len(rows) > 1:
             result.lines.extend(_table(rows))
         result.lines.append(f"  {same} metric(s) equal in A and B (--json lists every one)")

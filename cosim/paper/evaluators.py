@@ -42,6 +42,9 @@ class FilteredError(Part):
               io.DESIRED_VELOCITY)
     constants = ("nn_gains",)
     declarations = (FILTERED_ERROR,)
+    metric_units = {"theorem1.E1_formula": "rad", "theorem1.E1": "rad",
+                    "theorem1.E2_formula": "rad/s", "theorem1.E2": "rad/s",
+                    "theorem1.M_R": "rad/s", "theorem1.M_r": "rad/s", "theorem1.R": "rad/s"}
 
     def __init__(self, trace: Signals, safe: SafeSet, constants: Mapping[str, Any],
                  available: frozenset[str] = frozenset()):
@@ -68,6 +71,7 @@ class ObserverError(Part):
     # true-velocity sets) and the RMS is None
     inputs = ("qdot_hat",)
     declarations = (OBSERVER_ERROR,)
+    metric_units = {"observer_velocity_error_rms_after_1s": "rad/s"}
 
     def __init__(self, trace: Signals, safe: SafeSet, constants: Mapping[str, Any],
                  available: frozenset[str] = frozenset()):
@@ -116,6 +120,11 @@ class Barriers(Part):
     constants = ("nn_gains", "observer_gain")
     series_meanings = {**BARRIER_MEANINGS}
     conditions = ("condition",)
+    # the paper's barriers mix units (theorem.BARRIER_MEANINGS); the shares are fractions
+    metric_units = {"min_barrier_H": "mixed", "min_barrier_H1": "mixed",
+                    "min_barrier_H2": "mixed", "barrier_condition": "1",
+                    "barrier_condition.alpha": "1/s", "barrier_condition.worst": "1/s × H",
+                    "barrier_condition_terms": "1"}
 
     def __init__(self, trace: Signals, safe: SafeSet, constants: Mapping[str, Any],
                  available: frozenset[str] = frozenset()):
@@ -159,6 +168,7 @@ class FeedbackGain(Part):
     name = "feedback_gain"
     meaning = "the effective feedback gain ‖τ_feedback‖/‖r̂‖"
     inputs = ("feedback_gain", "r_hat")
+    metric_units = {"feedback_gain": "N·m·s/rad"}
 
     def metrics(self, trace: Signals, series: Mapping[str, np.ndarray]) -> dict:
         return {"feedback_gain": gain_summary(trace)}

@@ -386,6 +386,13 @@ class Guarantee(Part):
     meaning = "whether the safety filter's guarantee covers the run, and whether it held"
     inputs = ("q",)
     constants = (io.PLANT_PARAMETERS, io.UNCERTAINTY)
+    metric_units = {"filter_active_fraction": "1",
+                    "guarantee.observer_bound_exceeded_steps": "steps",
+                    "guarantee.torque_over_limit_steps": "steps",
+                    "guarantee.infeasible_steps": "steps",
+                    "guarantee.time_to_return_s": "s", "guarantee.first_exit.t": "s",
+                    "guarantee.first_exit.value": "the set's unit",
+                    "guarantee.first_exit.bound": "the set's unit"}
 
     def metrics(self, trace: Signals, series: Mapping[str, np.ndarray]) -> dict:
         if ACTIVE not in trace or not len(trace[ACTIVE]):

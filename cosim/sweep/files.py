@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from ..evaluate.parts import declared_metric_units, metric_unit
 from ..evaluate.reports import SWEEP_REPORTS
 from .checks import margin
 from .journal import CHUNK, Rows
@@ -65,9 +66,11 @@ def write_spec(folder: RunFolder, document: dict) -> None:
 
 
 def column_units(rows: Rows) -> dict[str, str]:
-    """Each column's unit where the rows say it: a check's worst value and bound are in its
-    declared unit, times (``*_s``) in seconds."""
+    """Each column's unit where the rows or the evaluators say it: a check's worst value and
+    bound are in its declared unit, a metric's in its evaluator's (Part.metric_units), times
+    (``*_s``) in seconds."""
     units = {}
+    metrics = declared_metric_units()
     for name in rows.names:
         if name.endswith(".unit"):
             check = name.removesuffix(".unit")
@@ -76,7 +79,15 @@ def column_units(rows: Rows) -> dict[str, str]:
                 units[f"{check}.worst"] = units[f"{check}.bound"] = unit
         elif name.endswith("_s"):
             units[name] = "s"
+        elif (unit := metric_unit(metrics, name)) is not None and _numeric(rows.column(name)):
+            units.setdefault(name, unit)
     return units
+
+
+def _numeric(values) -> bool:
+    """A column of numbers (not flags, not text): the ones a unit is said of."""
+    value = next((v for v in values if v is not None), None)
+    return isinstance(value, int | float | np.number) and not isinstance(value, bool | np.bool_)
 
 
 def with_units(table: pa.Table) -> pa.Table:
