@@ -2,7 +2,8 @@
 uncertainty (issue 30's figure "every start with v² ≤ 2·d·a̲ is viable"): over a grid of
 starts — each joint in turn d rad inside either position bound, moving outward; the other
 joints' angles and velocities on a grid within their sets — the fastest outward speed v*
-the filter's own check verifies (cosim/paper/cbf_filter/backup.py, bisection), and
+the filter's own check verifies (cosim/paper/cbf_filter/backup.py's verified_from: the
+model's forms at that start, as a step takes them; bisection), and
 a = v*²/(2d). a̲ is the least over the grid; the payload, noise and disturbance as
 declared, and the velocity known to within ε: 0 (a full-state filter) and the declared
 initial observer error (an output-feedback filter at t = 0), both printed.
@@ -20,12 +21,13 @@ import numpy as np
 from cosim.assemble import assemble
 from cosim.config import load_pipeline
 from cosim.engine import simulate
-from cosim.paper.cbf_filter.backup import verified
+from cosim.paper.cbf_filter.backup import verified_from
 
 
-def filter_args(pipeline_path: str, limit: float):
-    """The filter's arguments for a full-state filtered run at ``limit`` N·m."""
-    pipeline = load_pipeline(pipeline_path, ["simulation.duration=0.01",
+def filter_args(pipeline_path: str, limit: float, duration: float = 0.01):
+    """The filter's arguments for a full-state filtered run at ``limit`` N·m, after
+    ``duration`` s of it."""
+    pipeline = load_pipeline(pipeline_path, [f"simulation.duration={duration}",
                                              f"cbf_filter.torque_limit={limit}"])
     pipeline.runs = {"baseline_cbf": pipeline.runs["baseline_cbf"]}
     scenario = assemble(pipeline)
@@ -41,13 +43,12 @@ def fastest(a, q: np.ndarray, v: np.ndarray, joint: int, side: float, top: float
             spread: float) -> float:
     """The fastest outward speed of ``joint`` the check verifies from (q, v ± spread),
     rad/s."""
-    zero, eps = np.zeros(len(q)), np.full(len(q), spread)
+    eps = np.full(len(q), spread)
 
     def ok(speed: float) -> bool:
         start = v.copy()
         start[joint] = side * speed
-        return any(bool(verified(0, a, q, start, eps, zero, False, policy))
-                   for policy in range(2))
+        return any(bool(verified_from(a, q, start, eps, policy)) for policy in range(2))
 
     if not ok(0.0):
         return 0.0

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 from test_references import two_link_closed_form
 
-from cosim.paper.cbf_filter.backup import HOLD, HOLD_RATE, verified
+from cosim.paper.cbf_filter.backup import HOLD, HOLD_RATE, verified_from
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
 from deceleration import filter_args as filter_args_of  # noqa: E402
@@ -51,9 +51,7 @@ def uncertain_args():
 
 
 def is_verified(a, q, v, spread: float = 0.0) -> bool:
-    zero = np.zeros(2)
-    return bool(verified(0, a, np.array(q, float), np.array(v, float), np.full(2, spread),
-                         zero, False, 0))
+    return bool(verified_from(a, np.array(q, float), np.array(v, float), np.full(2, spread), 0))
 
 
 def brake_apart(a, q, v, seconds: float = 1.0, payload: float = 0.0,
@@ -228,6 +226,25 @@ def test_a_velocity_estimate_wrong_by_epsilon_throughout_with_the_payload_still_
                                    [boundary + spread, joint2[1]], payload=1.0,
                                    estimate_error=np.array([-spread, spread]))
     assert worst_q <= bound_q and worst_v <= bound_v, (boundary, worst_q, worst_v)
+
+
+def test_a_check_apart_from_a_run_takes_the_model_at_its_own_state(uncertain_args):
+    """The fastest outward speed the check verifies at a start is the same whatever state
+    the run that made the filter's arguments ended in (the bias error's forms Γ and the
+    payload's structure are the start's, as a step's hard rows take them). Once wrong: the
+    forms of the run's last step were used, and benchmarks/deceleration.py stated a̲ =
+    17.8 rad/s² at 2000 N·m where the starts' own forms give less."""
+    from deceleration import fastest
+
+    later = filter_args_of("pipelines/near_boundary.toml", LIMIT, duration=0.6)
+    spread = 0.5
+    top = 0.999 * (uncertain_args.viable_bounds[1, 0] - spread)
+    start_q = np.array([uncertain_args.viable_bounds[0, 0] - 2.0, -0.785])
+    start_v = np.array([0.0, 12.3])
+    speeds = [fastest(a, start_q, start_v, 0, 1.0, top, spread) for a in (uncertain_args, later)]
+    assert 0.0 < speeds[0] < top and speeds[1] == speeds[0], speeds
+    assert is_verified(later, start_q, [speeds[0], start_v[1]], spread)
+    assert not is_verified(later, start_q, [speeds[0] + 0.01, start_v[1]], spread)
 
 
 @pytest.fixture(scope="module")

@@ -49,14 +49,19 @@ import numpy as np
 from ...dynamics.model import model_bias, model_geometry, model_mass, model_payload
 from ...numba_compat import no_refcount_jit
 from ..linalg import dot, invert, product
-from .model import acceleration_error_bound_into, payload_structure
+from .model import acceleration_error_bound_into, nominal_model, payload_structure, robust_model
 from .scratch import (
     ALPHA,
     BACKUP_FACTOR,
+    BASE,
     BETA,
+    BIAS,
     CONSISTENT,
     GAMMA,
     JAC,
+    LU,
+    MINV,
+    NOMINAL_NOW,
     QUADRATIC,
     R_ACC,
     R_BIAS,
@@ -397,3 +402,20 @@ def verified(k, a, y, v, eps, first, hold, policy):
         if stopped:
             return True
     return False
+
+
+@no_refcount_jit(cache=True)
+def verified_from(a, y, v, eps, policy):
+    """Whether the backup with ``policy`` keeps every hard set from the estimate (y, v),
+    |q̇ − v| ≤ ε, with nothing held first: :func:`verified` for a check made apart from a
+    run (benchmarks/deceleration.py, the viability tests). The bias error's velocity forms
+    Γ and the payload's structure are taken at (y, v) with the nominal M̂(y), as the hard
+    rows take them in a step; :func:`verified` alone would use whatever state the filter's
+    work space last held. Overwrites that work space (not for use inside a step)."""
+    matrices, vectors = a.work.matrices, a.work.vectors
+    minv, bias, base = matrices[MINV], vectors[BIAS], vectors[BASE]
+    nominal_model(a, y, v, matrices[NOMINAL_NOW], bias)
+    invert(matrices[NOMINAL_NOW], minv, matrices[LU])
+    product(minv, bias, base)
+    robust_model(a, y, v, eps, minv, base)
+    return verified(0, a, y, v, eps, bias, False, policy)  # nothing held: bias unread
