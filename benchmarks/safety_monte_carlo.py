@@ -541,7 +541,27 @@ def torque_lines(rows: list[dict], compared: list[dict], compared_name: str) -> 
         text += f" against {compared_name}'s {theirs:.0f} N·m: ratio {median / theirs:.2f}"
     lines += [text, f"  peak τ1 spread                  min {quartiles[0]:.0f}, quartiles "
                     f"{quartiles[1]:.0f}-{quartiles[2]:.0f}, max {quartiles[3]:.0f} N·m"]
-    return lines
+    return lines + startup_lines(rows)
+
+
+def startup_lines(rows: list[dict]) -> list[str]:
+    """Where the peak τ1 comes from (the guarantee's ``torque`` metrics, rows of a cosim
+    that records them): in how many runs it falls before the filter first found the state
+    viable (start-up), and the median peak τ1 from then on."""
+    timed = [r for r in rows if isinstance(r.get("guarantee.torque.peak_at_startup.1"), bool)]
+    if not timed:
+        return []
+    at_startup = [r for r in timed if r["guarantee.torque.peak_at_startup.1"]]
+    after = [r["guarantee.torque.peak_after_startup.1"] for r in timed
+             if isinstance(r.get("guarantee.torque.peak_after_startup.1"), float)]
+    backup = [r["guarantee.torque.peak_backup_share.1"] for r in at_startup
+              if isinstance(r.get("guarantee.torque.peak_backup_share.1"), float)]
+    return [f"  peak τ1 at start-up             {len(at_startup)} of {len(timed)} runs (before "
+            "the first viable step)"
+            + (f"; the backup's share of those peaks: median {np.median(backup):.2f}"
+               if backup else ""),
+            "  median peak τ1 after start-up   "
+            + (f"{np.median(after):.0f} N·m ({len(after)} runs ever viable)" if after else "-")]
 
 
 def kept_share(rows: list[dict], checks: list[str]) -> str:

@@ -18,7 +18,7 @@ from cosim.config import load_pipeline
 from cosim.declared import Safety, Uncertainty
 from cosim.evaluate import Evaluator
 from cosim.evaluate.reports import wilson
-from cosim.paper.cbf_filter.assumptions import FILTER_ASSUMES, VIABLE, FilterAssumptions
+from cosim.paper.cbf_filter.assumptions import BACKUP, FILTER_ASSUMES, VIABLE, FilterAssumptions
 from cosim.paper.guarantee import (
     COMPARED,
     NOT_MODEL,
@@ -45,7 +45,7 @@ OUTPUT_FEEDBACK = FilterAssumptions("q_meas", "qdot_hat", np.full(2, LIMIT), np.
 FULL_STATE = FilterAssumptions("q", "qdot", np.full(2, LIMIT), np.full(2, 0.01))
 PER_JOINT = ("q", "qdot", "q_s", "qdot_s", "q_d", "qdot_d", "e", "edot", "q_meas", "qdot_hat",
              "qdot_hat_bound", "tau")
-FLAGS = ("cbf_infeasible", VIABLE)
+FLAGS = ("cbf_infeasible", VIABLE, BACKUP)
 
 
 def make_trace(drop: tuple[str, ...] = ()) -> Trace:
@@ -59,7 +59,8 @@ def make_trace(drop: tuple[str, ...] = ()) -> Trace:
     q, qdot = 0.5 * np.sin(2 * t + [0.0, 1.0]), np.cos(2 * t + [0.0, 1.0])
     values = {"q": q, "qdot": qdot, "q_s": 0.0, "qdot_s": 0.0, "q_d": q, "qdot_d": qdot,
               "e": 0.0, "edot": 0.0, "q_meas": q, "qdot_hat": qdot, "qdot_hat_bound": 0.1,
-              "tau": 50 * np.sin(t + [0.0, 2.0]), "cbf_infeasible": 0.0, VIABLE: 1.0}
+              "tau": 50 * np.sin(t + [0.0, 2.0]), "cbf_infeasible": 0.0, VIABLE: 1.0,
+              BACKUP: 0.0}
     for name in trace.arrays:
         trace.arrays[name][:] = values[name]
     trace.rows_done = ROWS
@@ -312,6 +313,32 @@ def test_a_torque_above_the_filters_limit_breaks_it():
     unlimited = OUTPUT_FEEDBACK._replace(torque_limit=np.full(2, np.inf))
     assert judge(trace, unlimited)["broken"] is False
     assert judge(trace, None)["torque_over_limit_steps"] is None  # no limit published
+
+
+def test_where_each_joints_peak_torque_comes_from():
+    """A start the filter brakes hard: 30 steps not viable, joint 1 at 95 N·m (the backup's)
+    at 10 ms; from the first viable step on, the run's own 50 N·m sine."""
+    trace = make_trace()
+    trace[VIABLE][:30] = 0.0
+    trace[BACKUP][:30] = 1.0
+    trace["tau"][10, 0] = -95.0
+    torque = judge(trace)["torque"]
+    assert torque["startup_steps"] == 30
+    # joint 2's 50 sin(t + 2) is largest at t = 0, in the start-up too
+    assert torque["peak_t"] == [pytest.approx(0.01), 0.0]
+    assert torque["peak_at_startup"] == [True, True]
+    assert torque["peak_of_limit"] == pytest.approx([0.95, 0.5 * np.sin(2.0)])
+    assert torque["peak_backup_share"] == [1.0, 1.0]
+    assert torque["peak_after_startup"] == pytest.approx(
+        np.abs(trace["tau"][30:]).max(axis=0).tolist())
+    assert torque["peak_after_startup"][0] < 50.0 + 1e-9
+    trace[VIABLE][:] = 0.0  # never viable: no "after start-up"
+    assert judge(trace)["torque"]["startup_steps"] is None
+    assert judge(trace)["torque"]["peak_after_startup"] == [None, None]
+    assert judge(trace)["torque"]["peak_at_startup"] == [True, True]
+    unlimited = OUTPUT_FEEDBACK._replace(torque_limit=np.full(2, np.inf))
+    assert judge(trace, unlimited)["torque"]["peak_of_limit"] == [None, None]
+    assert "torque" not in judge(make_trace(drop=FLAGS), None)  # an unfiltered run
 
 
 def test_an_unfiltered_run_is_never_covered_nor_broken():

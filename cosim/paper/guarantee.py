@@ -22,7 +22,10 @@ run is classified on the true state:
 - ``covered``: a filtered run that starts inside and viable and is within bounds (a start
   outside a set is one to recover from, reported, not kept); ``violations``: what
   the guarantee promised a covered run that did not hold (a hard set left, an infeasible
-  step, ε(t) exceeded, |τ| above the limit); ``broken``: covered with a violation.
+  step, ε(t) exceeded, |τ| above the limit); ``broken``: covered with a violation;
+- ``torque``: where each joint's largest |τ| comes from (:func:`torque_peaks`): at
+  start-up, before the filter first found the state viable, or later, and how much of it
+  was the braking backup's.
 
 What a run's filter does not read never excuses it: a filter reading the true velocity is
 not excused by the observer's error, nor one reading the true position by the noise. An
@@ -48,7 +51,7 @@ from ..declared import Uncertainty
 from ..evaluate import Check, Kind, Part, register_evaluator
 from ..evaluate.safety import SafeSet, Signals
 from ..signals import Trace
-from .cbf_filter.assumptions import FILTER_ASSUMES, VIABLE, FilterAssumptions
+from .cbf_filter.assumptions import BACKUP, FILTER_ASSUMES, VIABLE, FilterAssumptions
 
 # A tolerance for comparing declared and actual parameter values (rounding in TOML, FMI).
 PARAMETER_TOLERANCE = 1e-9
@@ -325,6 +328,35 @@ def torque_violation(trace: Signals, assumes: FilterAssumptions | None
                        f"{np.max(tau[:, j]):.4g} N·m > {limit[j]:g} N·m)")
 
 
+def torque_peaks(trace: Signals, assumes: FilterAssumptions | None) -> dict | None:
+    """Where each joint's largest |τ_i| comes from, for a filtered run: ``startup_steps``,
+    the steps before the first the filter found viable (None: never viable); per joint, the
+    peak's time ``peak_t`` (s), whether it fell in those steps ``peak_at_startup``, its
+    share of the torque limit ``peak_of_limit`` (None without a limit), the backup's share
+    of the torque at that step ``peak_backup_share``, and the largest |τ_i| from the first
+    viable step on, ``peak_after_startup`` (N·m). A filter that must brake an uncertain
+    start hard shows it here: a peak at start-up, the backup's, the rest of the run below."""
+    if "tau" not in trace or not len(trace["tau"]):
+        return None
+    tau = np.abs(np.asarray(trace["tau"], float))
+    joints = tau.shape[1]
+    limit = np.broadcast_to(np.asarray(assumes.torque_limit if assumes is not None
+                                       else np.inf, float), (joints,))
+    viable = np.asarray(trace[VIABLE], float) > 0.5 if VIABLE in trace else None
+    first = int(np.argmax(viable)) if viable is not None and viable.any() else None
+    backup = np.asarray(trace[BACKUP], float) if BACKUP in trace else None
+    at = np.argmax(tau, axis=0)
+    return {"startup_steps": first,
+            "peak_t": [float(k * trace.dt) for k in at],
+            "peak_at_startup": [bool(first is None or k < first) for k in at],
+            "peak_of_limit": [float(tau[k, j] / limit[j]) if math.isfinite(limit[j]) else None
+                              for j, k in enumerate(at)],
+            "peak_backup_share": [float(backup[k]) if backup is not None else None
+                                  for k in at],
+            "peak_after_startup": [float(np.max(tau[first:, j])) if first is not None else None
+                                   for j in range(joints)]}
+
+
 def classify(trace: Trace, safe: SafeSet, uncertainty: Uncertainty,
              payload: float | None, other_parameters: list[str],
              true_velocity: bool = True, checks: Mapping[str, Check] | None = None,
@@ -371,6 +403,8 @@ def classify(trace: Trace, safe: SafeSet, uncertainty: Uncertainty,
                hard_kept=exit_ is None, first_exit=exit_, torque_over_limit_steps=over_steps,
                filtered=filtered, covered=covered, violations=violations,
                broken=bool(violations), **recovery(hard, trace.dt))
+    if filtered:
+        out["torque"] = torque_peaks(trace, assumes)
     return out
 
 
@@ -392,7 +426,11 @@ class Guarantee(Part):
                     "guarantee.infeasible_steps": "steps",
                     "guarantee.time_to_return_s": "s", "guarantee.first_exit.t": "s",
                     "guarantee.first_exit.value": "the set's unit",
-                    "guarantee.first_exit.bound": "the set's unit"}
+                    "guarantee.first_exit.bound": "the set's unit",
+                    "guarantee.torque.startup_steps": "steps", "guarantee.torque.peak_t": "s",
+                    "guarantee.torque.peak_of_limit": "1",
+                    "guarantee.torque.peak_backup_share": "1",
+                    "guarantee.torque.peak_after_startup": "N·m"}
 
     def metrics(self, trace: Signals, series: Mapping[str, np.ndarray]) -> dict:
         if ACTIVE not in trace or not len(trace[ACTIVE]):
