@@ -173,6 +173,32 @@ def test_a_urdf_arm_is_checked_on_every_joint_against_its_own_limits(ur5_runs):
     assert len(errors) == chain.n and max(errors) < 0.3
 
 
+def test_a_plant_that_is_not_the_nominal_arm_is_outside_the_guarantee(ur5_runs, tmp_path):
+    """The plant's URDF and the nominal model's are one arm in ur5.toml: no difference is
+    named. Built from a copy with the upper arm 2 kg heavier (a URDF nothing declares), the
+    plant's recorded M(q) departs from the nominal model's with the payload, and the
+    guarantee files the run outside, naming it."""
+    for name in ("proposed", "pd"):
+        outside = ur5_runs["runs"][name]["metrics"]["guarantee"]["outside"]
+        assert not any("M(q)" in text for text in outside), outside
+    original = robot_urdf(ARMS["ur5"][0])
+    text = original.read_text()
+    upper_arm = '<mass value="8.393"/>'
+    assert text.count(upper_arm) == 1
+    heavier = tmp_path / "ur5_heavier.urdf"
+    heavier.write_text(text.replace(upper_arm, '<mass value="10.393"/>'))
+    out = tmp_path / "run"
+    result = cosim_cli("run", UR5, "--set", "simulation.duration=0.2", "--run", "proposed",
+                       "--set", f'plant.urdf.file="{heavier}"', "--out", str(out),
+                       "--no-recording", "--no-figures")
+    assert result.returncode == 0, result.stderr[-3000:]
+    guarantee = json.loads((out / "summary.json").read_text())[
+        "runs"]["proposed"]["metrics"]["guarantee"]
+    named = [text for text in guarantee["outside"] if "M(q)" in text]
+    assert len(named) == 1 and "not the nominal arm" in named[0], guarantee["outside"]
+    assert guarantee["within_bounds"] is False and guarantee["covered"] is False
+
+
 def test_a_waypoint_past_a_joint_limit_is_refused_naming_it():
     """A waypoint past the elbow's limit (π rad, less the margin) is refused before the run:
     exit 2, one message naming the joint and the URDF's limits."""

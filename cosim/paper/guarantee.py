@@ -55,6 +55,10 @@ from .cbf_filter.assumptions import BACKUP, FILTER_ASSUMES, VIABLE, FilterAssump
 
 # A tolerance for comparing declared and actual parameter values (rounding in TOML, FMI).
 PARAMETER_TOLERANCE = 1e-9
+# The plant's M(q) against the nominal model's, relative: one arm computed twice agrees to
+# ~1e-14 (docs/plants.md); anything past this is another arm. Compared at this many states.
+MODEL_TOLERANCE = 1e-8
+MODEL_STATES = 20
 # |τ_i| ≤ limit·(1 + this) is within the limit: the filter clips to the limit exactly, and
 # only the last bits may differ.
 TORQUE_TOLERANCE = 1e-9
@@ -92,7 +96,7 @@ def plant_payload(parameters: dict, chain, modelled: frozenset[str] | None = Non
     rigid chain's model does not have (``modelled``: its parameter names; the joint
     springs of the elastic-joint arm, say). For a spatial chain from a URDF (``urdf``: the
     nominal model is a URDF's), its ``payload`` parameter at the tip, the URDF compiled into
-    both (the plant's and the nominal must be the same file: not checked here). (None, [])
+    both (whether they are one arm: :func:`plant_model_difference`). (None, [])
     when the plant does not expose the chain's parameters (a foreign FMU)."""
     if chain is None:
         if urdf and "payload" in parameters:
@@ -114,6 +118,39 @@ def plant_payload(parameters: dict, chain, modelled: frozenset[str] | None = Non
             differ.append(f"has parameters the nominal rigid chain does not ({shown}): it is "
                           "another model")
     return float(parameters[f"m[{n}]"] - chain.m[n - 1]), differ
+
+
+def plant_model_difference(trace: Signals, model, payload: float | None) -> str | None:
+    """Whether the plant is the nominal model's arm, where nothing else can tell (a URDF's
+    chain has no parameters to compare): the plant's own M(q), recorded as its output ``M``,
+    against the nominal model's M̂(q) with the plant's payload at the model's payload point,
+    at up to MODEL_STATES recorded states; the largest difference relative to the largest
+    |M_ij|, named with its time when above MODEL_TOLERANCE (another URDF, other masses or
+    the payload at another frame: a model error the uncertainty does not declare), else
+    None. None too where the plant does not output M or its payload is unknown."""
+    from ..dynamics.model import model_geometry, model_mass, own_scratch
+
+    if model is None or payload is None or "M" not in trace or not trace.rows_done:
+        return None
+    plant_mass, q = np.asarray(trace["M"], float), np.asarray(trace["q"], float)
+    rows = np.unique(np.linspace(0, trace.rows_done - 1, MODEL_STATES).astype(int))
+    model = own_scratch(model)
+    nominal = np.zeros(plant_mass.shape[1:])
+    worst, at = 0.0, 0
+    for k in rows:
+        if not (np.isfinite(q[k]).all() and np.isfinite(plant_mass[k]).all()):
+            continue
+        model_geometry(model, q[k])
+        model_mass(model, 1.0, payload, nominal)
+        difference = np.max(np.abs(plant_mass[k] - nominal)) / np.max(np.abs(plant_mass[k]))
+        if difference > worst:
+            worst, at = float(difference), int(k)
+    if worst <= MODEL_TOLERANCE:
+        return None
+    return (f"M(q) differs from the nominal model's with the plant's {payload:g} kg payload "
+            f"by {worst:.2g} of its largest entry (t = {at * trace.dt:.4g} s): not the "
+            "nominal arm (another URDF, other masses or the payload at another frame), a "
+            "model error the uncertainty does not declare")
 
 
 def undeclared_differences(parameters: Mapping[str, float], chain, uncertainty: Uncertainty,
@@ -446,6 +483,10 @@ class Guarantee(Part):
         # the τ_d the filter's model assumes: its own, else the observer's (its default)
         tau_d = assumes.tau_d if assumes is not None else self.given.get(OBSERVER_TAU_D)
         other += undeclared_differences(parameters, chain, uncertainty, tau_d, trace.links)
+        if chain is None and "nominal_urdf" in self.given:  # no parameters to compare
+            difference = plant_model_difference(trace, self.given.get("nominal_model"),
+                                                payload)
+            other += [difference] if difference else []
         return {"guarantee": classify(trace, self.safe, uncertainty, payload, other,
                                       true_velocity="qdot" in self.available,
                                       checks=checks, assumes=assumes)}
