@@ -128,6 +128,33 @@ def test_the_hardest_joint_to_stop_is_named_on_either_side():
         judge(trace)["not_viable"])
 
 
+def test_the_robots_own_limits_are_the_sets_the_reasons_measure_against():
+    """With safety.limits = "urdf" the sets are per-joint boxes, not radii about q_s: joint 1
+    at 2.9 rad in its [-1, 3] box moving up at 2.5 rad/s is 0.1 rad from its bound (about
+    q_s = 0 with the 2 rad radius it would be outside, and not named); the velocity the
+    filter holds is judged against each joint's own limit."""
+    boxes = SAFE.model_copy(update={"limits": "urdf", "position_lower": [-1.0, -3.0],
+                                    "position_upper": [3.0, 1.0],
+                                    "velocity_limit": [3.5, 2.0]})
+    trace = make_trace()
+    place(trace, "q", 0, [2.9, -1.5])
+    place(trace, "qdot", 0, [2.5, -1.5])
+    trace[VIABLE][0] = 0.0
+    g = classify(trace, boxes, DECLARED, 0.5, [], assumes=OUTPUT_FEEDBACK)
+    assert g["starts_inside"] is True and g["starts_viable"] is False
+    assert g["not_viable"].endswith(
+        "(joint 1 moves toward its upper position bound at 2.5 rad/s, 0.1 rad from it: "
+        f"stopping needs at least {2.5**2 / 0.2:.3g} rad/s²)")
+    # the interval the filter holds: joint 1's inside its 3.5 rad/s (past the radius, 3),
+    # joint 2's past its own 2 rad/s
+    trace.arrays["cbf_velocity_centre"] = np.array([[3.2, 2.5]] * ROWS)
+    trace.arrays["cbf_velocity_spread"] = np.zeros((ROWS, 2))
+    trace.signals.update({name: Signal("n", "rad/s", name) for name in
+                          ("cbf_velocity_centre", "cbf_velocity_spread")})
+    assert "(joint 2: 2.5 ± 0 rad/s against 2;" in classify(
+        trace, boxes, DECLARED, 0.5, [], assumes=OUTPUT_FEEDBACK)["not_viable"]
+
+
 def test_only_the_viable_flag_at_the_start_matters_and_without_it_the_box_stands_in():
     trace = make_trace()
     trace[VIABLE][1:] = 0.0  # later steps not viable: the start still is

@@ -47,7 +47,7 @@ from plant_fmu.models.planar_arm import MAX_LINKS
 from plant_fmu.models.planar_arm import variables as rigid_arm_variables
 
 from .. import interface as io
-from ..declared import Uncertainty
+from ..declared import Uncertainty, joint_boxes
 from ..evaluate import Check, Kind, Part, register_evaluator
 from ..evaluate.safety import SafeSet, Signals
 from ..signals import Trace
@@ -240,18 +240,36 @@ def recovery(hard: Mapping[str, Check], dt: float) -> dict:
             "excursions": lines}
 
 
+def position_and_velocity_sets(trace: Signals, safe: SafeSet, row: int = 0
+                               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """Per joint at ``row``: the position set's centre and half-width (rad) and the velocity
+    set's (rad/s): the robot's own limits (``safety.limits = "urdf"``), else the paper's
+    radii about the recorded centres q_s, q̇_s (None where the trace lacks them)."""
+    n = trace.links
+    boxes = joint_boxes(safe, n)
+    if boxes is not None:
+        return (boxes.position_centre, boxes.position_half, boxes.velocity_centre,
+                boxes.velocity_half)
+    if not all(name in trace for name in (io.SAFE_CENTRE, io.SAFE_VELOCITY_CENTRE)):
+        return None
+    return (trace[io.SAFE_CENTRE][row], np.full(n, safe.position_bound),
+            trace[io.SAFE_VELOCITY_CENTRE][row], np.full(n, safe.velocity_bound))
+
+
 def stopping_need(trace: Signals, safe: SafeSet) -> str | None:
     """The joint hardest to stop inside its position bound from t = 0, from the true q(0),
     q̇(0) alone: moving toward a bound at speed v from a distance d, stopping needs a
     deceleration of at least v²/(2d) (rad/s²), whatever the torque. None when no joint moves
     toward a bound it is inside of (or the trace lacks the true state)."""
-    if not all(name in trace for name in ("q", "qdot", io.SAFE_CENTRE)):
+    sets = position_and_velocity_sets(trace, safe)
+    if sets is None or not all(name in trace for name in ("q", "qdot")):
         return None
-    x, v = trace["q"][0] - trace[io.SAFE_CENTRE][0], trace["qdot"][0]
+    centre, half = sets[0], sets[1]
+    x, v = trace["q"][0] - centre, trace["qdot"][0]
     best = None
     for j in np.flatnonzero(np.isfinite(x) & np.isfinite(v) & (v != 0)):
         side = float(np.sign(v[j]))
-        distance = safe.position_bound - side * float(x[j])
+        distance = float(half[j]) - side * float(x[j])
         if distance > 0:
             need = float(v[j]) ** 2 / (2 * distance)
             best = max(best or (need, j, side, distance), (need, j, side, distance))
@@ -285,18 +303,19 @@ def velocity_uncertain(trace: Signals, safe: SafeSet) -> str | None:
     """Why a start is not viable when the velocity the filter holds at t = 0 (its interval,
     x̂2 ± ε from the declared initial error) reaches past a joint's velocity bound: the
     filter cannot tell that start from one outside the set. None otherwise."""
-    if not all(name in trace for name in ("cbf_velocity_centre", "cbf_velocity_spread",
-                                          io.SAFE_VELOCITY_CENTRE)):
+    sets = position_and_velocity_sets(trace, safe)
+    if sets is None or not all(name in trace for name in ("cbf_velocity_centre",
+                                                          "cbf_velocity_spread")):
         return None
     centre, spread = trace["cbf_velocity_centre"][0], trace["cbf_velocity_spread"][0]
-    reach = np.abs(centre - trace[io.SAFE_VELOCITY_CENTRE][0]) + spread
-    over = np.flatnonzero(reach > safe.velocity_bound)
+    reach = np.abs(centre - sets[2]) + spread
+    over = np.flatnonzero(reach > sets[3])
     if not len(over):
         return None
     j = int(over[np.argmax(reach[over])])
     return ("the velocity the filter holds at t = 0 reaches past the velocity bound (joint "
             f"{j + 1}: {centre[j]:.3g} ± {spread[j]:.3g} rad/s against "
-            f"{safe.velocity_bound:g}; the interval is what the declared initial observer "
+            f"{sets[3][j]:g}; the interval is what the declared initial observer "
             "error allows)")
 
 
