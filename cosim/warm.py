@@ -68,14 +68,40 @@ def _pipeline_files(path: Path, depth: int = 0) -> list[Path]:
     return files
 
 
+def _urdf_files(pipeline_file: Path) -> list[Path]:
+    """The URDF files a pipeline file names (every string value ending in ``.urdf``:
+    ``[plant.urdf] file``, ``inertia_model.urdf``, ``safety.urdf``), each where it may be
+    resolved: package://, beside the pipeline file or in the working folder. Their content
+    makes the plant FMU and the nominal model a warm-up builds."""
+    from plant_fmu.urdf import resolve_uri
+
+    try:
+        data = tomllib.loads(pipeline_file.read_text(encoding="utf-8"))
+    except (OSError, tomllib.TOMLDecodeError, UnicodeDecodeError):
+        return []
+    names, tables = [], [data]
+    while tables:
+        for value in tables.pop().values():
+            if isinstance(value, dict):
+                tables.append(value)
+            elif isinstance(value, str) and value.lower().endswith(".urdf"):
+                names.append(value)
+    return [resolve_uri(name, folder) for name in names
+            for folder in dict.fromkeys((pipeline_file.parent, Path.cwd()))]
+
+
 def stamp_path(pipeline: Path) -> Path:
     """Where the stamp of a warm-up of ``pipeline`` with these sources goes (beside numba's
     cache, so that clearing one clears the other): keyed by every source file of cosim and
     plant_fmu (kernels, the fused loop's template, the FMU's C), the content of the
-    pipeline's files, the Python and numba versions and the cache folders."""
+    pipeline's files and of the URDFs they name, the Python and numba versions and the
+    cache folders."""
     h = hashlib.sha256(_sources_digest().encode())
     for path in _pipeline_files(pipeline):  # their content: a copy elsewhere is as warm
         h.update(path.read_bytes() if path.is_file() else b"missing\0")
+        for urdf in _urdf_files(path):  # an edited URDF builds another FMU
+            h.update(f"{urdf}\0".encode()
+                     + (urdf.read_bytes() if urdf.is_file() else b"missing\0"))
     for variable in ("COSIM_CACHE", "COSIM_ENGINE_CACHE", "MPLCONFIGDIR"):
         h.update(f"{variable}={os.environ.get(variable, '')}\0".encode())
     return jit_cache.default_base() / f"warm-up-{h.hexdigest()[:16]}.json"

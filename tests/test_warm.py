@@ -52,6 +52,21 @@ def test_a_missing_pipeline_is_one_message(tmp_path):
                                    "file; nothing was compiled")
 
 
+def test_an_edited_urdf_is_not_warm(tmp_path):
+    """The stamp is keyed by the content of the URDFs a pipeline names, through extends
+    too: an edited URDF builds another FMU, so the caches of the old one are not warm."""
+    from cosim.warm import stamp_path
+
+    robot = tmp_path / "robot.urdf"
+    robot.write_bytes((ROOT / "tests/urdf/slider_turret.urdf").read_bytes())
+    (tmp_path / "base.toml").write_text('[plant.urdf]\nfile = "robot.urdf"\n')
+    (tmp_path / "mine.toml").write_text('extends = "base.toml"\n')
+    before = stamp_path(tmp_path / "mine.toml")
+    assert stamp_path(tmp_path / "mine.toml") == before  # the same content, the same stamp
+    robot.write_text(robot.read_text().replace("</robot>", "<!-- edited -->\n</robot>"))
+    assert stamp_path(tmp_path / "mine.toml") != before
+
+
 def test_a_compile_is_announced_module_by_module(tmp_path):
     """Each module of ours whose kernels compile gets a line with its seconds, its helpers
     counted with it; numba's own helpers (np.linalg here) are never named."""
