@@ -383,6 +383,23 @@ def test_compare_counts_a_worse_violation_once_with_a_tolerance_and_as_json(fini
                    "0.01")
 
 
+def test_compare_of_another_plant_says_so_and_still_judges_every_run(finished, others,
+                                                                   tmp_path):
+    """B's plant differs (another FMU): the note says so, and every run is judged all the
+    same (once the note's labels replaced the run names: no run was compared, exit 0)."""
+    b = tmp_path / "b"
+    shutil.copytree(others["worse"], b)
+    summary = json.loads((b / "summary.json").read_text())
+    summary["plant"]["guid"] = "{another}"
+    summary["plant"]["model_name"] = "AnotherArm"
+    (b / "summary.json").write_text(json.dumps(summary))
+    result = here("compare", str(finished), str(b))
+    assert result.returncode == 1, result.stdout + result.stderr
+    assert "note: the plants differ: A " in result.stdout and "B AnotherArm (" in result.stdout
+    assert "\nrun baseline\n" in result.stdout and "\nrun proposed\n" in result.stdout
+    assert "\n4 regression(s):\n" in result.stdout
+
+
 # export --------------------------------------------------------------------------------------
 
 def test_export_writes_its_own_temporary_never_a_planted_link(finished, tmp_path):

@@ -166,9 +166,9 @@ def compare(a: str | Path, b: str | Path, runs: list[str] | None = None,
                      "differ; each with its unit"]
     plants = [(s.get("plant") or {}) for s in (first, second)]
     if plants[0].get("guid") != plants[1].get("guid"):  # judged, but say it: not the change
-        names = [f"{p.get('model_name', '?')} ({Path(p.get('path') or '?').name})"
-                 for p in plants]
-        result.lines.append(f"note: the plants differ: A {names[0]}, B {names[1]}")
+        labels = [f"{p.get('model_name', '?')} ({Path(p.get('path') or '?').name})"
+                  for p in plants]
+        result.lines.append(f"note: the plants differ: A {labels[0]}, B {labels[1]}")
     for name in names:
         run_a, run_b = first["runs"].get(name), second["runs"].get(name)
         if run_a is None:
