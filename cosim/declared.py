@@ -44,7 +44,7 @@ class Safety(Section):
     limits: Literal["radii", "urdf"] = "radii"
     # the robot whose joint limits are the safe sets (limits = "urdf"), its chain from
     # ``urdf_base`` to ``urdf_tip`` as inertia_model.urdf reads it: a URDF file relative to
-    # where cosim runs, or package://…, a path
+    # the pipeline file (to where cosim runs when given by --set) or package://…, a path
     urdf: str | None = None
     urdf_base: str | None = None  # the limits' URDF's base link (a name)
     urdf_tip: str | None = None  # the limits' URDF's tip link (a name)

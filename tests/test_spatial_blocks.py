@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import importlib.metadata
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -134,6 +135,7 @@ def test_the_planar_chain_is_one_instance_bit_for_bit():
 
 
 UR5 = "pipelines/ur5.toml"
+ROOT = Path(__file__).resolve().parent.parent
 
 
 @pytest.fixture(scope="module")
@@ -197,6 +199,35 @@ def test_a_plant_that_is_not_the_nominal_arm_is_outside_the_guarantee(ur5_runs, 
     named = [text for text in guarantee["outside"] if "M(q)" in text]
     assert len(named) == 1 and "not the nominal arm" in named[0], guarantee["outside"]
     assert guarantee["within_bounds"] is False and guarantee["covered"] is False
+
+
+def test_every_urdf_a_pipeline_file_names_is_relative_to_that_file(tmp_path, monkeypatch):
+    """plant.urdf, safety.urdf and inertia_model.urdf all from the pipeline file's folder,
+    whatever the working folder holds (a copy there with ten times the velocity limits was
+    once read for the safe sets and the nominal model: a run judged against another
+    file's limits); given by --set, from the working folder."""
+    from cosim.config import load_pipeline
+    from cosim.declared import joint_boxes
+
+    original = robot_urdf(ARMS["ur5"][0]).read_text()
+    mine, elsewhere = tmp_path / "mine", tmp_path / "elsewhere"
+    mine.mkdir()
+    elsewhere.mkdir()
+    (mine / "arm.urdf").write_text(original)
+    assert original.count('velocity="3.15"') >= 1
+    (elsewhere / "arm.urdf").write_text(original.replace('velocity="3.15"', 'velocity="31.5"'))
+    text = (ROOT / UR5).read_text()
+    package = "package://example-robot-data/robots/ur_description/urdf/ur5_robot.urdf"
+    assert text.count(f'"{package}"') == 3
+    (mine / "p.toml").write_text(text.replace(f'"{package}"', '"arm.urdf"'))
+    monkeypatch.chdir(elsewhere)
+    pipeline = load_pipeline(mine / "p.toml")
+    assert pipeline.plant.urdf.file == str(mine / "arm.urdf")
+    assert pipeline.safety.urdf == str(mine / "arm.urdf")
+    assert pipeline.runs["proposed"].inertia_model.urdf == str(mine / "arm.urdf")
+    assert joint_boxes(pipeline.safety, 6).velocity_half[0] == pytest.approx(3.15)
+    given = load_pipeline(mine / "p.toml", ['safety.urdf="arm.urdf"'])
+    assert joint_boxes(given.safety, 6).velocity_half[0] == pytest.approx(31.5)
 
 
 def test_a_waypoint_past_a_joint_limit_is_refused_naming_it():

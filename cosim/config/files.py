@@ -16,7 +16,8 @@ MAX_EXTENDS = 32  # files in an `extends` chain: far more than any real layering
 def read_toml(path: Path, chain: tuple[Path, ...] = ()) -> dict:
     """A pipeline file's tables, with ``extends = "other.toml"`` (relative to it) resolved:
     the other file's tables first, this file's merged over them key by key (runs by name).
-    Paths in a file (``plant.fmu``) are relative to the file that declares them; a file that
+    Paths in a file (``plant.fmu``, the URDFs, a reference's CSV, plugins) are relative to the
+    file that declares them; a file that
     names a plant (``plant.fmu``, ``plant.builtin`` or ``plant.urdf``) replaces the one it
     extends."""
     where = f" (extended by {chain[-1]})" if chain else ""
@@ -47,6 +48,8 @@ def read_toml(path: Path, chain: tuple[Path, ...] = ()) -> dict:
                            for p in plugins]
     for table in reference_tables(data):  # reference.csv: relative to this file
         table["csv"] = str(absolute(table["csv"], path.parent))
+    for table in urdf_tables(data):  # safety.urdf, inertia_model.urdf: relative to this file
+        table["urdf"] = urdf_relative_to(table["urdf"], path.parent)
     plant = data.get("plant")
     if isinstance(plant, dict) and isinstance(plant.get("fmu"), str):
         fmu = Path(plant["fmu"]).expanduser()
@@ -88,6 +91,17 @@ def reference_tables(data: dict) -> list[dict]:
     return [t for t in tables if isinstance(t, dict) and isinstance(t.get("csv"), str)]
 
 
+def urdf_tables(data: dict) -> list[dict]:
+    """The tables of a pipeline's data that name a URDF file under ``urdf`` besides the
+    plant's: ``[safety]`` (its limits) and ``[inertia_model]`` (the nominal model), at the
+    top level and in runs."""
+    runs = data.get("runs")
+    scopes = [data, *(run for run in (runs.values() if isinstance(runs, dict) else ())
+                      if isinstance(run, dict))]
+    tables = [scope.get(key) for scope in scopes for key in ("safety", "inertia_model")]
+    return [t for t in tables if isinstance(t, dict) and isinstance(t.get("urdf"), str)]
+
+
 def absolute(name: str, folder: Path) -> Path:
     """A path as given if absolute, else from ``folder`` (``~`` expanded)."""
     path = Path(name).expanduser()
@@ -95,7 +109,7 @@ def absolute(name: str, folder: Path) -> Path:
 
 
 def urdf_relative_to(urdf, folder: Path):
-    """``plant.urdf`` (a file, or a table with ``file``) with a relative path made absolute
+    """A URDF reference (a file, or a table with ``file``) with a relative path made absolute
     from ``folder``; a package:// or file:// address as is; anything else as is (the schema
     says what is wrong with it)."""
     file = urdf.get("file") if isinstance(urdf, dict) else urdf

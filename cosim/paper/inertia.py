@@ -67,8 +67,8 @@ class InertiaModelParams(Section):
     I: list[NonNegativeFloat] | None = None  # noqa: E741
     # gravitational acceleration of the nominal chain's bias b̂ = C q̇ + G, m/s²
     gravity: FiniteFloat = 9.8
-    # a nominal URDF instead of the planar chain (a path, relative to where cosim runs, or
-    # package://…, e.g. package://example-robot-data/robots/ur_description/urdf/
+    # a nominal URDF instead of the planar chain (a path relative to the pipeline file, to
+    # where cosim runs when given by --set, or package://…, e.g. package://example-robot-data/robots/ur_description/urdf/
     # ur5_robot.urdf): its spatial chain from ``base`` to ``tip`` (link names; defaults as
     # cosim build-fmu --urdf), ``fixed`` joints held at a value (rad or m); the payload's
     # point is the tip link's origin
