@@ -177,28 +177,34 @@ def test_a_urdf_arm_is_checked_on_every_joint_against_its_own_limits(ur5_runs):
 
 def test_a_plant_that_is_not_the_nominal_arm_is_outside_the_guarantee(ur5_runs, tmp_path):
     """The plant's URDF and the nominal model's are one arm in ur5.toml: no difference is
-    named. Built from a copy with the upper arm 2 kg heavier (a URDF nothing declares), the
-    plant's recorded M(q) departs from the nominal model's with the payload, and the
-    guarantee files the run outside, naming it."""
+    named. Built from a copy with the upper arm 2 kg heavier, or with its base turned on
+    its side (gravity along another axis of the arm: M(q) is the same), the plant's
+    recorded M(q) or h(q, q̇) departs from the nominal model's with the payload, and the
+    guarantee files the run outside, naming it (the tilted base was once "covered", then
+    "BROKEN", blamed on the filter)."""
     for name in ("proposed", "pd"):
         outside = ur5_runs["runs"][name]["metrics"]["guarantee"]["outside"]
-        assert not any("M(q)" in text for text in outside), outside
-    original = robot_urdf(ARMS["ur5"][0])
-    text = original.read_text()
-    upper_arm = '<mass value="8.393"/>'
-    assert text.count(upper_arm) == 1
-    heavier = tmp_path / "ur5_heavier.urdf"
-    heavier.write_text(text.replace(upper_arm, '<mass value="10.393"/>'))
-    out = tmp_path / "run"
-    result = cosim_cli("run", UR5, "--set", "simulation.duration=0.2", "--run", "proposed",
-                       "--set", f'plant.urdf.file="{heavier}"', "--out", str(out),
-                       "--no-recording", "--no-figures")
-    assert result.returncode == 0, result.stderr[-3000:]
-    guarantee = json.loads((out / "summary.json").read_text())[
-        "runs"]["proposed"]["metrics"]["guarantee"]
-    named = [text for text in guarantee["outside"] if "M(q)" in text]
-    assert len(named) == 1 and "not the nominal arm" in named[0], guarantee["outside"]
-    assert guarantee["within_bounds"] is False and guarantee["covered"] is False
+        assert not any("nominal arm" in text for text in outside), outside
+    text = robot_urdf(ARMS["ur5"][0]).read_text()
+    edits = {"heavier": ('<mass value="8.393"/>', '<mass value="10.393"/>', "M(q)"),
+             "tilted": ('<parent link="world"/>\n    <child link="base_link"/>\n    '
+                        '<origin rpy="0.0 0.0 0.0" xyz="0.0 0.0 0.0"/>',
+                        '<parent link="world"/>\n    <child link="base_link"/>\n    '
+                        '<origin rpy="1.5708 0.0 0.0" xyz="0.0 0.0 0.0"/>', "h(q, q̇)")}
+    for name, (before, after, what) in edits.items():
+        assert text.count(before) == 1, name
+        edited = tmp_path / f"ur5_{name}.urdf"
+        edited.write_text(text.replace(before, after))
+        out = tmp_path / name
+        result = cosim_cli("run", UR5, "--set", "simulation.duration=0.2", "--run",
+                           "proposed_cbf", "--set", f'plant.urdf.file="{edited}"', "--out",
+                           str(out), "--no-recording", "--no-figures")
+        assert result.returncode == 0, result.stderr[-3000:]
+        guarantee = json.loads((out / "summary.json").read_text())[
+            "runs"]["proposed_cbf"]["metrics"]["guarantee"]
+        named = [entry for entry in guarantee["outside"] if "nominal arm" in entry]
+        assert len(named) == 1 and named[0].startswith(f"plant {what} differs"), named
+        assert guarantee["covered"] is False and guarantee["broken"] is False
 
 
 def test_every_urdf_a_pipeline_file_names_is_relative_to_that_file(tmp_path, monkeypatch):

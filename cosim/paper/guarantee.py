@@ -122,35 +122,48 @@ def plant_payload(parameters: dict, chain, modelled: frozenset[str] | None = Non
 
 def plant_model_difference(trace: Signals, model, payload: float | None) -> str | None:
     """Whether the plant is the nominal model's arm, where nothing else can tell (a URDF's
-    chain has no parameters to compare): the plant's own M(q), recorded as its output ``M``,
-    against the nominal model's M̂(q) with the plant's payload at the model's payload point,
-    at up to MODEL_STATES recorded states; the largest difference relative to the largest
-    |M_ij|, named with its time when above MODEL_TOLERANCE (another URDF, other masses or
-    the payload at another frame: a model error the uncertainty does not declare), else
-    None. None too where the plant does not output M or its payload is unknown."""
-    from ..dynamics.model import model_geometry, model_mass, own_scratch
+    chain has no parameters to compare): the plant's own M(q) and, where it outputs them,
+    its bias forces h(q, q̇) = C q̇ + G (the trace's ``M``, ``h``) against the nominal
+    model's M̂(q), b̂(q, q̇) with the plant's payload at the model's payload point, at up to
+    MODEL_STATES recorded states; the largest difference relative to the largest entry,
+    named with its time when above MODEL_TOLERANCE (another URDF, other masses, a base
+    placed otherwise or the payload at another frame: a model error the uncertainty does
+    not declare), else None. None too where the plant does not output M or its payload is
+    unknown."""
+    from ..dynamics.model import model_bias, model_geometry, model_mass, own_scratch
 
     if model is None or payload is None or "M" not in trace or not trace.rows_done:
         return None
-    plant_mass, q = np.asarray(trace["M"], float), np.asarray(trace["q"], float)
+    q = np.asarray(trace["q"], float)
+    recorded = {"M(q)": np.asarray(trace["M"], float)}
+    if "h" in trace and "qdot" in trace:
+        recorded["h(q, q̇)"] = np.asarray(trace["h"], float)
     rows = np.unique(np.linspace(0, trace.rows_done - 1, MODEL_STATES).astype(int))
     model = own_scratch(model)
-    nominal = np.zeros(plant_mass.shape[1:])
-    worst, at = 0.0, 0
+    n = q.shape[1]
+    nominal = {"M(q)": np.zeros((n, n)), "h(q, q̇)": np.zeros(n)}
+    worst = (0.0, 0, "M(q)")
     for k in rows:
-        if not (np.isfinite(q[k]).all() and np.isfinite(plant_mass[k]).all()):
+        arrays = [q[k], *(values[k] for values in recorded.values())]
+        if not all(np.isfinite(a).all() for a in arrays):
             continue
         model_geometry(model, q[k])
-        model_mass(model, 1.0, payload, nominal)
-        difference = np.max(np.abs(plant_mass[k] - nominal)) / np.max(np.abs(plant_mass[k]))
-        if difference > worst:
-            worst, at = float(difference), int(k)
-    if worst <= MODEL_TOLERANCE:
+        model_mass(model, 1.0, payload, nominal["M(q)"])
+        if "h(q, q̇)" in recorded:
+            model_bias(model, np.asarray(trace["qdot"][k], float), 1.0, payload, 1.0,
+                       nominal["h(q, q̇)"])
+        for what, values in recorded.items():
+            scale = np.max(np.abs(values[k]))
+            if scale > 0.0:
+                difference = float(np.max(np.abs(values[k] - nominal[what])) / scale)
+                worst = max(worst, (difference, int(k), what))
+    difference, at, what = worst
+    if difference <= MODEL_TOLERANCE:
         return None
-    return (f"M(q) differs from the nominal model's with the plant's {payload:g} kg payload "
-            f"by {worst:.2g} of its largest entry (t = {at * trace.dt:.4g} s): not the "
-            "nominal arm (another URDF, other masses or the payload at another frame), a "
-            "model error the uncertainty does not declare")
+    return (f"{what} differs from the nominal model's with the plant's {payload:g} kg payload "
+            f"by {difference:.2g} of its largest entry (t = {at * trace.dt:.4g} s): not the "
+            "nominal arm (another URDF, other masses, its base placed otherwise or the "
+            "payload at another frame), a model error the uncertainty does not declare")
 
 
 def undeclared_differences(parameters: Mapping[str, float], chain, uncertainty: Uncertainty,

@@ -2,9 +2,9 @@
 
 The interface is the port table (:mod:`.ports`): per joint i of n, input ``tau`` (N·m),
 output ``q`` (rad) and the optional outputs (``qdot``, the inertia matrix ``M`` n×n
-row-major, the motor angles ``theta``), each a Real (FMI 2.0) or Float64 (FMI 3.0) scalar
-variable. n is the number of ``q`` names: mapped in the pipeline, else counted from outputs
-named ``q[1]``, ``q[2]``, … as the built-in plants have.
+row-major, the bias forces ``h``, the motor angles ``theta``), each a Real (FMI 2.0) or
+Float64 (FMI 3.0) scalar variable. n is the number of ``q`` names: mapped in the pipeline,
+else counted from outputs named ``q[1]``, ``q[2]``, … as the built-in plants have.
 
 Every check here reports what is wrong in one message naming the file and the variable,
 and what would be valid, so a user's FMU is refused before anything runs.

@@ -59,6 +59,12 @@ PORTS: tuple[PlantPort, ...] = (
     PlantPort("M", "output", "nn", False, "inertia matrix",
               Signal("nn", "kg·m²", "inertia matrix M(q) (plant)"),
               "the controller uses the pipeline's nominal inertia model"),
+    # The bias forces of a URDF's spatial chain (C q̇ + G, its RNEA): with M, what tells the
+    # guarantee whether the plant is the nominal model's arm (its gravity, its base); in
+    # the trace files.
+    PlantPort("h", "output", "n", False, "bias forces",
+              Signal("n", "N·m", "bias forces h(q, q̇) = C(q, q̇) q̇ + G(q) (plant)"),
+              always_traced=False),
     # The elastic-joint arm's motor angles (θ, link side); in the trace files.
     PlantPort("theta", "output", "n", False, "motor angles",
               Signal("n", "rad", "motor angles θ (plant with elastic joints)"),
