@@ -136,7 +136,8 @@ def test_plugins_add_up_through_extends_each_relative_to_its_own_file(tmp_path):
 def test_one_pipelines_plugin_is_not_offered_to_another_in_the_same_process(tmp_path):
     """A process that loaded a pipeline with a plugin (a notebook, a sweep's worker, a test
     session) keeps the plugin's blocks registered; another pipeline's wiring message names
-    only the blocks it may use, and the plugin's own pipeline still names its block."""
+    only the blocks it may use, and the plugin's own pipeline still names its block; a
+    pipeline that does not name the plugin cannot use its blocks."""
     from cosim.assemble import assemble_run
     from cosim.config import PipelineError, load_pipeline
 
@@ -157,6 +158,16 @@ def test_one_pipelines_plugin_is_not_offered_to_another_in_the_same_process(tmp_
     paper = hints["paper_two_link.toml"]
     assert {"cbf_filter", "controller", "pd_controller"} <= paper  # the built-in ones
     assert not any(kind.startswith("plugin_") for kind in paper), paper
+    # Nor may it run that plugin's block without naming the plugin, as in a fresh process.
+    (tmp_path / "q.toml").write_text(
+        f'extends = "{ROOT / "pipelines/paper_two_link.toml"}"\n'
+        f'[runs.proposed]\nblocks = {CHAIN.format(kind="plugin_gain_elsewhere")}\n')
+    with pytest.raises(PipelineError) as info:
+        load_pipeline(tmp_path / "q.toml")
+    message = str(info.value)
+    assert "blocks: 'plugin_gain_elsewhere' is not a registered block (registered: " in message
+    assert "plugin_gain_elsewhere," not in message and "plugin_gain_elsewhere)" not in message
+    assert load_pipeline(tmp_path / "p.toml").plugins  # its own pipeline still loads
 
 
 def test_a_plugin_block_runs_on_a_sweeps_dask_workers(tmp_path):

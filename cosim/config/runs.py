@@ -6,9 +6,10 @@ from __future__ import annotations
 
 from typing import Any
 
-from pydantic import Field, ValidationError, model_validator
+from pydantic import Field, ValidationError, ValidationInfo, model_validator
 
 from ..blocks import BLOCKS, default_chain
+from ..blocks.plugins import offered
 from ..schema import Section
 
 
@@ -48,13 +49,17 @@ class Run(Section):
         return {**data, "instances": instances}
 
     @model_validator(mode="after")
-    def _known_blocks(self) -> Run:
+    def _known_blocks(self, info: ValidationInfo) -> Run:
+        # the kinds this pipeline may use: a plugin another pipeline loaded in this process
+        # (a notebook, a sweep's worker) is not one of them
+        plugins = (info.context or {}).get("plugins") or []
+        kinds = [kind for kind, cls in BLOCKS.items() if offered(cls, plugins)]
         names: set[str] = set()
         for entry in self.blocks:
             name, kind = chain_entry(entry)
-            if kind not in BLOCKS:
+            if kind not in kinds:
                 raise ValueError(f"blocks: {kind!r} is not a registered block (registered: "
-                                 f"{', '.join(BLOCKS)})")
+                                 f"{', '.join(kinds)})")
             if name != kind:
                 if name in BLOCKS or name in names:
                     raise ValueError(f"blocks: {entry!r}: the name {name!r} is taken (by a "

@@ -53,7 +53,9 @@ def _allowed_keys(root: type[BaseModel], loc: tuple) -> list[str]:
 def validate(data: dict, source: str = "pipeline") -> Pipeline:
     model = pipeline_model()[0]
     try:
-        return model.model_validate(data)
+        plugins = data.get("plugins") if isinstance(data.get("plugins"), list) else []
+        return model.model_validate(data, context={"plugins": [
+            p for p in plugins if isinstance(p, str)]})
     except ValidationError as exc:
         # The first problem only: runs inherit the top-level sections, so one bad key
         # would otherwise be reported once more for every run.
