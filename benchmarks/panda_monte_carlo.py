@@ -18,6 +18,7 @@ SI units, radians.
 from __future__ import annotations
 
 import argparse
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -41,8 +42,9 @@ LIMITS = ("position", "velocity_true", "effort")  # check families, every joint
 
 
 def sweep(samples: int, out: Path, seed: int, workers: int, duration: float | None,
-          resume: bool = False) -> None:
-    """The sweep into ``out`` (replacing it), or, with ``resume``, the points it lacks."""
+          resume: bool = False) -> int:
+    """The sweep into ``out`` (replacing it), or, with ``resume``, the points it lacks; the
+    exit status of ``cosim sweep``."""
     command = [str(Path(sys.executable).parent / "cosim"), "sweep", PIPELINE,
                "--samples", str(samples), "--seed", str(seed), "--runs", RUN,
                "--workers", str(workers),
@@ -53,7 +55,7 @@ def sweep(samples: int, out: Path, seed: int, workers: int, duration: float | No
     for sample in SAMPLES:
         command += ["--sample", sample]
     print("$", " ".join(command), file=sys.stderr)
-    subprocess.run(command, check=True)
+    return subprocess.run(command).returncode  # cosim said what went wrong, if anything
 
 
 def limits_kept(row: dict) -> bool:
@@ -93,11 +95,35 @@ def main() -> int:
     args = parser.parse_args()
     folder = args.results
     if folder is None:
-        sweep(args.samples, args.out, args.seed, args.workers, args.duration, args.resume)
+        status = sweep(args.samples, args.out, args.seed, args.workers, args.duration,
+                       args.resume)
+        if status:
+            return status
         folder = args.out
+    problem = not_a_panda_sweep(folder)
+    if problem:
+        print(f"panda_monte_carlo.py: error: {problem}", file=sys.stderr)
+        return 2
     rows = pq.read_table(folder / "results.parquet").to_pylist()
     print(report(rows))
     return 0
+
+
+def not_a_panda_sweep(folder: Path) -> str | None:
+    """Why ``folder`` is not a finished sweep of this script's pipeline (None if it is)."""
+    try:
+        spec = json.loads((folder / "sweep.json").read_text())
+    except (OSError, ValueError):
+        return (f"{folder}: not a sweep folder (no readable sweep.json); give the --out of a "
+                "finished sweep of this script")
+    pipeline = Path(str(spec.get("pipeline_file")))
+    if pipeline.name != Path(PIPELINE).name or RUN not in (spec.get("runs") or []):
+        return (f"{folder}: a sweep of {pipeline} (runs {', '.join(spec.get('runs') or [])}),"
+                f" not of {PIPELINE}'s {RUN}; give the --out of a sweep of this script")
+    if not (folder / "results.parquet").is_file():
+        return (f"{folder}: no results.parquet: the sweep did not finish; go on with "
+                f"--resume --out {folder}")
+    return None
 
 
 if __name__ == "__main__":

@@ -223,3 +223,40 @@ def test_every_metric_has_its_unit_in_the_summary_and_in_compare(folders):
     metrics = document["runs"]["proposed"]["metrics"]
     assert metrics["rms_error_rate[2]"]["unit"] == "rad/s"
     assert metrics["wall_time_s"]["unit"] == "s"
+
+
+def test_compare_says_when_units_are_missing_or_differ(folders, tmp_path):
+    """Folders of an older cosim (no metric_units, or an entry that is not a table) are
+    compared with the metrics bare, and said so; a metric whose unit differs between A and
+    B is not subtracted, and said so."""
+    import shutil
+
+    a, b = folders
+    copies = {}
+    for name, change in (("old_a", None), ("old_b", None), ("text", "N·m"),
+                         ("kilo", {"peak_torque": "kN·m"})):
+        copies[name] = tmp_path / name
+        shutil.copytree(b if name != "old_a" else a, copies[name])
+        summary = json.loads((copies[name] / "summary.json").read_text())
+        for run in summary["runs"].values():
+            if change is None:
+                del run["metric_units"]
+            elif isinstance(change, str):
+                run["metric_units"] = change
+            else:
+                run["metric_units"].update(change)
+        (copies[name] / "summary.json").write_text(json.dumps(summary))
+    old = cosim_cli("compare", str(copies["old_a"]), str(copies["old_b"]), "--run", "proposed")
+    assert old.returncode == 1, old.stderr
+    assert "(neither folder declares its metrics' units: written by an older cosim" in old.stdout
+    assert re.search(r"^  peak_torque\[1\] ", old.stdout, re.M), old.stdout
+    text = cosim_cli("compare", str(a), str(copies["text"]), "--run", "proposed")
+    assert text.returncode == 1 and "Traceback" not in text.stderr, text.stderr
+    assert re.search(r"^  peak_torque\[1\] \(N·m\) ", text.stdout, re.M), text.stdout
+    kilo = cosim_cli("compare", str(a), str(copies["kilo"]), "--run", "proposed", "--json")
+    peak = json.loads(kilo.stdout)["runs"]["proposed"]["metrics"]["peak_torque[1]"]
+    assert peak["unit"] is None and (peak["unit_a"], peak["unit_b"]) == ("N·m", "kN·m")
+    assert peak["b_minus_a"] is None
+    shown = cosim_cli("compare", str(a), str(copies["kilo"]), "--run", "proposed").stdout
+    assert re.search(r"^  peak_torque\[1\] \(A N·m, B kN·m\) .*units differ: not "
+                     r"subtracted$", shown, re.M), shown

@@ -55,6 +55,15 @@ def verdict(entry: dict | None) -> str:
     return f"{entry['worst']:.4g} {mark}"
 
 
+def _metric_units(run: dict) -> dict[str, str]:
+    """A run's declared metric units (summary.json's ``metric_units``); none where an older
+    cosim wrote the folder or the entry is not a table of texts."""
+    units = run.get("metric_units")
+    if not isinstance(units, dict):
+        return {}
+    return {str(k): v for k, v in units.items() if isinstance(v, str)}
+
+
 def _numbers(metrics: dict, prefix: str = "") -> dict[str, float]:
     """The numeric leaves of a metrics tree, by dotted name (lists per joint: name[1])."""
     out: dict[str, float] = {}
@@ -203,20 +212,28 @@ def compare(a: str | Path, b: str | Path, runs: list[str] | None = None,
                 "change": change.lower() or None, "regression": regressed}
         result.lines.extend(_table(rows))
         ma, mb = _numbers(run_a.get("metrics", {})), _numbers(run_b.get("metrics", {}))
-        units = {**(run_a.get("metric_units") or {}), **(run_b.get("metric_units") or {})}
+        units_a, units_b = _metric_units(run_a), _metric_units(run_b)
+        if not units_a and not units_b and (ma or mb):
+            result.lines.append("  (neither folder declares its metrics' units: written by "
+                                "an older cosim; the metrics are shown bare)")
         rows = [["metric (unit)", "A", "B", "B - A", ""]]
         same = 0
         for metric in dict.fromkeys([*ma, *mb]):
             va, vb = ma.get(metric), mb.get(metric)
-            delta = vb - va if va is not None and vb is not None else None
-            declared = metric_unit(units, metric)
+            unit_a, unit_b = metric_unit(units_a, metric), metric_unit(units_b, metric)
+            clash = unit_a is not None and unit_b is not None and unit_a != unit_b
+            delta = vb - va if va is not None and vb is not None and not clash else None
+            declared = f"A {unit_a}, B {unit_b}" if clash else unit_b or unit_a
             entries["metrics"][metric] = {"unit": declared, "a": va, "b": vb,
                                           "b_minus_a": delta, "timing": metric in TIMING}
-            if va == vb:
+            if clash:
+                entries["metrics"][metric].update(unit=None, unit_a=unit_a, unit_b=unit_b)
+            if va == vb and not clash:
                 same += 1
                 continue
             cells = [f"{v:.6g}" if v is not None else "-" for v in (va, vb)]
-            note = "timing" if metric in TIMING else ""
+            note = ("units differ: not subtracted" if clash
+                    else "timing" if metric in TIMING else "")
             rows.append([f"{metric} ({declared})" if declared else metric, *cells,
                          f"{delta:+.4g}" if delta is not None else "", note])
         if len(rows) > 1:
