@@ -284,6 +284,18 @@ def test_a_sweep_leaves_no_scratch_space_and_prints_no_port_warning(tmp_path):
     assert list(scratch.iterdir()) == []
 
 
+def test_a_missing_pipeline_file_is_the_sweeps_fault_not_a_points(tmp_path):
+    """A sweep of a pipeline file that is not there: one message naming the file, exit 2,
+    no folder (it was blamed on point 0 and its values)."""
+    out = tmp_path / "sweep"
+    result = cosim_cli("sweep", str(tmp_path / "nosuch.toml"), "--grid", "sensor.seed=1,2",
+                       "--out", str(out))
+    assert result.returncode == 2
+    assert_message(error_line(result),
+                   f"{tmp_path / 'nosuch.toml'}: no such pipeline file; nothing was run")
+    assert not out.exists()
+
+
 def test_record_names_the_points_values_and_a_failing_re_run_is_one_message(tmp_path):
     """What --record prints of a point (its values, its worst check against its bound; the
     same text follows "recorded: FOLDER" when it succeeds), here in the message of a re-run

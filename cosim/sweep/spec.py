@@ -12,10 +12,12 @@ import re
 import sys
 import tomllib
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
 from ..config import Pipeline, PipelineError, load_pipeline
+from ..config.files import read_toml
 
 DISTRIBUTIONS = {"uniform": 2, "normal": 2, "integers": 2}
 _SAMPLE = re.compile(r"^\s*(\w+)\s*\(\s*([^,]+?)\s*,\s*([^,]+?)\s*\)\s*$")
@@ -176,6 +178,10 @@ def validate(spec: SweepSpec, all_points: list[dict]) -> None:
         if not spec.runs or any(f"run '{r}'" in text for r in spec.runs):
             print(f"cosim: warning: {text}", file=sys.stderr)
 
+    try:  # the file itself (missing, not TOML, a bad extends): no point's fault
+        read_toml(Path(spec.pipeline))
+    except PipelineError as exc:
+        raise SweepError(f"{exc}; nothing was run") from None
     for index, point in enumerate(all_points):
         try:
             pipeline = load_pipeline(spec.pipeline, assignments(spec, point),
