@@ -16,10 +16,10 @@ def print_summary(results) -> None:
         for headline in r.evaluation.headlines:  # e.g. what a filter's guarantee covers
             _wrapped(f"{name}: {headline}")
         lines = list(r.evaluation.lines)
-        not_run = [n for n, said in r.evaluation.evaluators.items() if said != "ran"]
+        not_run = [f"{n} ({said.removeprefix('not run: ')})"
+                   for n, said in r.evaluation.evaluators.items() if said != "ran"]
         if not_run:
-            lines.append(f"not evaluated (inputs missing, see summary.json): "
-                         f"{', '.join(not_run)}")
+            lines.append(f"not evaluated: {'; '.join(not_run)}")
         sps = m["steps_per_second"]
         lines.append(f"{m['wall_time_s']:.2f} s wall, {sps or 0:,.0f} steps/s")
         _wrapped(f"{name}: {lines[0]}")
