@@ -68,13 +68,19 @@ CASES = [
                 r"used\); shorten simulation\.duration \(1e\+07 s\) or lengthen "
                 r"simulation\.step \(0\.001 s\)")),
     ("unknown key", [*SHORT, "--set", "controller.kvv=1"],
-     f"{PAPER}: unknown key 'controller.kvv'; allowed keys here: variant, kv, lambda, f, g, "
-     "kappa, kz, z_b, z_wc, c0, c1, delta, psi_b, hidden, velocity, init, init_scale, seed"),
+     "--set controller.kvv=1: unknown key 'controller.kvv'; allowed keys here: variant, kv, "
+     "lambda, f, g, kappa, kz, z_b, z_wc, c0, c1, delta, psi_b, hidden, velocity, init, "
+     "init_scale, seed"),
     ("negative sensor seed", [*SHORT, "--set", "sensor.seed=-1"],
-     f"{PAPER}: key 'sensor.seed': Input should be greater than or equal to 0 (got -1)"),
+     "--set sensor.seed=-1: key 'sensor.seed': Input should be greater than or equal to 0 "
+     "(got -1)"),
     ("negative controller seed", [*SHORT, "--set", "runs.proposed.controller.seed=-3"],
-     f"{PAPER}: key 'runs.proposed.controller.seed': Input should be greater than or equal "
-     "to 0 (got -3)"),
+     "--set runs.proposed.controller.seed=-3: key 'runs.proposed.controller.seed': Input "
+     "should be greater than or equal to 0 (got -3)"),
+    ("a list with a bad entry where a number or a list is taken",
+     [*SHORT, "--set", "cbf_filter.torque_limit=[1000,0]"],
+     "--set cbf_filter.torque_limit=[1000,0]: key 'cbf_filter.torque_limit.1': Input should "
+     "be greater than 0 (got 0)"),
     ("plant sub-steps beyond the cap", [*SHORT, "--set", "plant.parameters.rk4_step=1e-10"],
      f"{PAPER}: plant.parameters.rk4_step = 1e-10 s makes 10,000,000 RK4 sub-steps per step "
      "of 0.001 s, more than simulation.max_plant_substeps = 1000: use rk4_step ≥ 1e-06 s, or "

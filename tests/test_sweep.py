@@ -163,7 +163,7 @@ def test_a_bad_key_is_refused_before_anything_runs(tmp_path):
     keys = ("variant, kv, lambda, f, g, kappa, kz, z_b, z_wc, c0, c1, delta, psi_b, hidden, "
             "velocity, init, init_scale, seed")
     for args, message in [
-            (["--grid", "controller.kvv=1,2"], f"point 0 (controller.kvv=1): {PAPER}: unknown "
+            (["--grid", "controller.kvv=1,2"], "point 0 (controller.kvv=1): unknown "
              f"key 'controller.kvv'; allowed keys here: {keys}"),
             (["--sample", "controller.kv=gauss(1,2)"], "--sample 'controller.kv=gauss(1,2)': "
              "expected KEY=uniform(a,b), normal(mean,std) or integers(low,high)"),
@@ -171,7 +171,7 @@ def test_a_bad_key_is_refused_before_anything_runs(tmp_path):
              "--sample needs --samples N (N ≥ 1 random draws)"),
             (["--runs", "nope"], f"--runs nope: not a run of {PAPER} (its runs: baseline, "
              "proposed)"),
-            (["--grid", "controller.kv=-1,20"], f"point 0 (controller.kv=-1): {PAPER}: key "
+            (["--grid", "controller.kv=-1,20"], "point 0 (controller.kv=-1): key "
              "'controller.kv': Input should be greater than 0 (got -1)")]:
         began = time.monotonic()
         done = cosim_cli("sweep", PAPER, "--out", str(out), *args)

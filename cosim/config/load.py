@@ -46,7 +46,7 @@ def load_pipeline(path: str | Path | None, overrides: list[str] | None = None,
     try:
         pipeline = validate(data, source)
     except PipelineError as exc:
-        raise _blamed_on_its_file(exc, path, source) from None
+        raise _blamed_on_its_file(exc, path, source, overrides or []) from None
     if pipeline.plant.fmu is not None:
         fmu = Path(pipeline.plant.fmu).expanduser()
         pipeline.plant.fmu = str(fmu if fmu.is_absolute() else (base / fmu).resolve())
@@ -57,16 +57,24 @@ def load_pipeline(path: str | Path | None, overrides: list[str] | None = None,
     return pipeline
 
 
-def _blamed_on_its_file(exc: PipelineError, path: Path | None, source: str) -> PipelineError:
-    """A key's error named against the file of the ``extends`` chain that sets the key (a
-    typo in a base file is not the top file's)."""
+def _blamed_on_its_file(exc: PipelineError, path: Path | None, source: str,
+                        overrides: list[str]) -> PipelineError:
+    """A key's error named against where the key was set: the ``--set`` assignment that set
+    it last, else the file of the ``extends`` chain that sets it (a typo in a base file is
+    not the top file's)."""
     import re
 
     message = str(exc)
     found = re.match(rf"{re.escape(source)}: (?:unknown key|key) '([^']+)'", message)
     if path is None or not found:
         return exc
-    origin = key_origin(path, found.group(1))
+    key = found.group(1)
+    for assignment in reversed(overrides):
+        assigned = assignment.split("=", 1)[0].strip()
+        if key == assigned or key.startswith(f"{assigned}.") \
+                or key.endswith(f".{assigned}") or f".{assigned}." in f".{key}.":
+            return PipelineError(f"--set {assignment.strip()}{message[len(source):]}")
+    origin = key_origin(path, key)
     if origin is None or origin.resolve() == path.resolve():
         return exc
     return PipelineError(f"{origin} (extended by {source}){message[len(source):]}")

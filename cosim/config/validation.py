@@ -59,4 +59,16 @@ def validate(data: dict, source: str = "pipeline") -> Pipeline:
     except ValidationError as exc:
         # The first problem only: runs inherit the top-level sections, so one bad key
         # would otherwise be reported once more for every run.
-        raise PipelineError(f"{source}: {_format(exc.errors()[0], model)}") from None
+        raise PipelineError(f"{source}: {_format(_first(exc.errors()), model)}") from None
+
+
+def _first(errors: list[dict]) -> dict:
+    """The error to report: the first, or, where a list was given to a key that takes a
+    number or a list (a union), what is wrong inside the list (not "should be a number")."""
+    first = errors[0]
+    if not isinstance(first.get("input"), list):
+        return first
+    inside = [e for e in errors if len(e["loc"]) > len(first["loc"])
+              and e["loc"][:len(first["loc"]) - 1] == first["loc"][:-1]
+              and str(e["loc"][len(first["loc"]) - 1]).startswith("list[")]
+    return inside[0] if inside else first

@@ -187,7 +187,9 @@ def validate(spec: SweepSpec, all_points: list[dict]) -> None:
             pipeline = load_pipeline(spec.pipeline, assignments(spec, point),
                                      warn=once if index == 0 else None)
         except PipelineError as exc:
-            raise SweepError(f"point {index} ({point_label(point)}): {exc}") from None
+            # a key the point (or the sweep's --set) gave: the point's label says where
+            cause = re.sub(r"^--set [^:]*: ", "", str(exc))
+            raise SweepError(f"point {index} ({point_label(point)}): {cause}") from None
         except SystemExit as exc:  # a plugin's sys.exit() at import: not the sweep's end
             raise SweepError(f"point {index} ({point_label(point)}): importing the "
                              f"pipeline's plugins called sys.exit({exc.code!r}); a plugin "
