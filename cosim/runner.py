@@ -78,6 +78,8 @@ def run(pipeline: Pipeline, out_dir: str | Path | None = None, progress: bool = 
     """
     scenario = assemble(pipeline, plant)
     plant_info = scenario.plant.info()
+    if plant_info["unit_differences"] and progress:
+        print(f"cosim: warning: {plant_info['unit_differences']}", file=sys.stderr)
     results: dict[str, RunResult] = {}
     folder = recorder = None
     failure: BaseException | None = None
@@ -179,7 +181,8 @@ def _summary(pipeline: Pipeline, results: dict[str, RunResult], plant_info: dict
                   "fmi_version": plant_info["fmi_version"],
                   "guid": plant_info["instantiation_token"],
                   "variables": plant_info["variables"],
-                  "parameters": plant_info["parameters"]},
+                  "parameters": plant_info["parameters"],
+                  "unit_differences": plant_info["unit_differences"]},
         "runs": {name: r.summary() for name, r in results.items()},
     }
 

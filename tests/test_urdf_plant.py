@@ -29,6 +29,7 @@ from urdf_helpers import (
 from cosim.assemble import plant_path
 from cosim.cli import main
 from cosim.config import PipelineError, load_pipeline
+from cosim.plant.fmu import Fmu
 from plant_fmu import build_urdf_fmu
 from plant_fmu.build import _build_key
 from plant_fmu.models.spatial_chain import SpatialChainModel
@@ -181,6 +182,26 @@ def test_model_description_limits_and_units(fmus):
     assert [float(var[f"tau_max[{i}]"].start) for i in range(1, 5)] == [200, 50, 30, 10]
     assert var["payload"].causality == "parameter" and var["payload"].unit == "kg"
     assert "slider_turret" in md.description and "lift" in md.description
+
+
+def test_a_prismatic_joints_units_are_said_where_cosim_labels_them_otherwise(fmus):
+    """cosim's signals carry one unit per port (rad, rad/s, N·m); the lift's are m, m/s and
+    N: opening the plant says so, naming each variable (the revolute joints are not
+    named: "N.m" is "N·m")."""
+    from cosim.plant.mapping import unit_differences
+
+    path = fmus("own")
+    md = read_model_description(str(path))
+    fmu = Fmu(path, {}, {})
+    try:
+        text = fmu.info()["unit_differences"]
+    finally:
+        fmu.close()
+    assert text == unit_differences(md, fmu.variables)
+    assert text.startswith("the FMU declares tau[1] in N, q[1] in m, qdot[1] in m/s, h[1] "
+                           "in N, where cosim's interface has tau in N·m, q in rad, qdot in "
+                           "rad/s, h in N·m"), text
+    assert "[2]" not in text and "[3]" not in text
 
 
 def test_start_outside_the_limits_is_refused(fmus):

@@ -16,7 +16,7 @@ import numpy as np
 from fmpy.model_description import ModelDescription
 
 from .lifecycle import STATUS, FmiInstance, open_instance
-from .mapping import FmuError, PlantVariables, check_parameters, check_plant_fmu
+from .mapping import FmuError, PlantVariables, check_parameters, check_plant_fmu, unit_differences
 from .native import FmiFunctions, FmiHandles, FusedIo, function_pointer
 from .ports import OUTPUT_PORTS, output_buffers
 
@@ -121,7 +121,8 @@ class Fmu:
                 "fmi_version": md.fmiVersion, "file": str(self.path),
                 "generation_tool": md.generationTool or "",
                 "variables": {k: v for k, v in self.variables.names.items() if v},
-                "parameters": dict(zip(names, values, strict=True))}
+                "parameters": dict(zip(names, values, strict=True)),
+                "unit_differences": unit_differences(md, self.variables)}
 
     # Per step -------------------------------------------------------------------------------
 

@@ -163,6 +163,33 @@ def map_variables(md: ModelDescription, requested: dict[str, list[str] | None] |
     return PlantVariables(mapping), []
 
 
+def unit_differences(md: ModelDescription, variables: PlantVariables) -> str | None:
+    """Where the FMU declares a mapped per-joint variable in another unit than the port's
+    (a prismatic joint's q in m, its force in N): one text naming each, else None. cosim's
+    signals, checks and exports carry the port's unit for every joint."""
+    by_name = {v.name: v for v in md.modelVariables}
+    found, expected = [], {}
+    for port in PORTS:
+        for name in (variables.names.get(port.name) or []) if port.shape == "n" else []:
+            var = by_name.get(name)
+            declared = (getattr(var, "unit", None)
+                        or getattr(getattr(var, "declaredType", None), "unit", None))
+            if declared and _unit(declared) != _unit(port.signal.unit):
+                found.append(f"{name} in {declared}")
+                expected[port.name] = port.signal.unit
+    if not found:
+        return None
+    return (f"the FMU declares {', '.join(found)}, where cosim's interface has "
+            f"{', '.join(f'{p} in {u}' for p, u in expected.items())}: cosim's signals, "
+            "checks, tables and exports label those values with the interface's units "
+            "(per-joint units, a prismatic joint's, are not carried through)")
+
+
+def _unit(text: str) -> str:
+    """A unit's spelling compared: FMI's "N.m" is cosim's "N·m"."""
+    return text.replace("·", ".").replace(" ", "")
+
+
 def _check(md: ModelDescription, by_name: dict, key: str, name: str) -> str | None:
     causality, what = PORT[key].direction, PORT[key].role
     var = by_name.get(name)
