@@ -93,6 +93,7 @@ from ..dynamics.model import (
     model_payload,
     model_point_forms,
     own_scratch,
+    payload_dim,
     planar_model,
 )
 from ..numba_compat import no_refcount_jit
@@ -290,7 +291,7 @@ def envelope_position(env, y, slot):
     (s_1 … s_d) and their entrywise largest magnitude, the Γ forms and the gravity torque."""
     n = y.shape[0]
     model = env.model
-    d = env.kmat.shape[0]
+    d = payload_dim(model)
     model_geometry(model, y)
     model_mass(model, 1.0, 0.0, env.mass)
     minv = env.minv[slot]
@@ -317,7 +318,7 @@ def envelope_position(env, y, slot):
                     direction += jac[r, col] * vec[r, j]
                 total += minv[i, col] * direction
             rmat[i, j] = total
-    corners = env.corner.shape[2]
+    corners = 1 << d
     for cell in range(env.cells.shape[0] - 1):
         s = env.s[slot, cell]
         for end in range(2):
@@ -351,12 +352,12 @@ def envelope_acceleration(env, slot, cell, tau, tau_d, centre, radius, lo, hi):
     of (s_1 … s_d, Δm) (multilinear: its extremes are there), its quadratic part and d̄
     through max |M(Δm)⁻¹| row by row."""
     n = centre.shape[0]
-    d = env.kmat.shape[0]
+    d = payload_dim(env.model)
     minv, rmat, vec, s = env.minv[slot], env.rmat[slot], env.vec[slot], env.s[slot, cell]
     forms, jac = env.forms[slot], env.jac[slot]
     point_forms, lift = env.point_forms[slot], env.lift[slot]
     corner, pabs = env.corner[slot, cell], env.pabs[slot, cell]
-    corners = corner.shape[0]
+    corners = 1 << d
     payload_low, payload_high = env.cells[cell], env.cells[cell + 1]
     u, work = env.work[U_], env.work[E_]
     bmat = env.bmat
@@ -767,7 +768,7 @@ class FlnnObserver(Block):
         if model is None:
             links = InertiaModel.chain_arrays(default_links(n))
             model = planar_model(**links, gravity=9.8)
-        d = model.dim
+        d = payload_dim(model)
         low, high = map(float, u.payload)
         cells = self.params.payload_cells if high > low else 1
         return kernel_args(
