@@ -10,6 +10,7 @@ make:
   ``gravity``: 0 leaves b's velocity part, a quadratic form in v);
 - :func:`model_payload` (v, gravity): the payload point's Jacobian J (dim × n) and
   γ = J̇ v − g, so that Δm there adds Δm JᵀJ to M and Δm Jᵀγ to b;
+- :func:`model_velocity_forms` (bodies, Δm): b's velocity part as quadratic forms Γ;
 - :func:`model_point_forms`: J̇v's quadratic form and −g at the payload point;
 - :func:`payload_dim`: dim, the payload point's coordinates.
 
@@ -26,6 +27,7 @@ picks by ``isinstance``. SI units, radians.
 from __future__ import annotations
 
 import functools
+import inspect
 from collections.abc import Callable
 from typing import NamedTuple
 
@@ -105,29 +107,36 @@ def own_scratch(model: RigidBodyModel) -> RigidBodyModel:
 def _by_kind(planar: Callable, spatial: Callable) -> Callable[[Callable], Callable]:
     """Make the decorated function (its name, signature and docstring; its body is never
     run) a model call that runs ``planar`` or ``spatial`` (numba functions of the model and
-    the call's arguments) by the model's type: in a kernel chosen when it compiles (an
-    ``@overload``, compiled as a function of its own: numba's IR inlining of overloads is
-    not used, it passed wrong arguments in numba 0.68.1), from Python by ``isinstance``."""
+    the call's arguments) by the model's type: in a kernel chosen when it compiles, from
+    Python by ``isinstance``."""
 
     def register(declared: Callable) -> Callable:
         def call(model, *args):
             return (spatial if isinstance(model, SpatialChain) else planar)(model, *args)
 
-        @overload(call, jit_options={"_nrt": False})
-        def _typed(model, *args):
-            kind = spatial if getattr(model, "instance_class", None) is SpatialChain \
-                else planar
-
-            def run(model, *args):
-                return kind(model, *args)
-            return run
-
+        # One overload per kind, each declining the other kind's model, each compiled as a
+        # function of its own (numba's IR inlining of overloads is not used: it passed wrong
+        # arguments in numba 0.68.1), its implementation the kind's function itself.
+        for kind, model_type in ((planar, PlanarModel), (spatial, SpatialChain)):
+            overload(call, jit_options={"_nrt": False})(_overload_typing(kind, model_type))
         return functools.update_wrapper(call, declared)
 
     return register
 
 
-@no_refcount_jit(cache=True)
+def _overload_typing(kind: Callable, model_type: type) -> Callable:
+    """The typing function of an overload that implements a call by ``kind`` (a numba
+    function) for a model of ``model_type``: it takes ``kind``'s signature, which numba
+    requires of an overload's typing function and its implementation alike."""
+
+    def typing(model, *args):
+        return kind.py_func if getattr(model, "instance_class", None) is model_type else None
+
+    typing.__signature__ = inspect.signature(kind.py_func)
+    return typing
+
+
+@no_refcount_jit(cache=True, inline="always")
 def _planar_geometry(model, q):
     for i in range(q.shape[0]):
         model.q[i] = q[i]
@@ -144,23 +153,53 @@ def _planar_masses(model, bodies, payload):
     return masses
 
 
-@no_refcount_jit(cache=True)
+@no_refcount_jit(cache=True, inline="always")
 def _planar_mass(model, bodies, payload, out):
     chain_mass(model.chain, _planar_masses(model, bodies, payload), model.inertia, out)
 
 
-@no_refcount_jit(cache=True)
+@no_refcount_jit(cache=True, inline="always")
 def _planar_bias(model, v, bodies, payload, gravity, out):
     chain_bias(model.chain, v, _planar_masses(model, bodies, payload), gravity * model.gravity,
                out)
 
 
+@no_refcount_jit(cache=True, inline="always")
+def _polarised_forms(bias, model, bodies, payload, e, plus, out):
+    """Γ of the model by ``bias`` (its kind's b, :func:`model_bias`'s arguments), passed in
+    so that a kind's loop holds its own b (inlined, for the planar chain)."""
+    n = out.shape[0]
+    for i in range(n):
+        e[:] = 0.0
+        e[i] = 1.0
+        bias(model, e, bodies, payload, 0.0, plus)
+        for l in range(n):  # noqa: E741
+            out[l, i, i] = plus[l]
+    for i in range(n):
+        for j in range(i + 1, n):
+            e[:] = 0.0
+            e[i] = e[j] = 1.0
+            bias(model, e, bodies, payload, 0.0, plus)
+            for l in range(n):  # noqa: E741
+                out[l, i, j] = out[l, j, i] = 0.5 * (plus[l] - out[l, i, i] - out[l, j, j])
+
+
+@no_refcount_jit(cache=True, inline="always")
+def _planar_velocity_forms(model, bodies, payload, e, plus, out):
+    _polarised_forms(_planar_bias, model, bodies, payload, e, plus, out)
+
+
 @no_refcount_jit(cache=True)
+def _spatial_velocity_forms(model, bodies, payload, e, plus, out):
+    _polarised_forms(spatial_bias, model, bodies, payload, e, plus, out)
+
+
+@no_refcount_jit(cache=True, inline="always")
 def _planar_payload(model, v, gravity, jac, gamma):
     com_kinematics(model.q, v, model.l, model.lc, gravity * model.gravity, jac, gamma)
 
 
-@no_refcount_jit(cache=True)
+@no_refcount_jit(cache=True, inline="always")
 def _planar_point_forms(model, e, jac, gamma, out, lift):
     """From the link vectors a_k (the last link's to its centre of mass), which the geometry
     holds: J̇v = −Σ_k ω_k² a_k with ω_k = v_1 + … + v_k, so P_r,ij = −Σ_{k ≥ max(i, j)} a_k,r
@@ -199,7 +238,7 @@ def _spatial_point_forms(model, e, jac, gamma, out, lift):
                 out[r, i, j] = out[r, j, i] = 0.5 * (gamma[r] - out[r, i, i] - out[r, j, j])
 
 
-@no_refcount_jit(cache=True)
+@no_refcount_jit(cache=True, inline="always")
 def _planar_dim(model):
     return PLANAR_DIM
 
@@ -226,6 +265,15 @@ def model_bias(model: RigidBodyModel, v: np.ndarray, bodies: float, payload: flo
     """b = C(q, v) v + G(q) (n,) at the last geometry, of the bodies times ``bodies`` plus
     a point mass ``payload`` at the payload's point, gravity times ``gravity``, into
     ``out``."""
+
+
+@_by_kind(_planar_velocity_forms, _spatial_velocity_forms)
+def model_velocity_forms(model: RigidBodyModel, bodies: float, payload: float, e: np.ndarray,
+                         plus: np.ndarray, out: np.ndarray) -> None:
+    """Γ (n, n, n) at the last geometry, of the bodies times ``bodies`` plus a point mass
+    ``payload`` at the payload's point, into ``out``: b's velocity part b_l(v) = vᵀΓ_l v,
+    from the bias without gravity at e_i (Γ_l,ii) and at e_i + e_j (Γ_l,ii + Γ_l,jj +
+    2Γ_l,ij), n(n + 1)/2 evaluations (``e``, ``plus``: scratch of n)."""
 
 
 @_by_kind(_planar_payload, spatial_payload)
