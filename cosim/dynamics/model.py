@@ -108,7 +108,9 @@ def _by_kind(planar: Callable, spatial: Callable) -> Callable[[Callable], Callab
     """Make the decorated function (its name, signature and docstring; its body is never
     run) a model call that runs ``planar`` or ``spatial`` (numba functions of the model and
     the call's arguments) by the model's type: in a kernel chosen when it compiles, from
-    Python by ``isinstance``."""
+    Python by ``isinstance``. The planar chain's functions are ``inline="always"`` so that
+    its own loops (:func:`_polarised_forms`) hold them inlined; the spatial chain's are too
+    large for that to matter."""
 
     def register(declared: Callable) -> Callable:
         def call(model, *args):
