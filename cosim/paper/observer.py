@@ -317,8 +317,7 @@ def envelope_position(env, y, slot):
     e, plus = env.work[E_], env.work[PLUS_]
     model_velocity_forms(model, 1.0, 0.0, e, plus, env.forms[slot, 0])
     model_velocity_forms(model, 0.0, 1.0, e, plus, env.forms[slot, 1])
-    model_point_forms(model, env.work[E_], env.jac_work, env.point, env.point_forms[slot],
-                      env.lift[slot])
+    model_point_forms(model, e, env.jac_work, env.point, env.point_forms[slot], env.lift[slot])
     model_bias(model, env.zeros, 1.0, 0.0, 1.0, env.grav[slot])
 
 
