@@ -1,6 +1,7 @@
-"""The blocks' nominal rigid-body model M̂(q), b̂(q, q̇) and the payload's point, whatever the
-arm: one record (:class:`RigidBodyModel`) the kernels take, and four calls on it that the
-observer, the PD controller's gravity compensation and the safety filter make:
+"""The blocks' nominal rigid-body models M̂(q), b̂(q, q̇) and the payload's point, whatever the
+arm: two model types the kernels take (:data:`RigidBodyModel`, either of them), and the calls
+on them that the observer, the PD controller's gravity compensation and the safety filter
+make:
 
 - :func:`model_geometry` (q): the position's kinematics, once, into the model's scratch;
 - :func:`model_mass` (bodies, Δm): M of the bodies (times ``bodies``, 1 or 0) plus a point
@@ -8,20 +9,30 @@ observer, the PD controller's gravity compensation and the safety filter make:
 - :func:`model_bias` (v, bodies, Δm, gravity): b = C(q, v) v + G(q) likewise (gravity times
   ``gravity``: 0 leaves b's velocity part, a quadratic form in v);
 - :func:`model_payload` (v, gravity): the payload point's Jacobian J (dim × n) and
-  γ = J̇ v − g, so that Δm there adds Δm JᵀJ to M and Δm Jᵀγ to b.
+  γ = J̇ v − g, so that Δm there adds Δm JᵀJ to M and Δm Jᵀγ to b;
+- :func:`model_velocity_forms` (bodies, Δm): b's velocity part as quadratic forms Γ;
+- :func:`model_point_forms`: J̇v's quadratic form and −g at the payload point;
+- :func:`payload_dim`: dim, the payload point's coordinates.
 
-Two instances: the planar chain (:mod:`.planar`, the paper's arm and the built-in plant's
-model; its payload point the last link's centre of mass, dim = 2) and the spatial chain of a
-URDF (:mod:`.spatial`, its payload point the tip frame's origin, dim = 3). A kernel takes one
-record and branches on ``spatial`` at run time (both compiled once), so one compiled
-observer or filter serves every arm. SI units, radians.
+The two types: the planar chain (:class:`PlanarModel`, :mod:`.planar`, the paper's arm and
+the built-in plant's model; its payload point the last link's centre of mass, dim = 2) and
+the spatial chain of a URDF (:class:`.spatial.SpatialChain`, its payload point the tip
+frame's origin, dim = 3). They are distinct numba types, and each call picks its kind's code
+by the model's type when a kernel compiles (an ``@overload``): a kernel is compiled once per
+kind, so the planar one holds no spatial code, branches on no kind at run time and knows
+dim as a constant (its loops over the payload's coordinates unroll). From Python a call
+picks by ``isinstance``. SI units, radians.
 """
 
 from __future__ import annotations
 
+import functools
+import inspect
+from collections.abc import Callable
 from typing import NamedTuple
 
 import numpy as np
+from numba.extending import overload
 
 from ..numba_compat import no_refcount_jit
 from .planar import (
@@ -43,79 +54,95 @@ from .spatial import (
 )
 
 
-class RigidBodyModel(NamedTuple):
-    """A nominal arm for the kernels: the planar chain's parameters or the spatial chain,
-    and the scratch its calls fill (each block holds its own, :func:`own_scratch`)."""
+class PlanarModel(NamedTuple):
+    """The planar chain for the kernels: its parameters and the scratch its calls fill (each
+    block holds its own, :func:`own_scratch`)."""
 
-    spatial: bool
-    dim: int  # the payload point's coordinates: 2 (the plane) or 3
-    m: np.ndarray  # planar: per link mass (kg), length (m), centre of mass (m), inertia
+    m: np.ndarray  # per link mass (kg), length (m), centre of mass (m), inertia (kg·m²)
     l: np.ndarray  # noqa: E741
     lc: np.ndarray
     inertia: np.ndarray
     gravity: float  # |g|, m/s²
-    chain: np.ndarray  # planar scratch (CHAIN_ROWS, n)
-    masses: np.ndarray  # planar scratch (n,): the masses of one call
+    chain: np.ndarray  # scratch (CHAIN_ROWS, n)
+    masses: np.ndarray  # scratch (n,): the masses of one call
     q: np.ndarray  # (n,) the position model_geometry was last given
-    body: SpatialChain  # spatial: the chain (planar: an unused one of n bodies)
 
 
-def planar_model(m, l, lc, inertia, gravity: float) -> RigidBodyModel:  # noqa: E741
+# A nominal arm for the kernels: the planar chain or a URDF's spatial chain.
+RigidBodyModel = PlanarModel | SpatialChain
+RIGID_BODY_MODELS = (PlanarModel, SpatialChain)  # the same, for isinstance and PUBLISHES
+
+PLANAR_DIM, SPATIAL_DIM = 2, 3  # the payload point's coordinates: the plane's, space's
+
+
+def planar_model(m, l, lc, inertia, gravity: float) -> PlanarModel:  # noqa: E741
     """The planar chain as a model (its payload at the last link's centre of mass)."""
     n = len(m)
-    return RigidBodyModel(
-        spatial=False, dim=2, m=np.asarray(m, float).copy(), l=np.asarray(l, float).copy(),
+    return PlanarModel(
+        m=np.asarray(m, float).copy(), l=np.asarray(l, float).copy(),
         lc=np.asarray(lc, float).copy(), inertia=np.asarray(inertia, float).copy(),
         gravity=float(gravity), chain=np.zeros((CHAIN_ROWS, n)), masses=np.zeros(n),
-        q=np.zeros(n), body=_unused_chain(n))
+        q=np.zeros(n))
 
 
-def chain_model(chain) -> RigidBodyModel:
+def chain_model(chain) -> SpatialChain:
     """The spatial chain of a URDF's table (plant_fmu.urdf.Chain, or anything with its
     fields) as a model, its payload point the tip frame's origin."""
-    n = len(chain.mass)
-    zeros = np.zeros(n)
-    return RigidBodyModel(
-        spatial=True, dim=3, m=zeros, l=zeros, lc=zeros, inertia=zeros,
-        gravity=float(np.linalg.norm(chain.gravity)), chain=np.zeros((CHAIN_ROWS, n)),
-        masses=np.zeros(n), q=np.zeros(n),
-        body=spatial_chain(chain.parent, chain.kind, chain.placement, chain.axis, chain.mass,
-                           chain.com, chain.inertia, chain.tip, chain.gravity))
-
-
-def _unused_chain(n: int) -> SpatialChain:
-    eye = np.broadcast_to(np.eye(4), (n, 4, 4))
-    return spatial_chain(-np.ones(n), np.zeros(n), eye, np.tile([0.0, 0.0, 1.0], (n, 1)),
-                         np.zeros(n), np.zeros((n, 3)), np.zeros((n, 3, 3)), np.eye(4),
-                         np.zeros(3))
+    return spatial_chain(chain.parent, chain.kind, chain.placement, chain.axis, chain.mass,
+                         chain.com, chain.inertia, chain.tip, chain.gravity)
 
 
 def own_scratch(model: RigidBodyModel) -> RigidBodyModel:
     """The same model with scratch of its own (a block's, so that two blocks never share)."""
-    body = model.body
+    if isinstance(model, PlanarModel):
+        return model._replace(chain=np.zeros_like(model.chain),
+                              masses=np.zeros_like(model.masses), q=np.zeros_like(model.q))
     return model._replace(
-        chain=np.zeros_like(model.chain), masses=np.zeros_like(model.masses),
-        q=np.zeros_like(model.q),
-        body=body._replace(frames=np.zeros_like(body.frames), kin=np.zeros_like(body.kin),
-                           world_inertia=np.zeros_like(body.world_inertia),
-                           composite=np.zeros_like(body.composite),
-                           first=np.zeros_like(body.first), total=np.zeros_like(body.total),
-                           point=np.zeros_like(body.point)))
+        frames=np.zeros_like(model.frames), kin=np.zeros_like(model.kin),
+        world_inertia=np.zeros_like(model.world_inertia),
+        composite=np.zeros_like(model.composite), first=np.zeros_like(model.first),
+        total=np.zeros_like(model.total), point=np.zeros_like(model.point))
 
 
-def joint_count(model: RigidBodyModel) -> int:
-    return len(model.q)
+def _by_kind(planar: Callable, spatial: Callable) -> Callable[[Callable], Callable]:
+    """Make the decorated function (its name, signature and docstring; its body is never
+    run) a model call that runs ``planar`` or ``spatial`` (numba functions of the model and
+    the call's arguments) by the model's type: in a kernel chosen when it compiles, from
+    Python by ``isinstance``. The planar chain's functions are ``inline="always"`` so that
+    its own loops (:func:`_polarised_forms`) hold them inlined; the spatial chain's are too
+    large for that to matter."""
+
+    def register(declared: Callable) -> Callable:
+        def call(model, *args):
+            return (spatial if isinstance(model, SpatialChain) else planar)(model, *args)
+
+        # One overload per kind, each declining the other kind's model, each compiled as a
+        # function of its own (numba's IR inlining of overloads is not used: it passed wrong
+        # arguments in numba 0.68.1), its implementation the kind's function itself.
+        for kind, model_type in ((planar, PlanarModel), (spatial, SpatialChain)):
+            overload(call, jit_options={"_nrt": False})(_overload_typing(kind, model_type))
+        return functools.update_wrapper(call, declared)
+
+    return register
+
+
+def _overload_typing(kind: Callable, model_type: type) -> Callable:
+    """The typing function of an overload that implements a call by ``kind`` (a numba
+    function) for a model of ``model_type``: it takes ``kind``'s signature, which numba
+    requires of an overload's typing function and its implementation alike."""
+
+    def typing(model, *args):
+        return kind.py_func if getattr(model, "instance_class", None) is model_type else None
+
+    typing.__signature__ = inspect.signature(kind.py_func)
+    return typing
 
 
 @no_refcount_jit(cache=True, inline="always")
-def model_geometry(model, q):
-    """The kinematics of position q into the model's scratch, for the calls that follow."""
+def _planar_geometry(model, q):
     for i in range(q.shape[0]):
         model.q[i] = q[i]
-    if model.spatial:
-        spatial_geometry(model.body, q)
-    else:
-        chain_geometry(q, model.l, model.lc, model.chain)
+    chain_geometry(q, model.l, model.lc, model.chain)
 
 
 @no_refcount_jit(cache=True, inline="always")
@@ -129,74 +156,147 @@ def _planar_masses(model, bodies, payload):
 
 
 @no_refcount_jit(cache=True, inline="always")
-def model_mass(model, bodies, payload, out):
-    """M (n×n) at the last geometry, of the bodies times ``bodies`` plus a point mass
-    ``payload`` (kg) at the payload's point, into ``out``."""
-    if model.spatial:
-        spatial_mass(model.body, bodies, payload, out)
-    else:
-        chain_mass(model.chain, _planar_masses(model, bodies, payload), model.inertia, out)
+def _planar_mass(model, bodies, payload, out):
+    chain_mass(model.chain, _planar_masses(model, bodies, payload), model.inertia, out)
 
 
 @no_refcount_jit(cache=True, inline="always")
-def model_bias(model, v, bodies, payload, gravity, out):
-    """b = C(q, v) v + G(q) (n,) at the last geometry, of the bodies times ``bodies`` plus
-    a point mass ``payload`` at the payload's point, gravity times ``gravity``, into
-    ``out``."""
-    if model.spatial:
-        spatial_bias(model.body, v, bodies, payload, gravity, out)
-    else:
-        chain_bias(model.chain, v, _planar_masses(model, bodies, payload),
-                   gravity * model.gravity, out)
+def _planar_bias(model, v, bodies, payload, gravity, out):
+    chain_bias(model.chain, v, _planar_masses(model, bodies, payload), gravity * model.gravity,
+               out)
 
 
 @no_refcount_jit(cache=True, inline="always")
-def model_payload(model, v, gravity, jac, gamma):
-    """The payload point's Jacobian J (dim × n) into ``jac`` and γ = J̇ v − g (gravity
-    times ``gravity``, dim) into ``gamma`` at the last geometry."""
-    if model.spatial:
-        spatial_payload(model.body, v, gravity, jac, gamma)
-    else:
-        com_kinematics(model.q, v, model.l, model.lc, gravity * model.gravity, jac, gamma)
+def _polarised_forms(bias, model, bodies, payload, e, plus, out):
+    """Γ of the model by ``bias`` (its kind's b, :func:`model_bias`'s arguments), passed in
+    so that a kind's loop holds its own b (inlined, for the planar chain)."""
+    n = out.shape[0]
+    for i in range(n):
+        e[:] = 0.0
+        e[i] = 1.0
+        bias(model, e, bodies, payload, 0.0, plus)
+        for l in range(n):  # noqa: E741
+            out[l, i, i] = plus[l]
+    for i in range(n):
+        for j in range(i + 1, n):
+            e[:] = 0.0
+            e[i] = e[j] = 1.0
+            bias(model, e, bodies, payload, 0.0, plus)
+            for l in range(n):  # noqa: E741
+                out[l, i, j] = out[l, j, i] = 0.5 * (plus[l] - out[l, i, i] - out[l, j, j])
 
 
 @no_refcount_jit(cache=True, inline="always")
-def model_point_forms(model, e, jac, gamma, out, lift):
-    """The payload point's J̇v = (vᵀP_r v)_r into ``out`` (dim, n, n) and −g there into
-    ``lift`` (dim,), at the last geometry (``e``, ``jac``, ``gamma``: scratch of n, dim × n
-    and dim). The planar chain's from its link vectors a_k (the last link's to its centre of
-    mass), which the geometry holds: J̇v = −Σ_k ω_k² a_k with ω_k = v_1 + … + v_k, so
-    P_r,ij = −Σ_{k ≥ max(i, j)} a_k,r; a spatial chain's by polarisation of
-    :func:`model_payload` (n(n + 1)/2 + 1 calls)."""
+def _planar_velocity_forms(model, bodies, payload, e, plus, out):
+    _polarised_forms(_planar_bias, model, bodies, payload, e, plus, out)
+
+
+@no_refcount_jit(cache=True)
+def _spatial_velocity_forms(model, bodies, payload, e, plus, out):
+    _polarised_forms(spatial_bias, model, bodies, payload, e, plus, out)
+
+
+@no_refcount_jit(cache=True, inline="always")
+def _planar_payload(model, v, gravity, jac, gamma):
+    com_kinematics(model.q, v, model.l, model.lc, gravity * model.gravity, jac, gamma)
+
+
+@no_refcount_jit(cache=True, inline="always")
+def _planar_point_forms(model, e, jac, gamma, out, lift):
+    """From the link vectors a_k (the last link's to its centre of mass), which the geometry
+    holds: J̇v = −Σ_k ω_k² a_k with ω_k = v_1 + … + v_k, so P_r,ij = −Σ_{k ≥ max(i, j)} a_k,r
+    (``e``, ``jac``, ``gamma`` unused: the spatial chain's scratch)."""
     n = out.shape[1]
-    if not model.spatial:
-        chain = model.chain
-        lift[0], lift[1] = 0.0, model.gravity
-        for r in range(2):
-            tail = 0.0  # Σ_{k ≥ j} a_k,r, from the last link down
-            for j in range(n - 1, -1, -1):
-                tail += chain[CX + r, j] if j == n - 1 else chain[LX + r, j]
-                for i in range(j + 1):
-                    out[r, i, j] = out[r, j, i] = -tail
-        return
-    d = out.shape[0]
+    chain = model.chain
+    lift[0], lift[1] = 0.0, model.gravity
+    for r in range(PLANAR_DIM):
+        tail = 0.0  # Σ_{k ≥ j} a_k,r, from the last link down
+        for j in range(n - 1, -1, -1):
+            tail += chain[CX + r, j] if j == n - 1 else chain[LX + r, j]
+            for i in range(j + 1):
+                out[r, i, j] = out[r, j, i] = -tail
+
+
+@no_refcount_jit(cache=True)
+def _spatial_point_forms(model, e, jac, gamma, out, lift):
+    """By polarisation of :func:`.spatial.spatial_payload` (n(n + 1)/2 + 1 calls)."""
+    n = out.shape[1]
     e[:] = 0.0
-    model_payload(model, e, 1.0, jac, gamma)
-    for r in range(d):
+    spatial_payload(model, e, 1.0, jac, gamma)
+    for r in range(SPATIAL_DIM):
         lift[r] = gamma[r]
     for i in range(n):
         e[:] = 0.0
         e[i] = 1.0
-        model_payload(model, e, 0.0, jac, gamma)
-        for r in range(d):
+        spatial_payload(model, e, 0.0, jac, gamma)
+        for r in range(SPATIAL_DIM):
             out[r, i, i] = gamma[r]
     for i in range(n):
         for j in range(i + 1, n):
             e[:] = 0.0
             e[i] = e[j] = 1.0
-            model_payload(model, e, 0.0, jac, gamma)
-            for r in range(d):
+            spatial_payload(model, e, 0.0, jac, gamma)
+            for r in range(SPATIAL_DIM):
                 out[r, i, j] = out[r, j, i] = 0.5 * (gamma[r] - out[r, i, i] - out[r, j, j])
+
+
+@no_refcount_jit(cache=True, inline="always")
+def _planar_dim(model):
+    return PLANAR_DIM
+
+
+@no_refcount_jit(cache=True)
+def _spatial_dim(model):
+    return SPATIAL_DIM
+
+
+@_by_kind(_planar_geometry, spatial_geometry)
+def model_geometry(model: RigidBodyModel, q: np.ndarray) -> None:
+    """The kinematics of position q into the model's scratch, for the calls that follow."""
+
+
+@_by_kind(_planar_mass, spatial_mass)
+def model_mass(model: RigidBodyModel, bodies: float, payload: float, out: np.ndarray) -> None:
+    """M (n×n) at the last geometry, of the bodies times ``bodies`` plus a point mass
+    ``payload`` (kg) at the payload's point, into ``out``."""
+
+
+@_by_kind(_planar_bias, spatial_bias)
+def model_bias(model: RigidBodyModel, v: np.ndarray, bodies: float, payload: float,
+               gravity: float, out: np.ndarray) -> None:
+    """b = C(q, v) v + G(q) (n,) at the last geometry, of the bodies times ``bodies`` plus
+    a point mass ``payload`` at the payload's point, gravity times ``gravity``, into
+    ``out``."""
+
+
+@_by_kind(_planar_velocity_forms, _spatial_velocity_forms)
+def model_velocity_forms(model: RigidBodyModel, bodies: float, payload: float, e: np.ndarray,
+                         plus: np.ndarray, out: np.ndarray) -> None:
+    """Γ (n, n, n) at the last geometry, of the bodies times ``bodies`` plus a point mass
+    ``payload`` at the payload's point, into ``out``: b's velocity part b_l(v) = vᵀΓ_l v,
+    from the bias without gravity at e_i (Γ_l,ii) and at e_i + e_j (Γ_l,ii + Γ_l,jj +
+    2Γ_l,ij), n(n + 1)/2 evaluations (``e``, ``plus``: scratch of n)."""
+
+
+@_by_kind(_planar_payload, spatial_payload)
+def model_payload(model: RigidBodyModel, v: np.ndarray, gravity: float, jac: np.ndarray,
+                  gamma: np.ndarray) -> None:
+    """The payload point's Jacobian J (dim × n) into ``jac`` and γ = J̇ v − g (gravity
+    times ``gravity``, dim) into ``gamma`` at the last geometry."""
+
+
+@_by_kind(_planar_point_forms, _spatial_point_forms)
+def model_point_forms(model: RigidBodyModel, e: np.ndarray, jac: np.ndarray,
+                      gamma: np.ndarray, out: np.ndarray, lift: np.ndarray) -> None:
+    """The payload point's J̇v = (vᵀP_r v)_r into ``out`` (dim, n, n) and −g there into
+    ``lift`` (dim,), at the last geometry (``e``, ``jac``, ``gamma``: scratch of n, dim × n
+    and dim)."""
+
+
+@_by_kind(_planar_dim, _spatial_dim)
+def payload_dim(model: RigidBodyModel) -> int:
+    """dim, the payload point's coordinates (2 in the plane, 3 in space): in a kernel a
+    compile-time constant of the model's type."""
 
 
 @no_refcount_jit(cache=True)

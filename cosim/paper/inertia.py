@@ -22,6 +22,7 @@ from plant_fmu.models.planar_arm import PAPER_MASSES
 
 from ..blocks.base import Block, BlockContext, Ports, kernel_args, register_block
 from ..dynamics.model import (
+    RIGID_BODY_MODELS,
     RigidBodyModel,
     chain_model,
     model_geometry,
@@ -149,7 +150,7 @@ class InertiaModel(Block):
     # comparison with the plant's; inertia_is_plant: True when M̂ is the plant's own M (so it
     # includes any payload), False when it is the nominal model's; nominal_urdf: the
     # nominal URDF's chain (spatial only: its joint limits are the safe sets' defaults).
-    PUBLISHES = {"nominal_model": RigidBodyModel, "nominal_chain": Chain,
+    PUBLISHES = {"nominal_model": RIGID_BODY_MODELS, "nominal_chain": Chain,
                  "inertia_is_plant": bool, "nominal_urdf": object}
 
     def __init__(self, params: InertiaModelParams, context: BlockContext):

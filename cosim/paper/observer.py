@@ -92,7 +92,9 @@ from ..dynamics.model import (
     model_mass,
     model_payload,
     model_point_forms,
+    model_velocity_forms,
     own_scratch,
+    payload_dim,
     planar_model,
 )
 from ..numba_compat import no_refcount_jit
@@ -260,29 +262,6 @@ E_, PLUS_, MINUS_, U_, CENTRE_, RADIUS_, ALO_, AHI_ = range(8)
 
 
 @no_refcount_jit(cache=True, inline="always")
-def _forms(env, bodies, payload, out):
-    """Γ (n, n, n) of the model at its last geometry (the bodies times ``bodies``, a point
-    mass ``payload`` at the payload's point): b's velocity part b_l(v) = vᵀΓ_l v, from the
-    bias without gravity at e_i (Γ_l,ii) and at e_i + e_j (Γ_l,ii + Γ_l,jj + 2Γ_l,ij):
-    n(n + 1)/2 evaluations."""
-    n = out.shape[0]
-    e, plus = env.work[E_], env.work[PLUS_]
-    for i in range(n):
-        e[:] = 0.0
-        e[i] = 1.0
-        model_bias(env.model, e, bodies, payload, 0.0, plus)
-        for l in range(n):  # noqa: E741
-            out[l, i, i] = plus[l]
-    for i in range(n):
-        for j in range(i + 1, n):
-            e[:] = 0.0
-            e[i] = e[j] = 1.0
-            model_bias(env.model, e, bodies, payload, 0.0, plus)
-            for l in range(n):  # noqa: E741
-                out[l, i, j] = out[l, j, i] = 0.5 * (plus[l] - out[l, i, i] - out[l, j, j])
-
-
-@no_refcount_jit(cache=True, inline="always")
 def envelope_position(env, y, slot):
     """What the acceleration bound needs of the position y, into cache ``slot``: M̂⁻¹, the
     payload point's J and the quadratic form of J̇v, K = J M̂⁻¹ Jᵀ = VΛVᵀ, s_j at the ends of
@@ -290,7 +269,7 @@ def envelope_position(env, y, slot):
     (s_1 … s_d) and their entrywise largest magnitude, the Γ forms and the gravity torque."""
     n = y.shape[0]
     model = env.model
-    d = env.kmat.shape[0]
+    d = payload_dim(model)
     model_geometry(model, y)
     model_mass(model, 1.0, 0.0, env.mass)
     minv = env.minv[slot]
@@ -317,7 +296,7 @@ def envelope_position(env, y, slot):
                     direction += jac[r, col] * vec[r, j]
                 total += minv[i, col] * direction
             rmat[i, j] = total
-    corners = env.corner.shape[2]
+    corners = 1 << d
     for cell in range(env.cells.shape[0] - 1):
         s = env.s[slot, cell]
         for end in range(2):
@@ -335,10 +314,10 @@ def envelope_position(env, y, slot):
                         value -= s[(c >> j) & 1, j] * rmat[i, j] * rmat[col, j]
                     corner[i, col] = value
                     pabs[i, col] = max(pabs[i, col], abs(value))
-    _forms(env, 1.0, 0.0, env.forms[slot, 0])
-    _forms(env, 0.0, 1.0, env.forms[slot, 1])
-    model_point_forms(model, env.work[E_], env.jac_work, env.point, env.point_forms[slot],
-                      env.lift[slot])
+    e, plus = env.work[E_], env.work[PLUS_]
+    model_velocity_forms(model, 1.0, 0.0, e, plus, env.forms[slot, 0])
+    model_velocity_forms(model, 0.0, 1.0, e, plus, env.forms[slot, 1])
+    model_point_forms(model, e, env.jac_work, env.point, env.point_forms[slot], env.lift[slot])
     model_bias(model, env.zeros, 1.0, 0.0, 1.0, env.grav[slot])
 
 
@@ -351,12 +330,12 @@ def envelope_acceleration(env, slot, cell, tau, tau_d, centre, radius, lo, hi):
     of (s_1 … s_d, Δm) (multilinear: its extremes are there), its quadratic part and d̄
     through max |M(Δm)⁻¹| row by row."""
     n = centre.shape[0]
-    d = env.kmat.shape[0]
+    d = payload_dim(env.model)
     minv, rmat, vec, s = env.minv[slot], env.rmat[slot], env.vec[slot], env.s[slot, cell]
     forms, jac = env.forms[slot], env.jac[slot]
     point_forms, lift = env.point_forms[slot], env.lift[slot]
     corner, pabs = env.corner[slot, cell], env.pabs[slot, cell]
-    corners = corner.shape[0]
+    corners = 1 << d
     payload_low, payload_high = env.cells[cell], env.cells[cell + 1]
     u, work = env.work[U_], env.work[E_]
     bmat = env.bmat
@@ -767,7 +746,7 @@ class FlnnObserver(Block):
         if model is None:
             links = InertiaModel.chain_arrays(default_links(n))
             model = planar_model(**links, gravity=9.8)
-        d = model.dim
+        d = payload_dim(model)
         low, high = map(float, u.payload)
         cells = self.params.payload_cells if high > low else 1
         return kernel_args(

@@ -10,7 +10,7 @@ from pydantic import Field
 
 from ...blocks.base import Block, BlockContext, Ports, kernel_args, register_block
 from ...declared import joint_boxes
-from ...dynamics.model import own_scratch
+from ...dynamics.model import own_scratch, payload_dim
 from ...numba_compat import no_refcount_jit
 from ...schema import FiniteFloat, PipelineError, PositiveFloat, Section
 from ...signals import Signal
@@ -375,7 +375,8 @@ class CbfFilter(Block):
             joint_bounds = np.array([boxes.position_half, boxes.velocity_half]) \
                 * (1.0 - p.bound_margin)
             centres = np.array([boxes.position_centre, boxes.velocity_centre])
-        corners = (2**model.dim - 1) * p.payload_grid + 1 if any(uncertainty.payload) else 1
+        dim = payload_dim(model)
+        corners = (2**dim - 1) * p.payload_grid + 1 if any(uncertainty.payload) else 1
         rows = 2 * (2 * n * 2 * corners) + 2 * n * 2 + 4 + 2 * n
         steps = len(ports.trace.time)
         if p.velocity == "observer":
@@ -422,7 +423,7 @@ class CbfFilter(Block):
             viable=out[VIABLE], backup_share=out[BACKUP], rows_met=out["cbf_rows_met"],
             velocity_centre=out["cbf_velocity_centre"],
             velocity_spread=out["cbf_velocity_spread"],
-            work=cbf_work(n, rows, p.payload_grid, model.dim))
+            work=cbf_work(n, rows, p.payload_grid, dim))
 
     def step(self, k: int) -> bool:
         """With a qpsolvers solver (no kernel): the same rows, the hard ones as hard
