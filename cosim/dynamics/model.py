@@ -297,17 +297,3 @@ def model_point_forms(model: RigidBodyModel, e: np.ndarray, jac: np.ndarray,
 def payload_dim(model: RigidBodyModel) -> int:
     """dim, the payload point's coordinates (2 in the plane, 3 in space): in a kernel a
     compile-time constant of the model's type."""
-
-
-@no_refcount_jit(cache=True)
-def mass_matrix(model, q, out):
-    """M̂(q) into ``out``: geometry and mass in one call (tests, benchmarks)."""
-    model_geometry(model, q)
-    model_mass(model, 1.0, 0.0, out)
-
-
-@no_refcount_jit(cache=True)
-def bias(model, q, v, out):
-    """b̂(q, v) = C v + G into ``out``: geometry and bias in one call (tests, benchmarks)."""
-    model_geometry(model, q)
-    model_bias(model, v, 1.0, 0.0, 1.0, out)
