@@ -90,10 +90,22 @@ def symmetric_eigen(kmat, lam, vec):
 
 
 @no_refcount_jit(cache=True, inline="always")
+def _rotate(matrix, i, j, k, l, c, s):  # noqa: E741
+    """(m_ij, m_kl) ← (c m_ij − s m_kl, s m_ij + c m_kl); returns whether either changed."""
+    first, second = matrix[i, j], matrix[k, l]
+    matrix[i, j], matrix[k, l] = c * first - s * second, s * first + c * second
+    return matrix[i, j] != first or matrix[k, l] != second
+
+
+@no_refcount_jit(cache=True, inline="always")
 def small_symmetric_eigen(kmat, lam, vec, work):
     """The eigenvalues (ascending, into ``lam``) and unit eigenvectors (columns of ``vec``)
     of a small symmetric d×d matrix (``work``: d×d scratch): d = 2 in closed form
-    (:func:`symmetric_eigen`), else by cyclic Jacobi rotations to machine precision."""
+    (:func:`symmetric_eigen`), else by cyclic Jacobi rotations to machine precision: until
+    the off-diagonal part is exactly zero, or a sweep changes nothing (rounding often leaves
+    it at ~1e-17 for good: a sweep is a function of ``work`` and ``vec`` alone, so every
+    later sweep would change nothing either; measured on 3×3 K = J M⁻¹ Jᵀ of 7 joints, half
+    of them never reach zero and took all 50 sweeps where 7-15 give the same bits)."""
     d = kmat.shape[0]
     if d == 2:
         symmetric_eigen(kmat, lam, vec)
@@ -109,6 +121,7 @@ def small_symmetric_eigen(kmat, lam, vec, work):
                 off += work[i, j] * work[i, j]
         if off == 0.0:
             break
+        changed = False
         for p in range(d):
             for q in range(p + 1, d):
                 if work[p, q] == 0.0:
@@ -120,14 +133,13 @@ def small_symmetric_eigen(kmat, lam, vec, work):
                 c = 1.0 / np.sqrt(t * t + 1.0)
                 s = t * c
                 for r in range(d):  # A ← A J (columns p, q)
-                    arp, arq = work[r, p], work[r, q]
-                    work[r, p], work[r, q] = c * arp - s * arq, s * arp + c * arq
+                    changed |= _rotate(work, r, p, r, q, c, s)
                 for r in range(d):  # A ← Jᵀ A (rows p, q)
-                    apr, aqr = work[p, r], work[q, r]
-                    work[p, r], work[q, r] = c * apr - s * aqr, s * apr + c * aqr
+                    changed |= _rotate(work, p, r, q, r, c, s)
                 for r in range(d):
-                    vrp, vrq = vec[r, p], vec[r, q]
-                    vec[r, p], vec[r, q] = c * vrp - s * vrq, s * vrp + c * vrq
+                    changed |= _rotate(vec, r, p, r, q, c, s)
+        if not changed:
+            break
     for i in range(d):
         lam[i] = work[i, i]
     for i in range(1, d):  # ascending, the vectors with them (insertion sort)

@@ -49,7 +49,13 @@ import numpy as np
 from ...dynamics.model import model_bias, model_geometry, model_mass, model_payload
 from ...numba_compat import no_refcount_jit
 from ..linalg import dot, invert, product
-from .model import acceleration_error_bound_into, nominal_model, payload_structure, robust_model
+from .model import (
+    linear_error_bound_into,
+    nominal_model,
+    payload_structure,
+    quadratic_error_into,
+    robust_model,
+)
 from .scratch import (
     ALPHA,
     BACKUP_FACTOR,
@@ -62,7 +68,6 @@ from .scratch import (
     LU,
     MINV,
     NOMINAL_NOW,
-    QUADRATIC,
     R_ACC,
     R_BIAS,
     R_CENTRE,
@@ -76,6 +81,7 @@ from .scratch import (
     R_NEXT_HIGH,
     R_NEXT_LOW,
     R_Q,
+    R_QUADRATIC,
     R_SCRATCH,
     R_TARGET,
     R_TAU,
@@ -223,16 +229,27 @@ def _payload_deviation(a, q_dot, acceleration, deviation):
 
 
 @no_refcount_jit(cache=True, inline="always")
+def _fixed_deviation(a, spread):
+    """D's part that a rollout with the velocity error ``spread`` keeps at every step, into
+    R_QUADRATIC (:func:`.model.quadratic_error_into`: Γ is the hard rows' for the whole
+    rollout), so that :func:`_deviation` need not take it again."""
+    w = a.work
+    quadratic_error_into(spread, a.payload_low, a.payload_high, a.disturbance, w.forms[0],
+                         w.forms[1], w.rollout[R_QUADRATIC])
+
+
+@no_refcount_jit(cache=True, inline="always")
 def _deviation(a, q_dot, spread, acceleration, deviation):
     """D at the rollout's state into ``deviation``: the bound on |M̂⁻¹(Δb + d)| for a
-    velocity error up to ``spread`` at the velocity ``q_dot`` (b's velocity forms Γ as the
-    hard rows took them at row k: the configuration's drift over the rollout is left out),
-    plus the payload's (:func:`_payload_deviation`): the velocity's and the payload's
-    departures add up (a payload's true q̈ also carries the velocity error's)."""
+    velocity error up to ``spread`` (its fixed part taken by :func:`_fixed_deviation`) at
+    the velocity ``q_dot`` (b's velocity forms Γ as the hard rows took them at row k: the
+    configuration's drift over the rollout is left out), plus the payload's
+    (:func:`_payload_deviation`): the velocity's and the payload's departures add up (a
+    payload's true q̈ also carries the velocity error's)."""
     w = a.work
-    acceleration_error_bound_into(q_dot, spread, w.matrices[ROLL_MINV], a.payload_low,
-                                  a.payload_high, a.disturbance, w.forms[0], w.forms[1],
-                                  w.linear, w.vectors[QUADRATIC], deviation)
+    linear_error_bound_into(q_dot, spread, w.matrices[ROLL_MINV], a.payload_low,
+                            a.payload_high, w.forms[0], w.forms[1], w.linear,
+                            w.rollout[R_QUADRATIC], deviation)
     _payload_deviation(a, q_dot, acceleration, deviation)
 
 
@@ -317,6 +334,7 @@ def predict_interval(k, a, tau):
         r[R_Q, i], r[R_V, i] = y[i], r[R_CENTRE, i]
         low[i], high[i] = np.inf, -np.inf
     deviation, acceleration = r[R_DEV], r[R_ACC]
+    _fixed_deviation(a, r[R_HALF])
     for end in range(2):
         _nominal_acceleration(k, a, tau, False, 0)
         _deviation(a, r[R_V], r[R_HALF], acceleration, deviation)
@@ -363,6 +381,7 @@ def verified(k, a, y, v, eps, first, hold, policy):
         limit_q[i] = max(a.viable_bounds[0, i], abs(y[i] - a.centres[0, i]) + a.noise_bound)
         limit_v[i] = max(a.viable_bounds[1, i], abs(v[i] - a.centres[1, i]) + eps[i])
         r[R_TARGET, i] = 0.0
+    _fixed_deviation(a, eps)
     t = 0.0
     step = 0
     while t < a.backup_horizon:

@@ -78,18 +78,38 @@ def acceleration_error_bound_into(v, eps, minv, low, high, disturbance, nominal,
                                   linear, quadratic, out):
     """acceleration_error_bound into ``out``, with Γ of a unit payload given (``payload``)
     and ``linear`` (2, n, n), ``quadratic`` (n,) as scratch."""
-    n = v.shape[0]
+    quadratic_error_into(eps, low, high, disturbance, nominal, payload, quadratic)
+    linear_error_bound_into(v, eps, minv, low, high, nominal, payload, linear, quadratic, out)
+
+
+@no_refcount_jit(cache=True)
+def quadratic_error_into(eps, low, high, disturbance, nominal, payload, quadratic):
+    """Per row l of b, d̄ + Σ_jk (|Γ_l,jk| + |Δm|max |Γ^p_l,jk|) ε_j ε_k into ``quadratic``:
+    the bias error's quadratic part and the disturbance, which depend on neither v nor M̂
+    (a rollout, its ε and Γ fixed, takes them once)."""
+    n = eps.shape[0]
     size = max(abs(low), abs(high))
-    linear[:] = 0.0  # B for the nominal model plus each end of the payload range
     quadratic[:] = disturbance
+    for l in range(n):  # noqa: E741
+        for j in range(n):
+            for k in range(n):
+                quadratic[l] += (abs(nominal[l, j, k]) + size * abs(payload[l, j, k])) \
+                    * eps[j] * eps[k]
+
+
+@no_refcount_jit(cache=True)
+def linear_error_bound_into(v, eps, minv, low, high, nominal, payload, linear, quadratic,
+                            out):
+    """acceleration_error_bound into ``out`` with the quadratic part given
+    (:func:`quadratic_error_into`), ``linear`` (2, n, n) as scratch."""
+    n = v.shape[0]
+    linear[:] = 0.0  # B for the nominal model plus each end of the payload range
     for l in range(n):  # noqa: E741
         for j in range(n):
             for k in range(n):
                 for end in range(2):
                     mass = low if end == 0 else high
                     linear[end, l, j] += 2.0 * (nominal[l, j, k] + mass * payload[l, j, k]) * v[k]
-                quadratic[l] += (abs(nominal[l, j, k]) + size * abs(payload[l, j, k])) \
-                    * eps[j] * eps[k]
     for i in range(n):
         out[i] = 0.0
         for j in range(n):

@@ -40,10 +40,12 @@ ROLL_MASS, ROLL_MINV, ROLL_LU, BACKUP_FACTOR = range(8, 12)
 # nominal q̈ and b̂; the bound D on q̈'s departure; what each set allows; the backup's target
 # velocities; scratch; a blend of the QP's torque and the backup's; the true velocity's
 # interval at this step (its centre and half-width) and the one predicted for the next step;
-# the backup's √weight per joint; flags (CONSISTENT).
+# the backup's √weight per joint; flags (CONSISTENT); D's part that is fixed over a rollout
+# (the bias error's quadratic part and the disturbance, per row of b).
 (R_Q, R_V, R_DQ, R_DV, R_TAU, R_ACC, R_BIAS, R_DEV, R_LIMIT_Q, R_LIMIT_V, R_TARGET, R_SCRATCH,
- R_CANDIDATE, R_CENTRE, R_HALF, R_NEXT_LOW, R_NEXT_HIGH, R_WEIGHT, R_FLAGS) = range(19)
-ROLLOUT_ROWS = 19
+ R_CANDIDATE, R_CENTRE, R_HALF, R_NEXT_LOW, R_NEXT_HIGH, R_WEIGHT, R_FLAGS,
+ R_QUADRATIC) = range(20)
+ROLLOUT_ROWS = 20
 # R_FLAGS[CONSISTENT]: 1 where the velocity's intervals met at this step; R_FLAGS[PLAN]: the
 # backup policy of the last torque verified
 CONSISTENT, PLAN = 0, 1
