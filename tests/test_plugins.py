@@ -238,7 +238,8 @@ def test_each_way_a_plugin_can_be_wrong_is_one_message_naming_it(tmp_path):
         ('["one.py", "two.py"]', f"plugins: {tmp_path}/two.py: failed to import: ValueError: "
          "a block of kind 'plugin_twin' is registered already (cosim_plugin_one_"
          f"{_digest(tmp_path / 'one.py')}.Gain) ({tmp_path}/two.py, line 11, in <module>)"),
-        ('"one.py"', "p.toml: key 'plugins': Input should be a valid list (got 'one.py')"),
+        ('"one.py"', "--set plugins=\"one.py\": key 'plugins': Input should be a valid list "
+         "(got 'one.py')"),  # the assignment at fault, not p.toml
     ]
     for plugins, expected in cases:
         result = cosim_in(tmp_path, "run", "p.toml", "--set", f"plugins={plugins}",

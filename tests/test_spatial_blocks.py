@@ -139,14 +139,20 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 @pytest.fixture(scope="module")
-def ur5_runs(tmp_path_factory):
+def ur5_folder(tmp_path_factory) -> Path:
     """pipelines/ur5.toml's output-feedback and PD runs, 1.5 s, through `cosim run`: the
     spatial-chain FMU built from the URDF (FMPy), the blocks on its 6 joints."""
     out = tmp_path_factory.mktemp("ur5")
     result = cosim_cli("run", UR5, "--set", "simulation.duration=1.5", "--run", "proposed",
                        "--run", "pd", "--out", str(out), "--no-recording", "--no-figures")
     assert result.returncode == 0, result.stderr[-3000:]
-    return json.loads((out / "summary.json").read_text())
+    return out
+
+
+@pytest.fixture(scope="module")
+def ur5_runs(ur5_folder):
+    """The runs' summary.json."""
+    return json.loads((ur5_folder / "summary.json").read_text())
 
 
 def test_a_urdf_arm_is_checked_on_every_joint_against_its_own_limits(ur5_runs):
@@ -175,36 +181,56 @@ def test_a_urdf_arm_is_checked_on_every_joint_against_its_own_limits(ur5_runs):
     assert len(errors) == chain.n and max(errors) < 0.3
 
 
-def test_a_plant_that_is_not_the_nominal_arm_is_outside_the_guarantee(ur5_runs, tmp_path):
+def test_a_plant_that_is_not_the_nominal_arm_is_outside_the_guarantee(ur5_runs, ur5_folder,
+                                                                    tmp_path):
     """The plant's URDF and the nominal model's are one arm in ur5.toml: no difference is
-    named. Built from a copy with the upper arm 2 kg heavier, or with its base turned on
-    its side (gravity along another axis of the arm: M(q) is the same), the plant's
-    recorded M(q) or h(q, q̇) departs from the nominal model's with the payload, and the
-    guarantee files the run outside, naming it (the tilted base was once "covered", then
-    "BROKEN", blamed on the filter)."""
+    named. Against a nominal arm whose upper arm is 2 kg heavier, the run's recorded M(q)
+    departs; a plant built with its base turned on its side (gravity along another axis of
+    the arm: M(q) the same) departs in h(q, q̇), and the guarantee files the run outside,
+    naming it (it was once "covered", then "BROKEN", blamed on the filter)."""
+    from cosim.dynamics.model import chain_model
+    from cosim.paper.guarantee import plant_model_difference
+    from cosim.signals import Signal, Trace
+
     for name in ("proposed", "pd"):
         outside = ur5_runs["runs"][name]["metrics"]["guarantee"]["outside"]
         assert not any("nominal arm" in text for text in outside), outside
     text = robot_urdf(ARMS["ur5"][0]).read_text()
-    edits = {"heavier": ('<mass value="8.393"/>', '<mass value="10.393"/>', "M(q)"),
-             "tilted": ('<parent link="world"/>\n    <child link="base_link"/>\n    '
-                        '<origin rpy="0.0 0.0 0.0" xyz="0.0 0.0 0.0"/>',
-                        '<parent link="world"/>\n    <child link="base_link"/>\n    '
-                        '<origin rpy="1.5708 0.0 0.0" xyz="0.0 0.0 0.0"/>', "h(q, q̇)")}
-    for name, (before, after, what) in edits.items():
-        assert text.count(before) == 1, name
-        edited = tmp_path / f"ur5_{name}.urdf"
-        edited.write_text(text.replace(before, after))
-        out = tmp_path / name
-        result = cosim_cli("run", UR5, "--set", "simulation.duration=0.2", "--run",
-                           "proposed_cbf", "--set", f'plant.urdf.file="{edited}"', "--out",
-                           str(out), "--no-recording", "--no-figures")
-        assert result.returncode == 0, result.stderr[-3000:]
-        guarantee = json.loads((out / "summary.json").read_text())[
-            "runs"]["proposed_cbf"]["metrics"]["guarantee"]
-        named = [entry for entry in guarantee["outside"] if "nominal arm" in entry]
-        assert len(named) == 1 and named[0].startswith(f"plant {what} differs"), named
-        assert guarantee["covered"] is False and guarantee["broken"] is False
+    upper_arm = '<mass value="8.393"/>'
+    assert text.count(upper_arm) == 1
+    heavier = tmp_path / "ur5_heavier.urdf"
+    heavier.write_text(text.replace(upper_arm, '<mass value="10.393"/>'))
+    recorded = np.load(ur5_folder / "trace_proposed.npz")
+
+    def trace_of(keys: tuple[str, ...]) -> Trace:  # the run's recorded plant outputs
+        trace = Trace({key: Signal("nn" if key == "M" else "n", "SI", key) for key in keys},
+                      6, len(recorded["q"]) - 1, 1e-3)
+        for key in keys:
+            trace.arrays[key][:] = recorded[key]
+        trace.rows_done = len(recorded["q"])
+        return trace
+
+    payload = ur5_runs["plant"]["parameters"]["payload"]
+    same = chain_model(urdf.read_urdf(robot_urdf(ARMS["ur5"][0]), tip="tool0"))
+    other = chain_model(urdf.read_urdf(heavier, tip="tool0"))
+    assert plant_model_difference(trace_of(("q", "qdot", "M", "h")), same, payload) is None
+    for keys, what in ((("q", "qdot", "M"), "M(q)"), (("q", "qdot", "M", "h"), "h(q, q̇)")):
+        assert plant_model_difference(trace_of(keys), other, payload).startswith(
+            f"{what} differs"), keys  # h's gravity part departs the more
+    turned = '<origin rpy="0.0 0.0 0.0" xyz="0.0 0.0 0.0"/>\n  </joint>'
+    assert text.count(turned) == 1
+    tilted = tmp_path / "ur5_tilted.urdf"
+    tilted.write_text(text.replace(turned, turned.replace('rpy="0.0', 'rpy="1.5708')))
+    out = tmp_path / "tilted"
+    result = cosim_cli("run", UR5, "--set", "simulation.duration=0.2", "--run", "proposed_cbf",
+                       "--set", f'plant.urdf.file="{tilted}"', "--out", str(out),
+                       "--no-recording", "--no-figures")
+    assert result.returncode == 0, result.stderr[-3000:]
+    guarantee = json.loads((out / "summary.json").read_text())[
+        "runs"]["proposed_cbf"]["metrics"]["guarantee"]
+    named = [entry for entry in guarantee["outside"] if "nominal arm" in entry]
+    assert len(named) == 1 and named[0].startswith("plant h(q, q̇) differs"), named
+    assert guarantee["covered"] is False and guarantee["broken"] is False
 
 
 def test_every_urdf_a_pipeline_file_names_is_relative_to_that_file(tmp_path, monkeypatch):
