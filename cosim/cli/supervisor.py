@@ -153,6 +153,11 @@ def _supervise(args: list[str], grace: float, note_file: Path, threading) -> int
     status = child.wait()
     if stopping["timer"] is not None:
         stopping["timer"].cancel()
+    # The run process's unpacked FMU, where it had no chance to remove it (killed, or
+    # signalled as the folder was being made): it has ended, so its folder is stale.
+    from ..plant.unpack import remove_stale
+
+    remove_stale()
     if status >= 0:
         return status
     name = signal.Signals(-status).name

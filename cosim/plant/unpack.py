@@ -12,11 +12,14 @@ a worker process, which skips ``atexit``).
 from __future__ import annotations
 
 import atexit
+import contextlib
 import multiprocessing.util
 import os
 import re
 import shutil
+import signal
 import tempfile
+import threading
 import zipfile
 from pathlib import Path, PurePosixPath
 from zlib import error as zlib_error
@@ -115,14 +118,29 @@ def extract(path: str | Path) -> str:
     if problem:
         raise FmuError(f"{path}: refusing to extract: {problem}")
     remove_stale()
-    target = str(Path(tempfile.mkdtemp(prefix=f"{PREFIX}{os.getpid()}_")).resolve())
-    _open.add(target)
+    with _signals_held():  # made and registered at once: an interruption finds it in _open
+        target = str(Path(tempfile.mkdtemp(prefix=f"{PREFIX}{os.getpid()}_")).resolve())
+        _open.add(target)
     try:
         _extract_capped(path, Path(target))
     except BaseException:  # Ctrl-C, SIGTERM, a full disk: no half-unpacked FMU is left
         remove(target)
         raise
     return target
+
+
+@contextlib.contextmanager
+def _signals_held():
+    """SIGINT and SIGTERM held back (in the main thread: a handler runs there) until the
+    block ends, then delivered."""
+    held = {signal.SIGINT, signal.SIGTERM}
+    main = threading.current_thread() is threading.main_thread()
+    previous = signal.pthread_sigmask(signal.SIG_BLOCK, held) if main else None
+    try:
+        yield
+    finally:
+        if previous is not None:
+            signal.pthread_sigmask(signal.SIG_SETMASK, previous)
 
 
 def _extract_capped(path: Path, target: Path) -> None:
