@@ -120,7 +120,11 @@ def _load(path: Path):
                                   build_collision_scene_graph=False, load_meshes=False,
                                   load_collision_meshes=False)
     except Exception as exc:  # lxml or yourdfpy: either way the file is not a URDF we read
-        raise UrdfError(f"{path}: not a readable URDF ({exc})") from None
+        cause = (f"the attribute {exc} is missing" if isinstance(exc, KeyError)
+                 else f"{type(exc).__name__}: {exc}")
+        raise UrdfError(f"{path}: not a readable URDF ({cause}); a URDF is a <robot name> "
+                        "whose every <link> and <joint> has its name, and every joint its "
+                        "<parent link> and <child link>") from None
     if urdf.robot is None or not urdf.robot.links:
         raise UrdfError(f"{path}: no <robot> with <link> elements")
     return urdf.robot

@@ -242,6 +242,11 @@ MALFORMED = {
     "planar joint": (
         lambda t: t.replace('name="wrist" type="revolute"', 'name="wrist" type="planar"'),
         "joint 'wrist' has type 'planar'"),
+    "a robot without its name": (
+        lambda t: "<robot",
+        "not a readable URDF (the attribute 'name' is missing); a URDF is a <robot name> "
+        "whose every <link> and <joint> has its name, and every joint its <parent link> and "
+        "<child link>"),
     "missing mesh": (
         lambda t: t.replace("meshes/block.stl", "meshes/gone.stl"),
         "link 'pedestal' <visual><mesh filename='meshes/gone.stl'>: no such file"),
