@@ -22,3 +22,4 @@ class Section(BaseModel):
     """A pipeline table: unknown keys are refused, aliases (``lambda``) accepted."""
 
     model_config = ConfigDict(extra="forbid", populate_by_name=True)
+

@@ -284,6 +284,31 @@ def test_a_sweep_leaves_no_scratch_space_and_prints_no_port_warning(tmp_path):
     assert list(scratch.iterdir()) == []
 
 
+def test_a_local_sweep_left_with_no_worker_ends_with_one_message():
+    """A local cluster whose last worker is gone for good (on a loaded machine a nanny can
+    fail to restart a worker a crashing plant killed, and nothing else restarts it): the
+    sweep ends after ``stranded_after`` s with one message naming --resume; it waited
+    forever. A real Dask cluster, its worker closed mid-sweep."""
+    import threading
+
+    from dask.distributed import Client, LocalCluster
+
+    from cosim.sweep.execution import execute
+    from cosim.sweep.spec import SweepError, SweepSpec
+
+    spec = SweepSpec(PAPER, runs=["baseline"], base=["simulation.duration=200"])
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                      dashboard_address=None) as cluster, Client(cluster) as client:
+        threading.Timer(2.0, lambda: cluster.scale(0)).start()
+        began = time.monotonic()
+        with pytest.raises(SweepError) as info:
+            execute(spec, [{"sensor.seed": 1}, {"sensor.seed": 2}], client, per_task=1,
+                    stranded_after=2.0)
+    assert re.fullmatch(r"the local cluster has had no worker for 2 s \(.*\); the rows of the "
+                        r"finished points are kept: go on with --resume", str(info.value))
+    assert time.monotonic() - began < 60
+
+
 def test_a_missing_pipeline_file_is_the_sweeps_fault_not_a_points(tmp_path):
     """A sweep of a pipeline file that is not there: one message naming the file, exit 2,
     no folder (it was blamed on point 0 and its values)."""

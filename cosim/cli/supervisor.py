@@ -11,6 +11,7 @@ import sys
 import sysconfig
 from pathlib import Path
 
+from ..environment import seconds_from_environment
 from ..run_note import NOTE, read_note
 from .common import print_error
 
@@ -26,17 +27,7 @@ STOP_GRACE_VARIABLE, STOP_GRACE_S = "COSIM_STOP_GRACE_S", 10.0
 def stop_grace() -> float:
     """COSIM_STOP_GRACE_S (seconds, > 0), else the default; a bad value is the user's
     mistake, said before anything runs."""
-    text = os.environ.get(STOP_GRACE_VARIABLE, "").strip()
-    if not text:
-        return STOP_GRACE_S
-    try:
-        value = float(text)
-    except ValueError:
-        value = float("nan")
-    if not (0 < value < float("inf")):
-        raise ValueError(f"{STOP_GRACE_VARIABLE}={text!r}: expected a number of seconds > 0 "
-                         f"(default {STOP_GRACE_S:g}); nothing was run")
-    return value
+    return seconds_from_environment(STOP_GRACE_VARIABLE, STOP_GRACE_S)
 
 
 def supervise(args: list[str]) -> int:

@@ -25,6 +25,7 @@ from .execution import (
     execute,
     quiet_dask,
     slurm_cluster,
+    stranded_after,
 )
 from .files import write_results, write_spec
 from .journal import JOURNAL, Journal, Rows, points_done, read_table
@@ -273,8 +274,10 @@ def _run_on_dask(spec: SweepSpec, all_points: list[dict], todo: list[int], runs:
                       f"{spec.pipeline} on {where} worker(s) -> {out}", file=sys.stderr)
                 bar = tqdm(total=len(todo), unit="point", file=sys.stderr,
                            disable=args.quiet or not sys.stderr.isatty())
+                local = args.scheduler is None and args.cluster != "slurm"
                 _, interrupted = execute(spec, all_points, client, bar.update,
-                                         sink=journal.add, indices=todo)
+                                         sink=journal.add, indices=todo,
+                                         stranded_after=stranded_after() if local else None)
                 bar.close()
         finally:
             with deferred_signals():

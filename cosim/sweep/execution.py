@@ -11,6 +11,7 @@ import shutil
 import signal
 import sys
 import tempfile
+import threading
 import time
 import warnings
 import weakref
@@ -19,6 +20,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..config import load_pipeline
+from ..environment import seconds_from_environment
 from .spec import SweepError, SweepSpec, assignments
 from .worker import WorkerMismatch, cosim_version, point_row, run_points
 
@@ -39,6 +41,21 @@ STEPS_PER_TASK = 20_000  # ~0.6 s of the paper's closed loop, with its evaluatio
 # (Dask sends a worker its next task while it runs one), few enough that a sweep of 10⁶
 # points is not 10⁶ futures in this process and the scheduler.
 TASKS_IN_FLIGHT = 4
+# A local cluster's nanny restarts a worker its plant killed; on a loaded machine a restart
+# (importing cosim and numba) can outlast the nanny, which then closes, and nothing brings
+# a worker back: after this long with none, the sweep ends (s), the scheduler asked every
+# WATCH_EVERY s. COSIM_SWEEP_STRANDED_S sets another wait.
+STRANDED_VARIABLE, STRANDED_AFTER = "COSIM_SWEEP_STRANDED_S", 60.0
+WATCH_EVERY = 2.0
+
+
+def stranded_after() -> float:
+    """How long a local cluster's sweep waits with no worker (COSIM_SWEEP_STRANDED_S, s);
+    :class:`SweepError` for a value that is not a positive number."""
+    try:
+        return seconds_from_environment(STRANDED_VARIABLE, STRANDED_AFTER)
+    except ValueError as exc:
+        raise SweepError(str(exc)) from None
 
 
 def points_per_task(points: int, slots: int, steps_per_point: int = 0) -> int:
@@ -52,7 +69,8 @@ def points_per_task(points: int, slots: int, steps_per_point: int = 0) -> int:
 def execute(spec: SweepSpec, all_points: list[dict], client: Client,
             on_rows: Callable[[int], None] | None = None,
             per_task: int | None = None, sink: Callable[[list[dict]], None] | None = None,
-            indices: list[int] | None = None) -> tuple[list[dict], bool]:
+            indices: list[int] | None = None,
+            stranded_after: float | None = None) -> tuple[list[dict], bool]:
     """The points ``indices`` (default every one) of ``all_points`` on the Dask ``client``,
     ``per_task`` points a task (default :func:`points_per_task` for the client's workers);
     returns (rows, interrupted). With ``sink``, each task's rows are handed to it as they
@@ -63,7 +81,9 @@ def execute(spec: SweepSpec, all_points: list[dict], client: Client,
     finished task (the points of a task in progress are dropped with it). A task whose
     worker died (a plant that crashes its process) is run again point by point, and such a
     point again alone, so that only the point that kills its worker is a failed row, one per
-    run."""
+    run. ``stranded_after`` (s; a local cluster's, whose workers nothing else will bring
+    back): a sweep left with no worker that long ends with :class:`SweepError`, the rows of
+    the finished tasks kept."""
     import uuid
 
     from dask.distributed import as_completed
@@ -126,8 +146,15 @@ def execute(spec: SweepSpec, all_points: list[dict], client: Client,
             pending.add(single)
 
     rows: list[dict] = []
+    stranded = _watch_for_no_worker(client, futures, stranded_after)
     try:
         for future in pending:
+            if stranded.is_set():  # its tasks cancelled, to end the wait here
+                raise SweepError(
+                    f"the local cluster has had no worker for {stranded_after:g} s (its "
+                    "worker processes ended and were not restarted: a crashing plant on a "
+                    "machine too loaded to restart them in time); the rows of the finished "
+                    "points are kept: go on with --resume")
             batch = futures.pop(future)
             was_alone = future in alone
             if was_alone:
@@ -160,7 +187,36 @@ def execute(spec: SweepSpec, all_points: list[dict], client: Client,
     except SweepError:
         client.cancel(list(futures))
         raise
+    finally:
+        stranded.set()  # ends the watch
     return sorted(rows, key=_order), False
+
+
+def _watch_for_no_worker(client: Client, futures: dict, after: float | None
+                         ) -> threading.Event:
+    """An event set (and every task in ``futures`` cancelled, which ends the wait for them)
+    once the scheduler has had no worker for ``after`` s; never set by the watch when
+    ``after`` is None. Set it to end the watch."""
+    event = threading.Event()
+    if after is None:
+        return event
+
+    def watch() -> None:
+        empty_since = None
+        while not event.wait(WATCH_EVERY):
+            try:
+                workers = len(client.nthreads())
+            except Exception:  # the scheduler gone: the loop says so
+                return
+            now = time.monotonic()
+            empty_since = None if workers else (empty_since or now)
+            if empty_since is not None and now - empty_since >= after:
+                event.set()
+                client.cancel(list(futures.copy()))
+                return
+
+    threading.Thread(target=watch, daemon=True, name="cosim-no-worker-watch").start()
+    return event
 
 
 class SchedulerLost(ConnectionError):
