@@ -20,7 +20,7 @@ from plant_fmu import build_fmu
 
 from . import interface as io
 from .blocks import BLOCKS, Block, BlockContext, Ports
-from .blocks.plugins import offered
+from .blocks.plugins import offered_kinds
 from .config import Pipeline, PipelineError
 from .declared import Uncertainty
 from .evaluate import Declaration, Evaluator, SafeSet, evaluated_signals
@@ -229,13 +229,6 @@ def assemble_run(pipeline: Pipeline, name: str, plant) -> RunPlan:
     return RunPlan(name, blocks, signals, inputs, outputs, plant_input,
                    safe_set(pipeline), links, dt, run, constants, pipeline.uncertainty,
                    context.plant_outputs)
-
-
-def offered_kinds(plugins: list[str]) -> dict[str, type[Block]]:
-    """The registered blocks a pipeline naming ``plugins`` may use (for its messages'
-    hints): the built-in and entry-point ones and its own plugins', not another pipeline's
-    loaded earlier in this process."""
-    return {kind: cls for kind, cls in BLOCKS.items() if offered(cls, plugins)}
 
 
 def wire_constants(blocks: list[Block], run: str,

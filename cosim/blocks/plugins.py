@@ -55,16 +55,19 @@ def load_entry_points() -> None:
         _guarded(where, point.load)
 
 
-def offered(cls: type, plugins: list[str]) -> bool:
-    """Whether the registered block class ``cls`` is offered to a pipeline naming these
-    ``plugins``: built-in and entry-point blocks always, a plugin's only where the pipeline
-    names that plugin. A process that loaded several pipelines (a sweep's worker, a test
-    session, a notebook) keeps every plugin registered; one pipeline's messages must not
-    suggest another's blocks."""
+def offered_kinds(plugins: list[str]) -> dict[str, type]:
+    """The registered blocks (kind -> class) a pipeline naming these ``plugins`` may use:
+    the built-in and entry-point ones and its own plugins', not another pipeline's. A
+    process that loaded several pipelines (a sweep's worker, a test session, a notebook)
+    keeps every plugin registered; one pipeline must neither use nor suggest another's."""
+    from .base import BLOCKS
+
     mine = {_LOADED[key].__name__ for key in map(_key, plugins) if key in _LOADED}
-    return not any(cls.__module__ == module.__name__
-                   or cls.__module__.startswith(module.__name__ + ".")
-                   for module in _LOADED.values() if module.__name__ not in mine)
+    others = tuple(module.__name__ for module in _LOADED.values()
+                   if module.__name__ not in mine)
+    return {kind: cls for kind, cls in BLOCKS.items()
+            if not any(cls.__module__ == name or cls.__module__.startswith(f"{name}.")
+                       for name in others)}
 
 
 def _key(plugin: str) -> str:

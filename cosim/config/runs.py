@@ -9,7 +9,7 @@ from typing import Any
 from pydantic import Field, ValidationError, ValidationInfo, model_validator
 
 from ..blocks import BLOCKS, default_chain
-from ..blocks.plugins import offered
+from ..blocks.plugins import offered_kinds
 from ..schema import Section
 
 
@@ -53,7 +53,7 @@ class Run(Section):
         # the kinds this pipeline may use: a plugin another pipeline loaded in this process
         # (a notebook, a sweep's worker) is not one of them
         plugins = (info.context or {}).get("plugins") or []
-        kinds = [kind for kind, cls in BLOCKS.items() if offered(cls, plugins)]
+        kinds = offered_kinds(plugins)
         names: set[str] = set()
         for entry in self.blocks:
             name, kind = chain_entry(entry)
