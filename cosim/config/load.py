@@ -71,8 +71,7 @@ def _blamed_on_its_file(exc: PipelineError, path: Path | None, source: str,
     key = found.group(1)
     for assignment in reversed(overrides):
         assigned = assignment.split("=", 1)[0].strip()
-        if key == assigned or key.startswith(f"{assigned}.") \
-                or key.endswith(f".{assigned}") or f".{assigned}." in f".{key}.":
+        if f".{assigned}." in f".{key}.":  # the key, a table of it, or a run's copy of it
             return PipelineError(f"--set {assignment.strip()}{message[len(source):]}")
     origin = key_origin(path, key)
     if origin is None or origin.resolve() == path.resolve():
