@@ -309,6 +309,18 @@ def test_a_local_sweep_left_with_no_worker_ends_with_one_message():
     assert time.monotonic() - began < 60
 
 
+def test_a_bad_stranded_wait_is_one_message_before_anything_is_made(tmp_path):
+    out = tmp_path / "sweep"
+    result = subprocess.run(
+        [sys.executable, "-m", "cosim.cli", "sweep", PAPER, "--grid", "sensor.seed=1,2",
+         "--out", str(out)], capture_output=True, text=True, timeout=120,
+        env={**os.environ, "COSIM_SWEEP_STRANDED_S": "abc"})
+    assert result.returncode == 2
+    assert_message(error_line(result), "COSIM_SWEEP_STRANDED_S='abc': expected a number of "
+                   "seconds > 0 (default 60); nothing was run")
+    assert not out.exists()
+
+
 def test_a_missing_pipeline_file_is_the_sweeps_fault_not_a_points(tmp_path):
     """A sweep of a pipeline file that is not there: one message naming the file, exit 2,
     no folder (it was blamed on point 0 and its values)."""

@@ -240,6 +240,7 @@ def _spec_of(args: argparse.Namespace) -> tuple[SweepSpec, list[str]]:
     record = [w.strip() for w in (args.record or "").split(",") if w.strip()]
     if set(record) - {"best", "worst"}:
         raise SweepError(f"--record {args.record!r}: expected best, worst or best,worst")
+    stranded_after()  # a bad COSIM_SWEEP_STRANDED_S, said before anything is made
     return spec, record
 
 
@@ -253,6 +254,9 @@ def _run_on_dask(spec: SweepSpec, all_points: list[dict], todo: list[int], runs:
 
     journal = Journal(out / JOURNAL)
     interrupted = False
+    # a local cluster's workers come back by nothing but its nannies: how long to wait for
+    # none (checked, with the options, before anything is made: _spec)
+    stranded = stranded_after() if args.scheduler is None and args.cluster != "slurm" else None
     try:
         client = cluster = None
         try:
@@ -274,10 +278,9 @@ def _run_on_dask(spec: SweepSpec, all_points: list[dict], todo: list[int], runs:
                       f"{spec.pipeline} on {where} worker(s) -> {out}", file=sys.stderr)
                 bar = tqdm(total=len(todo), unit="point", file=sys.stderr,
                            disable=args.quiet or not sys.stderr.isatty())
-                local = args.scheduler is None and args.cluster != "slurm"
                 _, interrupted = execute(spec, all_points, client, bar.update,
                                          sink=journal.add, indices=todo,
-                                         stranded_after=stranded_after() if local else None)
+                                         stranded_after=stranded)
                 bar.close()
         finally:
             with deferred_signals():
