@@ -317,7 +317,7 @@ def test_a_bad_stranded_wait_is_one_message_before_anything_is_made(tmp_path):
         env={**os.environ, "COSIM_SWEEP_STRANDED_S": "abc"})
     assert result.returncode == 2
     assert_message(error_line(result), "COSIM_SWEEP_STRANDED_S='abc': expected a number of "
-                   "seconds > 0 (default 60); nothing was run")
+                   "seconds > 0 (default 300); nothing was run")
     assert not out.exists()
 
 

@@ -45,7 +45,7 @@ TASKS_IN_FLIGHT = 4
 # (importing cosim and numba) can outlast the nanny, which then closes, and nothing brings
 # a worker back: after this long with none, the sweep ends (s), the scheduler asked every
 # WATCH_EVERY s. COSIM_SWEEP_STRANDED_S sets another wait.
-STRANDED_VARIABLE, STRANDED_AFTER = "COSIM_SWEEP_STRANDED_S", 60.0
+STRANDED_VARIABLE, STRANDED_AFTER = "COSIM_SWEEP_STRANDED_S", 300.0
 WATCH_EVERY = 2.0
 
 
