@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import os
+
 import pytest
 
 from plant_fmu import build_fmu
@@ -23,3 +25,17 @@ def plant_fmu(fmu_cache):
         return build_fmu(links=links, fmi_version=fmi_version, cache_dir=fmu_cache)
 
     return build
+
+
+@pytest.fixture(autouse=True)
+def _environment_restored():
+    """Every test ends with the process's environment as it began. Dask's nannies write their
+    pre-spawn environment (MALLOC_TRIM_THRESHOLD_, PYTHONHASHSEED) into ``os.environ`` of
+    the process that starts them, and every process started after inherits it: a plain
+    LocalCluster in one test gave a later test's cosim workers Dask's malloc setting, a
+    failure only when pytest-xdist put the two files on one worker in that order."""
+    before = dict(os.environ)
+    yield
+    if os.environ != before:
+        os.environ.clear()
+        os.environ.update(before)
