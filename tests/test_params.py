@@ -10,7 +10,7 @@ import re
 import subprocess
 import sys
 
-from cli_helpers import cosim_cli
+from cli_helpers import PAPER, cosim_cli
 
 from cosim.config import load_pipeline
 
@@ -125,6 +125,25 @@ def test_every_key_has_a_meaning_in_words_that_names_its_unit():
     # the rule itself: a bare symbol is refused, a meaning in words with its unit is not
     examples = {"bare": "Kv", "worded": "gain Kv on the filtered error r̂ in (21), N·m·s/rad"}
     assert without_a_unit({k: ("", "", "", v) for k, v in examples.items()}) == {"bare": "Kv"}
+
+
+def test_a_keys_unit_is_the_first_its_meaning_names():
+    """What a sweep's results say of a varied key's column (cosim.config.params.key_units):
+    the first unit its meaning names, "1" for dimensionless, "mixed" for mixed units, none
+    for a name, a flag or a path; a run's key (runs.NAME.key) its top-level key's."""
+    from cosim.config.params import key_units, unit_named
+
+    for key, (*_, meaning) in listing().items():
+        found = NAMES_A_UNIT.search(meaning)
+        named = found[1] if found else None
+        expected = {"dimensionless": "1", "mixed units": "mixed"}.get(
+            named, None if named in NO_UNIT else named)
+        assert unit_named(meaning) == expected, key
+    pipeline = load_pipeline(PAPER)
+    assert key_units(pipeline, ["runs.proposed.controller.kv", "sensor.seed", "controller.init",
+                                "cbf_filter.position_rate", "no.such.key"]) == {
+        "runs.proposed.controller.kv": "N·m·s/rad", "sensor.seed": "1",
+        "cbf_filter.position_rate": "1/s"}
 
 
 def test_the_restructured_sections_keys_name_their_units_too():

@@ -725,6 +725,8 @@ def test_the_guarantees_hard_sets_against_the_trace_arrays():
         assert got["first_exit"]["set"] == first["set"]
         for key in ("t", "value", "bound"):
             assert got["first_exit"][key] == pytest.approx(first[key], rel=RTOL), key
+        assert got["first_exit"]["unit"] == ("rad" if first["set"].startswith("position")
+                                             else "rad/s")
     assert starts == {True, False}  # both classes met
 
 

@@ -11,6 +11,7 @@ tests/test_sweep_tasks.py, beside the crashing FMU it builds.)"""
 from __future__ import annotations
 
 import contextlib
+import csv
 import json
 import os
 import re
@@ -150,6 +151,44 @@ def test_results_parquet_says_each_columns_unit(killed_and_resumed):
     assert units["rms_error.2"] == "rad" and units["peak_torque.1"] == "N·m"
     assert units["theorem1.R"] == "rad/s" and units["feedback_gain.median"] == "N·m·s/rad"
     assert "guarantee.covered" not in units and "hard_sets_kept" not in units
+    # the varied key's, as its meaning in the pipeline's schema names it
+    assert units["set:runs.proposed.controller.kv"] == "N·m·s/rad"
+    # results.csv: the same columns, each header with its unit
+    with (killed_and_resumed[0] / "results.csv").open(encoding="utf-8") as f:
+        header = next(csv.reader(f))
+    assert header == [f"{name} ({units[name]})" if name in units else name
+                      for name in schema.names]
+    assert {"set:runs.proposed.controller.kv (N·m·s/rad)", "peak_torque.1 (N·m)", "point",
+            "run"} <= set(header)
+
+
+def test_a_first_exits_value_is_in_the_unit_of_the_set_it_left():
+    """A first exit's value and bound are in the unit of the set left (its ``.unit``
+    column): one unit where every row left sets of that unit, else a pointer to the column;
+    a run's summary takes it from the run (its evaluator cannot declare it)."""
+    import pyarrow as pa
+
+    from cosim.evaluate.parts import units_said
+    from cosim.sweep.files import column_units
+    from cosim.sweep.journal import Rows
+
+    def table(units: list[str | None]) -> Rows:
+        exits = [None if u is None else 3.5 for u in units]
+        return Rows(pa.table({"guarantee.first_exit.t": exits,
+                              "guarantee.first_exit.value": exits,
+                              "guarantee.first_exit.bound": exits,
+                              "guarantee.first_exit.unit": units}))
+
+    same = column_units(table(["rad/s", None, "rad/s"]), {})
+    assert same["guarantee.first_exit.value"] == same["guarantee.first_exit.bound"] == "rad/s"
+    assert same["guarantee.first_exit.t"] == "s"
+    mixed = column_units(table(["rad", "rad/s"]), {})
+    assert mixed["guarantee.first_exit.value"] == "see guarantee.first_exit.unit"
+    assert "guarantee.first_exit.value" not in column_units(table([None, None]), {})
+    metrics = {"guarantee": {"filtered": True, "first_exit": {
+        "set": "position_joint2", "t": 0.25, "value": 1.3, "bound": 1.2, "unit": "rad"}}}
+    assert units_said(metrics, {"guarantee.first_exit.t": "s"}) == {
+        "guarantee.first_exit.value": "rad", "guarantee.first_exit.bound": "rad"}
 
 
 # -- separately started scheduler and workers ------------------------------------------

@@ -26,6 +26,18 @@ from pydantic import BaseModel
 
 from ..schema import Section
 
+# What a meaning names as its unit, after a comma or in parentheses: an SI unit (angles in
+# radians), or, for a value that has none, what it is (tests/test_params.py holds its own
+# list, which every key's meaning is checked against).
+UNITS = ("s", "1/s", "Hz", "rad", "rad²", "rad/s", "rad/s²", "rad/s³", "(rad/s)²", "m",
+         "m/s²", "kg", "kg·m²", "N·m", "N·m/rad", "N·m·s/rad", "1/(N·m)", "√(N·m·rad/s)")
+# What a value without an SI unit is, and what a table's unit column says of it then.
+NOT_A_UNIT = {"dimensionless": "1", "mixed units": "mixed", "a name": None, "names": None,
+              "a flag": None, "a path": None, "paths": None, "free text": None}
+_NAMED_UNIT = re.compile(r"(?:, |\()(" + "|".join(
+    re.escape(unit) for unit in sorted((*UNITS, *NOT_A_UNIT), key=len, reverse=True))
+    + r")(?![\w/·])")
+
 
 @dataclass(frozen=True)
 class Param:
@@ -157,6 +169,31 @@ def parameters(model: type[BaseModel], values: BaseModel | None = None,
         shown = value if values is not None else default
         out.append(Param(key, shown, allowed(field.annotation, field.metadata),
                          _meaning(model, name)))
+    return out
+
+
+def unit_named(meaning: str) -> str | None:
+    """The unit a key's meaning names (its first; a later one is an aside: "1/s. A model
+    error D (rad/s²) ..."): an SI unit, "1" for a dimensionless number, "mixed" for the NN
+    weights'; None for a name, a flag or a path, or where the meaning names none (a
+    plugin's key without one)."""
+    named = _NAMED_UNIT.search(meaning)
+    if named is None:
+        return None
+    return NOT_A_UNIT[named[1]] if named[1] in NOT_A_UNIT else named[1]
+
+
+def key_units(pipeline: BaseModel, keys: list[str]) -> dict[str, str]:
+    """The unit of each of ``keys`` (pipeline keys, a run's as ``runs.NAME.key``) that
+    names one, from its meaning in ``pipeline``'s schema."""
+    meanings = {p.key: p.meaning for p in parameters(type(pipeline), pipeline)}
+    out = {}
+    for key in keys:
+        parts = key.split(".")
+        plain = ".".join(parts[2:]) if parts[0] == "runs" and len(parts) > 2 else key
+        unit = unit_named(meanings.get(plain, ""))
+        if unit is not None:
+            out[key] = unit
     return out
 
 

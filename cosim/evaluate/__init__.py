@@ -28,6 +28,7 @@ from .parts import (
     register_evaluator,
     select,
     series_names,
+    units_said,
 )
 from .safety import SafeSet, torque_reversals
 
@@ -141,6 +142,7 @@ class Evaluator:
                 else f"not run: {self.skipped[name]}"
                 for name in EVALUATORS if name in ran or name in self.skipped}
         units = {name: unit for part in self.parts for name, unit in part.metric_units.items()}
+        units.update(units_said(metrics, units))
         return Evaluation(checks, h, metrics, safety_entries(checks, self.trace.dt), said,
                           headlines, lines, units)
 

@@ -118,6 +118,23 @@ def metric_unit(units: Mapping[str, str], metric: str) -> str | None:
     return None
 
 
+def units_said(metrics: Mapping, declared: Mapping[str, str], prefix: str = "") -> dict[str, str]:
+    """The units a run's metrics state themselves, for the numbers ``declared`` gives none:
+    a table holding a text ``unit`` gives it to them (a hard set's first exit: its value and
+    bound are in that set's unit, rad or rad/s, known only once the run says which set it
+    left; its time is declared, s)."""
+    out: dict[str, str] = {}
+    unit = metrics.get("unit")
+    for key, value in metrics.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            out.update(units_said(value, declared, f"{name}."))
+        elif isinstance(unit, str) and isinstance(value, int | float) \
+                and not isinstance(value, bool) and metric_unit(declared, name) is None:
+            out[name] = unit
+    return out
+
+
 def series_names() -> frozenset[str]:
     """Every series some evaluator gives."""
     return frozenset(s for cls in EVALUATORS.values() for s in cls.series_meanings)

@@ -103,15 +103,16 @@ def _parquet(path: Path, cols: list[Column], about: dict[str, str]) -> None:
     pq.write_table(table, path)
 
 
-def csv_header(column: Column) -> str:
-    """``name (unit)``, or the name alone for a quantity without one."""
-    return f"{column.name} ({column.unit})" if column.unit else column.name
+def named_with_unit(name: str, unit: str | None) -> str:
+    """A CSV header: ``name (unit)``, or the name alone for a quantity without one."""
+    return f"{name} ({unit})" if unit else name
 
 
 def _csv(path: Path, cols: list[Column], about: dict[str, str]) -> None:
     data = np.column_stack([c.values for c in cols])
     with path.open("w", encoding="utf-8", newline="") as f:
-        csv.writer(f).writerow(csv_header(c) for c in cols)  # quotes "M[1,2] (kg·m²)"
+        # csv quotes a header with a comma: "M[1,2] (kg·m²)"
+        csv.writer(f).writerow(named_with_unit(c.name, c.unit) for c in cols)
         np.savetxt(f, data, delimiter=",", fmt="%.17g")  # 17 digits: floats round-trip
 
 

@@ -214,14 +214,16 @@ def hard_checks(checks: Mapping[str, Check]) -> dict[str, Check]:
 
 
 def first_exit(hard: Mapping[str, Check], dt: float) -> dict | None:
-    """Where a hard set was first left: its name, time (s), |value| and bound; None if never.
-    In declaration order: the lowest joint first at a tie."""
+    """Where a hard set was first left: its name, time (s), |value| and bound in the set's
+    unit (rad or rad/s, named); None if never. In declaration order: the lowest joint first
+    at a tie."""
     first = None
     for name, check in hard.items():
         rows = np.flatnonzero(check.outside)
         if len(rows) and (first is None or rows[0] * dt < first["t"]):
             first = {"set": name, "t": float(rows[0] * dt),
-                     "value": float(check.magnitude[rows[0]]), "bound": float(check.upper)}
+                     "value": float(check.magnitude[rows[0]]), "bound": float(check.upper),
+                     "unit": check.declared.unit}
     return first
 
 
@@ -494,8 +496,6 @@ class Guarantee(Part):
                     "guarantee.torque_over_limit_steps": "steps",
                     "guarantee.infeasible_steps": "steps",
                     "guarantee.time_to_return_s": "s", "guarantee.first_exit.t": "s",
-                    "guarantee.first_exit.value": "the set's unit",
-                    "guarantee.first_exit.bound": "the set's unit",
                     "guarantee.torque.startup_steps": "steps", "guarantee.torque.peak_t": "s",
                     "guarantee.torque.peak_of_limit": "1",
                     "guarantee.torque.peak_backup_share": "1",

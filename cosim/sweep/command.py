@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from ..config import PipelineError, load_pipeline
+from ..config.params import key_units
 from ..evaluate.reports import SWEEP_REPORTS
 from ..progress import phase
 from .checks import margin
@@ -163,7 +164,8 @@ def _main(args: argparse.Namespace) -> int:
     except KeyboardInterrupt as exc:
         raise SweepError(f"{str(exc) or 'interrupted (Ctrl-C)'} while checking the points; "
                          "nothing was run") from None
-    runs = spec.runs or list(load_pipeline(spec.pipeline, spec.base, warn=None).runs)
+    pipeline = load_pipeline(spec.pipeline, spec.base, warn=None)
+    runs = spec.runs or list(pipeline.runs)
     if args.dry_run:
         return _dry_run(spec, all_points, runs, out, args)
     start = identity(spec, len(all_points))
@@ -174,7 +176,8 @@ def _main(args: argparse.Namespace) -> int:
               f"running the other {len(todo)}", file=sys.stderr)
     interrupted = _run_on_dask(spec, all_points, todo, runs, out, folder, args)
     try:
-        rows = _report(folder, spec, interrupted, all_points, runs, out, start)
+        rows = _report(folder, spec, interrupted, all_points, runs, out, start,
+                       key_units(pipeline, spec.keys))
     except KeyboardInterrupt as exc:
         raise SweepError(f"{str(exc) or 'interrupted (Ctrl-C)'} while writing the results; "
                          f"every finished row is kept in {out / JOURNAL}: the same command "
@@ -318,7 +321,7 @@ def _lost(exc: BaseException, scheduler: str | None, rows: int, out: Path) -> st
 
 
 def _report(folder: RunFolder, spec: SweepSpec, interrupted: bool, all_points: list[dict],
-            runs: list[str], out: Path, start: dict) -> Rows:
+            runs: list[str], out: Path, start: dict, set_units: dict[str, str]) -> Rows:
     """The results files from the journal and the folder's summary (the folder released),
     then the tables printed; returns the rows. A sweep stopped before its first row writes
     no results files and says so."""
@@ -328,7 +331,7 @@ def _report(folder: RunFolder, spec: SweepSpec, interrupted: bool, all_points: l
     try:
         folder.note(JOURNAL, True)
         if len(rows):
-            write_results(folder, spec, rows, table, interrupted, start)
+            write_results(folder, spec, rows, table, interrupted, start, set_units)
         folder.write_summary({"complete": not interrupted, "kind": "sweep",
                               "status_detail": ("interrupted" if interrupted and len(rows)
                                                 else "interrupted before any point finished"

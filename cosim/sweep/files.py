@@ -10,6 +10,7 @@ import numpy as np
 
 from ..evaluate.parts import declared_metric_units, metric_unit
 from ..evaluate.reports import SWEEP_REPORTS
+from ..outputs.export import named_with_unit
 from .checks import margin
 from .journal import CHUNK, Rows
 from .resume import SPEC_FILE
@@ -31,21 +32,24 @@ def _listed(entry: dict) -> dict:
 
 
 def write_results(folder: RunFolder, spec: SweepSpec, rows: Rows, table: list[dict],
-                  interrupted: bool, start: dict) -> None:
+                  interrupted: bool, start: dict, key_units: dict[str, str]) -> None:
     """results.parquet (a row group per chunk of rows, each column's unit in its metadata)
-    and results.csv, one row per point and run; sweep.json (``start``: what the sweep is,
-    as written when it began, now with the safety tables); and sweep_safety.png."""
+    and results.csv (each column's unit in its header: ``name (unit)``), one row per point
+    and run; sweep.json (``start``: what the sweep is, as written when it began, now with
+    the safety tables); and sweep_safety.png. ``key_units``: the varied keys' units."""
     import pyarrow.csv as pacsv
     import pyarrow.parquet as pq
 
-    arrow = with_units(rows.table)
+    arrow = with_units(rows.table, key_units)
 
     def parquet(tmp: Path) -> None:
         with pq.ParquetWriter(tmp, arrow.schema) as writer:
             writer.write_table(arrow, row_group_size=CHUNK)
 
     folder.write("results.parquet", parquet)
-    folder.write("results.csv", lambda tmp: pacsv.write_csv(arrow, tmp))
+    units = column_units(rows, key_units)
+    headed = arrow.rename_columns([named_with_unit(n, units.get(n)) for n in arrow.column_names])
+    folder.write("results.csv", lambda tmp: pacsv.write_csv(headed, tmp))
     document = {**start, "rows": len(rows), "interrupted": interrupted,
                 "safety": [_listed(e) for e in table],
                 **{key: [_listed(e) for e in report.table(rows)]
@@ -65,18 +69,22 @@ def write_spec(folder: RunFolder, document: dict) -> None:
     folder.write(SPEC_FILE, lambda tmp: tmp.write_text(text))
 
 
-def column_units(rows: Rows) -> dict[str, str]:
-    """Each column's unit where the rows or the evaluators say it: a check's worst value and
-    bound are in its declared unit, a metric's in its evaluator's (Part.metric_units), times
-    (``*_s``) in seconds."""
-    units = {}
+def column_units(rows: Rows, key_units: dict[str, str]) -> dict[str, str]:
+    """Each column's unit where the rows, the evaluators or the pipeline say it: a varied
+    key's (``set:KEY``) its meaning's; a check's worst value and bound, and a first exit's
+    value and bound, in the unit their ``.unit`` column gives (a first exit's depends on
+    the set left: where rows left sets of different units, the column says to read
+    ``.unit``); a metric's its evaluator's (Part.metric_units); times (``*_s``) s."""
+    units = {f"set:{key}": unit for key, unit in key_units.items()}
     metrics = declared_metric_units()
     for name in rows.names:
         if name.endswith(".unit"):
-            check = name.removesuffix(".unit")
-            unit = next((u for u in rows.column(name) if u is not None), None)
-            if unit is not None:
-                units[f"{check}.worst"] = units[f"{check}.bound"] = unit
+            stem = name.removesuffix(".unit")
+            said = {u for u in rows.column(name) if u is not None}
+            unit = said.pop() if len(said) == 1 else f"see {name}" if said else None
+            for sibling in (f"{stem}.worst", f"{stem}.bound", f"{stem}.value"):
+                if unit is not None and sibling in rows.names:
+                    units[sibling] = unit
         elif name.endswith("_s"):
             units[name] = "s"
         elif (unit := metric_unit(metrics, name)) is not None and _numeric(rows.column(name)):
@@ -90,12 +98,12 @@ def _numeric(values) -> bool:
     return isinstance(value, int | float | np.number) and not isinstance(value, bool | np.bool_)
 
 
-def with_units(table: pa.Table) -> pa.Table:
+def with_units(table: pa.Table, key_units: dict[str, str]) -> pa.Table:
     """``table`` with each column's unit in its field's metadata (``unit``) and all of them
     in the schema's (``units``, JSON)."""
     import pyarrow as pa
 
-    units = column_units(Rows(table))
+    units = column_units(Rows(table), key_units)
     fields = [field.with_metadata({"unit": units[field.name]}) if field.name in units
               else field for field in table.schema]
     schema = pa.schema(fields, metadata={"units": json.dumps(units, ensure_ascii=False)})
