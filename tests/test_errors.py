@@ -715,6 +715,7 @@ def test_a_worker_killed_by_its_plant_leaves_failed_rows_named_by_run(tmp_path):
         args += ["--set", item]
     done = cosim_cli(*args)
     assert "Traceback" not in done.stderr
+    assert (tmp_path / "sweep" / "results.parquet").exists(), (done.returncode, done.stderr)
     rows = pq_rows(tmp_path / "sweep")
     assert {r["run"] for r in rows} == {"baseline", "proposed"}
     assert all(r["status"] == "failed" for r in rows)

@@ -348,6 +348,33 @@ def test_a_local_sweep_left_with_no_worker_ends_with_one_message():
     assert time.monotonic() - began < 60
 
 
+def test_a_local_sweep_left_with_no_worker_starts_new_ones_and_finishes():
+    """A local cluster whose worker is gone and not restarted (a nanny on a loaded machine
+    sometimes does not restart a worker its plant killed: 1 sweep in 3 with 4 CPU hogs):
+    after ``revive_after`` s with none the sweep starts new workers and finishes, each
+    point once. A real Dask cluster, its worker closed mid-sweep."""
+    import threading
+
+    from dask.distributed import Client, LocalCluster
+
+    from cosim.sweep.execution import execute
+    from cosim.sweep.spec import SweepSpec
+
+    spec = SweepSpec(PAPER, runs=["baseline"], base=["simulation.duration=0.2"])
+    points = [{"sensor.seed": seed} for seed in range(6)]
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                      dashboard_address=None) as cluster, Client(cluster) as client:
+        client.wait_for_workers(1, timeout=120)
+        first = set(client.run(os.getpid).values())
+        threading.Timer(1.0, lambda: cluster.scale(0)).start()
+        rows, interrupted = execute(spec, points, client, per_task=1, stranded_after=240.0,
+                                    revive_after=4.0)
+        now = set(client.run(os.getpid).values())
+        assert len(now) == 1 and now.isdisjoint(first)  # a new worker, not the first back
+    assert not interrupted
+    assert [(r["point"], r["status"]) for r in rows] == [(i, "ok") for i in range(6)]
+
+
 def test_a_bad_stranded_wait_is_one_message_before_anything_is_made(tmp_path):
     out = tmp_path / "sweep"
     result = subprocess.run(

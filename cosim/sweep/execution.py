@@ -41,11 +41,14 @@ STEPS_PER_TASK = 20_000  # ~0.6 s of the paper's closed loop, with its evaluatio
 # (Dask sends a worker its next task while it runs one), few enough that a sweep of 10⁶
 # points is not 10⁶ futures in this process and the scheduler.
 TASKS_IN_FLIGHT = 4
-# A local cluster's nanny restarts a worker its plant killed; on a loaded machine a restart
-# (importing cosim and numba) can outlast the nanny, which then closes, and nothing brings
-# a worker back: after this long with none, the sweep ends (s), the scheduler asked every
-# WATCH_EVERY s. COSIM_SWEEP_STRANDED_S sets another wait.
+# A local cluster's nanny restarts a worker its plant killed, but on a loaded machine it
+# sometimes does not (seen with 4 CPU-bound processes on 2 cores: no worker, no error, in 1
+# of 3 sweeps whose plant crashes every point), and nothing else brings one back. After
+# REVIVE_AFTER s with no worker the sweep replaces the cluster's workers (a restart takes
+# 3-5 s there); after STRANDED_AFTER s with none it ends (COSIM_SWEEP_STRANDED_S sets
+# another wait). The scheduler is asked every WATCH_EVERY s.
 STRANDED_VARIABLE, STRANDED_AFTER = "COSIM_SWEEP_STRANDED_S", 300.0
+REVIVE_AFTER = 60.0
 WATCH_EVERY = 2.0
 
 
@@ -70,7 +73,8 @@ def execute(spec: SweepSpec, all_points: list[dict], client: Client,
             on_rows: Callable[[int], None] | None = None,
             per_task: int | None = None, sink: Callable[[list[dict]], None] | None = None,
             indices: list[int] | None = None,
-            stranded_after: float | None = None) -> tuple[list[dict], bool]:
+            stranded_after: float | None = None,
+            revive_after: float = REVIVE_AFTER) -> tuple[list[dict], bool]:
     """The points ``indices`` (default every one) of ``all_points`` on the Dask ``client``,
     ``per_task`` points a task (default :func:`points_per_task` for the client's workers);
     returns (rows, interrupted). With ``sink``, each task's rows are handed to it as they
@@ -82,8 +86,9 @@ def execute(spec: SweepSpec, all_points: list[dict], client: Client,
     worker died (a plant that crashes its process) is run again point by point, and such a
     point again alone, so that only the point that kills its worker is a failed row, one per
     run. ``stranded_after`` (s; a local cluster's, whose workers nothing else will bring
-    back): a sweep left with no worker that long ends with :class:`SweepError`, the rows of
-    the finished tasks kept."""
+    back): a sweep left with no worker for ``revive_after`` s has its cluster's workers
+    replaced, and left with none that long ends with :class:`SweepError`, the rows of the
+    finished tasks kept."""
     import uuid
 
     from dask.distributed import as_completed
@@ -146,15 +151,17 @@ def execute(spec: SweepSpec, all_points: list[dict], client: Client,
             pending.add(single)
 
     rows: list[dict] = []
-    stranded = _watch_for_no_worker(client, futures, stranded_after)
+    stranded = _watch_for_no_worker(client, futures, stranded_after, revive_after)
     try:
         for future in pending:
             if stranded.is_set():  # its tasks cancelled, to end the wait here
+                replaced = (f" nor new workers every {revive_after:g} s"
+                            if revive_after < stranded_after else "")
                 raise SweepError(
                     f"the local cluster has had no worker for {stranded_after:g} s (its "
-                    "worker processes ended and were not restarted: a crashing plant on a "
-                    "machine too loaded to restart them in time); the rows of the finished "
-                    "points are kept: go on with --resume")
+                    f"worker processes ended, and neither their restarts{replaced} joined: a "
+                    "crashing plant on a machine too loaded to start them); the rows of the "
+                    "finished points are kept: go on with --resume")
             batch = futures.pop(future)
             was_alone = future in alone
             if was_alone:
@@ -192,31 +199,54 @@ def execute(spec: SweepSpec, all_points: list[dict], client: Client,
     return sorted(rows, key=_order), False
 
 
-def _watch_for_no_worker(client: Client, futures: dict, after: float | None
-                         ) -> threading.Event:
+def _watch_for_no_worker(client: Client, futures: dict, after: float | None,
+                         revive_after: float) -> threading.Event:
     """An event set (and every task in ``futures`` cancelled, which ends the wait for them)
     once the scheduler has had no worker for ``after`` s; never set by the watch when
-    ``after`` is None. Set it to end the watch."""
+    ``after`` is None. Every ``revive_after`` s of that wait the client's local cluster has
+    its workers replaced. Set the event to end the watch."""
     event = threading.Event()
     if after is None:
         return event
+    cluster = getattr(client, "cluster", None)
+    size = len(cluster.worker_spec) if cluster is not None else 0
 
     def watch() -> None:
-        empty_since = None
+        empty_since = revived = None
         while not event.wait(WATCH_EVERY):
             try:
                 workers = len(client.nthreads())
             except Exception:  # the scheduler gone: the loop says so
                 return
             now = time.monotonic()
-            empty_since = None if workers else (empty_since or now)
-            if empty_since is not None and now - empty_since >= after:
+            if workers:
+                empty_since = revived = None
+                continue
+            empty_since = empty_since or now
+            if now - empty_since >= after:
                 event.set()
                 client.cancel(list(futures.copy()))
                 return
+            if size and now - (revived or empty_since) >= revive_after:
+                revived = now
+                _replace_workers(cluster, size)
 
     threading.Thread(target=watch, daemon=True, name="cosim-no-worker-watch").start()
     return event
+
+
+def _replace_workers(cluster: LocalCluster, size: int) -> None:
+    """``cluster``'s workers closed (their nannies too, whatever state they are stuck in)
+    and ``size`` new ones started, with cosim's worker settings."""
+    import dask
+
+    # A nanny reads its settings (the pre-spawn environment) when it is made, in the
+    # cluster's event loop: they stay set until the new workers have joined, or 60 s.
+    with dask.config.set(WORKER_CONFIG):
+        cluster.scale(0)
+        cluster.scale(size)
+        with contextlib.suppress(Exception):  # still none: the watch goes on waiting
+            cluster.wait_for_workers(size, timeout=60)
 
 
 class SchedulerLost(ConnectionError):
