@@ -174,6 +174,46 @@ def test_sigterm_keeps_the_truth(tmp_path):
     assert 45 < done < 200  # stopped near 25 %
 
 
+def test_a_sigterm_replaced_by_another_exception_in_the_compiled_loop_is_still_a_sigterm(
+        monkeypatch):
+    """Python raises a signal handler's exception at the next bytecode, which can be inside
+    the machinery around the compiled loop's call, and there it can be replaced by an
+    ordinary exception: a loaded make test once saw test_sigterm_keeps_the_truth's SIGTERM
+    end the run as "a block of the compiled loop (rows 50001 to 51000) raised". Here the
+    replacement is made on purpose, in this process, around the real loop's third call."""
+    import cosim.engine.master as master
+    from cosim.cli.stopping import on_sigterm
+    from cosim.config import load_pipeline
+    from cosim.runner import run
+
+    real, calls = master.fused_loop, []
+
+    def replacing(kernels: tuple, fmi_version: int):
+        loop = real(kernels, fmi_version)
+
+        def call(*args):
+            calls.append(len(calls))
+            if len(calls) == 3:
+                try:
+                    os.kill(os.getpid(), signal.SIGTERM)
+                    time.sleep(5)  # the handler raises Terminated here, at once
+                except KeyboardInterrupt:
+                    raise SystemError("a result with an exception set") from None
+            return loop(*args)
+        return call
+
+    monkeypatch.setattr(master, "fused_loop", replacing)
+    pipeline = load_pipeline(PAPER, ["simulation.duration=5"], warn=None)
+    pipeline.runs = {"baseline": pipeline.runs["baseline"]}
+    previous = signal.signal(signal.SIGTERM, on_sigterm)
+    try:
+        with pytest.raises(KeyboardInterrupt) as info:
+            run(pipeline, None, progress=False, record=False, figures=False)
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    assert str(info.value) == "terminated (SIGTERM)" and len(calls) == 3
+
+
 @pytest.mark.parametrize("kind", ["a file", "a name too long", "under a file"])
 def test_out_os_errors_name_the_path(kind, tmp_path):
     blocker = _write(tmp_path / "plain", b"x")

@@ -12,7 +12,8 @@ ROOT = Path(__file__).resolve().parent.parent
 # Low to high; a module may import its own layer and those before it.
 LAYERS = (
     ("cosim.schema", "cosim.declared", "cosim.signals", "cosim.numba_compat", "cosim.jit_cache",
-     "cosim.progress", "cosim.interface", "cosim.run_note", "cosim.environment", "plant_fmu"),
+     "cosim.progress", "cosim.interface", "cosim.run_note", "cosim.environment",
+     "cosim.interrupts", "plant_fmu"),
     ("cosim.plant", "cosim.evaluate", "cosim.dynamics"),
     ("cosim.blocks", "cosim.paper"),
     ("cosim.config", "cosim.engine"),

@@ -7,6 +7,10 @@ import os
 import signal
 from types import FrameType
 
+from ..interrupts import hear
+
+TERMINATED, INTERRUPTED = "terminated (SIGTERM)", "interrupted (Ctrl-C)"
+
 
 class Terminated(KeyboardInterrupt):
     """SIGTERM, handled like Ctrl-C: what was computed is kept and summarised."""
@@ -14,11 +18,13 @@ class Terminated(KeyboardInterrupt):
 
 def on_sigterm(signum: int, frame: FrameType | None) -> None:
     _acknowledge_to_supervisor()
-    raise Terminated("terminated (SIGTERM)")
+    hear(TERMINATED)
+    raise Terminated(TERMINATED)
 
 
 def _on_sigint(signum: int, frame: FrameType | None) -> None:
     _acknowledge_to_supervisor()
+    hear(INTERRUPTED)
     raise KeyboardInterrupt
 
 

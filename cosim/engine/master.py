@@ -17,6 +17,7 @@ from collections.abc import Callable
 import numpy as np
 from numba import typeof, types
 
+from .. import interrupts
 from ..blocks import Block
 from ..blocks.plugins import describe_exception
 from ..numba_compat import compiled_entry_point
@@ -173,9 +174,13 @@ def _fused(plant, plan, trace: Trace, progress, progress_every: int) -> float:
     k, start, failed, status = 0, time.perf_counter(), -1, 0
     while k <= steps:
         stop = 1 if k == 0 else min(steps + 1, k + progress_every)
+        signals = interrupts.heard()
         try:
             k, failed, status = loop(k, stop, steps, h, io.functions, io.handles, *arrays, args)
         except Exception as exc:  # a kernel raised (numba's linalg on non-finite input)
+            # ... unless a stop signal's exception was replaced by this one on its way out
+            if (why := interrupts.heard_since(signals)) is not None:
+                raise KeyboardInterrupt(why) from None
             raise BlockFailed(f"a block of the compiled loop (rows {k} to {stop - 1})", k * h,
                               exc) from exc
         trace.rows_done = k
