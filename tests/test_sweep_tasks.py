@@ -6,6 +6,7 @@ the point that killed it is a failed row."""
 from __future__ import annotations
 
 import os
+import sys
 
 import dask
 import pytest
@@ -141,3 +142,30 @@ def test_a_segfaulting_point_fails_alone_and_its_signal_is_named(crashing_arm):
     assert rows[1]["error"].startswith(
         "the point's worker process killed by signal 11 (SIGSEGV) every time it ran the "
         "point, alone: a crash of the plant FMU or a block's native code (KilledWorker: ")
+
+
+def test_the_traceback_dask_logs_for_a_cancel_before_its_call_began_is_dropped():
+    """distributed.utils.sync's cancel() reads ``future`` before the call has made it when
+    a SIGTERM lands at once (a loaded make test printed that NameError's traceback from
+    tornado's log in the middle of a sweep's clean stop); the client's callers drop that
+    record, and only it."""
+    import logging
+
+    from cosim.sweep.execution import CancelledBeforeStart
+
+    def record(error: BaseException) -> logging.LogRecord:
+        try:
+            raise error
+        except BaseException:
+            info = sys.exc_info()
+        return logging.LogRecord("tornado.application", logging.ERROR, __file__, 1,
+                                 "Exception in callback %r", ("cancel",), info)
+
+    dask_bug = NameError("cannot access free variable 'future' where it is not associated "
+                         "with a value in enclosing scope")
+    keep = CancelledBeforeStart().filter
+    assert keep(record(dask_bug)) is False
+    assert keep(record(NameError("name 'x' is not defined"))) is True
+    assert keep(record(RuntimeError("'future'"))) is True
+    assert keep(logging.LogRecord("tornado.application", logging.ERROR, __file__, 1, "text",
+                                  (), None)) is True
