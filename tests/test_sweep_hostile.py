@@ -323,21 +323,25 @@ def test_a_sweep_leaves_no_scratch_space_and_prints_no_port_warning(tmp_path):
     assert list(scratch.iterdir()) == []
 
 
-def test_a_local_sweep_left_with_no_worker_ends_with_one_message():
+def test_a_local_sweep_left_with_no_worker_ends_with_one_message(tmp_path):
     """A local cluster whose last worker is gone for good (on a loaded machine a nanny can
     fail to restart a worker a crashing plant killed, and nothing else restarts it): the
     sweep ends after ``stranded_after`` s with one message naming --resume; it waited
     forever. A real Dask cluster, its worker closed mid-sweep."""
     import threading
 
+    import dask
     from dask.distributed import Client, LocalCluster
 
     from cosim.sweep.execution import execute
     from cosim.sweep.spec import SweepError, SweepSpec
 
     spec = SweepSpec(PAPER, runs=["baseline"], base=["simulation.duration=200"])
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
-                      dashboard_address=None) as cluster, Client(cluster) as client:
+    # its scratch space (the scheduler's too) in tmp_path, not left in the temporary folder
+    with dask.config.set({"temporary-directory": str(tmp_path)}), \
+            LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                         dashboard_address=None, local_directory=tmp_path) as cluster, \
+            Client(cluster) as client:
         threading.Timer(2.0, lambda: cluster.scale(0)).start()
         began = time.monotonic()
         with pytest.raises(SweepError) as info:
@@ -348,13 +352,14 @@ def test_a_local_sweep_left_with_no_worker_ends_with_one_message():
     assert time.monotonic() - began < 60
 
 
-def test_a_local_sweep_left_with_no_worker_starts_new_ones_and_finishes():
+def test_a_local_sweep_left_with_no_worker_starts_new_ones_and_finishes(tmp_path):
     """A local cluster whose worker is gone and not restarted (a nanny on a loaded machine
     sometimes does not restart a worker its plant killed: 1 sweep in 3 with 4 CPU hogs):
     after ``revive_after`` s with none the sweep starts new workers and finishes, each
     point once. A real Dask cluster, its worker closed mid-sweep."""
     import threading
 
+    import dask
     from dask.distributed import Client, LocalCluster
 
     from cosim.sweep.execution import execute
@@ -362,8 +367,11 @@ def test_a_local_sweep_left_with_no_worker_starts_new_ones_and_finishes():
 
     spec = SweepSpec(PAPER, runs=["baseline"], base=["simulation.duration=0.2"])
     points = [{"sensor.seed": seed} for seed in range(6)]
-    with LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
-                      dashboard_address=None) as cluster, Client(cluster) as client:
+    # its scratch space (the scheduler's too) in tmp_path, not left in the temporary folder
+    with dask.config.set({"temporary-directory": str(tmp_path)}), \
+            LocalCluster(n_workers=1, threads_per_worker=1, processes=True,
+                         dashboard_address=None, local_directory=tmp_path) as cluster, \
+            Client(cluster) as client:
         client.wait_for_workers(1, timeout=120)
         first = set(client.run(os.getpid).values())
         threading.Timer(1.0, lambda: cluster.scale(0)).start()
