@@ -178,9 +178,7 @@ def unit_named(meaning: str) -> str | None:
     weights'; None for a name, a flag or a path, or where the meaning names none (a
     plugin's key without one)."""
     named = _NAMED_UNIT.search(meaning)
-    if named is None:
-        return None
-    return NOT_A_UNIT[named[1]] if named[1] in NOT_A_UNIT else named[1]
+    return NOT_A_UNIT.get(named[1], named[1]) if named else None
 
 
 def key_units(pipeline: BaseModel, keys: list[str]) -> dict[str, str]:

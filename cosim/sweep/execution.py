@@ -42,8 +42,8 @@ STEPS_PER_TASK = 20_000  # ~0.6 s of the paper's closed loop, with its evaluatio
 # points is not 10⁶ futures in this process and the scheduler.
 TASKS_IN_FLIGHT = 4
 # A local cluster's nanny restarts a worker its plant killed, but on a loaded machine it
-# sometimes does not (seen with 4 CPU-bound processes on 2 cores: no worker, no error, in 1
-# of 3 sweeps whose plant crashes every point), and nothing else brings one back. After
+# sometimes does not (seen with 4 CPU-bound processes on 2 cores: no worker, no error, in 3
+# of 8 sweeps whose plant crashes every point), and nothing else brings one back. After
 # REVIVE_AFTER s with no worker the sweep replaces the cluster's workers (a restart takes
 # 3-5 s there); after STRANDED_AFTER s with none it ends (COSIM_SWEEP_STRANDED_S sets
 # another wait). The scheduler is asked every WATCH_EVERY s.

@@ -40,14 +40,14 @@ def write_results(folder: RunFolder, spec: SweepSpec, rows: Rows, table: list[di
     import pyarrow.csv as pacsv
     import pyarrow.parquet as pq
 
-    arrow = with_units(rows.table, key_units)
+    units = column_units(rows, key_units)
+    arrow = with_units(rows.table, units)
 
     def parquet(tmp: Path) -> None:
         with pq.ParquetWriter(tmp, arrow.schema) as writer:
             writer.write_table(arrow, row_group_size=CHUNK)
 
     folder.write("results.parquet", parquet)
-    units = column_units(rows, key_units)
     headed = arrow.rename_columns([named_with_unit(n, units.get(n)) for n in arrow.column_names])
     folder.write("results.csv", lambda tmp: pacsv.write_csv(headed, tmp))
     document = {**start, "rows": len(rows), "interrupted": interrupted,
@@ -98,12 +98,11 @@ def _numeric(values) -> bool:
     return isinstance(value, int | float | np.number) and not isinstance(value, bool | np.bool_)
 
 
-def with_units(table: pa.Table, key_units: dict[str, str]) -> pa.Table:
-    """``table`` with each column's unit in its field's metadata (``unit``) and all of them
-    in the schema's (``units``, JSON)."""
+def with_units(table: pa.Table, units: dict[str, str]) -> pa.Table:
+    """``table`` with each column's unit (``units``, from :func:`column_units`) in its
+    field's metadata (``unit``) and all of them in the schema's (``units``, JSON)."""
     import pyarrow as pa
 
-    units = column_units(Rows(table), key_units)
     fields = [field.with_metadata({"unit": units[field.name]}) if field.name in units
               else field for field in table.schema]
     schema = pa.schema(fields, metadata={"units": json.dumps(units, ensure_ascii=False)})
