@@ -127,16 +127,36 @@ def test_dynamics_match_pinocchio(fmus, arm):
     assert worst.max() <= 1e-10, dict(zip(("M", "h", "qdd"), worst, strict=True))
 
 
-def test_trajectory_matches_solve_ivp(fmus):
-    """The Panda (FMI 3, Co-Simulation, RK4 at its default 1e-4 s) swinging freely (τ = 0)
-    for 2 s from a pose away from its neutral one, against SciPy's DOP853 on Pinocchio's
-    ABA: ≤ 1e-6 rad. The joints' damping is 0.1 N·m·s/rad in both: with the URDF's 0.003
-    the wrist whips up to 74 rad/s (30 times its limit) and RK4 at 1e-4 s is 1.2e-6 rad off
-    (benchmarks/bench_urdf.py reports both)."""
-    trace, reference, _ = panda_swing(fmus("panda", 3), read_urdf(ARMS["panda"]),
-                                      np.full(7, 0.1))
+@pytest.mark.parametrize("damping", ["0.1", "urdf"])
+def test_trajectory_matches_solve_ivp(fmus, damping):
+    """The Panda (FMI 3, Co-Simulation, RK4 at its defaults) swinging freely (τ = 0) for 2 s
+    from a pose away from its neutral one, against SciPy's DOP853 on Pinocchio's ABA:
+    ≤ 1e-6 rad, with the joints' damping 0.1 N·m·s/rad in both, or the URDF's own 0.003.
+    With the URDF's the wrist whips up to 71 rad/s (30 times its limit): the sub-steps
+    shorten past 40 rad/s (rk4_motion = 4 mrad a sub-step); RK4 at 1e-4 s throughout would
+    be 1.3e-6 rad off (benchmarks/bench_urdf.py reports both)."""
+    chain = read_urdf(ARMS["panda"])
+    trace, reference, _ = panda_swing(fmus("panda", 3), chain,
+                                      chain.damping if damping == "urdf" else np.full(7, 0.1))
     assert np.abs(trace - reference).max() <= 1e-6
     assert np.abs(reference[-1] - SWING_Q0).max() > 5.0  # it did swing
+
+
+def test_fast_joints_take_shorter_sub_steps(fmus):
+    """Without the motion limit (rk4_motion far beyond any sub-step's motion) the URDF's
+    swing is integrated at 1e-4 s throughout and misses the 1e-6 rad; an arm within its
+    velocity limits keeps rk4_step's sub-steps, bit for bit (its motion per sub-step is
+    < 4 mrad), so a limit too large to bind changes nothing there."""
+    chain = read_urdf(ARMS["panda"])
+    trace, reference, qdot = panda_swing(fmus("panda", 3), chain, chain.damping,
+                                         rk4_motion=1e9)
+    assert np.abs(trace - reference).max() > 1e-6
+    assert np.abs(qdot).max() * 1e-4 > 4e-3  # it did go past the motion limit
+    slow = np.full(7, 20.0)  # heavily damped: < 40 rad/s throughout
+    limited, _, qdot = panda_swing(fmus("panda", 3), chain, slow)
+    unlimited, _, _ = panda_swing(fmus("panda", 3), chain, slow, rk4_motion=1e9)
+    assert np.abs(qdot).max() * 1e-4 < 4e-3
+    assert np.array_equal(limited, unlimited)
 
 
 def test_directional_derivative_is_the_inverse_inertia(fmus):

@@ -132,11 +132,12 @@ SWING_Q0 = np.array([0.3, -0.5, 0.2, -1.8, 0.4, 1.2, -0.3])  # rad
 SWING_QDOT0 = np.array([0.5, -0.3, 0.2, 0.4, -0.6, 0.3, 0.8])  # rad/s
 
 
-def panda_swing(fmu: Path, chain: Chain, damping: np.ndarray,
-                rk4_step: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+def panda_swing(fmu: Path, chain: Chain, damping: np.ndarray, rk4_step: float | None = None,
+                rk4_motion: float | None = None) -> tuple[np.ndarray, np.ndarray]:
     """The Panda FMU's q every 10 ms over the swing (Co-Simulation, its RK4 at ``rk4_step``
-    s or its default) and SciPy's DOP853 (tolerances 1e-13) on Pinocchio's ABA with the
-    same joint ``damping`` (N·m·s/rad): (the FMU's q, the reference's q and q̇), rad, rad/s."""
+    s and ``rk4_motion`` rad, or their defaults) and SciPy's DOP853 (tolerances 1e-13) on
+    Pinocchio's ABA with the same joint ``damping`` (N·m·s/rad): (the FMU's q, the
+    reference's q and q̇), rad, rad/s."""
     model = pinocchio_model(ARMS["panda"], chain)
     data = model.createData()
 
@@ -147,7 +148,8 @@ def panda_swing(fmu: Path, chain: Chain, damping: np.ndarray,
     times = np.linspace(0.0, 2.0, 201)
     reference = solve_ivp(rhs, (0.0, 2.0), np.concatenate([SWING_Q0, SWING_QDOT0]),
                           method="DOP853", t_eval=times, rtol=1e-13, atol=1e-13).y.T
-    start = {} if rk4_step is None else {"rk4_step": rk4_step}
+    start = {key: value for key, value in (("rk4_step", rk4_step), ("rk4_motion", rk4_motion))
+             if value is not None}
     for i in range(7):
         start.update({f"q0[{i + 1}]": SWING_Q0[i], f"qdot0[{i + 1}]": SWING_QDOT0[i],
                       f"b[{i + 1}]": damping[i]})

@@ -130,6 +130,10 @@ class SpatialChainModel:
             VariableFamily("rk4_step", "", "parameter", "fixed", "s",
                            "Largest internal RK4 step of Co-Simulation", constant(1e-4),
                            "positive"),
+            VariableFamily("rk4_motion", "", "parameter", "fixed", "rad",
+                           "Largest motion of a joint in one RK4 step of Co-Simulation "
+                           "(m for a prismatic joint): a faster arm takes shorter steps, "
+                           "down to rk4_step/8", constant(4e-3), "positive"),
             VariableFamily("tau", "n", "input", "continuous", None,
                            "Applied force at joint i (torque for a revolute joint)",
                            constant(0.0), "finite", unit_of=per_joint(FORCE),
