@@ -67,11 +67,13 @@ def fmu_only(plant, duration: float, h: float = 1e-3) -> float:
     return (time.perf_counter() - start) / steps
 
 
-def fmu_only_compiled(plant, duration: float, h: float = 1e-3) -> float:
-    """The floor: the fused loop with no blocks, the FMU's set/doStep/get per step."""
+def fmu_only_compiled(plant, duration: float, h: float = 1e-3,
+                      tau: np.ndarray | None = None) -> float:
+    """The floor: the fused loop with no blocks, the FMU's set/doStep/get per step, driven
+    by ``tau`` (steps + 1, n; N·m), or 1 N·m at every joint."""
     steps = int(round(duration / h))
     n = plant.links
-    tau = np.ones((steps + 1, n))
+    tau = np.ones((steps + 1, n)) if tau is None else np.ascontiguousarray(tau[:steps + 1])
     rows = tuple(np.zeros((steps + 1,) + plant.values[port.name].shape) for port in OUTPUT_PORTS)
     plant.start(0.0)
     io = plant.fused_io()
