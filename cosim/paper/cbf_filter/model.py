@@ -13,6 +13,7 @@ from ...dynamics.model import (
     model_geometry,
     model_mass,
     model_payload,
+    model_velocity_forms,
     own_scratch,
 )
 from ...numba_compat import no_refcount_jit
@@ -28,7 +29,6 @@ from .scratch import (
     KMAT,
     LAM,
     LU,
-    MINUS,
     MOVED_BIAS,
     NOMINAL,
     NOMINAL_NOW,
@@ -47,21 +47,8 @@ from .scratch import (
 def velocity_forms_into(model, q, bodies, payload, polar, out):
     """Γ of the model at q (its bodies times ``bodies``, a point mass ``payload`` at its
     payload point) into ``out`` (n, n, n), ``polar`` (POLAR_ROWS, n) its scratch."""
-    n = q.shape[0]
     model_geometry(model, q)
-    e, plus, minus = polar[E], polar[PLUS], polar[MINUS]
-    for j in range(n):
-        for k in range(j, n):
-            for i in range(n):
-                e[i] = 0.0
-            e[j] += 1.0
-            e[k] += 1.0
-            model_bias(model, e, bodies, payload, 0.0, plus)
-            e[k] -= 2.0
-            model_bias(model, e, bodies, payload, 0.0, minus)
-            for i in range(n):
-                # b_i(a + c) − b_i(a − c) = 4 aᵀΓ_i c (and e_j ± e_j = 2e_j, 0 for j = k)
-                out[i, j, k] = out[i, k, j] = (plus[i] - minus[i]) / 4.0
+    model_velocity_forms(model, bodies, payload, polar[E], polar[PLUS], out)
 
 
 def velocity_forms(model, q) -> np.ndarray:

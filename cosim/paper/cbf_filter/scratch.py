@@ -19,8 +19,8 @@ SET_UNITS = {"position": "rad", "velocity": "rad/s", "error": "rad", "error_rate
 # 58 arrays, 0.11 µs as these 13, 80 ns without any).
 
 # Rows of CbfWork.polar (n each): the polarisation's velocity and biases.
-E, PLUS, MINUS = range(3)
-POLAR_ROWS = 3
+E, PLUS = range(2)
+POLAR_ROWS = 2
 # Of CbfWork.solver (5, n): the iterate (then the answer), the line search's point, the
 # gradient, the step, a row being rotated into R.
 TAU, TRIAL, GRADIENT, DIRECTION, ROTATED = range(5)
@@ -59,7 +59,7 @@ KMAT, VEC, EIGEN = range(3)
 
 
 class CbfWork(NamedTuple):
-    polar: np.ndarray  # (POLAR_ROWS, n) E, PLUS, MINUS
+    polar: np.ndarray  # (POLAR_ROWS, n) E, PLUS
     solver: np.ndarray  # (5, n) TAU …
     vectors: np.ndarray  # (X + 4, n) BIAS …
     matrices: np.ndarray  # (12, n, n) NOMINAL_NOW …, ROLL_MASS …
