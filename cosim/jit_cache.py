@@ -278,6 +278,7 @@ def use_versioned_cache() -> Path:
     numba.config.CACHE_DIR = str(base)
     prepend_cache_locator(_locator_class())
     _tolerate_damaged_entries()
+    _serialise_saves()
     return base
 
 
@@ -305,6 +306,37 @@ def _tolerate_damaged_entries() -> None:
 
     load_overload.tolerates_damage = True
     caching.Cache.load_overload = load_overload
+
+
+def _serialise_saves() -> None:
+    """One process at a time saves an entry of a function's cache. numba saves one by
+    reading the function's index, choosing the first data file name it does not list,
+    writing the index and then the data, with no lock: two processes compiling signatures of
+    one function at once (the warm-up's workers, the test suite's) can both read the same
+    index and choose the same name, and the index then points one signature at the other's
+    machine code. An exclusive lock on a file beside the index (``….nbi.lock``) makes each
+    save read the index the one before it wrote."""
+    try:
+        import fcntl
+    except ImportError:  # not POSIX: numba's saves as they are
+        return
+    from numba.core import caching
+
+    original = caching.IndexDataCacheFile.save
+    if getattr(original, "serialised", False):
+        return
+
+    def save(self, key, data):
+        try:
+            lock = open(f"{self._index_path}.lock", "a")  # noqa: SIM115 (closed below)
+        except OSError:  # an unwritable folder: numba's own save meets it as numba does
+            return original(self, key, data)
+        with lock:
+            fcntl.flock(lock, fcntl.LOCK_EX)  # released as the file closes
+            return original(self, key, data)
+
+    save.serialised = True
+    caching.IndexDataCacheFile.save = save
 
 
 def kernel_modules() -> list[tuple[str, Path]]:

@@ -56,3 +56,48 @@ def test_a_cache_locator_can_be_put_first_once():
                 "ensure_cache_path"} <= set(dir(base))
     finally:
         CacheImpl._locator_classes[:] = before
+
+
+def _save_entries(folder: str, who: int, count: int, start, serialised: bool) -> None:
+    """In a process of its own: ``count`` cache entries of one function, keys and data
+    (who, i), saved through numba's own cache file as the compiler saves them."""
+    from numba.core.caching import IndexDataCacheFile
+
+    from cosim import jit_cache
+
+    if serialised:
+        jit_cache.use_versioned_cache()
+    cache = IndexDataCacheFile(folder, "probe-1.py311", "stamp")
+    start.wait()
+    for i in range(count):
+        cache.save((who, i), (who, i))
+
+
+def _saved_by_two_at_once(folder, serialised: bool, count: int = 60) -> list:
+    import multiprocessing
+
+    from numba.core.caching import IndexDataCacheFile
+
+    folder.mkdir()
+    context = multiprocessing.get_context("fork")
+    start = context.Barrier(2)
+    workers = [context.Process(target=_save_entries, args=(str(folder), who, count, start,
+                                                           serialised)) for who in range(2)]
+    for worker in workers:
+        worker.start()
+    for worker in workers:
+        worker.join(60)
+        assert worker.exitcode == 0
+    cache = IndexDataCacheFile(str(folder), "probe-1.py311", "stamp")
+    return [cache.load((who, i)) for who in range(2) for i in range(count)]
+
+
+def test_two_processes_saving_signatures_of_one_function_keep_each_its_own(tmp_path):
+    """numba's cache saves are serialised across processes (cosim.jit_cache): two
+    processes saving entries of one function at once (the warm-up's workers compiling its
+    planar and its spatial signature) keep every entry, each pointing at its own data.
+    Without the lock, the same run loses entries or crosses them."""
+    expected = [(who, i) for who in range(2) for i in range(60)]
+    assert _saved_by_two_at_once(tmp_path / "locked", True) == expected
+    unlocked = [_saved_by_two_at_once(tmp_path / f"unlocked{t}", False) for t in range(5)]
+    assert any(found != expected for found in unlocked)  # the race the lock closes
