@@ -219,11 +219,12 @@ def _kernel_jobs(pipelines: list[Path]) -> tuple[dict[str, list], list, list[Pat
     return modules, list(loops.values()), fmus
 
 
-def compile_kernels(jobs: dict[str, list]) -> None:
-    """Compile (or load) each module's kernels for their signatures, in this process."""
+def compile_kernels(jobs: list[tuple[str, list]]) -> None:
+    """Compile (or load) each (module, its kernels' (name, signature)) job, in this
+    process."""
     import importlib
 
-    for module, kernels in jobs.items():
+    for module, kernels in jobs:
         loaded = importlib.import_module(module)
         for name, signature in kernels:
             getattr(loaded, name).compile(signature)
@@ -272,7 +273,7 @@ def _in_parallel(kind: str, groups: list[list], stream: TextIO) -> None:
 
 def _work(kind: str, jobs: list) -> None:
     if kind == "kernels":
-        compile_kernels(dict(jobs))
+        compile_kernels(jobs)
     else:
         run_short(jobs)
 
@@ -299,10 +300,12 @@ def warm_up(pipelines: list[Path], workers: int | None = None,
     print("  compiling the numba kernels and fused loops not cached yet (once per version of "
           "their sources; kept for later runs):", file=stream, flush=True)
     # Modules whose kernels are all cached already need no worker (a cached kernel loads
-    # in milliseconds); the others compile in parallel, the largest source first (the
-    # costliest, roughly), then the fused loops, which link the cached kernels.
-    missing = sorted(((m, k) for m, k in modules.items() if not _cached(m, k)),
-                     key=lambda job: -_source_size(job[0]))
+    # in milliseconds); the others compile in parallel, a job per signature (the filter's
+    # step for the planar and the spatial chain is ~1.5 min each: in two processes at once,
+    # as numba's cache saves are serialised, cosim.jit_cache), the largest source first
+    # (the costliest, roughly), then the fused loops, which link the cached kernels.
+    missing = sorted(((m, [kernel]) for m, k in modules.items() if not _cached(m, k)
+                      for kernel in k), key=lambda job: -_source_size(job[0]))
     if missing:
         _in_parallel("kernels", _spread(missing, workers), stream)
     if loops:
