@@ -281,7 +281,7 @@ def _nominal_acceleration(k, a, first, backup, policy):
     return binds
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def backup_at(k, a, policy, out):
     """The backup's torque at row k (its position, the velocity interval's centre) with
     ``policy``, as the rollout computes it, into ``out``."""
@@ -319,7 +319,7 @@ def velocity_interval(k, a):
     r[R_FLAGS, CONSISTENT] = 1.0 if consistent else 0.0
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def predict_interval(k, a, tau):
     """The interval of the true velocity at row k + 1 under τ held over the step (into
     R_NEXT_LOW, R_NEXT_HIGH): row k's moved by dt times the hull of q̈ ± D at the step's

@@ -58,7 +58,7 @@ def add_row(qp, count, row, limit, weight, hard, kind, joint):
     joints[count] = joint
     return count + 1
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def hard_rows(a, count, k, y, v, eps, minv, base, at_end):
     """The hard rows of row k, with the model (M̂, b̂, the payload's structure, the bias
     error) evaluated at (y, v) and the barriers at row k's state. ``at_end``: the conditions
