@@ -326,6 +326,7 @@ def _serialise_saves() -> None:
     if getattr(original, "serialised", False):
         return
 
+    @functools.wraps(original)  # numba's own as save.__wrapped__
     def save(self, key, data):
         try:
             lock = open(f"{self._index_path}.lock", "a")  # noqa: SIM115 (closed below)

@@ -60,17 +60,18 @@ def test_a_cache_locator_can_be_put_first_once():
 
 def _save_entries(folder: str, who: int, count: int, start, serialised: bool) -> None:
     """In a process of its own: ``count`` cache entries of one function, keys and data
-    (who, i), saved through numba's own cache file as the compiler saves them."""
+    (who, i), saved through numba's own cache file as the compiler saves them, with
+    cosim's lock (``serialised``) or by numba's own save alone."""
     from numba.core.caching import IndexDataCacheFile
 
     from cosim import jit_cache
 
-    if serialised:
-        jit_cache.use_versioned_cache()
+    jit_cache.use_versioned_cache()  # as every cosim process (the suite's already has)
+    save = IndexDataCacheFile.save if serialised else IndexDataCacheFile.save.__wrapped__
     cache = IndexDataCacheFile(folder, "probe-1.py311", "stamp")
     start.wait()
     for i in range(count):
-        cache.save((who, i), (who, i))
+        save(cache, (who, i), (who, i))
 
 
 def _saved_by_two_at_once(folder, serialised: bool, count: int = 60) -> list:
