@@ -63,8 +63,8 @@ CASES = [
     ("pipeline name climbing out", [*SHORT, "--set", 'name="../.."'],
      f"{PAPER}: pipeline name '../..': {NAMING}"),
     ("memory refused before allocating", ["--set", "simulation.duration=1e7"],
-     re.compile(r"the traces would need 7\.84e\+03 GB \(2 run\(s\) × 10,000,000,001 rows of "
-                r"49 values × 8 B\) but [\d.]+ GB of memory is available \(at most 80% is "
+     re.compile(r"the traces would need 8\.16e\+03 GB \(2 run\(s\) × 10,000,000,001 rows of "
+                r"51 values × 8 B\) but [\d.]+ GB of memory is available \(at most 80% is "
                 r"used\); shorten simulation\.duration \(1e\+07 s\) or lengthen "
                 r"simulation\.step \(0\.001 s\)")),
     ("unknown key", [*SHORT, "--set", "controller.kvv=1"],

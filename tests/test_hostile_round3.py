@@ -588,7 +588,7 @@ def test_the_memory_check_sees_the_address_space_limit(tmp_path):
                           capture_output=True, text=True, cwd=tmp_path, timeout=300,
                           preexec_fn=limited)
     assert_message(error_line(done), re.compile(
-        r"the traces would need 2\.35 GB \(2 run\(s\) × 3,000,001 rows of 49 values × 8 B\) "
+        r"the traces would need 2\.45 GB \(2 run\(s\) × 3,000,001 rows of 51 values × 8 B\) "
         r"but [\d.]+ GB of memory is available under the address-space limit, ulimit -v \(at "
         r"most 80% is used\); shorten simulation\.duration \(3000 s\) or lengthen "
         r"simulation\.step \(0\.001 s\)"))

@@ -361,8 +361,8 @@ def test_an_infeasible_hard_part_raises_the_flag_and_the_backup_brakes():
     kept; the steps are flagged, the backup (braking within the limit) acts there, and the
     run is classified outside the declared uncertainty, never as a broken guarantee. The
     backup is recomputed apart: the q̈ nearest k_b (0 − (v − q̇_s)) that the limits allow
-    (a QP solved by DAQP), τ = M̂ q̈ + b̂, at the velocity the filter held (its interval's
-    centre). (Before the filter verified its torques against the backup, this test set
+    (a QP solved by DAQP), τ = M̂ q̈ + b̂ (M̂, b̂ of the nominal arm carrying the middle of
+    the declared payload range), at the velocity the filter held (its interval's centre). (Before the filter verified its torques against the backup, this test set
     backup = "brake", q̈ = −20 (v − q̇_s) clipped per joint, since removed.)"""
     qpsolvers = pytest.importorskip("qpsolvers")
     if "daqp" not in qpsolvers.available_solvers:
@@ -374,11 +374,20 @@ def test_an_infeasible_hard_part_raises_the_flag_and_the_backup_brakes():
     flagged = np.flatnonzero(trace["cbf_infeasible"] > 0)
     assert len(flagged) > 0
     a = plan.block("cbf_filter").args
+    # the model the backup acts on carries the middle of the declared payload range, 0.5 kg
+    # at the tip: link 2 with it by the parallel-axis theorem
+    payload = 0.5 * (a.payload_low + a.payload_high)
+    m, length, lc, inertia = (np.array(x, float) for x in (a.model.m, a.model.l, a.model.lc,
+                                                             a.model.inertia))
+    carried = m[-1] + payload
+    com = (m[-1] * lc[-1] + payload * length[-1]) / carried
+    inertia[-1] += m[-1] * (lc[-1] - com) ** 2 + payload * (length[-1] - com) ** 2
+    m[-1], lc[-1] = carried, com
     for k in flagged[:50]:  # the braking torque, recomputed from the signals
         y, centre = trace["q_meas"][k], trace["cbf_velocity_centre"][k]
         mass, bias = np.zeros((2, 2)), np.zeros(2)
-        planar_mass_matrix(y, a.model.m, a.model.l, a.model.lc, a.model.inertia, mass)
-        planar_bias(y, centre, a.model.m, a.model.l, a.model.lc, a.model.inertia, 9.8, bias)
+        planar_mass_matrix(y, m, length, lc, inertia, mass)
+        planar_bias(y, centre, m, length, lc, inertia, 9.8, bias)
         bias += 0.01
         desired = -a.backup_rate * (centre - trace["qdot_s"][k])
         u = qpsolvers.solve_qp(np.eye(2), -desired, np.vstack([mass, -mass]),
@@ -392,6 +401,25 @@ def test_an_infeasible_hard_part_raises_the_flag_and_the_backup_brakes():
     assert guarantee["feasible"] is False and guarantee["infeasible_steps"] == len(flagged)
     assert any("payload 3 kg outside [0, 1]" in text for text in guarantee["outside"])
     assert guarantee["broken"] is False
+
+
+def test_the_filter_holds_the_velocity_in_the_observers_certified_interval():
+    """proposed_cbf under the declared payload and noise, x̂2(0) off by 4 rad/s: the filter
+    holds q̇ in the interval the observer's ε(t) is taken from, c ± (ε − |x̂2 − c|) (each
+    step intersected with its own prediction), not in x̂2 ± ε, which contains it: the true
+    q̇ inside at every step, the half-width never past ε and, where x̂2 is off the
+    envelope's centre, narrower (the backup's check then verifies more torques)."""
+    sets = ['plant.parameters."m[2]"=3.1', 'plant.parameters."qdot0[1]"=14.0',
+            'plant.parameters."qdot0[2]"=6.0', "sensor.seed=7",
+            "runs.proposed_cbf.cbf_filter.torque_limit=2000.0"]
+    _, _, trace = simulated(sets, "proposed_cbf", duration=1.0)
+    centre, spread = trace["cbf_velocity_centre"], trace["cbf_velocity_spread"]
+    truth, bound = trace["qdot"], trace["qdot_hat_bound"]
+    outside = np.abs(truth - centre) > spread + 1e-9
+    assert not outside.any(), np.argwhere(outside)[:5]
+    assert np.all(spread <= bound + 1e-12)
+    assert np.median(spread / bound) < 0.9
+    np.testing.assert_allclose(spread[0], 5.0)  # t = 0: the declared error, nothing more
 
 
 @pytest.fixture(scope="module")

@@ -181,6 +181,7 @@ class ObserverArgs(NamedTuple):
     k0: np.ndarray
     W_o_norm: np.ndarray
     error_bound: np.ndarray  # ε(t) per joint
+    envelope_centre: np.ndarray  # the certified interval's centre c per joint
     drift: np.ndarray  # dx̂2/dt − M̂⁻¹τ
     # scratch, so that a step allocates nothing: σo (n_basis), y, x̃1, x̂2, Ŵoᵀσo (+ M̂⁻¹τ)
     # (n each), M̂⁻¹(τ − τ_d) (n × 1, the solve's right-hand side), M̂'s elimination (n × n)
@@ -662,6 +663,7 @@ def observer_step(k, a):
     for i in range(n):
         centre = 0.5 * (interval[0, i] + interval[1, i])
         a.error_bound[k, i] = abs(qdot_hat[i] - centre) + 0.5 * (interval[1, i] - interval[0, i])
+        a.envelope_centre[k, i] = centre
     # dx̂2/dt = Ŵoᵀσo + M̂⁻¹(τ − τ_d) + (k0 − kp kD) x̃1 + kp x̃2: all but M̂⁻¹τ and the
     # unknown kp x̃2 (|·| ≤ kp ε) is the drift the filter's rows on x̂2 need.
     _basis(x1, qdot_hat, qdd, a.basis, sigma)
@@ -706,6 +708,11 @@ class FlnnObserver(Block):
                                      "the declared uncertainty", kept=True),
             "qdot_hat_drift": Signal("n", "rad/s²", "dx̂2/dt − M̂⁻¹τ (its kp x̃2 term "
                                      "left out: unknown, |·| ≤ kp ε)", kept=True),
+            # q̇ ∈ c ± (ε − |x̂2 − c|): the interval ε(t) is taken from, narrower than x̂2 ± ε
+            # by 2|x̂2 − c| (the filter's backup check holds the velocity in it)
+            "qdot_envelope_centre": Signal("n", "rad/s", "centre c of the certified velocity "
+                                           "envelope (q̇ within ε − |x̂2 − c| of it)",
+                                           kept=True),
         }
         self.publishes = {"tau_d_model": np.broadcast_to(
             np.asarray(params.tau_d, float), (context.links,)).copy(),
@@ -733,6 +740,7 @@ class FlnnObserver(Block):
             q_meas=inp["q_meas"], tau=inp["tau"], M_model=inp["M_model"], q_d=inp["q_d"],
             q_hat=out["q_hat"], qdot_hat=out["qdot_hat"], k0=out["k0"],
             W_o_norm=out["W_o_norm"], error_bound=out["qdot_hat_bound"],
+            envelope_centre=out["qdot_envelope_centre"],
             drift=out["qdot_hat_drift"], sigma=np.empty(n_basis),
             **{name: np.empty(n) for name in ("y", "x1_err", "x2", "g")},
             torque_term=np.empty((n, 1)), lu=np.empty((n, n)),

@@ -273,7 +273,8 @@ class CbfFilter(Block):
         observer = params.velocity == "observer"
         self.position = "q_meas" if observer else "q"
         self.velocity = "qdot_hat" if observer else "qdot"
-        extra = ("qdot_hat_bound", "qdot_hat_drift") if observer else ()
+        extra = ("qdot_hat_bound", "qdot_hat_drift", "qdot_envelope_centre") if observer \
+            else ()
         self.inputs = (self.position, self.velocity, *extra, "q_s", "qdot_s", "q_d", "qdot_d",
                        "qddot_d", "M_model", "tau")
         self.requires = ("nominal_model", "inertia_is_plant",
@@ -381,8 +382,10 @@ class CbfFilter(Block):
         steps = len(ports.trace.time)
         if p.velocity == "observer":
             velocity_bound, drift = inp["qdot_hat_bound"], inp["qdot_hat_drift"]
+            envelope_centre = inp["qdot_envelope_centre"]
         else:
             velocity_bound, drift = np.zeros((steps, n)), np.full((steps, n), np.nan)
+            envelope_centre = inp[self.velocity]
         payload_low, payload_high = map(float, uncertainty.payload)
         return kernel_args(
             CbfArgs,
@@ -409,7 +412,7 @@ class CbfFilter(Block):
             is_hard=np.zeros(rows), kinds=np.zeros(rows, np.int64),
             joints=np.zeros(rows, np.int64), backup=np.zeros(n),
             position=inp[self.position], velocity=inp[self.velocity],
-            velocity_bound=velocity_bound, drift=drift,
+            velocity_bound=velocity_bound, drift=drift, envelope_centre=envelope_centre,
             **{name: inp[name] for name in ("q_s", "qdot_s", "q_d", "qdot_d", "qddot_d",
                                             "M_model")},
             tau_nominal=inp["tau"], tau=out["tau"],

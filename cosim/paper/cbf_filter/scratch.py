@@ -163,6 +163,9 @@ class CbfArgs(NamedTuple):
     position: np.ndarray
     velocity: np.ndarray
     velocity_bound: np.ndarray  # ε per row and joint (zeros for the plant's q̇)
+    # the centre c of the certified interval ε is taken from: q̇ ∈ c ± (ε − |v − c|)
+    # (the plant's q̇ itself where the filter reads it)
+    envelope_centre: np.ndarray
     drift: np.ndarray  # dv/dt − M̂⁻¹τ per row and joint (NaN: use the nominal model)
     q_s: np.ndarray
     qdot_s: np.ndarray
