@@ -108,6 +108,20 @@ MUTANTS = [
     ("cbf-interval-deviation", "cosim/paper/cbf_filter/backup.py",
      "low[i] = min(low[i], acceleration[i] - TUBE_SAFETY * deviation[i])",
      "low[i] = min(low[i], acceleration[i])", VIABILITY),
+    # the velocity's interval about the estimate instead of the envelope's centre; the
+    # observer's centre put on its estimate (the old x̂2 ± ε, wider than it need be)
+    ("cbf-interval-about-estimate", "cosim/paper/cbf_filter/backup.py",
+     "low, high = centre[i] - half, centre[i] + half", "low, high = v[i] - half, v[i] + half",
+     VIABILITY),
+    ("obs-envelope-centre-estimate", "cosim/paper/observer.py",
+     "a.envelope_centre[k, i] = centre", "a.envelope_centre[k, i] = qdot_hat[i]", FILTER),
+    # the rollout's model carrying the payload's middle: D taken from 0, or the model unloaded
+    ("cbf-payload-range-unshifted", "cosim/paper/cbf_filter/backup.py",
+     "payload_structure(a.payload_low - centre, a.payload_high - centre,",
+     "payload_structure(a.payload_low, a.payload_high,", VIABILITY),
+    ("cbf-rollout-unloaded", "cosim/paper/cbf_filter/backup.py",
+     "model_mass(a.model, 1.0, centre, mass)", "model_mass(a.model, 1.0, 0.0, mass)",
+     VIABILITY),
     # the evaluation
     ("eval-position-centre", "cosim/evaluate/sets.py",
      '"position": rows["q"] - rows[io.SAFE_CENTRE],', '"position": rows["q"],', EVALUATION),

@@ -76,7 +76,6 @@ from .scratch import (
     R_DEV,
     R_DQ,
     R_DV,
-    R_FLAGS,
     R_HALF,
     R_LIMIT_Q,
     R_LIMIT_V,
@@ -337,7 +336,7 @@ def velocity_interval(k, a):
             high = max(high, low)
         r[R_CENTRE, i] = a.velocity_centre[k, i] = 0.5 * (low + high)
         r[R_HALF, i] = a.velocity_spread[k, i] = 0.5 * (high - low)
-    r[R_FLAGS, CONSISTENT] = 1.0 if consistent else 0.0
+    a.work.flags[CONSISTENT] = 1.0 if consistent else 0.0
 
 
 @no_refcount_jit(cache=True)

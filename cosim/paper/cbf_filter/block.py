@@ -24,7 +24,6 @@ from .scratch import (
     PLAN,
     R_CANDIDATE,
     R_CENTRE,
-    R_FLAGS,
     R_HALF,
     SET_UNITS,
     SETS,
@@ -140,7 +139,7 @@ def choose(k, a, count, tau):
         return not hard_violated(a.rows, a.limits, a.is_hard, count, tau), 0.0
     y, v, eps = a.position[k], a.work.rollout[R_CENTRE], a.work.rollout[R_HALF]
     kept = inside(k, a)  # else verified means recovering: not viable
-    flags = a.work.rollout[R_FLAGS]
+    flags = a.work.flags
     backup = a.backup
     # If the step before was viable, its check proved the backup from every state its tube
     # allows, and the state is in that tube when the velocity is where it predicted

@@ -40,14 +40,14 @@ ROLL_MASS, ROLL_MINV, ROLL_LU, BACKUP_FACTOR = range(8, 12)
 # nominal q̈ and b̂; the bound D on q̈'s departure; what each set allows; the backup's target
 # velocities; scratch; a blend of the QP's torque and the backup's; the true velocity's
 # interval at this step (its centre and half-width) and the one predicted for the next step;
-# the backup's √weight per joint; flags (CONSISTENT); D's part that is fixed over a rollout
-# (the bias error's quadratic part and the disturbance, per row of b).
+# the backup's √weight per joint; D's part that is fixed over a rollout (the bias error's
+# quadratic part and the disturbance, per row of b).
 (R_Q, R_V, R_DQ, R_DV, R_TAU, R_ACC, R_BIAS, R_DEV, R_LIMIT_Q, R_LIMIT_V, R_TARGET, R_SCRATCH,
- R_CANDIDATE, R_CENTRE, R_HALF, R_NEXT_LOW, R_NEXT_HIGH, R_WEIGHT, R_FLAGS,
- R_QUADRATIC) = range(20)
-ROLLOUT_ROWS = 20
-# R_FLAGS[CONSISTENT]: 1 where the velocity's intervals met at this step; R_FLAGS[PLAN]: the
-# backup policy of the last torque verified
+ R_CANDIDATE, R_CENTRE, R_HALF, R_NEXT_LOW, R_NEXT_HIGH, R_WEIGHT, R_QUADRATIC) = range(19)
+ROLLOUT_ROWS = 19
+# CbfWork.flags: CONSISTENT, 1 where the velocity's intervals met at this step; PLAN, the
+# backup policy of the last torque verified (a row of their own: an arm of one joint has a
+# rollout row of one)
 CONSISTENT, PLAN = 0, 1
 # The payload's structure, its point of d coordinates (the model's dim: 2 in the plane, 3 in
 # space): of CbfWork.point_rows (d×n each) J of its point, J M̂⁻¹ and α; of .point_vectors (d each)
@@ -74,6 +74,7 @@ class CbfWork(NamedTuple):
     per_row: np.ndarray  # (2, rows) the limits and the weights the QP is solved with
     binding: np.ndarray  # (rows,) the rows violated at the solver's iterate
     rollout: np.ndarray  # (ROLLOUT_ROWS, n) R_Q …
+    flags: np.ndarray  # (2,) CONSISTENT, PLAN
     # the backup's torque as a small QP in q̈ (cosim.paper.cbf_filter.backup): its rows
     # (2n, n), their limits and weights (2, 2n), its solver's vectors (5, n) and the rows
     # bound at its iterate (2n,)
@@ -111,7 +112,7 @@ def cbf_work(n: int, rows: int, grid: int, d: int) -> CbfWork:
         point_vectors=np.zeros((4, d)), squares=np.zeros((3, d, d)), s_grid=np.zeros((grid + 1, d)),
         corner_index=payload_corners(grid, d),
         per_row=np.zeros((2, rows)), binding=np.zeros(rows, np.bool_),
-        rollout=np.zeros((ROLLOUT_ROWS, n)), backup_rows=np.zeros((2 * n, n)),
+        rollout=np.zeros((ROLLOUT_ROWS, n)), flags=np.zeros(2), backup_rows=np.zeros((2 * n, n)),
         backup_limits=np.zeros((2, 2 * n)), backup_solver=np.zeros((5, n)),
         backup_binding=np.zeros(2 * n, np.bool_))
 
