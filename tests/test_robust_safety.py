@@ -362,8 +362,9 @@ def test_an_infeasible_hard_part_raises_the_flag_and_the_backup_brakes():
     run is classified outside the declared uncertainty, never as a broken guarantee. The
     backup is recomputed apart: the q̈ nearest k_b (0 − (v − q̇_s)) that the limits allow
     (a QP solved by DAQP), τ = M̂ q̈ + b̂ (M̂, b̂ of the nominal arm carrying the middle of
-    the declared payload range), at the velocity the filter held (its interval's centre). (Before the filter verified its torques against the backup, this test set
-    backup = "brake", q̈ = −20 (v − q̇_s) clipped per joint, since removed.)"""
+    the declared payload range), at the velocity the filter held (its interval's centre).
+    (Before the filter verified its torques against the backup, this test set backup =
+    "brake", q̈ = −20 (v − q̇_s) clipped per joint, since removed.)"""
     qpsolvers = pytest.importorskip("qpsolvers")
     if "daqp" not in qpsolvers.available_solvers:
         pytest.skip("daqp is not installed")
