@@ -4,12 +4,14 @@ run's tables."""
 
 from __future__ import annotations
 
+import os
 import re
 import signal
 import subprocess
 import sys
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import numpy as np
 
@@ -21,6 +23,13 @@ PAPER = "pipelines/paper_two_link.toml"
 # observer within 0.1 s.
 LOW_GAIN_LAGGED = ["--set", 'observer.basis="lagged"', "--set", "observer.kp=10",
                    "--set", "observer.kd=10", "--set", "observer.nu=1.0"]
+
+
+def dask_environment(scratch: Path) -> dict[str, str]:
+    """The environment of a `dask scheduler` or `dask worker` a test starts: its scratch space
+    (Dask's temporary-directory) in ``scratch``, a folder of the test's, instead of
+    /tmp/dask-scratch-space, which Dask leaves behind."""
+    return {**os.environ, "DASK_TEMPORARY_DIRECTORY": str(scratch)}
 
 
 def cosim_cli(*args: str) -> subprocess.CompletedProcess:

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
-from cli_helpers import PAPER, assert_message, cosim_cli, error_line
+from cli_helpers import PAPER, assert_message, cosim_cli, dask_environment, error_line
 
 from cosim.config import load_pipeline
 from cosim.runner import run
@@ -129,11 +129,13 @@ def test_an_external_scheduler_and_worker_give_the_same_table(tmp_path):
     local = sweep(tmp_path / "local", *args, "--workers", "1")
     port = _free_port()
     dask = Path(sys.executable).parent / "dask"
+    environment = dask_environment(tmp_path)
     scheduler = subprocess.Popen([str(dask), "scheduler", "--host", "127.0.0.1", "--port",
-                                  str(port), "--no-dashboard"], stderr=subprocess.DEVNULL)
+                                  str(port), "--no-dashboard"], stderr=subprocess.DEVNULL,
+                                 env=environment)
     worker = subprocess.Popen([str(dask), "worker", f"tcp://127.0.0.1:{port}", "--nthreads",
                                "1", "--nworkers", "1", "--host", "127.0.0.1",
-                               "--no-dashboard"], stderr=subprocess.DEVNULL)
+                               "--no-dashboard"], stderr=subprocess.DEVNULL, env=environment)
     try:
         remote = sweep(tmp_path / "remote", *args, "--scheduler", f"tcp://127.0.0.1:{port}")
     finally:

@@ -25,7 +25,7 @@ from pathlib import Path
 
 import pyarrow.parquet as pq
 import pytest
-from cli_helpers import PAPER, assert_message, cosim_cli, error_line
+from cli_helpers import PAPER, assert_message, cosim_cli, dask_environment, error_line
 
 ROOT = Path(__file__).resolve().parent.parent
 DASK = str(Path(sys.executable).parent / "dask")
@@ -202,19 +202,26 @@ def _free_port() -> int:
 
 
 @pytest.fixture(scope="module")
-def scheduler():
+def dask_scratch(tmp_path_factory) -> Path:
+    """The scratch folder of the scheduler and workers this module starts."""
+    return tmp_path_factory.mktemp("dask")
+
+
+@pytest.fixture(scope="module")
+def scheduler(dask_scratch):
     port = _free_port()
     process = subprocess.Popen([DASK, "scheduler", "--host", "127.0.0.1", "--port", str(port),
-                                "--no-dashboard"], stderr=subprocess.DEVNULL)
+                                "--no-dashboard"], stderr=subprocess.DEVNULL,
+                               env=dask_environment(dask_scratch))
     yield f"tcp://127.0.0.1:{port}"
     process.terminate()
     process.wait(timeout=30)
 
 
-def dask_worker(address: str, *args: str) -> subprocess.Popen:
+def dask_worker(address: str, scratch: Path, *args: str) -> subprocess.Popen:
     return subprocess.Popen([DASK, "worker", address, "--nthreads", "1", "--host", "127.0.0.1",
                              "--no-dashboard", *args], stderr=subprocess.DEVNULL,
-                            cwd=tempfile.gettempdir())
+                            cwd=tempfile.gettempdir(), env=dask_environment(scratch))
 
 
 def end(*processes: subprocess.Popen) -> None:
@@ -229,14 +236,14 @@ def end(*processes: subprocess.Popen) -> None:
 
 
 def test_a_worker_killed_mid_point_and_one_joining_mid_sweep_lose_and_repeat_nothing(
-        scheduler, tmp_path):
-    first = dask_worker(scheduler, "--no-nanny")
+        scheduler, dask_scratch, tmp_path):
+    first = dask_worker(scheduler, dask_scratch, "--no-nanny")
     later = None
     out = tmp_path / "external"
     child = start_sweep(out, "--scheduler", scheduler)
     try:
         wait_for(lambda: journal_rows(out) >= 2, 120)
-        later = dask_worker(scheduler)  # joins mid-sweep
+        later = dask_worker(scheduler, dask_scratch)  # joins mid-sweep
         wait_for(lambda: journal_rows(out) >= 6, 120)
         first.send_signal(signal.SIGKILL)  # mid-point: its points run again on the other
         _, err = child.communicate(timeout=300)
@@ -248,10 +255,11 @@ def test_a_worker_killed_mid_point_and_one_joining_mid_sweep_lose_and_repeat_not
     assert all(r["status"] == "ok" for r in rows), [r["error"] for r in rows]
 
 
-def test_a_worker_of_another_cosim_version_is_refused_naming_both(scheduler, tmp_path):
+def test_a_worker_of_another_cosim_version_is_refused_naming_both(scheduler, dask_scratch,
+                                                                  tmp_path):
     preload = tmp_path / "other_version.py"
     preload.write_text("import cosim\ncosim.__version__ = '0.0.9'\n")
-    worker = dask_worker(scheduler, "--preload", str(preload))
+    worker = dask_worker(scheduler, dask_scratch, "--preload", str(preload))
     try:
         done = cosim_cli("sweep", PAPER, "--grid", "controller.kv=20,30", *SMALL,
                          "--scheduler", scheduler, "--out", str(tmp_path / "out"))
