@@ -494,18 +494,23 @@ def test_a_slurm_sweep_takes_dask_jobqueues_configuration_and_its_job_script_is_
         tmp_path):
     """--cluster slurm --dry-run (no SLURM here): the job script dask-jobqueue would
     submit, from the user's jobqueue.slurm configuration, each job one single-threaded
-    worker running this Python (the same cosim, on a shared path)."""
+    worker running this Python (the same cosim, on a shared path); the scheduler it starts
+    here leaves no scratch space in the temporary folder."""
     pytest.importorskip("dask_jobqueue")
     config = tmp_path / "jobqueue.yaml"
     config.write_text("jobqueue:\n  slurm:\n    queue: short\n    account: robots\n"
                       "    memory: 4GB\n    walltime: '02:00:00'\n"
                       "    job-extra-directives: ['--constraint=avx2']\n")
+    temporary = tmp_path / "tmp"  # its temporary folder: the local scheduler's scratch space
+    temporary.mkdir()
     done = subprocess.run([sys.executable, "-m", "cosim.cli", "sweep", PAPER, "--grid",
                            "controller.kv=20,30", *SMALL, "--cluster", "slurm", "--workers",
                            "40", "--out", str(tmp_path / "out"), "--dry-run"],
                           capture_output=True, text=True, timeout=300,
-                          env={**os.environ, "DASK_CONFIG": str(tmp_path)})
+                          env={**os.environ, "DASK_CONFIG": str(tmp_path),
+                               "TMPDIR": str(temporary)})
     assert done.returncode == 0, done.stderr[-3000:]
+    assert list(temporary.iterdir()) == []  # nothing left behind (was dask-scratch-space)
     lines = done.stdout.splitlines()
     assert lines[0].endswith("on 40 SLURM job(s) of one worker")
     script = lines[lines.index("each SLURM job's script (sbatch):") + 1:-1]

@@ -389,6 +389,27 @@ def close_cluster(client: Client | None, cluster: LocalCluster | None) -> None:
                 SpecCluster._instances.discard(cluster)
 
 
+@contextlib.contextmanager
+def scratch_space(settings: dict | None = None) -> Iterator[str]:
+    """Dask's scratch space (its temporary-directory, with ``settings``) for the cluster made
+    inside: a new folder of ours, not /tmp/dask-scratch-space, which Dask leaves behind.
+    Removed where the cluster is (:func:`remove_with`), or here if none was made."""
+    import dask
+
+    scratch = tempfile.mkdtemp(prefix="cosim-sweep-dask-")
+    try:
+        with dask.config.set({**(settings or {}), "temporary-directory": scratch}):
+            yield scratch
+    except BaseException:
+        shutil.rmtree(scratch, ignore_errors=True)
+        raise
+
+
+def remove_with(cluster: object, scratch: str) -> None:
+    """The scratch folder removed when the cluster is collected (or at exit)."""
+    weakref.finalize(cluster, shutil.rmtree, scratch, ignore_errors=True)
+
+
 def slurm_cluster(workers: int | None = None) -> object:
     """A dask-jobqueue SLURMCluster from the user's Dask configuration (``jobqueue.slurm``
     in ~/.config/dask/jobqueue.yaml or $DASK_CONFIG: queue, account, memory, walltime,
@@ -402,8 +423,12 @@ def slurm_cluster(workers: int | None = None) -> object:
         raise SweepError("--cluster slurm needs dask-jobqueue: pip install 'cosim[slurm]' "
                          "(or dask-jobqueue)") from None
     try:
-        cluster = SLURMCluster(cores=1, processes=1, python=sys.executable,
-                               worker_extra_args=["--nthreads", "1"])
+        # its scheduler runs here: its scratch space ours too (the jobs' workers keep theirs
+        # on their nodes, as jobqueue.slurm.local-directory says)
+        with scratch_space() as scratch:
+            cluster = SLURMCluster(cores=1, processes=1, python=sys.executable,
+                                   worker_extra_args=["--nthreads", "1"])
+            remove_with(cluster, scratch)
     except ValueError as exc:  # jobqueue's own: e.g. no memory configured
         raise SweepError(f"--cluster slurm: {exc} (set it under jobqueue.slurm in "
                          "~/.config/dask/jobqueue.yaml, or in a file $DASK_CONFIG "
@@ -452,20 +477,15 @@ def cluster_client(workers: int | None, scheduler: str | None, kind: str = "loca
             raise SweepError(f"--scheduler {scheduler}: no worker joined within 60 s "
                              "(start one: dask worker ADDRESS --nthreads 1)") from None
         return client, None
-    import dask
-
-    # The scheduler's, nannies' and workers' scratch space: a folder of ours, removed with
-    # the cluster, not one left in the temporary folder.
-    scratch = tempfile.mkdtemp(prefix="cosim-sweep-dask-")
     # Quiet workers: a cancelled point (Ctrl-C) is not a warning the user needs to read.
-    with dask.config.set({**WORKER_CONFIG, "temporary-directory": scratch}):
+    with scratch_space(WORKER_CONFIG) as scratch:
         # The scheduler serves HTTP even without a dashboard, on 8787 unless told: port 0,
         # so a taken 8787 (another cluster) is no warning.
         cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
                                processes=True, host="127.0.0.1", dashboard_address=None,
                                scheduler_kwargs={"dashboard_address": "127.0.0.1:0"},
                                local_directory=scratch, silence_logs=logging.ERROR)
-        weakref.finalize(cluster, shutil.rmtree, scratch, ignore_errors=True)
+        remove_with(cluster, scratch)
     DEATHS.listen()
     return Client(cluster), cluster
 
