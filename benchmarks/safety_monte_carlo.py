@@ -199,7 +199,7 @@ def base_sets(args: argparse.Namespace) -> list[str]:
     sets = [f"simulation.duration={args.duration}"]
     if args.distribution == "near-boundary" and args.observer_error is not None:
         sets.append(f"uncertainty.initial_velocity_error={args.observer_error}")
-    return sets
+    return sets + list(args.set)
 
 
 def parse_limit(text: str) -> float | list[float] | None:
@@ -757,6 +757,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     parser.add_argument("--decel", type=float,
                         help="a̲, rad/s²: the worst-case deceleration the limits give under the "
                         "declared uncertainty; starts with v² ≤ 2·d·a̲ must be viable")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="a pipeline value for every run, as `cosim run --set` (repeat)")
     parser.add_argument("--out", type=Path, default=Path("runs/safety_mc"))
     parser.add_argument("--force", action="store_true", help="write into a non-empty --out")
     parser.add_argument("--results", type=Path, help="an existing output folder: report only")

@@ -368,6 +368,28 @@ def test_where_each_joints_peak_torque_comes_from():
     assert "torque" not in judge(make_trace(drop=FLAGS), None)  # an unfiltered run
 
 
+def test_a_hard_set_the_filter_does_not_keep_is_never_held_against_it():
+    """cbf_filter.hard = ["position"]: the velocity set left from an inside start is the
+    evaluation's verdict (UNSAFE), not the filter's broken guarantee; its position set still
+    is. A filter that keeps no hard set (hard = []) promises nothing and says so."""
+    trace = make_trace()
+    place(trace, "qdot", (slice(50, 80), 0), 3.2)  # leaves the velocity set, comes back
+    positions_only = OUTPUT_FEEDBACK._replace(keeps=("position",))
+    assert judge(trace)["broken"] is True  # against a filter that keeps it: broken
+    g = judge(trace, positions_only)
+    assert g["covered"] is True and g["hard_kept"] is True and g["broken"] is False
+    assert g["keeps"] == ["position"]
+    assert report_line(g) == (
+        "kept the hard sets it keeps (position); guarantee covers this run")
+    place(trace, "q", (slice(100, 120), 1), -2.1)  # the position set it keeps: broken
+    g = judge(trace, positions_only)
+    assert g["broken"] is True and g["first_exit"]["set"] == "position_joint2"
+    g = judge(trace, OUTPUT_FEEDBACK._replace(keeps=()))
+    assert g["filtered"] is g["covered"] is g["broken"] is False
+    assert report_line(g) == ("the safety filter keeps no hard set (cbf_filter.hard = []): "
+                              "no guarantee")
+
+
 def test_an_unfiltered_run_is_never_covered_nor_broken():
     trace = make_trace(drop=FLAGS)
     place(trace, "q", (slice(100, None), 0), 2.5)

@@ -51,7 +51,13 @@ from ..declared import Uncertainty, joint_boxes
 from ..evaluate import Check, Kind, Part, register_evaluator
 from ..evaluate.safety import SafeSet, Signals
 from ..signals import Trace
-from .cbf_filter.assumptions import BACKUP, FILTER_ASSUMES, VIABLE, FilterAssumptions
+from .cbf_filter.assumptions import (
+    BACKUP,
+    FILTER_ASSUMES,
+    KEPT_CHECKS,
+    VIABLE,
+    FilterAssumptions,
+)
 
 # A tolerance for comparing declared and actual parameter values (rounding in TOML, FMI).
 PARAMETER_TOLERANCE = 1e-9
@@ -204,6 +210,9 @@ def undeclared_differences(parameters: Mapping[str, float], chain, uncertainty: 
         out.append(f"{', '.join(named)}: a disturbance error up to {error:g} N·m on joint {i} "
                    f"> the declared {uncertainty.disturbance:g} N·m (uncertainty.disturbance)")
     return out
+
+
+KEPT_SETS = frozenset(KEPT_CHECKS.values())  # the hard sets a filter may keep or not
 
 
 def hard_checks(checks: Mapping[str, Check]) -> dict[str, Check]:
@@ -447,6 +456,9 @@ def classify(trace: Trace, safe: SafeSet, uncertainty: Uncertainty,
 
         checks = Evaluator(trace, safe, {}).result().checks
     hard = hard_checks(checks)
+    if assumes is not None:  # a hard set the filter does not keep is not held against it
+        hard = {name: c for name, c in hard.items()
+                if c.declared.family in assumes.keeps or c.declared.family not in KEPT_SETS}
     starts_inside = not any(bool(c.outside[0]) for c in hard.values())
     starts_viable, not_viable = viability(trace, safe, starts_inside)
     outside, facts, observer_violation = declared_inputs(
@@ -461,7 +473,9 @@ def classify(trace: Trace, safe: SafeSet, uncertainty: Uncertainty,
         out["infeasible_steps"] = steps
     over_steps, over_limit = torque_violation(trace, assumes)
     # The guarantee speaks for filtered runs only: an unfiltered run promises nothing.
-    filtered = assumes is not None or INFEASIBLE in trace or VIABLE in trace
+    # A filter that keeps no hard set (cbf_filter.hard = []) promises nothing either.
+    filtered = (bool(assumes.keeps) if assumes is not None
+                else INFEASIBLE in trace or VIABLE in trace)
     # A start outside a set is the filter's to bring back (recovery, reported), not to keep.
     covered = bool(filtered and starts_inside and starts_viable and not outside)
     violations = [] if not covered else [
@@ -473,7 +487,8 @@ def classify(trace: Trace, safe: SafeSet, uncertainty: Uncertainty,
     out.update(feasible=feasible, within_bounds=not outside, outside=outside,
                hard_kept=exit_ is None, first_exit=exit_, torque_over_limit_steps=over_steps,
                filtered=filtered, covered=covered, violations=violations,
-               broken=bool(violations), **recovery(hard, trace.dt))
+               broken=bool(violations), **recovery(hard, trace.dt),
+               keeps=None if assumes is None else list(assumes.keeps))
     if filtered:
         out["torque"] = torque_peaks(trace, assumes)
     return out
@@ -526,9 +541,13 @@ class Guarantee(Part):
     def report(self, metrics: Mapping[str, Any]) -> tuple[str | None, list[str]]:
         g = metrics.get("guarantee") or {}
         if not g.get("filtered"):  # not a filtered run: nothing to say
-            return None, []
+            return ("the safety filter keeps no hard set (cbf_filter.hard = []): no "
+                    "guarantee" if g.get("keeps") == [] else None), []
+        keeps = g.get("keeps")
+        kept = ("kept every hard set" if keeps is None or KEPT_SETS <= set(keeps)
+                else f"kept the hard sets it keeps ({', '.join(keeps)})")
         exit_text = (f"left {g['first_exit']['set']} at {g['first_exit']['t']:.3f} s"
-                     if g["first_exit"] else "kept every hard set")
+                     if g["first_exit"] else kept)
         if g["time_to_return_s"] is not None:
             exit_text += (f", back inside (the longest excursion {g['time_to_return_s']:.3f} s)"
                           if g["returned"] else

@@ -15,7 +15,7 @@ from ...numba_compat import no_refcount_jit
 from ...schema import FiniteFloat, PipelineError, PositiveFloat, Section
 from ...signals import Signal
 from ..linalg import dot
-from .assumptions import BACKUP, FILTER_ASSUMES, VIABLE, FilterAssumptions
+from .assumptions import BACKUP, FILTER_ASSUMES, KEPT_CHECKS, VIABLE, FilterAssumptions
 from .backup import backup_at, inside, predict_interval, verified
 from .rows import cbf_rows, rows_inline
 from .scratch import (
@@ -326,8 +326,9 @@ class CbfFilter(Block):
                 f"run '{context.run}': cbf_filter.soft_norms names the position or velocity "
                 "set, but safety.limits = \"urdf\" makes them per-joint boxes, which have "
                 "no norm; drop them from cbf_filter.soft_norms")
+        keeps = tuple(KEPT_CHECKS[name] for name in params.hard)
         self.publishes = {FILTER_ASSUMES: FilterAssumptions(
-            self.position, self.velocity, limit, np.zeros(context.links))}
+            self.position, self.velocity, limit, np.zeros(context.links), keeps)}
         if params.solver == "newton":
             self.kernel = cbf_step
         else:
