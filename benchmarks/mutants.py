@@ -122,6 +122,12 @@ MUTANTS = [
     ("cbf-rollout-unloaded", "cosim/paper/cbf_filter/backup.py",
      "model_mass(a.model, 1.0, centre, mass)", "model_mass(a.model, 1.0, 0.0, mass)",
      VIABILITY),
+    ("cbf-authority-unscaled", "cosim/paper/cbf_filter/block.py",
+     "mu = min(mu, (np.sign(tau[i]) * cap - tau_hard[i]) / (tau[i] - tau_hard[i]))",
+     "mu = min(mu, 1.0)", FILTER),
+    ("guarantee-every-hard-set", "cosim/paper/guarantee.py",
+     "if c.declared.family in assumes.keeps or c.declared.family not in KEPT_SETS}",
+     "if c.declared.family}", ["tests/test_guarantee.py"]),
     # the evaluation
     ("eval-position-centre", "cosim/evaluate/sets.py",
      '"position": rows["q"] - rows[io.SAFE_CENTRE],', '"position": rows["q"],', EVALUATION),

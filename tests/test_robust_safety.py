@@ -423,6 +423,32 @@ def test_the_filter_holds_the_velocity_in_the_observers_certified_interval():
     np.testing.assert_allclose(spread[0], 5.0)  # t = 0: the declared error, nothing more
 
 
+def test_the_tracking_rows_ask_no_more_torque_than_the_controller_has():
+    """tracking_torque = "controller", baseline_cbf at 2000 N·m (its tracking rows pushed it
+    to ~1600 N·m against the controller's ~290): wherever no hard row binds and the backup
+    takes no share, every |τ_i| is within the largest |τ_nom,i| the controller has asked so
+    far; the hard sets still hold (the hard rows' torque is not capped). With "limit" (the
+    default) the same run goes past it. Both solvers (Newton, DAQP) agree on the rule."""
+    sets = ["cbf_filter.torque_limit=2000", 'plant.parameters."qdot0[1]"=9',
+            'plant.parameters."qdot0[2]"=9', "sensor.noise_std=0"]
+
+    def excess(trace) -> tuple[float, int]:
+        peak = np.maximum.accumulate(np.abs(trace["tau_controller"]), axis=0)
+        free = ((trace["cbf_position_active"] + trace["cbf_velocity_active"]).sum(axis=1)
+                == 0) & (trace["cbf_backup"] == 0)
+        return float(np.max((np.abs(trace["tau"]) - peak)[free])), int(free.sum())
+
+    _, _, trace = simulated(sets, "baseline_cbf", duration=1.0)
+    assert excess(trace)[0] > 500.0  # N·m beyond the controller's peak, for tracking
+    for solver in ("newton", "daqp"):
+        _, _, trace = simulated([*sets, 'cbf_filter.tracking_torque="controller"',
+                                 f'cbf_filter.solver="{solver}"'], "baseline_cbf",
+                                duration=1.0)
+        beyond, free = excess(trace)
+        assert free > 500 and beyond <= 1e-6, solver
+        assert np.all(np.abs(trace["qdot"]) <= 13.5) and np.all(np.abs(trace["q"]) <= 20.0)
+
+
 @pytest.fixture(scope="module")
 def monte_carlo(tmp_path_factory):
     """The Monte Carlo of the robust-safety issue on 40 samples, 10 s each (the reference's

@@ -73,6 +73,11 @@ class CbfFilterParams(Section):
     # the actuators' limits |τ_i| ≤ τ_max,i, per joint or one for all (unset: none), N·m:
     # never exceeded, the backup's torque included
     torque_limit: PositiveFloat | list[PositiveFloat] | None = None
+    # what the tracking (soft) rows may ask of a joint's torque (a name): "limit", up to
+    # the torque limit; or "controller", no more than the controller itself has asked of
+    # that joint so far in the run (its largest |τ_nom,i|): the filter's torque beyond the
+    # controller's is then only ever the hard sets' (their rows and the backup)
+    tracking_torque: Literal["limit", "controller"] = "limit"
     # weight ρ_s of a soft row's squared violation against τ's: high, so that tracking gives
     # way only where it conflicts with a hard row (ρ_hard is 1e4 times more), dimensionless
     tracking_weight: PositiveFloat = 1e6
@@ -233,6 +238,34 @@ def record_inline(k, a, count, tau):
 
 
 @no_refcount_jit(cache=True)
+def beyond_authority(k, a, tau):
+    """Whether τ asks a joint for more torque than the controller has so far (the largest
+    |τ_nom,i| up to row k, kept up to date here: tracking_torque = "controller")."""
+    peak = a.work.authority[0]
+    beyond = False
+    for i in range(tau.shape[0]):
+        peak[i] = max(peak[i], abs(a.tau_nominal[k, i]))
+        beyond = beyond or abs(tau[i]) > peak[i]
+    return beyond
+
+
+@no_refcount_jit(cache=True)
+def within_authority(a, tau, tau_hard):
+    """τ_h + μ(τ − τ_h) into ``tau``, μ ∈ [0, 1] the largest that keeps every |τ_i| within
+    the controller's peak (or within |τ_h,i| where the hard rows alone ask more): the
+    tracking rows' share of the correction scaled back. Both ends meet the hard rows, which
+    are linear, so the blend does too."""
+    peak = a.work.authority[0]
+    mu = 1.0
+    for i in range(tau.shape[0]):
+        cap = max(peak[i], abs(tau_hard[i]))
+        if abs(tau[i]) > cap:  # then τ_i ≠ τ_h,i: the crossing is in [0, 1)
+            mu = min(mu, (np.sign(tau[i]) * cap - tau_hard[i]) / (tau[i] - tau_hard[i]))
+    for i in range(tau.shape[0]):
+        tau[i] = tau_hard[i] + mu * (tau[i] - tau_hard[i])
+
+
+@no_refcount_jit(cache=True)
 def cbf_step(k, a):
     count = rows_inline(k, a)
     w = a.work
@@ -255,6 +288,19 @@ def cbf_step(k, a):
                 weights[j] = weights[j] * 1e-3 if weights[j] > a.rho_soft * 1e-5 else 0.0
         newton(a.tau_nominal[k], a.rows, h, weights, count, a.iterations, a.tolerance,
                w.solver, w.matrices[FACTOR], w.binding, True)
+    if a.tracking_authority and beyond_authority(k, a, tau):
+        # the hard rows' answer alone, then the tracking rows' share scaled back to it
+        answer = w.authority[1]
+        for i in range(tau.shape[0]):
+            answer[i] = tau[i]
+        for j in range(count):
+            if a.is_hard[j] == 0.0:
+                weights[j] = 0.0
+        newton(a.tau_nominal[k], a.rows, h, weights, count, a.iterations, a.tolerance,
+               w.solver, w.matrices[FACTOR], w.binding, True)
+        for i in range(tau.shape[0]):
+            answer[i], tau[i] = tau[i], answer[i]
+        within_authority(a, tau, answer)
     return record_inline(k, a, count, tau)
 
 
@@ -399,6 +445,8 @@ class CbfFilter(Block):
             torque_limit=self.publishes[FILTER_ASSUMES].torque_limit,
             rho_soft=p.tracking_weight, rho_hard=p.hard_weight,
             hard_tolerance=p.hard_tolerance, verify=p.backup == "verified",
+            tracking_authority=p.tracking_torque == "controller" and any(
+                getattr(p, name) for name in ("soft", "soft_norms")),
             backup_rate=p.backup_rate, recovery_speed=p.recovery_speed,
             recovery_rate=p.recovery_rate, backup_step=p.backup_step,
             backup_horizon=p.backup_horizon,
@@ -447,6 +495,11 @@ class CbfFilter(Block):
         h_full = np.concatenate([h[hard] - a.hard_tolerance, h[soft], np.zeros(m)])
         x = qpsolvers.solve_qp(P, q, G_full, h_full, solver=self.params.solver)
         tau = a.tau_nominal[k].copy() if x is None else x[:n]
+        if a.tracking_authority and beyond_authority(k, a, tau):
+            alone = qpsolvers.solve_qp(np.eye(n), -a.tau_nominal[k], G[hard],
+                                       h[hard] - a.hard_tolerance, solver=self.params.solver)
+            if alone is not None:
+                within_authority(a, tau, alone)
         return cbf_record(k, a, count, tau)
 
 

@@ -75,6 +75,9 @@ class CbfWork(NamedTuple):
     binding: np.ndarray  # (rows,) the rows violated at the solver's iterate
     rollout: np.ndarray  # (ROLLOUT_ROWS, n) R_Q …
     flags: np.ndarray  # (2,) CONSISTENT, PLAN
+    # tracking_torque = "controller": the largest |τ_nom,i| so far (row 0) and the QP's
+    # answer with the tracking rows while the hard rows' alone is solved (row 1), (2, n)
+    authority: np.ndarray
     # the backup's torque as a small QP in q̈ (cosim.paper.cbf_filter.backup): its rows
     # (2n, n), their limits and weights (2, 2n), its solver's vectors (5, n) and the rows
     # bound at its iterate (2n,)
@@ -112,7 +115,8 @@ def cbf_work(n: int, rows: int, grid: int, d: int) -> CbfWork:
         point_vectors=np.zeros((4, d)), squares=np.zeros((3, d, d)), s_grid=np.zeros((grid + 1, d)),
         corner_index=payload_corners(grid, d),
         per_row=np.zeros((2, rows)), binding=np.zeros(rows, np.bool_),
-        rollout=np.zeros((ROLLOUT_ROWS, n)), flags=np.zeros(2), backup_rows=np.zeros((2 * n, n)),
+        rollout=np.zeros((ROLLOUT_ROWS, n)), flags=np.zeros(2), authority=np.zeros((2, n)),
+        backup_rows=np.zeros((2 * n, n)),
         backup_limits=np.zeros((2, 2 * n)), backup_solver=np.zeros((5, n)),
         backup_binding=np.zeros(2 * n, np.bool_))
 
@@ -139,6 +143,9 @@ class CbfArgs(NamedTuple):
     rho_hard: float
     hard_tolerance: float
     verify: bool  # check every torque against the braking backup (else: the QP's answer)
+    # the tracking rows may ask no joint for more torque than the controller has (its
+    # largest |τ_nom,i| so far): tracking_torque = "controller"
+    tracking_authority: bool
     backup_rate: float  # k_b, 1/s
     recovery_speed: float  # rad/s
     recovery_rate: float  # 1/s
