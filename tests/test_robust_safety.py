@@ -428,7 +428,7 @@ def test_the_tracking_rows_ask_no_more_torque_than_the_controller_has():
     to ~1600 N·m against the controller's ~290): wherever no hard row binds and the backup
     takes no share, every |τ_i| is within the largest |τ_nom,i| the controller has asked so
     far; the hard sets still hold (the hard rows' torque is not capped). With "limit" (the
-    default) the same run goes past it. Both solvers (Newton, DAQP) agree on the rule."""
+    default; monte_carlo.toml asks for "controller") the same run goes past it. Both solvers (Newton, DAQP) agree on the rule."""
     sets = ["cbf_filter.torque_limit=2000", 'plant.parameters."qdot0[1]"=9',
             'plant.parameters."qdot0[2]"=9', "sensor.noise_std=0"]
 
@@ -438,7 +438,8 @@ def test_the_tracking_rows_ask_no_more_torque_than_the_controller_has():
                 == 0) & (trace["cbf_backup"] == 0)
         return float(np.max((np.abs(trace["tau"]) - peak)[free])), int(free.sum())
 
-    _, _, trace = simulated(sets, "baseline_cbf", duration=1.0)
+    _, _, trace = simulated([*sets, 'cbf_filter.tracking_torque="limit"'], "baseline_cbf",
+                            duration=1.0)
     assert excess(trace)[0] > 500.0  # N·m beyond the controller's peak, for tracking
     for solver in ("newton", "daqp"):
         _, _, trace = simulated([*sets, 'cbf_filter.tracking_torque="controller"',
