@@ -58,6 +58,8 @@ PIPELINES = {"project": "pipelines/monte_carlo.toml",
              "outside": "pipelines/monte_carlo.toml"}
 FILTERED = ("proposed_cbf", "baseline_cbf")
 UNFILTERED = ("baseline", "proposed")
+# the unfiltered controllers clipped at the limit (monte_carlo.toml): the actuator's share
+SATURATED = ("proposed_saturated", "baseline_saturated")
 NOMINAL_TIP_MASS = 2.3  # kg, m[2] of the paper's arm (monte_carlo.toml's payload adds to it)
 DESIRED_START_VELOCITY = 10.0  # rad/s, q̇_d(0) of the paper's reference: x̂2(0) in `project`
 OUTWARD_AMPLITUDE = 30.0  # rad, the reproducer's reference amplitude
@@ -240,7 +242,7 @@ def jobs_of(samples: list[Sample], args: argparse.Namespace) -> list[Job]:
                 points.append(s.point if limit is None
                               else {**s.point, "cbf_filter.torque_limit": limit})
                 drawn.append({**s.drawn, "index": i, "torque_limit": limit_label(limit)})
-        jobs.append(Job(list(args.runs), points, drawn))
+        jobs.append(Job([*args.runs, *args.saturated_runs], points, drawn))
     return jobs
 
 
@@ -571,23 +573,26 @@ def kept_share(rows: list[dict], checks: list[str]) -> str:
     return share(sum(family_kept(r, checks) for r in judged), len(judged)) if judged else "-"
 
 
-def tracking_lines(rows: list[dict], compared: list[dict], compared_name: str) -> list[str]:
-    """The tracking sets kept, every joint, against the unfiltered controller's (Wilson)."""
-    families = dict(table_checks(rows + compared))
+def tracking_lines(rows: list[dict], comparisons: list[tuple[str, list[dict]]]) -> list[str]:
+    """The tracking sets kept, every joint, against each (name, rows) compared: the
+    unfiltered controller's, and the same controller clipped at the run's limit (Wilson)."""
+    comparisons = [(name, theirs) for name, theirs in comparisons if theirs]
+    families = dict(table_checks(rows + [r for _, theirs in comparisons for r in theirs]))
     lines = []
     for family in TRACKING:
         if family not in families:
             continue
         checks = families[family]
-        text = f"  {family + ' kept':<32}{kept_share(rows, checks)}"
-        if compared:
-            text += f"  ({compared_name}: {kept_share(compared, checks)})"
-        lines.append(text)
-    rms = [r.get("rms_error.1") for r in rows if r.get("rms_error.1") is not None]
-    theirs = [r.get("rms_error.1") for r in compared if r.get("rms_error.1") is not None]
-    if rms:
-        lines.append(f"  RMS |e1| (mean over runs)       {np.mean(rms):.4f} rad"
-                     + (f" ({compared_name}: {np.mean(theirs):.4f} rad)" if theirs else ""))
+        lines.append(f"  {family + ' kept':<32}{kept_share(rows, checks)}" + "".join(
+            f"  ({name}: {kept_share(theirs, checks)})" for name, theirs in comparisons))
+
+    def rms(of: list[dict]) -> list[float]:
+        return [r["rms_error.1"] for r in of if r.get("rms_error.1") is not None]
+
+    if rms(rows):
+        lines.append(f"  RMS |e1| (mean over runs)       {np.mean(rms(rows)):.4f} rad" + "".join(
+            f" ({name}: {np.mean(rms(theirs)):.4f} rad)" for name, theirs in comparisons
+            if rms(theirs)))
     return lines
 
 
@@ -708,7 +713,11 @@ def report(rows: list[dict], a_min: float | None, meta: dict | None = None) -> s
                                  len(inside)))
         lines += recovery_lines(ok)
         lines += torque_lines(ok, compared, other)
-        lines += tracking_lines(ok, compared, other)
+        saturated = run.removesuffix("_cbf") + "_saturated"
+        clipped = [r for r in rows if r["run"] == saturated and r["status"] == "ok"
+                   and (r.get("sample.torque_limit") or "none") == limit
+                   and saturated != run]
+        lines += tracking_lines(ok, [(other, compared), (f"{saturated}, same limit", clipped)])
     broken = [r for r in rows if r.get("guarantee.broken")]
     if broken and meta:
         lines += ["", f"the first broken run again ({broken[0]['run']}, sample "
@@ -739,6 +748,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         "list [1000,500], or none (default: 1000 2000)")
     parser.add_argument("--runs", nargs="*", default=list(FILTERED),
                         help="filtered runs, at every limit")
+    parser.add_argument("--saturated-runs", nargs="*", default=list(SATURATED),
+                        help="the unfiltered controllers clipped at every limit, for "
+                        "tracking (none: give the option alone)")
     parser.add_argument("--unfiltered-runs", nargs="*", default=list(UNFILTERED),
                         help="unfiltered runs, once per sample (none: give the option alone)")
     parser.add_argument("--unfiltered-only", action="store_true",
