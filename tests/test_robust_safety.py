@@ -428,7 +428,8 @@ def test_the_tracking_rows_ask_no_more_torque_than_the_controller_has():
     to ~1600 N·m against the controller's ~290): wherever no hard row binds and the backup
     takes no share, every |τ_i| is within the largest |τ_nom,i| the controller has asked so
     far; the hard sets still hold (the hard rows' torque is not capped). With "limit" (the
-    default; monte_carlo.toml asks for "controller") the same run goes past it. Both solvers (Newton, DAQP) agree on the rule."""
+    default; monte_carlo.toml asks for "controller") the same run goes past it. Both solvers
+    (Newton, DAQP) agree on the rule."""
     sets = ["cbf_filter.torque_limit=2000", 'plant.parameters."qdot0[1]"=9',
             'plant.parameters."qdot0[2]"=9', "sensor.noise_std=0"]
 
