@@ -451,6 +451,36 @@ def test_the_tracking_rows_ask_no_more_torque_than_the_controller_has():
         assert np.all(np.abs(trace["qdot"]) <= 13.5) and np.all(np.abs(trace["q"]) <= 20.0)
 
 
+def test_the_rows_left_out_could_not_bind_within_the_torque_limits():
+    """A hard row is left out of the QP only where no torque within the limits could
+    violate it: at every step of a run near the velocity bound at 1000 N·m, each row of the
+    full set (the limits made huge, so nothing is left out) that some torque in the box
+    |τ_i| ≤ 1000 N·m would violate is in the QP as built, and rows were left out."""
+    from cosim.paper.cbf_filter.rows import cbf_rows
+
+    limit = 1000.0
+    _, plan, trace = simulated([f"cbf_filter.torque_limit={limit}",
+                                'plant.parameters."qdot0[1]"=12.5'], "proposed_cbf",
+                               duration=0.3)
+    a = next(b for b in plan.blocks if b.kind == "cbf_filter").args
+    unlimited = a._replace(torque_limit=np.full_like(a.torque_limit, 1e30))
+    left_out = binding = 0
+    for k in range(0, trace.rows_done, 10):
+        count = cbf_rows(k, a)
+        sets = (a.kinds[:count] >= 0) & (a.kinds[:count] < 2)  # position, velocity rows
+        kept = np.column_stack([a.rows[:count], a.limits[:count]])[sets]
+        full = cbf_rows(k, unlimited)
+        hard = (a.kinds[:full] >= 0) & (a.kinds[:full] < 2) & (a.is_hard[:full] > 0)
+        rows, limits = a.rows[:full][hard], a.limits[:full][hard]
+        left_out += len(rows) - len(kept)
+        binding += int(np.sum(np.abs(rows).sum(axis=1) * limit > limits))
+        could_bind = np.abs(rows).sum(axis=1) * limit > limits
+        for row, bound in zip(rows[could_bind], limits[could_bind], strict=True):
+            assert np.any(np.all(np.isclose(kept, [*row, bound], rtol=1e-12, atol=1e-9),
+                                 axis=1)), k
+    assert left_out > 0 and binding > 0, (left_out, binding)
+
+
 @pytest.fixture(scope="module")
 def monte_carlo(tmp_path_factory):
     """The Monte Carlo of the robust-safety issue on 40 samples, 10 s each (the reference's
