@@ -386,6 +386,9 @@ def test_a_hard_set_the_filter_does_not_keep_is_never_held_against_it():
     assert g["broken"] is True and g["first_exit"]["set"] == "position_joint2"
     g = judge(trace, OUTPUT_FEEDBACK._replace(keeps=()))
     assert g["filtered"] is g["covered"] is g["broken"] is False
+    # what it did is still reported, as for an unfiltered run: both sets left
+    assert g["hard_kept"] is False and g["first_exit"]["set"] == "velocity_true_joint1"
+    assert g["time_to_return_s"] is not None
     assert report_line(g) == ("the safety filter keeps no hard set (cbf_filter.hard = []): "
                               "no guarantee")
 

@@ -456,7 +456,7 @@ def classify(trace: Trace, safe: SafeSet, uncertainty: Uncertainty,
 
         checks = Evaluator(trace, safe, {}).result().checks
     hard = hard_checks(checks)
-    if assumes is not None:  # a hard set the filter does not keep is not held against it
+    if assumes is not None and assumes.keeps:  # a set it does not keep: not held against it
         hard = {name: c for name, c in hard.items()
                 if c.declared.family in assumes.keeps or c.declared.family not in KEPT_SETS}
     starts_inside = not any(bool(c.outside[0]) for c in hard.values())

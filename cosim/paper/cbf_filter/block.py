@@ -75,8 +75,9 @@ class CbfFilterParams(Section):
     torque_limit: PositiveFloat | list[PositiveFloat] | None = None
     # what the tracking (soft) rows may ask of a joint's torque (a name): "limit", up to
     # the torque limit; or "controller", no more than the controller itself has asked of
-    # that joint so far in the run (its largest |τ_nom,i|): the filter's torque beyond the
-    # controller's is then only ever the hard sets' (their rows and the backup)
+    # that joint so far in the run (its largest |τ_nom,i|): a joint's torque goes past the
+    # controller's only where the hard sets ask it (their rows alone, up to what they ask;
+    # the backup)
     tracking_torque: Literal["limit", "controller"] = "limit"
     # weight ρ_s of a soft row's squared violation against τ's: high, so that tracking gives
     # way only where it conflicts with a hard row (ρ_hard is 1e4 times more), dimensionless
@@ -273,8 +274,10 @@ def cbf_step(k, a):
     for j in range(count):  # solve with the hard limits lowered: checked as given after
         h[j] = a.limits[j] - a.hard_tolerance if a.is_hard[j] > 0.0 else a.limits[j]
         weights[j] = a.weights[j]
-    # Warm: from the rows that bound at the step before (w.binding keeps them; a run's rows
-    # keep their order), which most often still do.
+    # Warm: from the rows that bound at the step before (w.binding keeps them), which most
+    # often still do. The rows keep their order unless a joint's hard rows come or go (left
+    # out where no torque within the limits could bind them): a warm start from other rows
+    # costs iterations, never the answer (the solver checks the piece it starts from).
     newton(a.tau_nominal[k], a.rows, h, weights, count, a.iterations, a.tolerance, w.solver,
            w.matrices[FACTOR], w.binding, True)
     # A hard row may slip by ~ρ_soft·(soft excess)/ρ_hard where tracking pulls hard against
@@ -300,7 +303,8 @@ def cbf_step(k, a):
                w.solver, w.matrices[FACTOR], w.binding, True)
         for i in range(tau.shape[0]):
             answer[i], tau[i] = tau[i], answer[i]
-        within_authority(a, tau, answer)
+        if np.isfinite(np.sum(answer)):  # else the answer with the tracking rows stands
+            within_authority(a, tau, answer)
     return record_inline(k, a, count, tau)
 
 

@@ -123,8 +123,10 @@ def hard_rows(a, count, k, y, v, eps, minv, base, at_end):
 def _slack_within_limits(a, i, side, scale, limit, minv, base, corners):
     """Whether joint i's rows on this side hold at every corner of the payload for every
     torque within the limits (with 0.1 % to spare: the solver's τ meets its limits to its
-    tolerance), so that leaving them out changes no answer: the most g·τ can be over the
-    box |τ| ≤ τ_max against the least limit any corner has. Never with unlimited torque."""
+    tolerance): the most g·τ can be over the box |τ| ≤ τ_max against the least limit any
+    corner has. Never with unlimited torque. Leaving them out changes no answer within the
+    limits; where the hard rows and the limits conflict (no torque in the box meets them
+    all) the penalty form's compromise may move, and the check (the backup) decides then."""
     alpha, beta = a.work.point_rows[ALPHA], a.work.point_vectors[BETA]
     s_grid, n = a.work.s_grid, minv.shape[0]
     largest, least = 0.0, limit + scale * side * base[i]

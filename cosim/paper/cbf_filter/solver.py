@@ -69,9 +69,10 @@ def newton(tau_nominal, G, h, weights, count, iterations, tolerance, solver, fac
     """solve_soft_qp on the first ``count`` rows of G, h and the weights, its vectors in
     ``solver`` (5, n: TAU …), R in ``factor`` and the rows violated in ``binding``: τ into
     ``solver[TAU]``; returns the iterations used. ``warm``: start from the minimiser of the
-    piece the rows flagged in ``binding`` make (the step before's, as the rows keep their
-    order), not from τ_nom; where the rows violated there are those, it is the answer (the
-    convex function's gradient is that piece's, zero), at no iteration."""
+    piece the rows flagged in ``binding`` make (the step before's, where the rows keep their
+    order; other rows' flags only make a worse start), not from τ_nom; where the rows
+    violated there are those, it is the answer (the convex function's gradient is that
+    piece's, zero), at no iteration."""
     n = tau_nominal.shape[0]
     tau, trial, gradient, direction = solver[TAU], solver[TRIAL], solver[GRADIENT], \
         solver[DIRECTION]
