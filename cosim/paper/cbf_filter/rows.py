@@ -122,23 +122,26 @@ def hard_rows(a, count, k, y, v, eps, minv, base, at_end):
 @no_refcount_jit(cache=True, inline="always")
 def _slack_within_limits(a, i, side, scale, limit, minv, base, corners):
     """Whether joint i's rows on this side hold at every corner of the payload for every
-    torque within the limits (with 0.1 % to spare: the solver's τ meets its limits to its
-    tolerance): the most g·τ can be over the box |τ| ≤ τ_max against the least limit any
-    corner has. Never with unlimited torque. Leaving them out changes no answer within the
-    limits; where the hard rows and the limits conflict (no torque in the box meets them
-    all) the penalty form's compromise may move, and the check (the backup) decides then."""
+    torque within the limits (with 0.1 % and 1e-3 N·m to spare: the solver's τ meets its
+    limits to its tolerance): the most g·τ can be over the box |τ| ≤ τ_max against the
+    least limit any corner has. Never with unlimited torque. Leaving them out changes no
+    answer within the limits; where the hard rows and the limits conflict (no torque in the
+    box meets them all) the penalty form's compromise may move, and the check decides."""
     alpha, beta = a.work.point_rows[ALPHA], a.work.point_vectors[BETA]
     s_grid, n = a.work.s_grid, minv.shape[0]
-    largest, least = 0.0, limit + scale * side * base[i]
+    # largest: the most g·τ over the box; spread: a bound on ‖g‖₁, for 1e-3 N·m beyond it
+    largest, spread, least = 0.0, 0.0, limit + scale * side * base[i]
     for col in range(n):
         largest += abs(minv[i, col]) * a.torque_limit[col]
+        spread += abs(minv[i, col])
     if corners > 1:
         for j in range(alpha.shape[0]):
             weight = abs(alpha[j, i]) * max(abs(s_grid[0, j]), abs(s_grid[-1, j]))
             least -= scale * weight * abs(beta[j])
             for col in range(n):
                 largest += weight * abs(alpha[j, col]) * a.torque_limit[col]
-    return scale * largest * 1.001 < least
+                spread += weight * abs(alpha[j, col])
+    return scale * (largest * 1.001 + 1e-3 * spread) < least
 
 
 @no_refcount_jit(cache=True)
