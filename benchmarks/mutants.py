@@ -126,7 +126,7 @@ MUTANTS = [
      "mu = min(mu, (np.sign(tau[i]) * cap - tau_hard[i]) / (tau[i] - tau_hard[i]))",
      "mu = min(mu, 1.0)", FILTER),
     ("cbf-rows-left-out-always", "cosim/paper/cbf_filter/rows.py",
-     "return scale * (largest * 1.001 + 1e-3 * spread) < least", "return True", FILTER),
+     "if scale * (reach[i] + room[i]) < limit + scale * side * base[i]:", "if True:", FILTER),
     ("guarantee-every-hard-set", "cosim/paper/guarantee.py",
      "if c.declared.family in assumes.keeps or c.declared.family not in KEPT_SETS}",
      "if c.declared.family}", ["tests/test_guarantee.py"]),

@@ -472,9 +472,9 @@ def test_the_rows_left_out_could_not_bind_within_the_torque_limits():
         full = cbf_rows(k, unlimited)
         hard = (a.kinds[:full] >= 0) & (a.kinds[:full] < 2) & (a.is_hard[:full] > 0)
         rows, limits = a.rows[:full][hard], a.limits[:full][hard]
-        left_out += len(rows) - len(kept)
-        binding += int(np.sum(np.abs(rows).sum(axis=1) * limit > limits))
         could_bind = np.abs(rows).sum(axis=1) * limit > limits
+        left_out += len(rows) - len(kept)
+        binding += int(np.sum(could_bind))
         for row, bound in zip(rows[could_bind], limits[could_bind], strict=True):
             assert np.any(np.all(np.isclose(kept, [*row, bound], rtol=1e-12, atol=1e-9),
                                  axis=1)), k

@@ -25,6 +25,8 @@ from .scratch import (
     MINV_MID,
     NOMINAL_NOW,
     PLANT_SHIFT,
+    REACH,
+    ROOM,
     ROW,
     ROWS_ERROR,
     V_END,
@@ -71,6 +73,8 @@ def hard_rows(a, count, k, y, v, eps, minv, base, at_end):
     vectors = w.vectors
     corners = robust_model(a, y, v, eps, minv, base)
     rows_error, plant_shift = vectors[ROWS_ERROR], vectors[PLANT_SHIFT]
+    reach, room = vectors[REACH], vectors[ROOM]
+    _reach(a, minv, corners, reach, room)
     s_grid, corner_index = w.s_grid, w.corner_index
     alpha, beta = w.point_rows[ALPHA], w.point_vectors[BETA]
     y0, v0, dt = a.position[k], a.velocity[k], a.dt
@@ -100,7 +104,8 @@ def hard_rows(a, count, k, y, v, eps, minv, base, at_end):
                 if corners == 1:
                     limit -= scale * max(-a.payload_low * side * plant_shift[i],
                                          -a.payload_high * side * plant_shift[i])
-                if _slack_within_limits(a, i, side, scale, limit, minv, base, corners):
+                # no torque within the limits could violate any corner's row: left out
+                if scale * (reach[i] + room[i]) < limit + scale * side * base[i]:
                     continue
                 for corner in range(corners):
                     offset = side * base[i]
@@ -120,28 +125,31 @@ def hard_rows(a, count, k, y, v, eps, minv, base, at_end):
 
 
 @no_refcount_jit(cache=True, inline="always")
-def _slack_within_limits(a, i, side, scale, limit, minv, base, corners):
-    """Whether joint i's rows on this side hold at every corner of the payload for every
-    torque within the limits (with 0.1 % and 1e-3 N·m to spare: the solver's τ meets its
-    limits to its tolerance): the most g·τ can be over the box |τ| ≤ τ_max against the
-    least limit any corner has. Never with unlimited torque. Leaving them out changes no
-    answer within the limits; where the hard rows and the limits conflict (no torque in the
-    box meets them all) the penalty form's compromise may move, and the check decides."""
+def _reach(a, minv, corners, reach, room):
+    """Per joint i, what decides whether its hard rows can bind within the torque limits
+    (hard_rows leaves out those that cannot): into ``reach`` the most any payload corner's
+    row g·τ (unscaled) reaches over the box |τ| ≤ τ_max, with 0.1 % and 1e-3 N·m beyond it
+    to spare (the solver's τ meets its limits to its tolerance); into ``room`` the most the
+    corners lower the row's limit. Infinite with unlimited torque: then nothing is left out.
+    Leaving rows out changes no answer within the limits; where the hard rows and the limits
+    conflict (no torque in the box meets them all) the penalty form's compromise may move,
+    and the check decides."""
     alpha, beta = a.work.point_rows[ALPHA], a.work.point_vectors[BETA]
     s_grid, n = a.work.s_grid, minv.shape[0]
-    # largest: the most g·τ over the box; spread: a bound on ‖g‖₁, for 1e-3 N·m beyond it
-    largest, spread, least = 0.0, 0.0, limit + scale * side * base[i]
-    for col in range(n):
-        largest += abs(minv[i, col]) * a.torque_limit[col]
-        spread += abs(minv[i, col])
-    if corners > 1:
-        for j in range(alpha.shape[0]):
-            weight = abs(alpha[j, i]) * max(abs(s_grid[0, j]), abs(s_grid[-1, j]))
-            least -= scale * weight * abs(beta[j])
-            for col in range(n):
-                largest += weight * abs(alpha[j, col]) * a.torque_limit[col]
-                spread += weight * abs(alpha[j, col])
-    return scale * (largest * 1.001 + 1e-3 * spread) < least
+    for i in range(n):
+        largest, spread, lowered = 0.0, 0.0, 0.0  # spread: a bound on ‖g‖₁
+        for col in range(n):
+            largest += abs(minv[i, col]) * a.torque_limit[col]
+            spread += abs(minv[i, col])
+        if corners > 1:  # s_j increases with the payload: its largest |s_j| at an end
+            for j in range(alpha.shape[0]):
+                weight = abs(alpha[j, i]) * max(abs(s_grid[0, j]), abs(s_grid[-1, j]))
+                lowered += weight * abs(beta[j])
+                for col in range(n):
+                    largest += weight * abs(alpha[j, col]) * a.torque_limit[col]
+                    spread += weight * abs(alpha[j, col])
+        reach[i] = largest * 1.001 + 1e-3 * spread
+        room[i] = lowered
 
 
 @no_refcount_jit(cache=True)

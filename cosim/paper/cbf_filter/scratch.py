@@ -28,9 +28,10 @@ TAU, TRIAL, GRADIENT, DIRECTION, ROTATED = range(5)
 # hold's end and at its midpoint; the nominal model's q̈ under the held torque; the states
 # predicted at the hold's end and midpoint; dv/dt − M̂⁻¹τ; a row before its scaling; the bias
 # error's quadratic part, and its bound on |M̂⁻¹(Δb + d)|; M̂⁻¹Jᵀγ when M̂ is the plant's;
-# from X, 4 rows: each set's x, SETS order.
+# per joint, the most a hard row's g·τ reaches within the torque limits and the most its
+# payload corners lower its limit (rows.py, _reach); from X, 4 rows: each set's x, SETS order.
 (BIAS, MOVED_BIAS, BASE, BASE_END, BASE_MID, ACCELERATION, Y_END, V_END, Y_MID, V_MID, DRIFT,
- ROW, QUADRATIC, ROWS_ERROR, PLANT_SHIFT, X) = range(16)
+ ROW, QUADRATIC, ROWS_ERROR, PLANT_SHIFT, REACH, ROOM, X) = range(18)
 # Of CbfWork.matrices (n×n each): the nominal model's M at y and at a predicted position, M̂
 # moved there, M̂⁻¹ at y, at the hold's end and at its midpoint, elimination scratch, and R.
 NOMINAL_NOW, NOMINAL, SHIFTED, MINV, MINV_END, MINV_MID, LU, FACTOR = range(8)
