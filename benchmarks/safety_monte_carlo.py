@@ -715,8 +715,7 @@ def report(rows: list[dict], a_min: float | None, meta: dict | None = None) -> s
         lines += torque_lines(ok, compared, other)
         saturated = run.removesuffix("_cbf") + "_saturated"
         clipped = [r for r in rows if r["run"] == saturated and r["status"] == "ok"
-                   and (r.get("sample.torque_limit") or "none") == limit
-                   and saturated != run]
+                   and (r.get("sample.torque_limit") or "none") == limit]
         lines += tracking_lines(ok, [(other, compared), (f"{saturated}, same limit", clipped)])
     broken = [r for r in rows if r.get("guarantee.broken")]
     if broken and meta:
