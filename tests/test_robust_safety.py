@@ -451,6 +451,34 @@ def test_the_tracking_rows_ask_no_more_torque_than_the_controller_has():
         assert np.all(np.abs(trace["qdot"]) <= 13.5) and np.all(np.abs(trace["q"]) <= 20.0)
 
 
+def test_the_backup_brakes_within_braking_torque_where_that_is_verified():
+    """proposed_cbf at a 2000 N·m limit from a start of the project's distribution
+    (x̂2(0) = 10 ± 5 rad/s reaches past the 13.5 rad/s bound: nothing is verified at first,
+    and the backup brakes with the whole limit either way). After start-up, with
+    braking_torque at the limits (nothing in reserve) the filter spends the whole limit
+    again at the edge of its verified set; with 1000 N·m the limits beyond it are spent in a
+    few steps only, where the check proves them needed. The hard sets hold (true state)
+    either way, viable alike after start-up."""
+    sets = ["cbf_filter.torque_limit=2000", 'plant.parameters."q0[1]"=-0.221',
+            'plant.parameters."q0[2]"=0.240', 'plant.parameters."qdot0[1]"=9.673',
+            'plant.parameters."qdot0[2]"=8.705', 'plant.parameters."m[2]"=2.655',
+            "sensor.seed=831061"]
+    traces = {braking: simulated([*sets, f"cbf_filter.braking_torque={braking}"],
+                                 "proposed_cbf", duration=0.3)[2]
+              for braking in (1e9, 1000.0)}
+    after = {}
+    for braking, trace in traces.items():
+        first = int(np.argmax(trace["cbf_viable"] > 0))
+        assert 0 < first <= 10 and np.max(np.abs(trace["tau"][:first])) == 2000.0
+        after[braking] = np.abs(trace["tau"][first:])
+        assert np.all(np.abs(trace["qdot"]) <= 13.5) and np.all(np.abs(trace["q"]) <= 20.0)
+        assert np.all(trace["cbf_viable"][first:] == 1.0)
+    assert np.max(after[1e9][:, 0]) > 1800.0
+    beyond = np.any(after[1000.0] > 1000.0 + 1e-6, axis=1)
+    assert beyond.sum() <= 0.03 * len(beyond), int(beyond.sum())
+    assert np.max(after[1000.0][:, 0]) < 0.85 * np.max(after[1e9][:, 0])
+
+
 def test_the_rows_left_out_could_not_bind_within_the_torque_limits():
     """A hard row is left out of the QP only where no torque within the limits could
     violate it: at every step of a run near the velocity bound at 1000 N·m, each row of the

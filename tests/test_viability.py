@@ -179,7 +179,7 @@ def payload_deviation_bound(a, q, v, tau) -> np.ndarray:
 
     r = a.work.rollout
     r[R_Q], r[R_V] = q, v
-    _nominal_acceleration(0, a, np.asarray(tau, float), False, 0)
+    _nominal_acceleration(0, a, np.asarray(tau, float), False, 0, a.torque_limit)
     out = np.zeros(2)
     _deviation(a, r[R_V], np.zeros(2), r[R_ACC], out)
     return out

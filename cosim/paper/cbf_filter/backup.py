@@ -113,9 +113,10 @@ TUBE_SAFETY = 1.5
 
 
 @no_refcount_jit(cache=True, inline="always")
-def backup_torque(k, a, q, v, mass, bias, out, policy):
+def backup_torque(k, a, q, v, mass, bias, out, policy, limit):
     """τ_b at (q, v) into ``out``: the q̈ closest to the backup's k_b (w − (v − q̇_s)) that
-    the torque limits allow, τ_b = M̂ q̈ + b̂ (a small QP in q̈: clipping each τ_i alone
+    the torques ``limit`` allow (the torque limits, or the backup's within the controller's
+    torque: :func:`.block.choose`), τ_b = M̂ q̈ + b̂ (a small QP in q̈: clipping each τ_i alone
     would turn the coupled arm's braking of one joint into accelerating another), w the
     recovery velocity of a joint outside its position set (into the rollout's R_TARGET row,
     relative to q̇_s). ``policy`` 1 weighs the q̈ of joints near their position bound first
@@ -146,7 +147,7 @@ def backup_torque(k, a, q, v, mass, bias, out, policy):
     rows, limits, weights = w.backup_rows, w.backup_limits[0], w.backup_limits[1]
     count = 0
     for i in range(n):  # ±(M̂ q̈ + b̂)_i ≤ τ_max,i, scaled to unit rows
-        if not np.isfinite(a.torque_limit[i]):
+        if not np.isfinite(limit[i]):
             continue
         norm = 0.0
         for col in range(n):
@@ -155,7 +156,7 @@ def backup_torque(k, a, q, v, mass, bias, out, policy):
         for side in (1.0, -1.0):
             for col in range(n):
                 rows[count, col] = side * mass[i, col] / scale[col] / norm
-            limits[count] = (a.torque_limit[i] - side * bias[i]) / norm
+            limits[count] = (limit[i] - side * bias[i]) / norm
             weights[count] = BACKUP_WEIGHT
             count += 1
     acceleration = w.backup_solver[TAU]
@@ -167,8 +168,8 @@ def backup_torque(k, a, q, v, mass, bias, out, policy):
     binds = False
     for i in range(n):
         torque = out[i] + bias[i]
-        binds = binds or abs(torque) >= a.torque_limit[i] * (1.0 - 1e-9)
-        out[i] = min(max(torque, -a.torque_limit[i]), a.torque_limit[i])
+        binds = binds or abs(torque) >= limit[i] * (1.0 - 1e-9)
+        out[i] = min(max(torque, -limit[i]), limit[i])
     return binds
 
 
@@ -269,9 +270,10 @@ def _deviation(a, q_dot, spread, acceleration, deviation):
 
 
 @no_refcount_jit(cache=True, inline="always")
-def _nominal_acceleration(k, a, first, backup, policy):
-    """The rollout's torque (``first``, or the backup's if ``backup``) into R_TAU and the
-    nominal model's q̈ under it into R_ACC; the model's geometry left at the rollout's q.
+def _nominal_acceleration(k, a, first, backup, policy, limit):
+    """The rollout's torque (``first``, or the backup's within ``limit`` if ``backup``) into
+    R_TAU and the nominal model's q̈ under it into R_ACC; the model's geometry left at the
+    rollout's q.
     Returns whether the torque is held or limited (the backup's feedback does not act)."""
     w = a.work
     r, matrices = w.rollout, w.matrices
@@ -286,7 +288,7 @@ def _nominal_acceleration(k, a, first, backup, policy):
         bias[i] += a.tau_d[i]
     binds = True  # a held torque: no feedback over its step
     if backup:
-        binds = backup_torque(k, a, q, vel, mass, bias, tau, policy)
+        binds = backup_torque(k, a, q, vel, mass, bias, tau, policy, limit)
     else:
         for i in range(n):
             tau[i] = first[i]
@@ -298,14 +300,14 @@ def _nominal_acceleration(k, a, first, backup, policy):
 
 
 @no_refcount_jit(cache=True)
-def backup_at(k, a, policy, out):
+def backup_at(k, a, policy, limit, out):
     """The backup's torque at row k (its position, the velocity interval's centre) with
-    ``policy``, as the rollout computes it, into ``out``."""
+    ``policy`` within the torques ``limit``, as the rollout computes it, into ``out``."""
     r = a.work.rollout
     y = a.position[k]
     for i in range(y.shape[0]):
         r[R_Q, i], r[R_V, i] = y[i], r[R_CENTRE, i]
-    _nominal_acceleration(k, a, out, True, policy)
+    _nominal_acceleration(k, a, out, True, policy, limit)
     for i in range(y.shape[0]):
         out[i] = r[R_TAU, i]
 
@@ -356,7 +358,7 @@ def predict_interval(k, a, tau):
     deviation, acceleration = r[R_DEV], r[R_ACC]
     _fixed_deviation(a, r[R_HALF])
     for end in range(2):
-        _nominal_acceleration(k, a, tau, False, 0)
+        _nominal_acceleration(k, a, tau, False, 0, a.torque_limit)
         _deviation(a, r[R_V], r[R_HALF], acceleration, deviation)
         for i in range(n):
             low[i] = min(low[i], acceleration[i] - TUBE_SAFETY * deviation[i])
@@ -387,10 +389,10 @@ def inside(k, a):
 
 
 @no_refcount_jit(cache=True)
-def verified(k, a, y, v, eps, first, hold, policy):
+def verified(k, a, y, v, eps, first, hold, policy, limit):
     """Whether the backup keeps every hard set from the estimate (y, v) (|q − y| ≤ n̄,
     |q̇ − v| ≤ ε), after ``first`` is held for one step if ``hold`` (module docstring), with
-    the backup's ``policy``."""
+    the backup's ``policy`` within the torques ``limit`` (the torque limits or less)."""
     r = a.work.rollout
     q, vel, dq, dv, acc = r[R_Q], r[R_V], r[R_DQ], r[R_DV], r[R_ACC]
     limit_q, limit_v, deviation = r[R_LIMIT_Q], r[R_LIMIT_V], r[R_DEV]
@@ -407,7 +409,7 @@ def verified(k, a, y, v, eps, first, hold, policy):
     while t < a.backup_horizon:
         backup = not (hold and step == 0)
         h = a.backup_step if backup else a.dt
-        clipped = _nominal_acceleration(k, a, first, backup, policy)
+        clipped = _nominal_acceleration(k, a, first, backup, policy, limit)
         # the bias error's velocity error is the estimate's, ε: the backup acts on the
         # state as measured, whatever the tube (the true state's spread about the rollout)
         _deviation(a, vel, eps, acc, deviation)
@@ -416,7 +418,7 @@ def verified(k, a, y, v, eps, first, hold, policy):
         for i in range(n):
             # the backup's feedback acts on a joint whose torque is free (the held torque:
             # on none): a limited joint brakes as hard as it can, the others still steer
-            free = backup and abs(r[R_TAU, i]) < a.torque_limit[i] * (1.0 - 1e-9)
+            free = backup and abs(r[R_TAU, i]) < limit[i] * (1.0 - 1e-9)
             feedback = min(a.backup_rate * h, 1.0) if free else 0.0
             # exact for q̈ constant over the step (the position's error would be ~v·h/2),
             # with its turning point inside the step checked too
@@ -457,4 +459,5 @@ def verified_from(a, y, v, eps, policy):
     invert(matrices[NOMINAL_NOW], minv, matrices[LU])
     product(minv, bias, base)
     robust_model(a, y, v, eps, minv, base)
-    return verified(0, a, y, v, eps, bias, False, policy)  # nothing held: bias unread
+    # nothing held: bias unread
+    return verified(0, a, y, v, eps, bias, False, policy, a.torque_limit)

@@ -19,9 +19,12 @@ from .assumptions import BACKUP, FILTER_ASSUMES, KEPT_CHECKS, VIABLE, FilterAssu
 from .backup import backup_at, inside, predict_interval, verified
 from .rows import cbf_rows, rows_inline
 from .scratch import (
+    ANSWER,
     CONSISTENT,
     FACTOR,
+    PEAK,
     PLAN,
+    PLAN_RESERVE,
     R_CANDIDATE,
     R_CENTRE,
     R_HALF,
@@ -79,6 +82,12 @@ class CbfFilterParams(Section):
     # controller's only where the hard sets ask it (their rows alone, up to what they ask;
     # the backup)
     tracking_torque: Literal["limit", "controller"] = "limit"
+    # the torque the backup brakes with wherever that is verified to keep the hard sets,
+    # and where no torque is verified at all, per joint or one for all, N·m (unset: the
+    # torque limits): the limits beyond it are a reserve, spent only where the check
+    # proves braking within it is not enough (a state kept by braking within it is held
+    # so; a limit of twice the controller's peak then costs no intervention twice its peak)
+    braking_torque: PositiveFloat | list[PositiveFloat] | None = None
     # weight ρ_s of a soft row's squared violation against τ's: high, so that tracking gives
     # way only where it conflicts with a hard row (ρ_hard is 1e4 times more), dimensionless
     tracking_weight: PositiveFloat = 1e6
@@ -129,70 +138,117 @@ def hard_violated(G, h, is_hard, count, tau):
 
 
 @no_refcount_jit(cache=True, inline="always")
+def blend_verified(k, a, tau, limit, reserve):
+    """With the backup within the torques ``limit`` (the torque limits if ``reserve``, else
+    braking_torque): 0 if ``tau`` is verified (kept as it is), else the backup's share
+    1 − λ of the verified blend τ_b + λ(τ − τ_b) with the largest λ found by bisection (into
+    ``tau``), else (no verified torque) −1. The plan (the policy and the backup's torques of
+    the torque verified) is kept in the work space's flags."""
+    n = tau.shape[0]
+    y, v, eps = a.position[k], a.work.rollout[R_CENTRE], a.work.rollout[R_HALF]
+    flags, backup = a.work.flags, a.backup
+    found = -1
+    for policy in range(POLICIES):
+        if verified(k, a, y, v, eps, tau, True, policy, limit):
+            found = policy
+            break
+    low = 1.0  # λ = low is verified
+    if found < 0:
+        # With the limits in reserve, the backup within braking_torque is applied where it
+        # is verified (held for the step, then the backup within the limits): the state
+        # is braked back into where braking_torque keeps it, not held at the edge of where
+        # the limits do (where the estimate's next move would call for all of them).
+        if reserve and a.braking_reserve:
+            for policy in range(POLICIES):
+                backup_at(k, a, policy, a.braking_torque, backup)
+                if verified(k, a, y, v, eps, backup, True, policy, limit):
+                    for i in range(n):
+                        tau[i] = backup[i]
+                    flags[PLAN], flags[PLAN_RESERVE] = policy, 1.0
+                    return 1.0
+        for policy in range(POLICIES):
+            backup_at(k, a, policy, limit, backup)
+            if verified(k, a, y, v, eps, backup, True, policy, limit):
+                found = policy
+                break
+        if found < 0:
+            return -1.0
+        candidate = a.work.rollout[R_CANDIDATE]
+        low, high = 0.0, 1.0
+        for _ in range(BISECTIONS):
+            middle = 0.5 * (low + high)
+            for i in range(n):
+                candidate[i] = backup[i] + middle * (tau[i] - backup[i])
+            if verified(k, a, y, v, eps, candidate, True, found, limit):
+                low = middle
+            else:
+                high = middle
+        for i in range(n):
+            tau[i] = backup[i] + low * (tau[i] - backup[i])
+    flags[PLAN] = found
+    flags[PLAN_RESERVE] = 1.0 if reserve else 0.0
+    return 1.0 - low
+
+
+@no_refcount_jit(cache=True, inline="always")
 def choose(k, a, count, tau):
     """The torque to apply, into ``tau`` (the QP's answer, clipped to the torque limits):
     itself if the backup can still keep every hard set after it (:func:`.backup.verified`),
     else the verified blend τ_b + λ(τ − τ_b) with the largest λ found by bisection, else
     (no verified torque: the state is not viable as seen) the backup τ_b, each backup policy
-    tried in turn. Viable: a torque verified, and every state the bounds allow inside the
-    hard sets (else the verified torque brings the state back: recovery). Returns
-    (viable, the backup's share 1 − λ). Without ``verify``: the QP's answer, viable where
-    its hard rows hold as given."""
+    tried in turn; where braking_torque is below the limits, all that first with the backup
+    within it (the plan followed if it needs no more), then within the limits. Viable: a torque
+    verified, and every state the bounds allow inside the hard sets (else the verified
+    torque brings the state back: recovery). Returns (viable, the backup's share 1 − λ).
+    Without ``verify``: the QP's answer, viable where its hard rows hold as given."""
     n = tau.shape[0]
     for i in range(n):
         tau[i] = min(max(tau[i], -a.torque_limit[i]), a.torque_limit[i])
     if not a.verify:
         return not hard_violated(a.rows, a.limits, a.is_hard, count, tau), 0.0
-    y, v, eps = a.position[k], a.work.rollout[R_CENTRE], a.work.rollout[R_HALF]
+    limited = False
+    for i in range(n):
+        limited = limited or np.isfinite(a.torque_limit[i])
+    if limited and hard_violated(a.rows, a.limits, a.is_hard, count, tau):
+        # The hard rows cannot all be met within the torque limits: the QP's answer is a
+        # penalty compromise, most often every limit spent braking, with no standing of its
+        # own (what keeps the sets is the check below). The controller's torque is tried
+        # in its place, the backup's blend towards it where it is not verified.
+        for i in range(n):
+            tau[i] = min(max(a.tau_nominal[k, i], -a.torque_limit[i]), a.torque_limit[i])
     kept = inside(k, a)  # else verified means recovering: not viable
     flags = a.work.flags
-    backup = a.backup
     # If the step before was viable, its check proved the backup from every state its tube
     # allows, and the state is in that tube when the velocity is where it predicted
     # (CONSISTENT): the backup, as planned, is still viable. The plan is followed where no
     # torque is verified afresh, and where the interval the filter now holds pokes past a
     # set (a torque verified from it would prove a recovery, not that the sets are kept).
     planned = k > 0 and a.viable[k - 1] > 0.0 and flags[CONSISTENT] > 0.0
+    plan = a.torque_limit if flags[PLAN_RESERVE] > 0.0 else a.braking_torque
     if not kept and planned:
-        backup_at(k, a, int(flags[PLAN]), backup)
-        for i in range(n):
-            tau[i] = backup[i]
+        backup_at(k, a, int(flags[PLAN]), plan, tau)
         return True, 1.0
-    for policy in range(POLICIES):
-        if verified(k, a, y, v, eps, tau, True, policy):
-            flags[PLAN] = policy
-            return kept, 0.0
-    found = -1
-    for policy in range(POLICIES):
-        backup_at(k, a, policy, backup)
-        if verified(k, a, y, v, eps, backup, True, policy):
-            found = policy
-            flags[PLAN] = policy
-            break
-    if found < 0:
-        # No torque verified afresh: the plan, viable if planned (a check from a state on
-        # the edge of the verified set may fail by the rollout's own discretisation); else
-        # not viable as seen, the backup all the same.
-        backup_at(k, a, int(flags[PLAN]), backup)
-        for i in range(n):
-            tau[i] = backup[i]
-        # (The plan's check covered its tube, so the state need not be shown inside anew:
-        # the interval the filter holds may be wider than the tube the plan was verified
-        # with, as it is what the filter knows, not where the plan keeps the state.)
-        return planned, 1.0
-    candidate = a.work.rollout[R_CANDIDATE]
-    low, high = 0.0, 1.0  # λ = low is verified
-    for _ in range(BISECTIONS):
-        middle = 0.5 * (low + high)
-        for i in range(n):
-            candidate[i] = backup[i] + middle * (tau[i] - backup[i])
-        if verified(k, a, y, v, eps, candidate, True, found):
-            low = middle
-        else:
-            high = middle
-    for i in range(n):
-        tau[i] = backup[i] + low * (tau[i] - backup[i])
-    return kept, 1.0 - low
+    braking = a.braking_torque
+    if a.braking_reserve:  # braking within braking_torque first, the limits in reserve
+        share = blend_verified(k, a, tau, braking, False)
+        if share >= 0.0:
+            return kept, share
+        if planned and flags[PLAN_RESERVE] == 0.0:  # the plan needs no reserve
+            backup_at(k, a, int(flags[PLAN]), braking, tau)
+            return True, 1.0
+    share = blend_verified(k, a, tau, a.torque_limit, True)
+    if share >= 0.0:
+        return kept, share
+    # No torque verified afresh: the plan, viable if planned (a check from a state on the
+    # edge of the verified set may fail by the rollout's own discretisation); else not
+    # viable as seen, the backup all the same, within the limits: with nothing proven,
+    # braking_torque is not known to be enough (an inside start, x̂2(0) = 10 ± 5 rad/s and
+    # no torque limit, left its velocity set braked within 1000 N·m). (The plan's check
+    # covered its tube, so the state need not be shown inside anew: the interval the filter
+    # holds may be wider than the tube the plan was verified with, as it is what the filter
+    # knows, not where the plan keeps the state.)
+    backup_at(k, a, int(flags[PLAN]), plan if planned else a.torque_limit, tau)
+    return planned, 1.0
 
 
 @no_refcount_jit(cache=True)
@@ -242,7 +298,7 @@ def record_inline(k, a, count, tau):
 def beyond_authority(k, a, tau):
     """Whether τ asks a joint for more torque than the controller has so far (the largest
     |τ_nom,i| up to row k, kept up to date here: tracking_torque = "controller")."""
-    peak = a.work.authority[0]
+    peak = a.work.authority[PEAK]
     beyond = False
     for i in range(tau.shape[0]):
         peak[i] = max(peak[i], abs(a.tau_nominal[k, i]))
@@ -256,7 +312,7 @@ def within_authority(a, tau, tau_hard):
     the controller's peak (or within |τ_h,i| where the hard rows alone ask more): the
     tracking rows' share of the correction scaled back. Both ends meet the hard rows, which
     are linear, so the blend does too."""
-    peak = a.work.authority[0]
+    peak = a.work.authority[PEAK]
     mu = 1.0
     for i in range(tau.shape[0]):
         cap = max(peak[i], abs(tau_hard[i]))
@@ -293,7 +349,7 @@ def cbf_step(k, a):
                w.solver, w.matrices[FACTOR], w.binding, True)
     if a.tracking_authority and beyond_authority(k, a, tau):
         # the hard rows' answer alone, then the tracking rows' share scaled back to it
-        answer = w.authority[1]
+        answer = w.authority[ANSWER]
         for i in range(tau.shape[0]):
             answer[i] = tau[i]
         for j in range(count):
@@ -313,7 +369,7 @@ class CbfFilter(Block):
     kind = "cbf_filter"
     Params = CbfFilterParams
     PUBLISHES = {FILTER_ASSUMES: FilterAssumptions}
-    per_joint = ("tau_d", "torque_limit")
+    per_joint = ("tau_d", "torque_limit", "braking_torque")
     views = (("h", "CBF barrier values β − |x| (≥ 0 inside)"),
              ("correction", "‖τ − τ_nom‖ (N·m)"))
 
@@ -437,6 +493,9 @@ class CbfFilter(Block):
             velocity_bound, drift = np.zeros((steps, n)), np.full((steps, n), np.nan)
             envelope_centre = inp[self.velocity]
         payload_low, payload_high = map(float, uncertainty.payload)
+        limit = self.publishes[FILTER_ASSUMES].torque_limit
+        braking = limit if p.braking_torque is None else np.minimum(
+            limit, np.broadcast_to(np.asarray(p.braking_torque, float), (n,)))
         return kernel_args(
             CbfArgs,
             **{name: np.array([float(s in getattr(p, name)) for s in SETS])
@@ -446,7 +505,8 @@ class CbfFilter(Block):
             centres=centres, k1=2.0 * p.position_rate, k0=p.position_rate**2,
             tracking_k1=2.0 * p.tracking_rate, tracking_k0=p.tracking_rate**2,
             k_velocity=p.velocity_rate, dt=self.context.dt,
-            torque_limit=self.publishes[FILTER_ASSUMES].torque_limit,
+            torque_limit=limit, braking_torque=braking,
+            braking_reserve=bool(np.any(braking < limit)),
             rho_soft=p.tracking_weight, rho_hard=p.hard_weight,
             hard_tolerance=p.hard_tolerance, verify=p.backup == "verified",
             tracking_authority=p.tracking_torque == "controller" and any(

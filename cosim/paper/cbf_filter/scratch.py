@@ -50,6 +50,11 @@ ROLLOUT_ROWS = 19
 # backup policy of the last torque verified (a row of their own: an arm of one joint has a
 # rollout row of one)
 CONSISTENT, PLAN = 0, 1
+# … and PLAN_RESERVE, 1 where that torque was verified with the backup within the torque
+# limits, 0 within braking_torque
+PLAN_RESERVE = 2
+# Of CbfWork.authority (n each)
+PEAK, ANSWER = range(2)
 # The payload's structure, its point of d coordinates (the model's dim: 2 in the plane, 3 in
 # space): of CbfWork.point_rows (d×n each) J of its point, J M̂⁻¹ and α; of .point_vectors (d each)
 # γ = J̇v − g, J M̂⁻¹b̂, K's eigenvalues (ascending) and β; of .squares (d×d each)
@@ -75,9 +80,9 @@ class CbfWork(NamedTuple):
     per_row: np.ndarray  # (2, rows) the limits and the weights the QP is solved with
     binding: np.ndarray  # (rows,) the rows violated at the solver's iterate
     rollout: np.ndarray  # (ROLLOUT_ROWS, n) R_Q …
-    flags: np.ndarray  # (2,) CONSISTENT, PLAN
-    # tracking_torque = "controller": the largest |τ_nom,i| so far (row 0) and the QP's
-    # answer with the tracking rows while the hard rows' alone is solved (row 1), (2, n)
+    flags: np.ndarray  # (3,) CONSISTENT, PLAN, PLAN_RESERVE
+    # tracking_torque = "controller": the largest |τ_nom,i| so far and the QP's answer
+    # with the tracking rows while the hard rows' alone is solved, (2, n) PEAK, ANSWER
     authority: np.ndarray
     # the backup's torque as a small QP in q̈ (cosim.paper.cbf_filter.backup): its rows
     # (2n, n), their limits and weights (2, 2n), its solver's vectors (5, n) and the rows
@@ -116,7 +121,7 @@ def cbf_work(n: int, rows: int, grid: int, d: int) -> CbfWork:
         point_vectors=np.zeros((4, d)), squares=np.zeros((3, d, d)), s_grid=np.zeros((grid + 1, d)),
         corner_index=payload_corners(grid, d),
         per_row=np.zeros((2, rows)), binding=np.zeros(rows, np.bool_),
-        rollout=np.zeros((ROLLOUT_ROWS, n)), flags=np.zeros(2), authority=np.zeros((2, n)),
+        rollout=np.zeros((ROLLOUT_ROWS, n)), flags=np.zeros(3), authority=np.zeros((2, n)),
         backup_rows=np.zeros((2 * n, n)),
         backup_limits=np.zeros((2, 2 * n)), backup_solver=np.zeros((5, n)),
         backup_binding=np.zeros(2 * n, np.bool_))
@@ -147,6 +152,10 @@ class CbfArgs(NamedTuple):
     # the tracking rows may ask no joint for more torque than the controller has (its
     # largest |τ_nom,i| so far): tracking_torque = "controller"
     tracking_authority: bool
+    # (n,) the torques the backup brakes with where that is verified (braking_torque, at
+    # most the torque limits); braking_reserve: whether it is below them somewhere
+    braking_torque: np.ndarray
+    braking_reserve: bool
     backup_rate: float  # k_b, 1/s
     recovery_speed: float  # rad/s
     recovery_rate: float  # 1/s
