@@ -83,10 +83,10 @@ class CbfFilterParams(Section):
     # the backup)
     tracking_torque: Literal["limit", "controller"] = "limit"
     # the torque the backup brakes with wherever that is verified to keep the hard sets,
-    # and where no torque is verified at all, per joint or one for all, N·m (unset: the
-    # torque limits): the limits beyond it are a reserve, spent only where the check
-    # proves braking within it is not enough (a state kept by braking within it is held
-    # so; a limit of twice the controller's peak then costs no intervention twice its peak)
+    # per joint or one for all, N·m (unset: the torque limits; a joint without a limit has
+    # no reserve and ignores it): the limits beyond it are a reserve, spent only where the
+    # check proves braking within it is not enough (a state kept by braking within it is
+    # held so; a limit of twice the controller's peak then costs no intervention twice it)
     braking_torque: PositiveFloat | list[PositiveFloat] | None = None
     # weight ρ_s of a soft row's squared violation against τ's: high, so that tracking gives
     # way only where it conflicts with a hard row (ρ_hard is 1e4 times more), dimensionless
@@ -494,8 +494,9 @@ class CbfFilter(Block):
             envelope_centre = inp[self.velocity]
         payload_low, payload_high = map(float, uncertainty.payload)
         limit = self.publishes[FILTER_ASSUMES].torque_limit
-        braking = limit if p.braking_torque is None else np.minimum(
-            limit, np.broadcast_to(np.asarray(p.braking_torque, float), (n,)))
+        # only a finite limit leaves a reserve: without one the backup brakes as before
+        braking = limit if p.braking_torque is None else np.where(np.isfinite(limit), np.minimum(
+            limit, np.broadcast_to(np.asarray(p.braking_torque, float), (n,))), limit)
         return kernel_args(
             CbfArgs,
             **{name: np.array([float(s in getattr(p, name)) for s in SETS])
