@@ -128,6 +128,8 @@ MUTANTS = [
     ("cbf-braking-reserve-ignored", "cosim/paper/cbf_filter/block.py",
      "    if a.braking_reserve:  # braking within braking_torque first, the limits in reserve",
      "    if False:", FILTER),
+    ("cbf-braking-held-not-tried", "cosim/paper/cbf_filter/block.py",
+     "        if reserve and a.braking_reserve:", "        if False:", FILTER),
     ("cbf-rows-left-out-always", "cosim/paper/cbf_filter/rows.py",
      "if scale * (reach[i] + room[i]) < limit + scale * side * base[i]:", "if True:", FILTER),
     ("guarantee-every-hard-set", "cosim/paper/guarantee.py",

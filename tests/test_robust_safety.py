@@ -458,7 +458,7 @@ def test_the_backup_brakes_within_braking_torque_where_that_is_verified():
     braking_torque at the limits (nothing in reserve) the filter spends the whole limit
     again at the edge of its verified set; with 1000 N·m the limits beyond it are spent in a
     few steps only, where the check proves them needed. The hard sets hold (true state)
-    either way, viable alike after start-up."""
+    either way, viable alike after start-up. Likewise baseline_cbf from the same start."""
     sets = ["cbf_filter.torque_limit=2000", 'plant.parameters."q0[1]"=-0.221',
             'plant.parameters."q0[2]"=0.240', 'plant.parameters."qdot0[1]"=9.673',
             'plant.parameters."qdot0[2]"=8.705', 'plant.parameters."m[2]"=2.655',
@@ -477,6 +477,16 @@ def test_the_backup_brakes_within_braking_torque_where_that_is_verified():
     beyond = np.any(after[1000.0] > 1000.0 + 1e-6, axis=1)
     assert beyond.sum() <= 0.03 * len(beyond), int(beyond.sum())
     assert np.max(after[1000.0][:, 0]) < 0.85 * np.max(after[1e9][:, 0])
+    # baseline_cbf from the same start (the true state: viable from t = 0) holds joint 1
+    # near its velocity bound: with nothing in reserve its torque goes past 1000 N·m (at
+    # ~1.1 s); braked within 1000 N·m first, it never does (the state is kept where that
+    # braking keeps it, rather than at the edge of where 2000 N·m does)
+    base = {braking: simulated([*sets, f"cbf_filter.braking_torque={braking}"],
+                               "baseline_cbf", duration=1.2)[2] for braking in (1e9, 1000.0)}
+    assert np.sum(np.any(np.abs(base[1e9]["tau"]) > 1000.0 + 1e-6, axis=1)) > 10
+    assert np.max(np.abs(base[1000.0]["tau"])) <= 1000.0 + 1e-6
+    for trace in base.values():
+        assert np.all(np.abs(trace["qdot"]) <= 13.5) and np.all(trace["cbf_viable"] == 1.0)
 
 
 def test_the_rows_left_out_could_not_bind_within_the_torque_limits():
