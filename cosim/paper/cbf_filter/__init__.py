@@ -45,10 +45,13 @@ square-root form, to ~1e-13 of τ; started from the rows that bound at the step 
 which is the answer at once at 99.9 % of the paper's steps); where a hard row still slips
 (tracking pulling hard against it), it re-solves with the soft weights 1e-3 and 1e-6 times,
 then without the soft rows. The rows' answer is a proposal: the torque applied is decided by
-the **backup's check** (:mod:`.backup`): the answer (clipped to the torque limits) if the
+the **backup's check** (:mod:`.backup`): the answer (clipped to the torque limits; the
+controller's torque where the answer does not meet the hard rows within the limits) if the
 braking backup can still keep every hard set after it, for every state and plant the
 declared uncertainty allows; else the largest verified blend towards the backup; else the
-backup (``cbf_infeasible`` = 1, ``cbf_viable`` = 0: the state was not viable as seen).
+backup (``cbf_infeasible`` = 1, ``cbf_viable`` = 0: the state was not viable as seen). With
+``braking_torque`` below the limits, the backup first brakes within it (the block's
+``choose``; docs/safety.md, "How hard the backup brakes").
 ``cbf_rows_met`` says where the applied torque met the rows as given. Soft slack is reported
 apart (``cbf_slack``): it says how much tracking gave way, never whether safety did.
 

@@ -6,11 +6,11 @@ Santillo and Ames, "Backup control barrier functions", 2021, checked by rolling 
 out rather than by its sensitivities).
 
 The backup: q̈_b = k_b (w − (v − q̇_s)) in the nominal model, τ_b = M̂ q̈_b + b̂ (the q̈
-nearest that the torque limits allow, a small QP), each τ_i clipped to its limit (so the
-torque limits hold whatever it asks); w = 0 inside the position set away from its bound,
-inward at HOLD_RATE per rad within HOLD of the bound (a persistent velocity error ε then
-holds the joint ε/HOLD_RATE deep in that band instead of letting it drift out), and at up to
-``recovery_speed`` past it (recovery).
+nearest that the torque limits allow, a small QP, or a lower braking_torque where the filter
+asks for it), each τ_i clipped to that limit (so the torque limits hold whatever it asks);
+w = 0 inside the position set away from its bound, inward at HOLD_RATE per rad within HOLD
+of the bound (a persistent velocity error ε then holds the joint ε/HOLD_RATE deep in that
+band instead of letting it drift out), and at up to ``recovery_speed`` past it (recovery).
 
 The check (:func:`verified`) rolls the nominal model out from the estimate (y, v), carrying
 the middle of the declared payload range (:func:`rollout_payload`; the backup's torque
@@ -115,8 +115,8 @@ TUBE_SAFETY = 1.5
 @no_refcount_jit(cache=True, inline="always")
 def backup_torque(k, a, q, v, mass, bias, out, policy, limit):
     """τ_b at (q, v) into ``out``: the q̈ closest to the backup's k_b (w − (v − q̇_s)) that
-    the torques ``limit`` allow (the torque limits, or the backup's within the controller's
-    torque: :func:`.block.choose`), τ_b = M̂ q̈ + b̂ (a small QP in q̈: clipping each τ_i alone
+    the torques ``limit`` allow (the torque limits, or braking_torque:
+    :func:`.block.choose`), τ_b = M̂ q̈ + b̂ (a small QP in q̈: clipping each τ_i alone
     would turn the coupled arm's braking of one joint into accelerating another), w the
     recovery velocity of a joint outside its position set (into the rollout's R_TARGET row,
     relative to q̇_s). ``policy`` 1 weighs the q̈ of joints near their position bound first

@@ -83,10 +83,11 @@ class CbfFilterParams(Section):
     # the backup)
     tracking_torque: Literal["limit", "controller"] = "limit"
     # the torque the backup brakes with wherever that is verified to keep the hard sets,
-    # per joint or one for all, N·m (unset: the torque limits; a joint without a limit has
-    # no reserve and ignores it): the limits beyond it are a reserve, spent only where the
-    # check proves braking within it is not enough (a state kept by braking within it is
-    # held so; a limit of twice the controller's peak then costs no intervention twice it)
+    # per joint or one for all, N·m (unset: the torque limits; a joint without a limit
+    # ignores it): the limits beyond it are a reserve the backup uses only where braking
+    # within it is not verified, or where nothing is verified and the likeliest state is
+    # outside a set. It bounds the backup, not the torque verified (a torque the QP asks
+    # above it is applied where verified)
     braking_torque: PositiveFloat | list[PositiveFloat] | None = None
     # weight ρ_s of a soft row's squared violation against τ's: high, so that tracking gives
     # way only where it conflicts with a hard row (ρ_hard is 1e4 times more), dimensionless
@@ -191,16 +192,33 @@ def blend_verified(k, a, tau, limit, reserve):
 
 
 @no_refcount_jit(cache=True, inline="always")
+def likely_outside(k, a):
+    """Whether the state the filter deems likeliest (y, and its velocity interval's centre)
+    is outside a hard set as the check holds it."""
+    y, centre = a.position[k], a.work.rollout[R_CENTRE]
+    for i in range(y.shape[0]):
+        if a.hard[0] and abs(y[i] - a.centres[0, i]) > a.viable_bounds[0, i]:
+            return True
+        if a.hard[1] and abs(centre[i] - a.centres[1, i]) > a.viable_bounds[1, i]:
+            return True
+    return False
+
+
+@no_refcount_jit(cache=True, inline="always")
 def choose(k, a, count, tau):
-    """The torque to apply, into ``tau`` (the QP's answer, clipped to the torque limits):
-    itself if the backup can still keep every hard set after it (:func:`.backup.verified`),
-    else the verified blend τ_b + λ(τ − τ_b) with the largest λ found by bisection, else
-    (no verified torque: the state is not viable as seen) the backup τ_b, each backup policy
-    tried in turn; where braking_torque is below the limits, all that first with the backup
-    within it (the plan followed if it needs no more), then within the limits. Viable: a torque
-    verified, and every state the bounds allow inside the hard sets (else the verified
-    torque brings the state back: recovery). Returns (viable, the backup's share 1 − λ).
-    Without ``verify``: the QP's answer, viable where its hard rows hold as given."""
+    """The torque to apply, into ``tau``: the QP's answer clipped to the torque limits (the
+    controller's, clipped, where the QP's hard rows are not met within the limits), itself
+    if the backup can still keep every hard set after it (:func:`.backup.verified`), else
+    the verified blend τ_b + λ(τ − τ_b) with the largest λ found by bisection, each backup
+    policy tried in turn; where braking_torque is below the limits, all that first with the
+    backup within it (the plan followed if it needs no more), then with the limits (the
+    torque, the backup within braking_torque held for the step, the blend). With no torque
+    verified: the plan if there is one; else (not viable as seen) the backup within
+    braking_torque, or within the limits where the likeliest state is outside a set.
+    Viable: a torque verified, and every state the bounds allow inside the hard sets (else
+    the verified torque brings the state back: recovery). Returns (viable, the backup's
+    share 1 − λ). Without ``verify``: the QP's answer, viable where its hard rows hold as
+    given."""
     n = tau.shape[0]
     for i in range(n):
         tau[i] = min(max(tau[i], -a.torque_limit[i]), a.torque_limit[i])
@@ -209,12 +227,16 @@ def choose(k, a, count, tau):
     limited = False
     for i in range(n):
         limited = limited or np.isfinite(a.torque_limit[i])
-    if limited and hard_violated(a.rows, a.limits, a.is_hard, count, tau):
-        # The hard rows cannot all be met within the torque limits: the QP's answer is a
-        # penalty compromise, most often every limit spent braking, with no standing of its
-        # own (what keeps the sets is the check below). The controller's torque is tried
-        # in its place, the backup's blend towards it where it is not verified.
+    answer = a.work.authority[ANSWER]  # free here (cbf_step is done with it)
+    substituted = limited and hard_violated(a.rows, a.limits, a.is_hard, count, tau)
+    if substituted:
+        # The hard rows are not met within the torque limits: the QP's answer is a penalty
+        # compromise, most often every limit spent braking, with no standing of its own
+        # (what keeps the sets is the check below). The controller's torque is tried in its
+        # place, the backup's blend towards it where it is not verified; the QP's answer
+        # itself last.
         for i in range(n):
+            answer[i] = tau[i]
             tau[i] = min(max(a.tau_nominal[k, i], -a.torque_limit[i]), a.torque_limit[i])
     kept = inside(k, a)  # else verified means recovering: not viable
     flags = a.work.flags
@@ -239,15 +261,29 @@ def choose(k, a, count, tau):
     share = blend_verified(k, a, tau, a.torque_limit, True)
     if share >= 0.0:
         return kept, share
+    if substituted:
+        y, v, eps = a.position[k], a.work.rollout[R_CENTRE], a.work.rollout[R_HALF]
+        for policy in range(POLICIES):
+            if verified(k, a, y, v, eps, answer, True, policy, a.torque_limit):
+                for i in range(n):
+                    tau[i] = answer[i]
+                flags[PLAN], flags[PLAN_RESERVE] = policy, 1.0
+                return kept, 0.0
     # No torque verified afresh: the plan, viable if planned (a check from a state on the
     # edge of the verified set may fail by the rollout's own discretisation); else not
-    # viable as seen, the backup all the same, within the limits: with nothing proven,
-    # braking_torque is not known to be enough (an inside start, x̂2(0) = 10 ± 5 rad/s and
-    # no torque limit, left its velocity set braked within 1000 N·m). (The plan's check
-    # covered its tube, so the state need not be shown inside anew: the interval the filter
-    # holds may be wider than the tube the plan was verified with, as it is what the filter
-    # knows, not where the plan keeps the state.)
-    backup_at(k, a, int(flags[PLAN]), plan if planned else a.torque_limit, tau)
+    # viable as seen: the backup all the same, within braking_torque where the likeliest
+    # state is inside every set (the worst case the filter cannot rule out is paid for with
+    # the reserve only where it looks real: at start-up x̂2(0) = 10 ± 5 rad/s reaches past
+    # 13.5 rad/s whatever q̇(0) is), within the limits where it is outside. (The plan's
+    # check covered its tube, so the state need not be shown inside anew: the interval the
+    # filter holds may be wider than the tube the plan was verified with, as it is what the
+    # filter knows, not where the plan keeps the state.)
+    if planned:
+        backup_at(k, a, int(flags[PLAN]), plan, tau)
+    elif likely_outside(k, a):
+        backup_at(k, a, int(flags[PLAN]), a.torque_limit, tau)
+    else:
+        backup_at(k, a, int(flags[PLAN]), braking, tau)
     return planned, 1.0
 
 
