@@ -130,8 +130,6 @@ MUTANTS = [
      "    if False:", FILTER),
     ("cbf-braking-held-not-tried", "cosim/paper/cbf_filter/block.py",
      "        if reserve and a.braking_reserve:", "        if False:", FILTER),
-    ("cbf-unverified-brakes-with-limits", "cosim/paper/cbf_filter/block.py",
-     "    elif likely_outside(k, a):", "    elif True:", FILTER),
     ("cbf-rows-left-out-always", "cosim/paper/cbf_filter/rows.py",
      "if scale * (reach[i] + room[i]) < limit + scale * side * base[i]:", "if True:", FILTER),
     ("guarantee-every-hard-set", "cosim/paper/guarantee.py",
