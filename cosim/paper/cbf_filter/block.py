@@ -139,55 +139,71 @@ def hard_violated(G, h, is_hard, count, tau):
 
 
 @no_refcount_jit(cache=True, inline="always")
+def verified_policy(k, a, tau, limit):
+    """The first backup policy under which ``tau``, held for the step, is verified with the
+    backup within the torques ``limit`` (:func:`.backup.verified`), else −1."""
+    y, v, eps = a.position[k], a.work.rollout[R_CENTRE], a.work.rollout[R_HALF]
+    for policy in range(POLICIES):
+        if verified(k, a, y, v, eps, tau, True, policy, limit):
+            return policy
+    return -1
+
+
+@no_refcount_jit(cache=True, inline="always")
+def planned_with(a, policy, reserve):
+    """Keeps the plan of the torque verified: its backup policy, and whether that backup
+    brakes within the torque limits (1) or within braking_torque (0)."""
+    a.work.flags[PLAN] = policy
+    a.work.flags[PLAN_RESERVE] = 1.0 if reserve else 0.0
+
+
+@no_refcount_jit(cache=True, inline="always")
 def blend_verified(k, a, tau, limit, reserve):
     """With the backup within the torques ``limit`` (the torque limits if ``reserve``, else
     braking_torque): 0 if ``tau`` is verified (kept as it is), else the backup's share
-    1 − λ of the verified blend τ_b + λ(τ − τ_b) with the largest λ found by bisection (into
-    ``tau``), else (no verified torque) −1. The plan (the policy and the backup's torques of
-    the torque verified) is kept in the work space's flags."""
+    1 − λ of the torque verified (into ``tau``): with the limits in reserve, the backup
+    within braking_torque held for the step (1), else the blend τ_b + λ(τ − τ_b) with the
+    largest λ found by bisection; else (no verified torque) −1. The plan of the torque
+    verified is kept (:func:`planned_with`)."""
     n = tau.shape[0]
+    found = verified_policy(k, a, tau, limit)
+    if found >= 0:
+        planned_with(a, found, reserve)
+        return 0.0
+    backup = a.backup
+    # With the limits in reserve, the backup within braking_torque is applied where it is
+    # verified (held for the step, then the backup within the limits): the state is braked
+    # back into where braking_torque keeps it, not held at the edge of where the limits do
+    # (where the estimate's next move would call for all of them).
     y, v, eps = a.position[k], a.work.rollout[R_CENTRE], a.work.rollout[R_HALF]
-    flags, backup = a.work.flags, a.backup
-    found = -1
+    if reserve and a.braking_reserve:
+        for policy in range(POLICIES):
+            backup_at(k, a, policy, a.braking_torque, backup)
+            if verified(k, a, y, v, eps, backup, True, policy, limit):
+                for i in range(n):
+                    tau[i] = backup[i]
+                planned_with(a, policy, True)
+                return 1.0
     for policy in range(POLICIES):
-        if verified(k, a, y, v, eps, tau, True, policy, limit):
+        backup_at(k, a, policy, limit, backup)
+        if verified(k, a, y, v, eps, backup, True, policy, limit):
             found = policy
             break
-    low = 1.0  # λ = low is verified
     if found < 0:
-        # With the limits in reserve, the backup within braking_torque is applied where it
-        # is verified (held for the step, then the backup within the limits): the state
-        # is braked back into where braking_torque keeps it, not held at the edge of where
-        # the limits do (where the estimate's next move would call for all of them).
-        if reserve and a.braking_reserve:
-            for policy in range(POLICIES):
-                backup_at(k, a, policy, a.braking_torque, backup)
-                if verified(k, a, y, v, eps, backup, True, policy, limit):
-                    for i in range(n):
-                        tau[i] = backup[i]
-                    flags[PLAN], flags[PLAN_RESERVE] = policy, 1.0
-                    return 1.0
-        for policy in range(POLICIES):
-            backup_at(k, a, policy, limit, backup)
-            if verified(k, a, y, v, eps, backup, True, policy, limit):
-                found = policy
-                break
-        if found < 0:
-            return -1.0
-        candidate = a.work.rollout[R_CANDIDATE]
-        low, high = 0.0, 1.0
-        for _ in range(BISECTIONS):
-            middle = 0.5 * (low + high)
-            for i in range(n):
-                candidate[i] = backup[i] + middle * (tau[i] - backup[i])
-            if verified(k, a, y, v, eps, candidate, True, found, limit):
-                low = middle
-            else:
-                high = middle
+        return -1.0
+    candidate = a.work.rollout[R_CANDIDATE]
+    low, high = 0.0, 1.0  # λ = low is verified
+    for _ in range(BISECTIONS):
+        middle = 0.5 * (low + high)
         for i in range(n):
-            tau[i] = backup[i] + low * (tau[i] - backup[i])
-    flags[PLAN] = found
-    flags[PLAN_RESERVE] = 1.0 if reserve else 0.0
+            candidate[i] = backup[i] + middle * (tau[i] - backup[i])
+        if verified(k, a, y, v, eps, candidate, True, found, limit):
+            low = middle
+        else:
+            high = middle
+    for i in range(n):
+        tau[i] = backup[i] + low * (tau[i] - backup[i])
+    planned_with(a, found, reserve)
     return 1.0 - low
 
 
@@ -210,11 +226,8 @@ def choose(k, a, count, tau):
         tau[i] = min(max(tau[i], -a.torque_limit[i]), a.torque_limit[i])
     if not a.verify:
         return not hard_violated(a.rows, a.limits, a.is_hard, count, tau), 0.0
-    limited = False
-    for i in range(n):
-        limited = limited or np.isfinite(a.torque_limit[i])
     answer = a.work.authority[ANSWER]  # free here (cbf_step is done with it)
-    substituted = limited and hard_violated(a.rows, a.limits, a.is_hard, count, tau)
+    substituted = a.torque_limited and hard_violated(a.rows, a.limits, a.is_hard, count, tau)
     if substituted:
         # The hard rows are not met within the torque limits: the QP's answer is a penalty
         # compromise, most often every limit spent braking, with no standing of its own
@@ -248,23 +261,19 @@ def choose(k, a, count, tau):
     if share >= 0.0:
         return kept, share
     if substituted:
-        y, v, eps = a.position[k], a.work.rollout[R_CENTRE], a.work.rollout[R_HALF]
-        for policy in range(POLICIES):
-            if verified(k, a, y, v, eps, answer, True, policy, a.torque_limit):
-                for i in range(n):
-                    tau[i] = answer[i]
-                flags[PLAN], flags[PLAN_RESERVE] = policy, 1.0
-                return kept, 0.0
+        policy = verified_policy(k, a, answer, a.torque_limit)
+        if policy >= 0:
+            for i in range(n):
+                tau[i] = answer[i]
+            planned_with(a, policy, True)
+            return kept, 0.0
     # No torque verified afresh: the plan, viable if planned (a check from a state on the
     # edge of the verified set may fail by the rollout's own discretisation); else not
-    # viable as seen: the backup all the same, within the limits. (Braking within
-    # braking_torque there when the likeliest state, y and the velocity interval's centre,
-    # was inside every set took proposed_cbf's median peak τ1 at 2000 N·m from 2.18 to 1.52
-    # times its controller's on the project's samples, but 20 more near-boundary starts not
-    # viable, of 128, left a set: not kept.) (The plan's check covered its tube, so the
-    # state need not be shown inside anew: the interval the filter holds may be wider than
-    # the tube the plan was verified with, as it is what the filter knows, not where the
-    # plan keeps the state.)
+    # viable as seen: the backup all the same, within the limits (within braking_torque
+    # instead, more starts not viable left a set: docs/safety.md). (The plan's check
+    # covered its tube, so the state need not be shown inside anew: the interval the
+    # filter holds may be wider than the tube the plan was verified with, as it is what
+    # the filter knows, not where the plan keeps the state.)
     backup_at(k, a, int(flags[PLAN]), plan if planned else a.torque_limit, tau)
     return planned, 1.0
 
@@ -526,6 +535,7 @@ class CbfFilter(Block):
             k_velocity=p.velocity_rate, dt=self.context.dt,
             torque_limit=limit, braking_torque=braking,
             braking_reserve=bool(np.any(braking < limit)),
+            torque_limited=bool(np.any(np.isfinite(limit))),
             rho_soft=p.tracking_weight, rho_hard=p.hard_weight,
             hard_tolerance=p.hard_tolerance, verify=p.backup == "verified",
             tracking_authority=p.tracking_torque == "controller" and any(

@@ -156,6 +156,7 @@ class CbfArgs(NamedTuple):
     # most the torque limits); braking_reserve: whether it is below them somewhere
     braking_torque: np.ndarray
     braking_reserve: bool
+    torque_limited: bool  # whether some joint's torque limit is finite
     backup_rate: float  # k_b, 1/s
     recovery_speed: float  # rad/s
     recovery_rate: float  # 1/s
