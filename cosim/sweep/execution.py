@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING
 from ..config import load_pipeline
 from ..environment import seconds_from_environment
 from .spec import SweepError, SweepSpec, assignments
-from .worker import WorkerMismatch, cosim_version, point_row, run_points
+from .worker import WorkerMismatch, cosim_version, point_row, quiet_heartbeats, run_points
 
 if TYPE_CHECKING:
     from dask.distributed import Client, Future, LocalCluster
@@ -487,7 +487,24 @@ def cluster_client(workers: int | None, scheduler: str | None, kind: str = "loca
                                local_directory=scratch, silence_logs=logging.ERROR)
         remove_with(cluster, scratch)
     DEATHS.listen()
-    return Client(cluster), cluster
+    client = Client(cluster)
+    client.register_plugin(_quiet_heartbeats_plugin())  # its workers' stderr is ours
+    return client, cluster
+
+
+def _quiet_heartbeats_plugin():
+    """A worker plugin that runs :func:`.worker.quiet_heartbeats` on every worker of the
+    local cluster, those it starts later too (a class made here: distributed is imported
+    only where a cluster is)."""
+    from distributed import WorkerPlugin
+
+    class QuietHeartbeats(WorkerPlugin):
+        name = "cosim-quiet-heartbeats"
+
+        def setup(self, worker) -> None:
+            quiet_heartbeats()
+
+    return QuietHeartbeats()
 
 
 # What a local worker runs with, against Dask's defaults, so that a point costs on a worker
