@@ -7,13 +7,16 @@ and concurrent calls are safe (each writes a temporary file and renames it into 
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import os
+import secrets
 import shutil
 import subprocess
 import sys
 import tempfile
 import zipfile
+from collections.abc import Iterator
 from pathlib import Path
 from types import ModuleType
 
@@ -189,11 +192,25 @@ def _write_atomically(target: Path, produce) -> None:
         raise
 
 
+@contextlib.contextmanager
+def _scratch_directory(prefix: str) -> Iterator[Path]:
+    """A new folder in the temporary directory, removed on the way out whatever happens.
+    Named before it is made, and made inside the ``try``: a signal (Ctrl-C, SIGTERM: their
+    handlers raise) landing just after the folder exists cannot leave it behind, as one
+    could inside tempfile.TemporaryDirectory before its clean-up was set up (seen once in a
+    fresh-clone CI: SIGTERM as the build's folder appeared)."""
+    root = Path(tempfile.gettempdir()) / f"{prefix}{os.getpid()}_{secrets.token_hex(6)}"
+    try:
+        root.mkdir(mode=0o700)
+        yield root
+    finally:
+        shutil.rmtree(root, ignore_errors=True)
+
+
 def _build_into(model: ModuleType, target: Path, links: int, fmi_version: int,
                 cc: str) -> None:
     token = description.instantiation_token(model, links, _sources_digest(model))
-    with tempfile.TemporaryDirectory(prefix="plant_fmu_") as tmpdir:
-        root = Path(tmpdir)
+    with _scratch_directory("plant_fmu_") as root:
         sources = root / "sources"
         sources.mkdir()
         for path in _source_files(model, fmi_version):  # flat: fmpy compile builds from here
