@@ -51,6 +51,8 @@ from .spatial import (
     spatial_geometry,
     spatial_mass,
     spatial_payload,
+    spatial_point_forms,
+    spatial_velocity_forms,
 )
 
 
@@ -101,7 +103,9 @@ def own_scratch(model: RigidBodyModel) -> RigidBodyModel:
         frames=np.zeros_like(model.frames), kin=np.zeros_like(model.kin),
         world_inertia=np.zeros_like(model.world_inertia),
         composite=np.zeros_like(model.composite), first=np.zeros_like(model.first),
-        total=np.zeros_like(model.total), point=np.zeros_like(model.point))
+        total=np.zeros_like(model.total), point=np.zeros_like(model.point),
+        motion=np.zeros_like(model.motion), crosses=np.zeros_like(model.crosses),
+        momenta=np.zeros_like(model.momenta))
 
 
 def _by_kind(planar: Callable, spatial: Callable) -> Callable[[Callable], Callable]:
@@ -193,7 +197,9 @@ def _planar_velocity_forms(model, bodies, payload, e, plus, out):
 
 @no_refcount_jit(cache=True)
 def _spatial_velocity_forms(model, bodies, payload, e, plus, out):
-    _polarised_forms(spatial_bias, model, bodies, payload, e, plus, out)
+    """In closed form (:func:`.spatial.spatial_velocity_forms`; ``e``, ``plus`` unused: the
+    planar chain's polarisation's scratch)."""
+    spatial_velocity_forms(model, bodies, payload, out)
 
 
 @no_refcount_jit(cache=True, inline="always")
@@ -219,25 +225,11 @@ def _planar_point_forms(model, e, jac, gamma, out, lift):
 
 @no_refcount_jit(cache=True)
 def _spatial_point_forms(model, e, jac, gamma, out, lift):
-    """By polarisation of :func:`.spatial.spatial_payload` (n(n + 1)/2 + 1 calls)."""
-    n = out.shape[1]
-    e[:] = 0.0
-    spatial_payload(model, e, 1.0, jac, gamma)
+    """In closed form (:func:`.spatial.spatial_point_forms`; ``e``, ``gamma`` unused: the
+    planar chain's signature), −g the same at every point."""
     for r in range(SPATIAL_DIM):
-        lift[r] = gamma[r]
-    for i in range(n):
-        e[:] = 0.0
-        e[i] = 1.0
-        spatial_payload(model, e, 0.0, jac, gamma)
-        for r in range(SPATIAL_DIM):
-            out[r, i, i] = gamma[r]
-    for i in range(n):
-        for j in range(i + 1, n):
-            e[:] = 0.0
-            e[i] = e[j] = 1.0
-            spatial_payload(model, e, 0.0, jac, gamma)
-            for r in range(SPATIAL_DIM):
-                out[r, i, j] = out[r, j, i] = 0.5 * (gamma[r] - out[r, i, i] - out[r, j, j])
+        lift[r] = -model.gravity[r]
+    spatial_point_forms(model, jac, out)
 
 
 @no_refcount_jit(cache=True, inline="always")

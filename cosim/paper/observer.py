@@ -237,7 +237,6 @@ class Envelope(NamedTuple):
     rho: np.ndarray  # (P, n) the a-priori enclosure's widening of the last step, rad/s
     acc: np.ndarray  # (P, steps, 2, n): q̈ ∈ [lo, hi] over [t_j, t_j+1], rad/s²
     minv: np.ndarray  # (2, n, n) M̂⁻¹ at the slot's position
-    corner: np.ndarray  # (2, P, 2^d, n, n) M(Δm)⁻¹ at the corners of (s_1 … s_d), per cell
     pabs: np.ndarray  # (2, P, n, n) max over the corners of |M(Δm)⁻¹|, entrywise
     rmat: np.ndarray  # (2, n, d) M̂⁻¹JᵀV
     vec: np.ndarray  # (2, d, d) V, K = J M̂⁻¹ Jᵀ = V Λ Vᵀ
@@ -254,7 +253,9 @@ class Envelope(NamedTuple):
     lam: np.ndarray  # (d,)
     eigen_work: np.ndarray  # (d, d)
     work: np.ndarray  # (8, n): e, plus, minus, u, centre, radius, acc lo, acc hi
-    bmat: np.ndarray  # (2, n, n): B of the nominal model and of a unit payload
+    bmat: np.ndarray  # (2, n, n): B(Δm) at the payload cell's ends
+    linear: np.ndarray  # (2, n, n): M̂⁻¹B(Δm) at the cell's ends
+    projected: np.ndarray  # (2, d, n): RᵀB(Δm) at the cell's ends
     point: np.ndarray  # (d,): J u + γ
     jac_work: np.ndarray  # (d, n)
 
@@ -266,8 +267,8 @@ E_, PLUS_, MINUS_, U_, CENTRE_, RADIUS_, ALO_, AHI_ = range(8)
 def envelope_position(env, y, slot):
     """What the acceleration bound needs of the position y, into cache ``slot``: M̂⁻¹, the
     payload point's J and the quadratic form of J̇v, K = J M̂⁻¹ Jᵀ = VΛVᵀ, s_j at the ends of
-    the payload range, M(Δm)⁻¹ = M̂⁻¹ − R diag(s) Rᵀ (R = M̂⁻¹JᵀV) at the corners of
-    (s_1 … s_d) and their entrywise largest magnitude, the Γ forms and the gravity torque."""
+    the payload range, the entrywise largest magnitude of M(Δm)⁻¹ = M̂⁻¹ − R diag(s) Rᵀ
+    (R = M̂⁻¹JᵀV) over the corners of (s_1 … s_d), the Γ forms and the gravity torque."""
     n = y.shape[0]
     model = env.model
     d = payload_dim(model)
@@ -297,7 +298,6 @@ def envelope_position(env, y, slot):
                     direction += jac[r, col] * vec[r, j]
                 total += minv[i, col] * direction
             rmat[i, j] = total
-    corners = 1 << d
     for cell in range(env.cells.shape[0] - 1):
         s = env.s[slot, cell]
         for end in range(2):
@@ -305,16 +305,16 @@ def envelope_position(env, y, slot):
             for j in range(d):
                 s[end, j] = payload / (1.0 + payload * max(env.lam[j], 0.0))
         pabs = env.pabs[slot, cell]
-        pabs[:] = 0.0
-        for c in range(corners):
-            corner = env.corner[slot, cell, c]
-            for i in range(n):
-                for col in range(n):
-                    value = minv[i, col]
-                    for j in range(d):  # corner c takes end (c >> j) & 1 of s_j
-                        value -= s[(c >> j) & 1, j] * rmat[i, j] * rmat[col, j]
-                    corner[i, col] = value
-                    pabs[i, col] = max(pabs[i, col], abs(value))
+        for i in range(n):
+            for col in range(n):
+                # M(Δm)⁻¹ is separable in the s_j: its extremes over the corners are the
+                # sums of each term's
+                low = high = minv[i, col]
+                for j in range(d):
+                    term = rmat[i, j] * rmat[col, j]
+                    low -= max(s[0, j] * term, s[1, j] * term)
+                    high -= min(s[0, j] * term, s[1, j] * term)
+                pabs[i, col] = max(abs(low), abs(high))
     e, plus = env.work[E_], env.work[PLUS_]
     model_velocity_forms(model, 1.0, 0.0, e, plus, env.forms[slot, 0])
     model_velocity_forms(model, 0.0, 1.0, e, plus, env.forms[slot, 1])
@@ -327,19 +327,19 @@ def envelope_acceleration(env, slot, cell, tau, tau_d, centre, radius, lo, hi):
     """Widen [lo, hi] (per joint) to hold q̈ = M(Δm)⁻¹(τ − τ_d − d − b(y, q̇, Δm)) at the
     cached position ``slot`` for every q̇ with |q̇ − centre| ≤ radius, Δm in the payload
     ``cell`` and |d| ≤ d̄ (per joint): the payload exactly at q̇ = centre (q̈ = u − R diag(s)
-    Rᵀ... linear in each s_j), the velocity's linear part through M(Δm)⁻¹B(Δm) at the vertices
-    of (s_1 … s_d, Δm) (multilinear: its extremes are there), its quadratic part and d̄
-    through max |M(Δm)⁻¹| row by row."""
+    Rᵀ... linear in each s_j), the velocity's linear part through M(Δm)⁻¹B(Δm) =
+    M̂⁻¹B(Δm) − Σ_j s_j R_j (R_jᵀB(Δm)) at the cell's ends (B is affine in Δm) and over the
+    box of (s_1 … s_d) (a sum of terms each linear in one s_j: its extremes are the sums of
+    the terms'), its quadratic part and d̄ through max |M(Δm)⁻¹| row by row."""
     n = centre.shape[0]
     d = payload_dim(env.model)
     minv, rmat, vec, s = env.minv[slot], env.rmat[slot], env.vec[slot], env.s[slot, cell]
     forms, jac = env.forms[slot], env.jac[slot]
     point_forms, lift = env.point_forms[slot], env.lift[slot]
-    corner, pabs = env.corner[slot, cell], env.pabs[slot, cell]
-    corners = 1 << d
+    pabs = env.pabs[slot, cell]
     payload_low, payload_high = env.cells[cell], env.cells[cell + 1]
     u, work = env.work[U_], env.work[E_]
-    bmat = env.bmat
+    bmat, linear, projected = env.bmat, env.linear, env.projected
     for l in range(n):  # noqa: E741
         bias = env.grav[slot, l] + tau_d[l]
         for j in range(n):
@@ -351,8 +351,21 @@ def envelope_acceleration(env, slot, cell, tau, tau_d, centre, radius, lo, hi):
             for k in range(n):
                 b0 += forms[0, l, j, k] * centre[k]
                 bp += forms[1, l, j, k] * centre[k]
-            bmat[0, l, j] = 2.0 * b0
-            bmat[1, l, j] = 2.0 * bp
+            bmat[0, l, j] = 2.0 * (b0 + payload_low * bp)
+            bmat[1, l, j] = 2.0 * (b0 + payload_high * bp)
+    for end in range(2):  # M̂⁻¹B and RᵀB at each end of the cell
+        for i in range(n):
+            for j in range(n):
+                total = 0.0
+                for l in range(n):  # noqa: E741
+                    total += minv[i, l] * bmat[end, l, j]
+                linear[end, i, j] = total
+        for r in range(d):
+            for j in range(n):
+                total = 0.0
+                for l in range(n):  # noqa: E741
+                    total += rmat[l, r] * bmat[end, l, j]
+                projected[end, r, j] = total
     for i in range(n):
         total = 0.0
         for l in range(n):  # noqa: E741
@@ -382,23 +395,23 @@ def envelope_acceleration(env, slot, cell, tau, tau_d, centre, radius, lo, hi):
     for i in range(n):
         low, high = u[i], u[i]
         for j in range(d):  # −s_j R_ij (v_jᵀ(J u + γ)), s_j over its range
-            projected = 0.0
+            along = 0.0
             for r in range(d):
-                projected += vec[r, j] * point[r]
-            z = rmat[i, j] * projected
+                along += vec[r, j] * point[r]
+            z = rmat[i, j] * along
             a, b = -s[0, j] * z, -s[1, j] * z
             low += min(a, b)
             high += max(a, b)
         spread = 0.0
         for j in range(n):
             worst = 0.0
-            for c in range(corners):
-                for end in range(2):
-                    mass = payload_low if end == 0 else payload_high
-                    value = 0.0
-                    for l in range(n):  # noqa: E741
-                        value += corner[c, i, l] * (bmat[0, l, j] + mass * bmat[1, l, j])
-                    worst = max(worst, abs(value))
+            for end in range(2):
+                least = most = linear[end, i, j]
+                for r in range(d):
+                    term = rmat[i, r] * projected[end, r, j]
+                    least -= max(s[0, r] * term, s[1, r] * term)
+                    most -= min(s[0, r] * term, s[1, r] * term)
+                worst = max(worst, -least, most)
             spread += worst * radius[j]
         for l in range(n):  # noqa: E741
             spread += pabs[i, l] * work[l]
@@ -764,10 +777,11 @@ class FlnnObserver(Block):
             interval=np.zeros((cells, 2, n)), alive=np.ones(cells),
             since=np.zeros(cells, np.int64), hull=np.zeros((2, n)),
             rho=np.zeros((cells, n)), acc=np.zeros((cells, max(steps, 1), 2, n)),
-            minv=np.zeros((2, n, n)), corner=np.zeros((2, cells, 2**d, n, n)),
-            pabs=np.zeros((2, cells, n, n)), rmat=np.zeros((2, n, d)), vec=np.zeros((2, d, d)),
+            minv=np.zeros((2, n, n)), pabs=np.zeros((2, cells, n, n)), rmat=np.zeros((2, n, d)),
+            vec=np.zeros((2, d, d)),
             s=np.zeros((2, cells, 2, d)), forms=np.zeros((2, 2, n, n, n)), grav=np.zeros((2, n)),
             jac=np.zeros((2, d, n)), point_forms=np.zeros((2, d, n, n)), lift=np.zeros((2, d)),
             mass=np.zeros((n, n)), lu=np.zeros((n, n)), kmat=np.zeros((d, d)), lam=np.zeros(d),
             eigen_work=np.zeros((d, d)), work=np.zeros((8, n)), bmat=np.zeros((2, n, n)),
+            linear=np.zeros((2, n, n)), projected=np.zeros((2, d, n)),
             point=np.zeros(d), jac_work=np.zeros((d, n)))

@@ -144,6 +144,30 @@ def backup_torque(k, a, q, v, mass, bias, out, policy, limit):
         distance = a.viable_bounds[0, i] - abs(q[i] - a.centres[0, i]) - a.noise_bound
         scale[i] = np.sqrt(1.0 + NEAR_WEIGHT * policy * max(0.0, 1.0 - distance / NEAR))
         desired[i] *= scale[i]
+    # The q̈ asked for, where it needs no torque beyond a limit, is the QP's answer as it
+    # stands (every row slack): the QP is solved only where a limit binds.
+    acceleration = w.backup_solver[TAU]
+    for i in range(n):
+        acceleration[i] = desired[i] / scale[i]
+    product(mass, acceleration, out)
+    within = True
+    for i in range(n):
+        within = within and abs(out[i] + bias[i]) <= limit[i]
+    if not within:
+        _limited_acceleration(n, limit, mass, bias, scale, desired, w)
+        product(mass, acceleration, out)
+    binds = False
+    for i in range(n):
+        torque = out[i] + bias[i]
+        binds = binds or abs(torque) >= limit[i] * (1.0 - 1e-9)
+        out[i] = min(max(torque, -limit[i]), limit[i])
+    return binds
+
+
+@no_refcount_jit(cache=True, inline="always")
+def _limited_acceleration(n, limit, mass, bias, scale, desired, w):
+    """The q̈ nearest ``desired`` (in z = √W q̈) whose torque M̂ q̈ + b̂ keeps every finite
+    ``limit``, into the backup solver's TAU: the small QP of :func:`backup_torque`."""
     rows, limits, weights = w.backup_rows, w.backup_limits[0], w.backup_limits[1]
     count = 0
     for i in range(n):  # ±(M̂ q̈ + b̂)_i ≤ τ_max,i, scaled to unit rows
@@ -164,13 +188,6 @@ def backup_torque(k, a, q, v, mass, bias, out, policy, limit):
            w.matrices[BACKUP_FACTOR], w.backup_binding, False)
     for i in range(n):
         acceleration[i] /= scale[i]
-    product(mass, acceleration, out)
-    binds = False
-    for i in range(n):
-        torque = out[i] + bias[i]
-        binds = binds or abs(torque) >= limit[i] * (1.0 - 1e-9)
-        out[i] = min(max(torque, -limit[i]), limit[i])
-    return binds
 
 
 @no_refcount_jit(cache=True, inline="always")
