@@ -197,3 +197,29 @@ def test_every_filtered_torque_is_its_steps_qp_answer(name):
     assert binding_steps > 1000  # the filter acts at many steps
     assert worst_penalty < 1e-12, worst_penalty
     assert worst_daqp < 1e-6, worst_daqp
+
+
+def test_the_small_eigen_decomposition_is_numpys():
+    """The payload structure's K = VΛVᵀ (cosim.paper.linalg.small_symmetric_eigen: 2×2 in
+    closed form, 3×3 by Jacobi rotations): eigenvalues equal numpy's eigvalsh, V orthonormal
+    and VΛVᵀ = K, each to 1e-14 of K's scale, on random symmetric matrices and the hard
+    cases (diagonal, a multiple of I, nearly repeated, rank-deficient, indefinite, 0)."""
+    from cosim.paper.linalg import small_symmetric_eigen
+
+    rng = np.random.default_rng(11)
+    for d in (2, 3):
+        q = np.linalg.qr(rng.normal(size=(d, d)))[0]
+        cases = [(lambda a: a + a.T)(rng.normal(size=(d, d)) * 10.0 ** rng.uniform(-6, 6))
+                 for _ in range(300)]
+        cases += [np.diag(np.arange(1.0, d + 1)), np.eye(d), np.zeros((d, d))]
+        cases += [q @ np.diag(values[:d]) @ q.T for values in
+                  ([1.0, 1.0 + 1e-12, 1.0], [0.0, 1e-8, 5.0], [2.0, -1.0, 2.0])]
+        lam, vec, work = np.zeros(d), np.zeros((d, d)), np.zeros((d, d))
+        for matrix in cases:
+            small_symmetric_eigen(matrix, lam, vec, work)
+            scale = max(np.abs(matrix).max(), 1e-300)
+            np.testing.assert_allclose(lam, np.linalg.eigvalsh(matrix), rtol=0,
+                                       atol=1e-14 * scale)
+            np.testing.assert_allclose(vec.T @ vec, np.eye(d), rtol=0, atol=1e-14)
+            np.testing.assert_allclose(vec @ np.diag(lam) @ vec.T, matrix, rtol=0,
+                                       atol=1e-14 * scale)
