@@ -104,7 +104,8 @@ def own_scratch(model: RigidBodyModel) -> RigidBodyModel:
         world_inertia=np.zeros_like(model.world_inertia),
         composite=np.zeros_like(model.composite), first=np.zeros_like(model.first),
         total=np.zeros_like(model.total), point=np.zeros_like(model.point),
-        motion=np.zeros_like(model.motion), crosses=np.zeros_like(model.crosses),
+        motion=np.zeros_like(model.motion), tip_jacobian=np.zeros_like(model.tip_jacobian),
+        tip_forms=np.zeros_like(model.tip_forms), crosses=np.zeros_like(model.crosses),
         momenta=np.zeros_like(model.momenta))
 
 

@@ -58,6 +58,8 @@ class SpatialChain(NamedTuple):
     total: np.ndarray  # (n,) its mass, kg
     point: np.ndarray  # (2, 3) the tip's point in the base frame; its acceleration
     motion: np.ndarray  # (n, 6) each joint's S (:func:`spatial_velocity_forms`)
+    tip_jacobian: np.ndarray  # (3, n) the tip point's J, and its J̇v's forms (3, n, n)
+    tip_forms: np.ndarray
     crosses: np.ndarray  # (n, n, 6) S_a × S_b along a path
     momenta: np.ndarray  # (n, n, 6) the composite m's momentum under S_a, I_m S_a
 
@@ -75,8 +77,8 @@ def spatial_chain(parent, kind, placement, axis, mass, com, inertia, tip,
         gravity=np.asarray(gravity, float).copy(), frames=np.zeros((n, 4, 4)),
         kin=np.zeros((KIN_ROWS, n, 3)), world_inertia=np.zeros((n, 3, 3)),
         composite=np.zeros((n, 3, 3)), first=np.zeros((n, 3)), total=np.zeros(n),
-        point=np.zeros((2, 3)), motion=np.zeros((n, 6)), crosses=np.zeros((n, n, 6)),
-        momenta=np.zeros((n, n, 6)))
+        point=np.zeros((2, 3)), motion=np.zeros((n, 6)), tip_jacobian=np.zeros((3, n)),
+        tip_forms=np.zeros((3, n, n)), crosses=np.zeros((n, n, 6)), momenta=np.zeros((n, n, 6)))
 
 
 @no_refcount_jit(cache=True, inline="always")
@@ -397,8 +399,21 @@ def spatial_velocity_forms(s, bodies, payload, out):
         Γ_l,jk = ½ [(I_m S_l) · X_jk − X_jl · (I_m S_k) − X_kl · (I_m S_j)]
 
     (Featherstone 2008, ch. 2 and 5): ~n³/2 six-vector products where polarising b took
-    n(n + 1)/2 recursive Newton–Euler passes."""
+    n(n + 1)/2 recursive Newton–Euler passes. A point mass alone (``bodies`` 0) is cheaper
+    still: its b is payload·Jᵀ(J̇v − g), so Γ_l = payload Σ_r J_rl P_r
+    (:func:`spatial_point_forms`)."""
     n = out.shape[0]
+    if bodies == 0.0:
+        jac, forms = s.tip_jacobian, s.tip_forms
+        spatial_point_forms(s, jac, forms)
+        for l in range(n):  # noqa: E741
+            for j in range(n):
+                for k in range(j, n):
+                    total = 0.0
+                    for r in range(3):
+                        total += jac[r, l] * forms[r, j, k]
+                    out[l, j, k] = out[l, k, j] = payload * total
+        return
     kin, comp, first, total = s.kin, s.composite, s.first, s.total
     motion, crosses, momenta = s.motion, s.crosses, s.momenta
     _composites(s, bodies, payload)

@@ -295,12 +295,13 @@ def record_inline(k, a, count, tau):
     chosen = a.tau[k]
     a.viable[k] = 1.0 if viable else 0.0
     a.infeasible[k] = 0.0 if viable else 1.0
-    a.rows_met[k] = 0.0 if hard_violated(a.rows, a.limits, a.is_hard, count, chosen) else 1.0
     a.backup_share[k] = share
     active = 0
     slack = 0.0
+    met = True  # every hard row as given (hard_violated's test, in the same pass)
     for j in range(count):
         excess = dot(a.rows[j], chosen) - a.limits[j]
+        met = met and not (a.is_hard[j] > 0.0 and excess > 0.0)
         # a hard row binds within the tolerance it was solved with; a soft one when violated
         binds = excess > -2.0 * a.hard_tolerance if a.is_hard[j] > 0.0 else excess > 0.0
         if a.is_hard[j] == 0.0:
@@ -312,6 +313,7 @@ def record_inline(k, a, count, tau):
                 a.active_sets[s, k, a.joints[j]] = 1.0
             elif s >= 4:
                 a.active_norms[s - 4, k] = 1.0
+    a.rows_met[k] = 1.0 if met else 0.0
     a.active[k] = active
     a.slack[k] = slack
     correction = 0.0
