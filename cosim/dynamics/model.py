@@ -266,9 +266,11 @@ def model_bias(model: RigidBodyModel, v: np.ndarray, bodies: float, payload: flo
 def model_velocity_forms(model: RigidBodyModel, bodies: float, payload: float, e: np.ndarray,
                          plus: np.ndarray, out: np.ndarray) -> None:
     """Γ (n, n, n) at the last geometry, of the bodies times ``bodies`` plus a point mass
-    ``payload`` at the payload's point, into ``out``: b's velocity part b_l(v) = vᵀΓ_l v,
-    from the bias without gravity at e_i (Γ_l,ii) and at e_i + e_j (Γ_l,ii + Γ_l,jj +
-    2Γ_l,ij), n(n + 1)/2 evaluations (``e``, ``plus``: scratch of n)."""
+    ``payload`` at the payload's point, into ``out``: b's velocity part b_l(v) = vᵀΓ_l v.
+    The planar chain's by polarisation, from the bias without gravity at e_i (Γ_l,ii) and
+    at e_i + e_j (Γ_l,ii + Γ_l,jj + 2Γ_l,ij), n(n + 1)/2 evaluations (``e``, ``plus``:
+    scratch of n); the spatial chain's in closed form
+    (:func:`.spatial.spatial_velocity_forms`)."""
 
 
 @_by_kind(_planar_payload, spatial_payload)

@@ -8,11 +8,11 @@ payload: a point mass at the tip (flange) frame's origin, and that point's Jacob
 
 Everything is in the base (world) frame: each body's axis z_i, origin o_i, centre of mass
 c_i and inertia tensor rotated there once per position (:func:`spatial_geometry`), so that
-M and b at one position and many velocities (the filter's rollouts, the polarisations of
-b's velocity part) share that work. The recursions are written on 3-vectors, with a
-joint's motion subspace S_i = (z_i, o_i × z_i) (revolute) or (0, z_i) (prismatic) in the
-(angular, linear-at-the-origin) order. A body's parent comes before it (the table's
-order); branches are allowed (bodies off the tip's path only load their ancestors).
+M and b at one position and many velocities (the filter's rollouts) share that work. The
+recursions are written on 3-vectors, with a joint's motion subspace S_i = (z_i, o_i × z_i)
+(revolute) or (0, z_i) (prismatic) in the (angular, linear-at-the-origin) order. A body's
+parent comes before it (the table's order); branches are allowed (bodies off the tip's path
+only load their ancestors).
 
 Why our own kernels and not Pinocchio's (a test extra, checked against here): the blocks'
 kernels are compiled loops that cannot call Python, and Pinocchio is C++ behind Python
@@ -58,8 +58,8 @@ class SpatialChain(NamedTuple):
     total: np.ndarray  # (n,) its mass, kg
     point: np.ndarray  # (2, 3) the tip's point in the base frame; its acceleration
     motion: np.ndarray  # (n, 6) each joint's S (:func:`spatial_velocity_forms`)
-    tip_jacobian: np.ndarray  # (3, n) the tip point's J, and its J̇v's forms (3, n, n)
-    tip_forms: np.ndarray
+    tip_jacobian: np.ndarray  # (3, n) the tip point's J (a point mass's Γ)
+    tip_forms: np.ndarray  # (3, n, n) its J̇v's forms P_r (:func:`spatial_point_forms`)
     crosses: np.ndarray  # (n, n, 6) S_a × S_b along a path
     momenta: np.ndarray  # (n, n, 6) the composite m's momentum under S_a, I_m S_a
 
