@@ -353,19 +353,16 @@ def envelope_acceleration(env, slot, cell, tau, tau_d, centre, radius, lo, hi):
                 bp += forms[1, l, j, k] * centre[k]
             bmat[0, l, j] = 2.0 * (b0 + payload_low * bp)
             bmat[1, l, j] = 2.0 * (b0 + payload_high * bp)
-    for end in range(2):  # M̂⁻¹B and RᵀB at each end of the cell
-        for i in range(n):
-            for j in range(n):
-                total = 0.0
-                for l in range(n):  # noqa: E741
-                    total += minv[i, l] * bmat[end, l, j]
-                linear[end, i, j] = total
-        for r in range(d):
-            for j in range(n):
-                total = 0.0
-                for l in range(n):  # noqa: E741
-                    total += rmat[l, r] * bmat[end, l, j]
-                projected[end, r, j] = total
+    linear[:] = 0.0  # M̂⁻¹B and RᵀB at each end of the cell, B's column j row by row
+    projected[:] = 0.0
+    for end in range(2):
+        for j in range(n):
+            for l in range(n):  # noqa: E741
+                entry = bmat[end, l, j]
+                for i in range(n):
+                    linear[end, i, j] += minv[i, l] * entry
+                for r in range(d):
+                    projected[end, r, j] += rmat[l, r] * entry
     for i in range(n):
         total = 0.0
         for l in range(n):  # noqa: E741
