@@ -114,7 +114,7 @@ def _by_kind(planar: Callable, spatial: Callable) -> Callable[[Callable], Callab
     run) a model call that runs ``planar`` or ``spatial`` (numba functions of the model and
     the call's arguments) by the model's type: in a kernel chosen when it compiles, from
     Python by ``isinstance``. The planar chain's functions are ``inline="always"`` so that
-    its own loops (:func:`_polarised_forms`) hold them inlined; the spatial chain's are too
+    its own loops (:func:`_planar_velocity_forms`) hold them inlined; the spatial chain's are too
     large for that to matter."""
 
     def register(declared: Callable) -> Callable:
@@ -172,28 +172,22 @@ def _planar_bias(model, v, bodies, payload, gravity, out):
 
 
 @no_refcount_jit(cache=True, inline="always")
-def _polarised_forms(bias, model, bodies, payload, e, plus, out):
-    """Γ of the model by ``bias`` (its kind's b, :func:`model_bias`'s arguments), passed in
-    so that a kind's loop holds its own b (inlined, for the planar chain)."""
+def _planar_velocity_forms(model, bodies, payload, e, plus, out):
+    """By polarisation of the planar chain's b without gravity (inlined, as its b is)."""
     n = out.shape[0]
     for i in range(n):
         e[:] = 0.0
         e[i] = 1.0
-        bias(model, e, bodies, payload, 0.0, plus)
+        _planar_bias(model, e, bodies, payload, 0.0, plus)
         for l in range(n):  # noqa: E741
             out[l, i, i] = plus[l]
     for i in range(n):
         for j in range(i + 1, n):
             e[:] = 0.0
             e[i] = e[j] = 1.0
-            bias(model, e, bodies, payload, 0.0, plus)
+            _planar_bias(model, e, bodies, payload, 0.0, plus)
             for l in range(n):  # noqa: E741
                 out[l, i, j] = out[l, j, i] = 0.5 * (plus[l] - out[l, i, i] - out[l, j, j])
-
-
-@no_refcount_jit(cache=True, inline="always")
-def _planar_velocity_forms(model, bodies, payload, e, plus, out):
-    _polarised_forms(_planar_bias, model, bodies, payload, e, plus, out)
 
 
 @no_refcount_jit(cache=True)

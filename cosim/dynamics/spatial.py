@@ -419,8 +419,8 @@ def spatial_velocity_forms(s, bodies, payload, out):
     _composites(s, bodies, payload)
     for j in range(n):  # S_j = (z, o × z) revolute, (0, z) prismatic
         z, o = kin[Z, j], kin[O, j]
+        revolute = s.kind[j] != PRISMATIC
         for r in range(3):
-            revolute = s.kind[j] != PRISMATIC
             motion[j, r] = z[r] if revolute else 0.0
             motion[j, 3 + r] = _cross(o, z, r) if revolute else z[r]
     for b in range(n):
@@ -459,7 +459,7 @@ def spatial_velocity_forms(s, bodies, payload, out):
         while k >= 0:  # k on m's path, j on k's: the deepest of l, j, k is m when k or l is
             j = k
             while j >= 0:
-                l = m if k != m else k  # noqa: E741
+                l = m  # noqa: E741 — then, where k is m, every l on m's path
                 while l >= 0:
                     y_l, y_k, y_j = momenta[m, l], momenta[m, k], momenta[m, j]
                     x_jk, x_jl, x_kl = crosses[j, k], crosses[j, l], crosses[k, l]
