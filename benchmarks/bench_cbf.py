@@ -53,7 +53,7 @@ def rows_only(a, steps: int) -> float:
     """The rows at every row; returns a sum of the counts so that none is optimised away."""
     total = 0.0
     for k in range(steps + 1):
-        total += rows_inline(k, a)
+        total += rows_inline(k, a, False)
     return total
 
 
@@ -63,7 +63,7 @@ def rows_and_record(a, steps: int) -> float:
     outputs are rewritten as they were)."""
     total = 0.0
     for k in range(steps + 1):
-        count = rows_inline(k, a)
+        count = rows_inline(k, a, False)
         total += record_inline(k, a, count, a.tau[k])
     return total
 

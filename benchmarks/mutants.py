@@ -78,7 +78,7 @@ MUTANTS = [
     ("cbf-payload-corners", "cosim/paper/cbf_filter/scratch.py",
      "for mask in range(2**d - 2, 0, -1):", "for mask in range(2**d - 3, 0, -1):", FILTER),
     ("cbf-hold-end-dropped", "cosim/paper/cbf_filter/rows.py",
-     "    count = hard_rows(a, count, k, y_end, v_end, eps, minv_end, base_end, True)\n", "",
+     "    hard_groups(a, k, y_end, v_end, eps, minv_end, base_end, True)\n", "",
      FILTER),
     ("cbf-infeasible-flag", "cosim/paper/cbf_filter/block.py",
      "a.infeasible[k] = 0.0 if viable else 1.0", "a.infeasible[k] = 0.0", FILTER),

@@ -17,7 +17,7 @@ from ...signals import Signal
 from ..linalg import dot
 from .assumptions import BACKUP, FILTER_ASSUMES, KEPT_CHECKS, VIABLE, FilterAssumptions
 from .backup import backup_at, inside, predict_interval, verified
-from .rows import cbf_rows, rows_inline
+from .rows import add_cuts, cbf_rows, groups_record, groups_violated, rows_inline
 from .scratch import (
     ANSWER,
     CONSISTENT,
@@ -139,6 +139,31 @@ def hard_violated(G, h, is_hard, count, tau):
 
 
 @no_refcount_jit(cache=True, inline="always")
+def any_hard_violated(a, count, tau):
+    """Whether τ violates a hard row as given: of the QP's first ``count`` or of the groups
+    (every payload corner's, among the QP's rows or not)."""
+    return hard_violated(a.rows, a.limits, a.is_hard, count, tau) or groups_violated(a, tau)
+
+
+@no_refcount_jit(cache=True)
+def solve_with_cuts(k, a, count):
+    """The QP's answer over every row (the groups' included) into the solver's TAU, by
+    Newton over the first ``count`` rows, then again with the hard rows it violates (or
+    comes within hard_tolerance of) added, until there are none (:func:`.rows.add_cuts`):
+    the same minimiser, over the few rows that can bind instead of every payload corner's.
+    Returns the number of rows the QP then has."""
+    w = a.work
+    h, weights, tau = w.per_row[0], w.per_row[1], w.solver[TAU]
+    while True:
+        newton(a.tau_nominal[k], a.rows, h, weights, count, a.iterations, a.tolerance,
+               w.solver, w.matrices[FACTOR], w.binding, True)
+        more = add_cuts(a, count, tau)
+        if more == count:
+            return count
+        count = more
+
+
+@no_refcount_jit(cache=True, inline="always")
 def verified_policy(k, a, tau, limit):
     """The first backup policy under which ``tau``, held for the step, is verified with the
     backup within the torques ``limit`` (:func:`.backup.verified`), else −1."""
@@ -225,9 +250,9 @@ def choose(k, a, count, tau):
     for i in range(n):
         tau[i] = min(max(tau[i], -a.torque_limit[i]), a.torque_limit[i])
     if not a.verify:
-        return not hard_violated(a.rows, a.limits, a.is_hard, count, tau), 0.0
+        return not any_hard_violated(a, count, tau), 0.0
     answer = a.work.authority[ANSWER]  # free here (cbf_step is done with it)
-    substituted = a.torque_limited and hard_violated(a.rows, a.limits, a.is_hard, count, tau)
+    substituted = a.torque_limited and any_hard_violated(a, count, tau)
     if substituted:
         # The hard rows are not met within the torque limits: the QP's answer is a penalty
         # compromise, most often every limit spent braking, with no standing of its own
@@ -296,10 +321,12 @@ def record_inline(k, a, count, tau):
     a.viable[k] = 1.0 if viable else 0.0
     a.infeasible[k] = 0.0 if viable else 1.0
     a.backup_share[k] = share
-    active = 0
+    # the hard rows of the groups, every payload corner's (those among the QP's rows too)
+    met, active = groups_record(k, a, chosen)
     slack = 0.0
-    met = True  # every hard row as given (hard_violated's test, in the same pass)
     for j in range(count):
+        if a.is_hard[j] > 0.0 and 0 <= a.kinds[j] < 2:
+            continue  # a group's row: counted above
         excess = dot(a.rows[j], chosen) - a.limits[j]
         met = met and not (a.is_hard[j] > 0.0 and excess > 0.0)
         # a hard row binds within the tolerance it was solved with; a soft one when violated
@@ -353,29 +380,28 @@ def within_authority(a, tau, tau_hard):
 
 @no_refcount_jit(cache=True)
 def cbf_step(k, a):
-    count = rows_inline(k, a)
+    count = rows_inline(k, a, False)
     w = a.work
     h, weights, tau = w.per_row[0], w.per_row[1], w.solver[TAU]
     for j in range(count):  # solve with the hard limits lowered: checked as given after
         h[j] = a.limits[j] - a.hard_tolerance if a.is_hard[j] > 0.0 else a.limits[j]
         weights[j] = a.weights[j]
     # Warm: from the rows that bound at the step before (w.binding keeps them), which most
-    # often still do. The rows keep their order unless a joint's hard rows come or go (left
-    # out where no torque within the limits could bind them): a warm start from other rows
-    # costs iterations, never the answer (the solver checks the piece it starts from).
-    newton(a.tau_nominal[k], a.rows, h, weights, count, a.iterations, a.tolerance, w.solver,
-           w.matrices[FACTOR], w.binding, True)
+    # often still do: the soft rows and the torque limits, in the same order at every step;
+    # the hard rows the solve adds are flagged as they come. A warm start from
+    # other rows costs iterations, never the answer (the solver checks the piece it starts
+    # from).
+    count = solve_with_cuts(k, a, count)
     # A hard row may slip by ~ρ_soft·(soft excess)/ρ_hard where tracking pulls hard against
     # it: re-solve with tracking weighed less, down to the hard rows alone (what remains is
-    # the backup's check, in record_inline).
+    # the backup's check, in record_inline). The rows left out are met (solve_with_cuts).
     for _ in range(3):
         if not hard_violated(a.rows, a.limits, a.is_hard, count, tau):
             break
         for j in range(count):
             if a.is_hard[j] == 0.0:
                 weights[j] = weights[j] * 1e-3 if weights[j] > a.rho_soft * 1e-5 else 0.0
-        newton(a.tau_nominal[k], a.rows, h, weights, count, a.iterations, a.tolerance,
-               w.solver, w.matrices[FACTOR], w.binding, True)
+        count = solve_with_cuts(k, a, count)
     if a.tracking_authority and beyond_authority(k, a, tau):
         # the hard rows' answer alone, then the tracking rows' share scaled back to it
         answer = w.authority[ANSWER]
@@ -384,8 +410,7 @@ def cbf_step(k, a):
         for j in range(count):
             if a.is_hard[j] == 0.0:
                 weights[j] = 0.0
-        newton(a.tau_nominal[k], a.rows, h, weights, count, a.iterations, a.tolerance,
-               w.solver, w.matrices[FACTOR], w.binding, True)
+        count = solve_with_cuts(k, a, count)
         for i in range(tau.shape[0]):
             answer[i], tau[i] = tau[i], answer[i]
         if np.isfinite(np.sum(answer)):  # else the answer with the tracking rows stands

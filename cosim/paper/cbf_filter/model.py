@@ -90,25 +90,27 @@ def linear_error_bound_into(v, eps, minv, low, high, nominal, payload, linear, q
     """acceleration_error_bound into ``out`` with the quadratic part given
     (:func:`quadratic_error_into`), ``linear`` (2, n, n) as scratch."""
     n = v.shape[0]
-    linear[:] = 0.0  # B for the nominal model plus each end of the payload range
+    # B_lj = 2 Σ_k (Γ_l,jk + Δm Γ^p_l,jk) v_k at each end of the payload range, stored
+    # transposed (linear[end, j, l]) so that (M̂⁻¹B)_ij runs along contiguous memory
     for l in range(n):  # noqa: E741
         for j in range(n):
+            bodies = point = 0.0
             for k in range(n):
-                for end in range(2):
-                    mass = low if end == 0 else high
-                    linear[end, l, j] += 2.0 * (nominal[l, j, k] + mass * payload[l, j, k]) * v[k]
+                bodies += nominal[l, j, k] * v[k]
+                point += payload[l, j, k] * v[k]
+            linear[0, j, l] = 2.0 * (bodies + low * point)
+            linear[1, j, l] = 2.0 * (bodies + high * point)
     for i in range(n):
-        out[i] = 0.0
+        total = 0.0
         for j in range(n):
-            worst = 0.0
-            for end in range(2):
-                value = 0.0
-                for l in range(n):  # noqa: E741
-                    value += minv[i, l] * linear[end, l, j]
-                worst = max(worst, abs(value))
-            out[i] += worst * eps[j]
+            at_low = at_high = 0.0
+            for l in range(n):  # noqa: E741
+                at_low += minv[i, l] * linear[0, j, l]
+                at_high += minv[i, l] * linear[1, j, l]
+            total += max(abs(at_low), abs(at_high)) * eps[j]
         for l in range(n):  # noqa: E741
-            out[i] += abs(minv[i, l]) * quadratic[l]
+            total += abs(minv[i, l]) * quadratic[l]
+        out[i] = total
 
 
 @njit(cache=True)

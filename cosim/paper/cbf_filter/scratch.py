@@ -51,8 +51,16 @@ ROLLOUT_ROWS = 19
 # rollout row of one)
 CONSISTENT, PLAN = 0, 1
 # … and PLAN_RESERVE, 1 where that torque was verified with the backup within the torque
-# limits, 0 within braking_torque
-PLAN_RESERVE = 2
+# limits, 0 within braking_torque; GROUPS, the number of hard row groups at this step
+PLAN_RESERVE, GROUPS = 2, 3
+# The hard rows in groups (cosim.paper.cbf_filter.rows): a joint's side of a hard set, now or
+# at the hold's end, one row per payload corner c, g_c = g_0 + Σ_j s_cj u_j with the limit
+# h_c = h_0 + Σ_j s_cj o_j (unscaled). Of CbfWork.group_values: h_0, a bound on every ‖g_c‖,
+# then o_1 … o_d; of .group_labels: the set, the joint, the phase (0 now, 1 at the hold's
+# end: the row of CbfWork.s_phase its s_cj are in) and the number of corners; .group_added
+# flags the corners already among the QP's rows.
+H_ZERO, NORM_BOUND, OFFSETS = 0, 1, 2
+G_SET, G_JOINT, G_PHASE, G_CORNERS = range(4)
 # Of CbfWork.authority (n each)
 PEAK, ANSWER = range(2)
 # The payload's structure, its point of d coordinates (the model's dim: 2 in the plane, 3 in
@@ -80,7 +88,7 @@ class CbfWork(NamedTuple):
     per_row: np.ndarray  # (2, rows) the limits and the weights the QP is solved with
     binding: np.ndarray  # (rows,) the rows violated at the solver's iterate
     rollout: np.ndarray  # (ROLLOUT_ROWS, n) R_Q …
-    flags: np.ndarray  # (3,) CONSISTENT, PLAN, PLAN_RESERVE
+    flags: np.ndarray  # (4,) CONSISTENT, PLAN, PLAN_RESERVE, GROUPS
     # tracking_torque = "controller": the largest |τ_nom,i| so far and the QP's answer
     # with the tracking rows while the hard rows' alone is solved, (2, n) PEAK, ANSWER
     authority: np.ndarray
@@ -91,6 +99,15 @@ class CbfWork(NamedTuple):
     backup_limits: np.ndarray
     backup_solver: np.ndarray
     backup_binding: np.ndarray
+    # the hard rows' groups, at most 8n (2 phases, 2 sets, n joints, 2 sides): (8n, 1 + d, n)
+    # g_0, u_1 … u_d; (8n + 1, 2 + d) H_ZERO … (the last row: scratch); (8n, 4) G_SET …;
+    # (8n, corners) the corners among the QP's rows; (2, grid + 1, d) s_j(Δm) on the grid
+    # now and at the hold's end
+    group_rows: np.ndarray
+    group_values: np.ndarray
+    group_labels: np.ndarray
+    group_added: np.ndarray
+    s_phase: np.ndarray
 
 
 def payload_corners(grid: int, d: int) -> np.ndarray:
@@ -121,10 +138,13 @@ def cbf_work(n: int, rows: int, grid: int, d: int) -> CbfWork:
         point_vectors=np.zeros((4, d)), squares=np.zeros((3, d, d)), s_grid=np.zeros((grid + 1, d)),
         corner_index=payload_corners(grid, d),
         per_row=np.zeros((2, rows)), binding=np.zeros(rows, np.bool_),
-        rollout=np.zeros((ROLLOUT_ROWS, n)), flags=np.zeros(3), authority=np.zeros((2, n)),
+        rollout=np.zeros((ROLLOUT_ROWS, n)), flags=np.zeros(4), authority=np.zeros((2, n)),
         backup_rows=np.zeros((2 * n, n)),
         backup_limits=np.zeros((2, 2 * n)), backup_solver=np.zeros((5, n)),
-        backup_binding=np.zeros(2 * n, np.bool_))
+        backup_binding=np.zeros(2 * n, np.bool_), group_rows=np.zeros((8 * n, 1 + d, n)),
+        group_values=np.zeros((8 * n + 1, 2 + d)), group_labels=np.zeros((8 * n, 4), np.int64),
+        group_added=np.zeros((8 * n, (2**d - 1) * grid + 1), np.bool_),
+        s_phase=np.zeros((2, grid + 1, d)))
 
 
 class CbfArgs(NamedTuple):
