@@ -34,6 +34,7 @@ LIMITS = ["tests/test_errors.py", "tests/test_resources.py"]
 RESULTS = ["tests/test_export.py"]
 BOUND = ["tests/test_observer_bound.py"]
 VIABILITY = FILTER + ["tests/test_viability.py", "tests/test_guarantee.py"]
+CUTS = ["tests/test_filter_speed.py", *FILTER]
 
 # (id, file, text, replacement, tests): the text must occur exactly once in the file.
 MUTANTS = [
@@ -80,6 +81,17 @@ MUTANTS = [
     ("cbf-hold-end-dropped", "cosim/paper/cbf_filter/rows.py",
      "    hard_groups(a, k, y_end, v_end, eps, minv_end, base_end, True)\n", "",
      FILTER),
+    # the hard rows the solve leaves out (cutting planes): the payload corners' terms not
+    # taken in a group's screen, rows within hard_tolerance of their lowered limit left out,
+    # the QP not solved again with the rows added
+    ("cbf-cuts-screen-centre", "cosim/paper/cbf_filter/rows.py",
+     "        most += max(s_phase[0, j] * terms[1 + j], s_phase[-1, j] * terms[1 + j])\n",
+     "", CUTS),
+    ("cbf-cuts-no-tolerance", "cosim/paper/cbf_filter/rows.py",
+     "        room = -a.hard_tolerance * w.group_values[g, NORM_BOUND]\n",
+     "        room = 0.0\n", CUTS),
+    ("cbf-cuts-one-round", "cosim/paper/cbf_filter/block.py",
+     "        if more == count:\n            return count\n", "        return more\n", CUTS),
     ("cbf-infeasible-flag", "cosim/paper/cbf_filter/block.py",
      "a.infeasible[k] = 0.0 if viable else 1.0", "a.infeasible[k] = 0.0", FILTER),
     # the backup's check (issue 30): each margin it takes, dropped
