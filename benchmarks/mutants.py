@@ -86,7 +86,7 @@ MUTANTS = [
     # the QP not solved again with the rows added
     ("cbf-cuts-screen-centre", "cosim/paper/cbf_filter/rows.py",
      "        most += max(s_phase[0, j] * terms[1 + j], s_phase[-1, j] * terms[1 + j])\n",
-     "", CUTS),
+     "        pass\n", CUTS),
     ("cbf-cuts-no-tolerance", "cosim/paper/cbf_filter/rows.py",
      "        room = -a.hard_tolerance * w.group_values[g, NORM_BOUND]\n",
      "        room = 0.0\n", CUTS),
