@@ -123,6 +123,49 @@ def test_the_hard_rows_hold_for_every_state_the_estimate_allows():
     assert worst > -1e-6, worst
 
 
+def test_the_hard_rows_the_solve_leaves_out_are_met_with_the_tolerance_to_spare():
+    """The step solves over the soft rows and the torque limits and adds the hard rows it
+    needs (cutting planes: cosim.paper.cbf_filter.rows.add_cuts), so its answer is the whole
+    QP's only if every hard row left out is met with hard_tolerance to spare. At three steps
+    of a run, for torques that put a random payload corner's row (the whole QP's, from
+    cbf_rows, scaled to unit norm as the QP has it) past its limit, within the tolerance of
+    it, or just beyond that, plus a random part along the row's null space: every row
+    add_cuts leaves out has g·τ − h ≤ −hard_tolerance, and a row within the tolerance or
+    past its limit is added."""
+    from cosim.paper.cbf_filter.rows import add_cuts, cbf_rows
+    from cosim.paper.cbf_filter.scratch import G_CORNERS, GROUPS
+
+    _, plan, _ = simulated([], "proposed_cbf", duration=0.05)
+    a = plan.block("cbf_filter").args
+    work, tol = a.work, a.hard_tolerance
+    rng = np.random.default_rng(5)
+    counts = {"past": 0, "within": 0, "beyond": 0}
+    for k in (0, 25, 49):
+        full = cbf_rows(k, a)  # the groups' rows first, in their order
+        groups = int(work.flags[GROUPS])
+        corners = work.group_labels[:groups, G_CORNERS]
+        rows = int(corners.sum())
+        assert rows > 100 and np.all(a.is_hard[:rows] == 1) and np.all(a.kinds[:rows] >= 0)
+        G, h = a.rows[:rows].copy(), a.limits[:rows].copy()
+        assert full > rows  # the soft rows and the torque limits after them
+        for _ in range(60):
+            j = int(rng.integers(rows))
+            kind = str(rng.choice(list(counts)))
+            depth = {"past": -rng.uniform(0.0, 3.0), "within": rng.uniform(0.05, 0.95),
+                     "beyond": rng.uniform(1.05, 3.0)}[kind] * tol
+            spread = rng.normal(size=G.shape[1]) * 10.0
+            tau = (h[j] - depth) * G[j] + spread - (spread @ G[j]) * G[j]
+            work.group_added[:] = False  # none among the QP's rows yet: add_cuts writes
+            add_cuts(a, 0, tau)  # its rows over G's (copied above), reads only the groups
+            added = np.concatenate([work.group_added[g, :corners[g]] for g in range(groups)])
+            excess = G @ tau - h
+            assert np.all(excess[~added] <= -tol + 1e-9), (k, kind, excess[~added].max())
+            if kind != "beyond":
+                assert added[j], (k, kind, depth)
+            counts[kind] += 1
+    assert min(counts.values()) > 30, counts
+
+
 def test_each_hard_constraint_is_sound_at_arbitrary_states_with_wide_margins():
     """Away from any trajectory, where every margin is large and so each one matters: at
     random states inside the sets (non-zero centres), a velocity uncertainty ε up to 2 rad/s

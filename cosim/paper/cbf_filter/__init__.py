@@ -42,7 +42,13 @@ G_soft τ ≤ h_soft + s (and |τ_i| ≤ τ_max,i, hard), every row scaled to un
 compiled semismooth Newton solves the penalty form with the hard rows at weight ρ_hard and
 their limits lowered by ``hard_tolerance`` (each Newton step a least-squares solve in
 square-root form, to ~1e-13 of τ; started from the rows that bound at the step before,
-which is the answer at once at 99.9 % of the paper's steps); where a hard row still slips
+which is the answer at once at 99.9 % of the paper's steps). The hard rows are kept in
+groups, a joint's side of a set with a row per payload corner (:func:`.rows.hard_groups`),
+and enter the solve only where it needs them (cutting planes, :func:`.rows.add_cuts`): it
+solves over the soft rows and the torque limits, then again with every corner row its
+answer violates or comes within ``hard_tolerance`` of, until there is none; a row left out
+is then met with the tolerance to spare, so the answer is the whole QP's minimiser (the
+Panda's ~1000 hard rows a step are a handful in the solve). Where a hard row still slips
 (tracking pulling hard against it), it re-solves with the soft weights 1e-3 and 1e-6 times,
 then without the soft rows. The rows' answer is a proposal: the torque applied is decided by
 the **backup's check** (:mod:`.backup`): the answer (clipped to the torque limits; the

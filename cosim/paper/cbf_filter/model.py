@@ -167,12 +167,13 @@ def payload_structure(low, high, minv, base, point_rows, point_vectors, squares,
                             point_vectors[BETA])
     kmat, vec = squares[KMAT], squares[VEC]
     d = kmat.shape[0]
-    for r in range(d):
+    for r in range(d):  # J M̂⁻¹ along M̂⁻¹'s rows (contiguous), each sum in the same order
         for col in range(n):
-            total = 0.0
-            for l in range(n):  # noqa: E741
-                total += jac[r, l] * minv[l, col]
-            jm[r, col] = total
+            jm[r, col] = 0.0
+        for l in range(n):  # noqa: E741
+            entry = jac[r, l]
+            for col in range(n):
+                jm[r, col] += entry * minv[l, col]
         jb[r] = dot(jac[r], base)
     for r in range(d):
         for c in range(d):
