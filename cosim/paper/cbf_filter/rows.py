@@ -1,6 +1,8 @@
 """The rows of one step's QP: G τ ≤ h, each scaled to unit norm, with its weight, kind and
-joint; the hard rows robust to the declared uncertainty (see the package docstring), the
-soft (tracking) rows, and the torque limits; and the barrier values the step reports."""
+joint; the hard rows robust to the declared uncertainty (see the package docstring), kept in
+groups (a joint's side of a set, a row per payload corner, unscaled) that the solve takes
+rows from as it needs them (cutting planes), the soft (tracking) rows, and the torque
+limits; and the barrier values the step reports."""
 
 from __future__ import annotations
 
@@ -212,12 +214,13 @@ def add_corner(a, count, g, c):
 
 @no_refcount_jit(cache=True)
 def add_cuts(a, count, tau):
-    """Appends to the QP's first ``count`` rows every hard row not among them that τ
-    violates with its limit lowered by hard_tolerance, or that comes within the tolerance of
-    it (g_c·τ − h_c > −tolerance × a bound on ‖g_c‖), flagged as binding, with its lowered
-    limit and weight in the solver's (``work.per_row``); returns the new count. A row left
-    out is then met at τ with the tolerance to spare: a τ minimising the penalty form over
-    the rows in it, where none left out adds to it, minimises it over all of them."""
+    """Appends to the QP's first ``count`` rows every hard row of the groups not among them
+    with g_c·τ − h_c > −hard_tolerance × (a bound on ‖g_c‖): at least every one that τ
+    violates with its limit lowered by hard_tolerance (as the QP has it, scaled to unit
+    norm), flagged as binding, with its lowered limit and weight in the solver's
+    (``work.per_row``); returns the new count. A row left out is then met at τ with the
+    tolerance to spare: a τ minimising the penalty form over the rows in it, where none
+    left out adds to it, minimises it over all of them."""
     w = a.work
     terms = w.group_values[-1]  # the last row: scratch
     lowered, weights = w.per_row[0], w.per_row[1]
