@@ -9,9 +9,15 @@ Pinocchio (issue 32), in one process:
    compiled code as the blocks call it, against Pinocchio's crba + rnea through its Python
    bindings (what the blocks could call instead, from Python only), µs per call.
 
+With ``--parts``, also the filter's step on proposed_cbf in parts, each in one compiled
+loop over the run's rows (benchmarks/bench_cbf.py's ``parts``): the rows it builds (the
+model at the state and at the hold's end, the hard rows' groups, the soft rows), the
+record (the backup's check of the torque, the next velocity interval, the outputs) and
+the QP's solve (compiling those loops for the 7-joint chain takes a minute or two).
+
 Each figure is the best of ``--repeat`` repetitions.
 
-Run: .venv/bin/python benchmarks/bench_panda.py [--duration 3] [--repeat 3]
+Run: .venv/bin/python benchmarks/bench_panda.py [--duration 3] [--repeat 3] [--parts]
 """
 
 from __future__ import annotations
@@ -80,6 +86,8 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--duration", type=float, default=3.0, help="simulated seconds")
     parser.add_argument("--repeat", type=int, default=3, help="repetitions (best is kept)")
+    parser.add_argument("--parts", action="store_true",
+                        help="also time the filter's step in parts (rows, record, solve)")
     args = parser.parse_args()
     pipeline = load_pipeline(PIPELINE, [f"simulation.duration={args.duration}"])
     steps = int(round(args.duration / pipeline.simulation.step))
@@ -94,6 +102,7 @@ def main() -> int:
                 best = min(best, simulate(plant, plan, trace, engine="fused"))
             us[run] = 1e6 * best / steps
             torques[run] = trace["tau"].copy()
+            filtered = plan  # proposed_cbf's, last: its filter's arguments hold its trace
         # The FMU alone along the filtered run's own trajectory (its torques replayed): the
         # same RK4 sub-steps as in the closed loop (a constant torque would let the arm fall
         # through its limits, where the FMU's sub-steps shorten: rk4_motion).
@@ -101,12 +110,20 @@ def main() -> int:
                     for _ in range(args.repeat))
     finally:
         plant.close()
+    if args.parts:
+        from bench_cbf import parts
+
+        cost = parts(filtered.block("cbf_filter").args, steps, args.repeat)
     ours, theirs = nominal_model_cost(args.repeat)
     print(f"Panda, {args.duration:g} s at 1 kHz, fused engine (best of {args.repeat}):")
     for run, value in us.items():
         print(f"  {run:<14} {value:8.2f} us/step   {value / floor:6.2f} x the floor")
     print(f"  {'floor':<14} {floor:8.2f} us/step   (the FMU alone, one compiled call, "
           "proposed_cbf's torques)")
+    if args.parts:
+        print(f"  the filter's step in compiled loops: rows {cost['rows']:.2f}, record "
+              f"{cost['record']:.2f} (the backup's check, the next interval, the outputs), "
+              f"solve {cost['solve']:.2f}; the whole step {cost['step']:.2f} us")
     print(f"nominal model M + b (7 joints): {ours:.2f} us compiled (cosim.dynamics), "
           f"{theirs:.2f} us Pinocchio crba + rnea through Python")
     print(f"panda_closed_loop_us_per_step={us['proposed_cbf']:.2f} floor_us_per_step="
