@@ -20,6 +20,18 @@ def dot(x, y):
 
 
 @no_refcount_jit(cache=True, inline="always")
+def linear_part(nominal, payload, v, low, high, l, j):  # noqa: E741
+    """B_lj at Δm = ``low`` and at ``high``, the linear part of b(v + δ) − b(v) for b's
+    velocity forms Γ_l = ``nominal``[l] + Δm ``payload``[l]: 2 Σ_k Γ_l,jk v_k (the
+    observer's envelope and the filter's bias error bound)."""
+    bodies = point = 0.0
+    for k in range(v.shape[0]):
+        bodies += nominal[l, j, k] * v[k]
+        point += payload[l, j, k] * v[k]
+    return 2.0 * (bodies + low * point), 2.0 * (bodies + high * point)
+
+
+@no_refcount_jit(cache=True, inline="always")
 def product(matrix, vector, out):
     """out = matrix @ vector."""
     for i in range(matrix.shape[0]):

@@ -101,7 +101,7 @@ from ..numba_compat import no_refcount_jit
 from ..schema import FiniteFloat, NonNegativeFloat, PositiveFloat, Section
 from ..signals import Signal
 from .inertia import InertiaModel, default_links
-from .linalg import invert, small_symmetric_eigen, solve
+from .linalg import invert, linear_part, small_symmetric_eigen, solve
 
 LAWS = {"paper": 0, "error_driven": 1}
 BASES = {"lagged": 0, "no_acceleration": 1}
@@ -347,12 +347,8 @@ def envelope_acceleration(env, slot, cell, tau, tau_d, centre, radius, lo, hi):
                 bias += forms[0, l, j, k] * centre[j] * centre[k]
         work[l] = tau[l] - bias
         for j in range(n):
-            b0, bp = 0.0, 0.0
-            for k in range(n):
-                b0 += forms[0, l, j, k] * centre[k]
-                bp += forms[1, l, j, k] * centre[k]
-            bmat[0, l, j] = 2.0 * (b0 + payload_low * bp)
-            bmat[1, l, j] = 2.0 * (b0 + payload_high * bp)
+            bmat[0, l, j], bmat[1, l, j] = linear_part(forms[0], forms[1], centre, payload_low,
+                                                       payload_high, l, j)
     linear[:] = 0.0  # M̂⁻¹B and RᵀB at each end of the cell, B's column j row by row
     projected[:] = 0.0
     for end in range(2):

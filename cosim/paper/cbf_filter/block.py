@@ -138,13 +138,6 @@ def hard_violated(G, h, is_hard, count, tau):
     return False
 
 
-@no_refcount_jit(cache=True, inline="always")
-def any_hard_violated(a, count, tau):
-    """Whether τ violates a hard row as given: of the QP's first ``count`` or of the groups
-    (every payload corner's, among the QP's rows or not)."""
-    return hard_violated(a.rows, a.limits, a.is_hard, count, tau) or groups_violated(a, tau)
-
-
 @no_refcount_jit(cache=True)
 def solve_with_cuts(k, a, count):
     """The QP's answer over every row (the groups' included) into the solver's TAU, by
@@ -233,7 +226,7 @@ def blend_verified(k, a, tau, limit, reserve):
 
 
 @no_refcount_jit(cache=True, inline="always")
-def choose(k, a, count, tau):
+def choose(k, a, tau):
     """The torque to apply, into ``tau``: the QP's answer clipped to the torque limits (the
     controller's, clipped, where the QP's hard rows are not met within the limits), itself
     if the backup can still keep every hard set after it (:func:`.backup.verified`), else
@@ -249,10 +242,12 @@ def choose(k, a, count, tau):
     n = tau.shape[0]
     for i in range(n):
         tau[i] = min(max(tau[i], -a.torque_limit[i]), a.torque_limit[i])
+    # The hard rows as given: the groups' (every payload corner's, among the QP's rows or
+    # not); the torque limits' rows the clip above meets.
     if not a.verify:
-        return not any_hard_violated(a, count, tau), 0.0
+        return not groups_violated(a, tau), 0.0
     answer = a.work.authority[ANSWER]  # free here (cbf_step is done with it)
-    substituted = a.torque_limited and any_hard_violated(a, count, tau)
+    substituted = a.torque_limited and groups_violated(a, tau)
     if substituted:
         # The hard rows are not met within the torque limits: the QP's answer is a penalty
         # compromise, most often every limit spent braking, with no standing of its own
@@ -313,7 +308,7 @@ def cbf_record(k, a, count, tau):
 @no_refcount_jit(cache=True, inline="always")
 def record_inline(k, a, count, tau):
     """cbf_record, inlined into the step. ``tau`` is the solver's, changed in place."""
-    viable, share = choose(k, a, count, tau)
+    viable, share = choose(k, a, tau)
     for i in range(tau.shape[0]):
         a.tau[k, i] = tau[i]
     predict_interval(k, a, tau)
@@ -388,9 +383,8 @@ def cbf_step(k, a):
         weights[j] = a.weights[j]
     # Warm: from the rows that bound at the step before (w.binding keeps them), which most
     # often still do: the soft rows and the torque limits, in the same order at every step;
-    # the hard rows the solve adds are flagged as they come. A warm start from
-    # other rows costs iterations, never the answer (the solver checks the piece it starts
-    # from).
+    # the hard rows the solve adds are flagged as they come. A warm start from other rows
+    # costs iterations, never the answer (the solver checks the piece it starts from).
     count = solve_with_cuts(k, a, count)
     # A hard row may slip by ~ρ_soft·(soft excess)/ρ_hard where tracking pulls hard against
     # it: re-solve with tracking weighed less, down to the hard rows alone (what remains is

@@ -17,7 +17,7 @@ from ...dynamics.model import (
     own_scratch,
 )
 from ...numba_compat import no_refcount_jit
-from ..linalg import dot, invert, product, small_symmetric_eigen
+from ..linalg import dot, invert, linear_part, product, small_symmetric_eigen
 from .scratch import (
     ALPHA,
     BETA,
@@ -94,12 +94,7 @@ def linear_error_bound_into(v, eps, minv, low, high, nominal, payload, linear, q
     # transposed (linear[end, j, l]) so that (M̂⁻¹B)_ij runs along contiguous memory
     for l in range(n):  # noqa: E741
         for j in range(n):
-            bodies = point = 0.0
-            for k in range(n):
-                bodies += nominal[l, j, k] * v[k]
-                point += payload[l, j, k] * v[k]
-            linear[0, j, l] = 2.0 * (bodies + low * point)
-            linear[1, j, l] = 2.0 * (bodies + high * point)
+            linear[0, j, l], linear[1, j, l] = linear_part(nominal, payload, v, low, high, l, j)
     for i in range(n):
         total = 0.0
         for j in range(n):
