@@ -75,7 +75,9 @@ class Uncertainty(Section):
     classified as such, never counted as a failure of the filter).
 
     - ``payload``: the range [low, high] of mass added at the last link's centre of mass
-      (its tip on the paper's arm), kg: the plant's m[n] lies in nominal + [low, high].
+      (its tip on the paper's arm), kg: the plant's m[n] lies in nominal + [low, high], so
+      low > −m[n]; a URDF arm's payload is a point mass at its tip frame, low ≥ 0 (the
+      inertia model refuses a range that allows a negative mass).
     - ``noise_bound``: bound on the sensor's error |q_meas − q| per joint, rad (Gaussian
       noise: take ~6σ).
     - ``initial_velocity_error``: bound on the observer's initial velocity error

@@ -85,6 +85,11 @@ CASES = [
      f"{PAPER}: plant.parameters.rk4_step = 1e-10 s makes 10,000,000 RK4 sub-steps per step "
      "of 0.001 s, more than simulation.max_plant_substeps = 1000: use rk4_step ≥ 1e-06 s, or "
      "raise max_plant_substeps if the run is meant to take that long"),
+    ("a payload range that allows a negative mass",
+     [*SHORT, "--set", "uncertainty.payload=[-3,1]"],
+     "uncertainty.payload = [-3, 1] (run 'baseline'): the low end allows a plant with a "
+     "negative mass: the payload is added to the last link's mass, m[2] = 2.3 kg in the "
+     "nominal model, which must stay positive; give low > -2.3 kg"),
     ("a run the pipeline does not have", [*SHORT, "--run", "proposed", "--run", "nope"],
      f"--run nope: {PAPER} has no such run; its runs are baseline, proposed; nothing was run"),
 ]

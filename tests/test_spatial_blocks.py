@@ -314,3 +314,17 @@ def test_a_waypoint_past_a_joint_limit_is_refused_naming_it():
                        "--set", "reference.waypoints.times=[0,2]")
     message = error_line(result)
     assert "joint 3" in message and "ur5_robot.urdf's <limit>" in message, message
+
+
+def test_a_negative_payload_at_a_urdf_arms_flange_is_refused():
+    """The payload of a URDF arm is a point mass of its own at the tip frame: a declared
+    range below 0 kg would have the robust margins take mass matrices that are not positive
+    definite. Refused before the run, naming the key and the tip link; 0 kg is accepted."""
+    result = cosim_cli("run", UR5, "--dry-run", "--set", "uncertainty.payload=[-0.5,1]")
+    assert result.returncode == 2
+    assert error_line(result) == (
+        "cosim: error: uncertainty.payload = [-0.5, 1] (run 'proposed'): the low end allows a "
+        "plant with a negative mass: the payload is a point mass of its own at the tip "
+        "frame's origin (link 'tool0'), which cannot be negative; give low ≥ 0 kg")
+    assert cosim_cli("run", UR5, "--dry-run", "--set",
+                     "uncertainty.payload=[0,1]").returncode == 0

@@ -182,6 +182,29 @@ class InertiaModel(Block):
             self.publishes["nominal_chain"] = kernel_args(
                 Chain, **self.chain_arrays(links), gravity=params.gravity)
         self.publishes["nominal_model"] = self.model
+        self._check_payload_range()
+
+    def _check_payload_range(self) -> None:
+        """A declared payload range must leave every plant it allows a positive mass at the
+        payload point: the planar chain's payload is added to its last link's mass, so it
+        may be negative down to −m[n] (excluded); a URDF chain's is a point mass of its own
+        at the tip frame's origin, at least 0 kg. Below that the robust margins would take
+        the worst case over mass matrices that are not positive definite (the payload's
+        corners are exact only where 1 + Δm λ_j(J M̂⁻¹ Jᵀ) > 0)."""
+        low, high = map(float, self.context.uncertainty.payload)
+        if self.urdf_chain is not None:
+            lightest, strict = 0.0, False
+            where = (f"a point mass of its own at the tip frame's origin (link "
+                     f"'{self.urdf_chain.tip_link}'), which cannot be negative")
+        else:
+            lightest, strict = -float(self.model.m[-1]), True
+            where = (f"added to the last link's mass, m[{len(self.model.m)}] = "
+                     f"{-lightest:g} kg in the nominal model, which must stay positive")
+        if low < lightest or (strict and low == lightest):
+            raise PipelineError(
+                f"uncertainty.payload = [{low:g}, {high:g}] (run '{self.context.run}'): the "
+                f"low end allows a plant with a negative mass: the payload is {where}; give "
+                f"low {'>' if strict else '≥'} {lightest:g} kg")
 
     def nominal_links(self) -> dict[str, list[float]]:
         """The nominal chain as used: given values, else the defaults."""
