@@ -78,7 +78,7 @@ def run(pipeline: Pipeline, out_dir: str | Path | None = None, progress: bool = 
     """
     scenario = assemble(pipeline, plant)
     plant_info = scenario.plant.info()
-    if plant_info["unit_differences"] and progress:
+    if plant_info["unit_differences"]:  # a warning, not progress: said even when quiet
         print(f"cosim: warning: {plant_info['unit_differences']}", file=sys.stderr)
     results: dict[str, RunResult] = {}
     folder = recorder = None

@@ -147,6 +147,7 @@ def map_variables(md: ModelDescription, requested: dict[str, list[str] | None] |
         if port.required and not names:
             problems.append(f"plant.variables.{port.name} is empty: the plant needs one "
                             f"{port.role[:-1]} {port.direction} per joint")
+    wrong: set[str] = set()  # names refused on their own: not also reported as repeated
     for key, names in mapping.items():
         if names is None:
             continue
@@ -155,12 +156,47 @@ def map_variables(md: ModelDescription, requested: dict[str, list[str] | None] |
             what = f"{n}×{n} = {expected}" if PORT[key].shape == "nn" else f"{n}"
             problems.append(f"plant.variables.{key} has {len(names)} name"
                             f"{'s' * (len(names) != 1)}, the plant has "
-                            f"{n} joints (from plant.variables.q), so it needs {what}")
+                            f"{n} joint{'s' * (n != 1)} (from plant.variables.q), so it "
+                            f"needs {what}")
             continue
-        problems += [p for name in names if (p := _check(md, by_name, key, name))]
+        found = [(name, p) for name in names if (p := _check(md, by_name, key, name))]
+        problems += [p for _, p in found]
+        wrong.update(name for name, _ in found)
+    problems += _mapped_twice(mapping, wrong)
     if problems:
         return None, problems
     return PlantVariables(mapping), []
+
+
+def _mapped_twice(mapping: dict[str, list[str] | None], wrong: set[str]) -> list[str]:
+    """Each FMU variable feeds one entry of one port: a name given twice (``q =
+    ["shoulder", "shoulder"]``, or as both q and qdot) would read one signal as two. Names
+    in ``wrong`` are already refused."""
+    first: dict[str, tuple[str, int]] = {}
+    problems = []
+    for key, names in mapping.items():
+        for i, name in enumerate(names or []):
+            if name in wrong:
+                continue
+            if name not in first:
+                first[name] = (key, i)
+                continue
+            other, j = first[name]
+            problems.append(f"plant.variables.{key}[{i + 1}] names {name!r}, which "
+                            f"plant.variables.{other}[{j + 1}] already names: each FMU "
+                            "variable may feed one entry of one port")
+    return problems
+
+
+def _declared_unit(var) -> str | None:
+    """The unit a model variable declares, on itself or through its declared type."""
+    return (getattr(var, "unit", None)
+            or getattr(getattr(var, "declaredType", None), "unit", None))
+
+
+# A prismatic joint's units for each rotational one (cosim converts no units: a mapped
+# variable must be in the port's unit, or in its prismatic counterpart, which is reported)
+PRISMATIC = {"rad": "m", "rad/s": "m/s", "N.m": "N"}
 
 
 def unit_differences(md: ModelDescription, variables: PlantVariables) -> str | None:
@@ -172,8 +208,7 @@ def unit_differences(md: ModelDescription, variables: PlantVariables) -> str | N
     for port in PORTS:
         for name in (variables.names.get(port.name) or []) if port.shape == "n" else []:
             var = by_name.get(name)
-            declared = (getattr(var, "unit", None)
-                        or getattr(getattr(var, "declaredType", None), "unit", None))
+            declared = _declared_unit(var)
             if declared and _unit(declared) != _unit(port.signal.unit):
                 found.append(f"{name} in {declared}")
                 expected[port.name] = port.signal.unit
@@ -204,6 +239,12 @@ def _check(md: ModelDescription, by_name: dict, key: str, name: str) -> str | No
     if var.causality != causality:
         return (f"{where} names {name!r}, whose causality is {var.causality}; it must be "
                 f"an {causality}")
+    declared, unit = _declared_unit(var), PORT[key].signal.unit
+    allowed = [unit] + ([PRISMATIC[_unit(unit)]] if _unit(unit) in PRISMATIC else [])
+    # per joint ports only: M's entries mix units on a chain with a prismatic joint
+    if PORT[key].shape == "n" and declared and _unit(declared) not in map(_unit, allowed):
+        return (f"{where} names {name!r}, declared in {declared}; the port takes "
+                f"{' or '.join(allowed)} (a prismatic joint's), and cosim converts no units")
     return None
 
 
