@@ -148,8 +148,10 @@ def _finish(folder: RunFolder, pipeline: Pipeline, results: dict, plant_info: di
             failure = failure or exc
     summary = _summary(pipeline, results, plant_info)
     summary["complete"] = summary["complete"] and failure is None
+    summary["not_run"] = not_run(pipeline, results)
     if results:
-        text = markdown_table(summary["runs"], f"{pipeline.name}: safety at a glance")
+        text = markdown_table(summary["runs"], f"{pipeline.name}: safety at a glance",
+                              summary["not_run"])
         try:
             folder.write("summary.md", lambda tmp: tmp.write_text(text, encoding="utf-8"))
         except RunFolderError as exc:
@@ -164,6 +166,11 @@ def _finish(folder: RunFolder, pipeline: Pipeline, results: dict, plant_info: di
     finally:
         folder.release()
     return failure
+
+
+def not_run(pipeline: Pipeline, results: dict) -> list[str]:
+    """The pipeline's runs a failure left not run (they follow the one that failed)."""
+    return [name for name in pipeline.runs if name not in results]
 
 
 def _describe(exc: BaseException) -> str:

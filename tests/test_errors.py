@@ -381,6 +381,25 @@ def test_a_full_disk_ends_in_seconds_naming_the_path(tmp_path):
         subprocess.run(["umount", str(disk)], capture_output=True)
 
 
+def test_a_diverging_run_is_named_as_such_and_the_runs_after_it_as_not_run(tmp_path):
+    """Gains far too high for the 1 ms step: the plant's state becomes non-finite within
+    the step, which the plant says (not "the inertia matrix became singular", which it once
+    said), and the pipeline's run after it, never run, is named in the message,
+    summary.json and summary.md."""
+    out = tmp_path / "diverged"
+    result = cosim_cli("run", PAPER, "--out", str(out), "--no-figures", *SHORT,
+                       "--set", "runs.baseline.controller.kv=1e9")
+    assert result.returncode == 2
+    message = error_line(result)
+    assert "doStep: the state diverged at t = " in message, message
+    assert "the model itself is not at fault" in message and "singular" not in message
+    assert message.endswith("; not run: proposed (run it with --run proposed)"), message
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["not_run"] == ["proposed"] and list(summary["runs"]) == ["baseline"]
+    assert "- **proposed**: not run (an earlier run failed)" in \
+        (out / "summary.md").read_text()
+
+
 def test_a_plant_that_crashes_mid_run_is_named_and_what_was_computed_is_kept(tmp_path):
     """A PythonFMU plant that kills its process (SIGSEGV) at t = 2.5 s, as a broken binary
     would: the command says so, naming the FMU, and summary.json says crashed; the

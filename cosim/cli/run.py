@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import io
+import json
 import signal
 import sys
 from pathlib import Path
@@ -98,9 +99,18 @@ def _run(pipeline, out: Path, args: argparse.Namespace) -> None:
     previous = signal.signal(signal.SIGTERM, on_sigterm)
 
     def kept() -> str:  # the run folder is made once the plant is open
-        if (out / "summary.json").is_file():
-            return f"what was computed is kept in {out}; summary.json says what is incomplete"
-        return "nothing was written (the run had not started)"
+        if not (out / "summary.json").is_file():
+            return "nothing was written (the run had not started)"
+        text = f"what was computed is kept in {out}; summary.json says what is incomplete"
+        try:
+            left = json.loads((out / "summary.json").read_text()).get("not_run") or []
+        except (OSError, ValueError):
+            left = []
+        if left:
+            text += (f"; not run: {', '.join(left)} (run "
+                     f"{'it' if len(left) == 1 else 'them'} with "
+                     f"{' '.join(f'--run {name}' for name in left)})")
+        return text
 
     try:
         # A kernel edited since the last run (or the warm-up) recompiles: each module's

@@ -7,14 +7,22 @@
 #define RK4_H
 
 #include <math.h>
+#include <stdio.h>
 
 /* dx = f(t, x); 0 when it cannot be evaluated (a singular inertia matrix). */
 typedef int (*StateDerivative)(const void *context, double t, const double *x, double *dx);
 
-/* x is advanced in place; on failure it is left unchanged, *failed_at holds the time and
- * 0 is returned. */
+static int rk4_finite(const double *x)
+{
+    for (int i = 0; i < N_STATES; i++)
+        if (!isfinite(x[i])) return 0;
+    return 1;
+}
+
+/* x is advanced in place; on failure it is left unchanged, *failed_at holds the time,
+ * *diverged whether the state f was given had become non-finite, and 0 is returned. */
 static int rk4_integrate(StateDerivative f, const void *context, double t0, double h,
-                         double max_step, double *x, double *failed_at)
+                         double max_step, double *x, double *failed_at, int *diverged)
 {
     int n_sub = (int)ceil(h / max_step - 1e-9);
     if (n_sub < 1) n_sub = 1;
@@ -32,6 +40,7 @@ static int rk4_integrate(StateDerivative f, const void *context, double t0, doub
         ok = ok && f(context, t + dt, yt, k4);
         if (!ok) {
             *failed_at = t;
+            *diverged = !rk4_finite(y) || !rk4_finite(yt);
             return 0;
         }
         for (int i = 0; i < N_STATES; i++)
@@ -39,6 +48,29 @@ static int rk4_integrate(StateDerivative f, const void *context, double t0, doub
     }
     for (int i = 0; i < N_STATES; i++) x[i] = y[i];
     return 1;
+}
+
+/* The message of a step that failed at t: a state that diverged within it (non-finite: a
+ * torque or a controller's gains too large for the step, not the model) said as such, with
+ * the fastest of the n joint velocities qdot and the largest |tau| at the step's start;
+ * else ``singular``, what the model could not evaluate. */
+static void rk4_failure(char *msg, size_t len, int diverged, double t, const double *qdot,
+                        const double *tau, int n, const char *singular)
+{
+    if (!diverged) {
+        snprintf(msg, len, "%s at t = %g s", singular, t);
+        return;
+    }
+    int fastest = 0, largest = 0;
+    for (int i = 1; i < n; i++) {
+        if (fabs(qdot[i]) > fabs(qdot[fastest])) fastest = i;
+        if (fabs(tau[i]) > fabs(tau[largest])) largest = i;
+    }
+    snprintf(msg, len, "the state diverged at t = %g s: it became non-finite within the step, "
+             "which began at qdot[%d] = %g and tau[%d] = %g (rad/s and N.m; m/s and N for a "
+             "prismatic joint); a torque or a "
+             "controller's gains too large for the plant's step (the model itself is not at "
+             "fault)", t, fastest + 1, qdot[fastest], largest + 1, tau[largest]);
 }
 
 #endif

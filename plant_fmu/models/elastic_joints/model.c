@@ -145,9 +145,11 @@ int model_do_step(ModelState *s, double h, char *msg, size_t len)
     double *v = s->v;
     const StepContext context = {chain_params(s), v};
     double failed_at;
+    int diverged;
     if (!rk4_integrate(state_derivative, &context, v[VR_time], h, v[VR_rk4_step], &v[VR_q],
-                       &failed_at)) {
-        snprintf(msg, len, "the links' inertia matrix became singular at t = %g s", failed_at);
+                       &failed_at, &diverged)) {
+        rk4_failure(msg, len, diverged, failed_at, &v[VR_qdot], &v[VR_tau], N_LINKS,
+                    "the links' inertia matrix became singular");
         return 0;
     }
     v[VR_time] += h;

@@ -104,10 +104,12 @@ int model_do_step(ModelState *s, double h, char *msg, size_t len)
     context.tau = &v[VR_tau];
     body_inertias(context.chain.payload, context.body);
     double failed_at;
+    int diverged;
     /* q and qdot are adjacent in the variable table: the state vector in place */
     if (!rk4_integrate(state_derivative, &context, v[VR_time], h, sub_step(v), &v[VR_q],
-                       &failed_at)) {
-        snprintf(msg, len, "a joint lost its inertia about its axis at t = %g s", failed_at);
+                       &failed_at, &diverged)) {
+        rk4_failure(msg, len, diverged, failed_at, &v[VR_qdot], &v[VR_tau], N_LINKS,
+                    "a joint lost its inertia about its axis");
         return 0;
     }
     v[VR_time] += h;
