@@ -48,6 +48,9 @@ class Safety(Section):
     urdf: str | None = None
     urdf_base: str | None = None  # the limits' URDF's base link (a name)
     urdf_tip: str | None = None  # the limits' URDF's tip link (a name)
+    # joints of the limits' URDF held at a value (rad or m), as plant.urdf.fixed holds them:
+    # not in the chain, so not among the safe sets
+    urdf_fixed: dict[str, FiniteFloat] | None = None
     # the margin kept inside each URDF position limit (limits = "urdf"), rad (m: prismatic)
     position_margin: NonNegativeFloat = 0.0
     # per joint, instead of the URDF's: the position set's lower end (before the margin), rad
@@ -122,11 +125,13 @@ class JointBoxes:
 
 
 @functools.lru_cache(maxsize=8)
-def _urdf_limits(urdf: str, base: str | None, tip: str | None) -> tuple:
+def _urdf_limits(urdf: str, base: str | None, tip: str | None,
+                 fixed: tuple[tuple[str, float], ...]) -> tuple:
     from plant_fmu.urdf import UrdfError, read_urdf, resolve_uri
 
     try:
-        chain = read_urdf(resolve_uri(urdf, Path.cwd()), base=base, tip=tip)
+        chain = read_urdf(resolve_uri(urdf, Path.cwd()), base=base, tip=tip,
+                          fixed=dict(fixed))
     except UrdfError as exc:
         raise PipelineError(f"safety.urdf: {exc}") from None
     return chain.joints, chain.lower, chain.upper, chain.velocity, chain.effort
@@ -142,11 +147,15 @@ def joint_boxes(safety: Safety, n: int) -> JointBoxes | None:
     source = "the pipeline's safety.position_lower/upper, velocity_limit"
     lower = upper = velocity = effort = None
     if safety.urdf is not None:
-        joints, lower, upper, velocity, effort = _urdf_limits(safety.urdf, safety.urdf_base,
-                                                              safety.urdf_tip)
+        joints, lower, upper, velocity, effort = _urdf_limits(
+            safety.urdf, safety.urdf_base, safety.urdf_tip,
+            tuple(sorted((safety.urdf_fixed or {}).items())))
         if len(joints) != n:
-            raise PipelineError(f"safety.urdf = {safety.urdf!r}: its chain has {len(joints)} "
-                                f"moving joints ({', '.join(joints)}), the plant {n}")
+            raise PipelineError(
+                f"safety.urdf = {safety.urdf!r}: its chain has {len(joints)} moving joints "
+                f"({', '.join(joints)}), the plant {n}: hold the joints the plant holds with "
+                "safety.urdf_fixed = {JOINT = VALUE} (rad or m, as plant.urdf.fixed), or "
+                "choose the chain with safety.urdf_base and safety.urdf_tip")
         source = f"{safety.urdf}'s <limit> (overridden where the pipeline gives values)"
     given = {"position_lower": lower, "position_upper": upper, "velocity_limit": velocity,
              "effort_limit": effort if effort is not None else np.full(n, np.inf)}

@@ -328,3 +328,23 @@ def test_a_negative_payload_at_a_urdf_arms_flange_is_refused():
         "frame's origin (link 'tool0'), which cannot be negative; give low ≥ 0 kg")
     assert cosim_cli("run", UR5, "--dry-run", "--set",
                      "uncertainty.payload=[0,1]").returncode == 0
+
+
+def test_the_safe_sets_urdf_holds_the_joints_the_plant_holds():
+    """safety.urdf_fixed holds a joint of the limits' URDF as plant.urdf.fixed holds the
+    plant's: its chain then has the plant's joints, the held one's limits not among the safe
+    sets. Without it, the message names the key that would fix the count."""
+    from cosim.declared import Safety, joint_boxes
+    from cosim.schema import PipelineError
+
+    package = "package://example-robot-data/robots/panda_description/urdf/panda.urdf"
+    whole = joint_boxes(Safety(limits="urdf", urdf=package, urdf_tip="panda_hand"), 7)
+    held = joint_boxes(Safety(limits="urdf", urdf=package, urdf_tip="panda_hand",
+                              urdf_fixed={"panda_joint4": -1.5}), 6)
+    kept = [0, 1, 2, 4, 5, 6]  # joint 4's range, (-3.07, -0.07) rad, is the one unlike others
+    for field in ("position_centre", "position_half", "velocity_half", "effort"):
+        assert np.array_equal(getattr(held, field), getattr(whole, field)[kept]), field
+    assert len(set(whole.position_centre)) > 2
+    with pytest.raises(PipelineError, match=r"its chain has 7 moving joints .*, the plant 6: "
+                       r"hold the joints the plant holds with safety.urdf_fixed"):
+        joint_boxes(Safety(limits="urdf", urdf=package, urdf_tip="panda_hand"), 6)
