@@ -302,6 +302,28 @@ def test_build_fmu_into_a_folder_and_refused_paths(tmp_path):
     assert not (tmp_path / "newer").exists()
 
 
+def test_build_fmu_replaces_a_different_file_only_with_force(tmp_path):
+    """The same build again leaves the FMU as it is; a different file at the path (another
+    build, or the user's own) is refused, named and left untouched, unless --force."""
+    target = tmp_path / "arm.fmu"
+    assert cosim_cli("build-fmu", "--output", str(target)).returncode == 0
+    built = target.read_bytes()
+    assert cosim_cli("build-fmu", "--output", str(target)).returncode == 0
+    assert target.read_bytes() == built
+    other = cosim_cli("build-fmu", "--links", "3", "--output", str(target))
+    assert other.returncode == 2
+    assert error_line(other) == (
+        f"cosim: error: --output {target}: a different file is already there (another build, "
+        "or a file cosim did not write); give --force to replace it, or another --output; "
+        "nothing was written")
+    assert target.read_bytes() == built
+    mine = _write(tmp_path / "PlanarArm2_fmi2.fmu", b"my own notes")
+    assert cosim_cli("build-fmu", "--output", f"{tmp_path}/").returncode == 2
+    assert mine.read_bytes() == b"my own notes"
+    forced = cosim_cli("build-fmu", "--links", "3", "--output", str(target), "--force")
+    assert forced.returncode == 0 and target.read_bytes() != built
+
+
 def test_view_screenshot_to_a_bad_path(finished, tmp_path):
     message = error_line(cosim_cli("view", str(finished), "--screenshot",
                                    str(tmp_path / "missing" / "shot.png")))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import filecmp
 import os
 from pathlib import Path
 
@@ -47,6 +48,9 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     p.add_argument("--output", default=None, metavar="FILE.fmu|FOLDER/",
                    help="where to write the FMU: a .fmu file, or a folder (an existing one, "
                    "or a name ending in /, made if missing) (default: the build cache)")
+    p.add_argument("--force", action="store_true",
+                   help="replace a different file already at the output path (an FMU built "
+                   "the same way is left as it is either way)")
     p.set_defaults(func=handle)
 
 
@@ -96,7 +100,9 @@ def _build(args: argparse.Namespace) -> Path:
         if folder is not None:
             identifier = MODELS[model].MODEL_IDENTIFIER
             output = folder / f"{identifier}{links}_fmi{args.fmi_version}.fmu"
-        return build_fmu(links=links, fmi_version=args.fmi_version, output=output, model=model)
+        options = dict(links=links, fmi_version=args.fmi_version, model=model)
+        _may_replace(output, build_fmu(**options), args.force)
+        return build_fmu(output=output, **options)
     for option, given in (("--model", args.model), ("--links", args.links)):
         if given is not None:
             raise UserError(f"{option} is for the built-in planar models; --urdf builds the "
@@ -105,13 +111,26 @@ def _build(args: argparse.Namespace) -> Path:
     options = dict(base=args.base, tip=args.tip, fixed=fixed_joints(args.fix),
                    fmi_version=args.fmi_version)
     try:
-        path = build_urdf_fmu(urdf, output=output, **options)
-        if folder is not None:  # named as in the cache, without its digest
-            path = build_urdf_fmu(urdf, output=folder / (path.name.rsplit("_", 1)[0] + ".fmu"),
-                                  **options)
+        cached = build_urdf_fmu(urdf, **options)
     except UrdfError as exc:
         raise UserError(f"--urdf {exc}; nothing was written") from None
-    return path
+    if folder is not None:  # named as in the cache, without its digest
+        output = folder / (cached.name.rsplit("_", 1)[0] + ".fmu")
+    _may_replace(output, cached, args.force)
+    return build_urdf_fmu(urdf, output=output, **options)
+
+
+def _may_replace(output: Path | None, built: Path, force: bool) -> None:
+    """Refuse to replace a file at ``output`` that is not this very build (``built``, the
+    cached FMU the output is a copy of) unless ``force``: another URDF or options, or a file
+    cosim did not write."""
+    if output is None or force or not output.exists():
+        return
+    if output.is_file() and filecmp.cmp(output, built, shallow=False):
+        return  # the same build: copied again, unchanged
+    raise UserError(f"--output {output}: a different file is already there (another build, "
+                    "or a file cosim did not write); give --force to replace it, or another "
+                    "--output; nothing was written")
 
 
 def handle(args: argparse.Namespace) -> None:
