@@ -144,7 +144,8 @@ def joint_boxes(safety: Safety, n: int) -> JointBoxes | None:
     finite position limit, a margin leaves no room, or a list has the wrong length."""
     if safety.limits != "urdf":
         return None
-    source = "the pipeline's safety.position_lower/upper, velocity_limit"
+    source = (f"the pipeline's safety.position_lower/upper less safety.position_margin = "
+              f"{safety.position_margin:g} rad, velocity_limit")
     lower = upper = velocity = effort = None
     if safety.urdf is not None:
         joints, lower, upper, velocity, effort = _urdf_limits(
@@ -156,7 +157,8 @@ def joint_boxes(safety: Safety, n: int) -> JointBoxes | None:
                 f"({', '.join(joints)}), the plant {n}: hold the joints the plant holds with "
                 "safety.urdf_fixed = {JOINT = VALUE} (rad or m, as plant.urdf.fixed), or "
                 "choose the chain with safety.urdf_base and safety.urdf_tip")
-        source = f"{safety.urdf}'s <limit> (overridden where the pipeline gives values)"
+        source = (f"{safety.urdf}'s <limit>s, positions less safety.position_margin = "
+                  f"{safety.position_margin:g} rad, overridden where the pipeline gives values")
     given = {"position_lower": lower, "position_upper": upper, "velocity_limit": velocity,
              "effort_limit": effort if effort is not None else np.full(n, np.inf)}
     values = {}

@@ -21,6 +21,7 @@ from __future__ import annotations
 import logging
 import os
 import sys
+from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -30,6 +31,13 @@ GRAVITY = np.array([0.0, 0.0, -9.81])  # m/s^2 along the base's -z
 MOVING_TYPES = ("revolute", "continuous", "prismatic")
 SUPPORTED_TYPES = (*MOVING_TYPES, "fixed")
 REVOLUTE, PRISMATIC = 0, 1  # Chain.kind
+# A moving joint's numbers: element, attribute, what it is, units (revolute, prismatic).
+JOINT_NUMBERS = (("limit", "lower", "lower limit", ("rad", "m")),
+                 ("limit", "upper", "upper limit", ("rad", "m")),
+                 ("limit", "velocity", "velocity limit", ("rad/s", "m/s")),
+                 ("limit", "effort", "effort limit", ("N m", "N")),
+                 ("dynamics", "damping", "damping", ("N m s/rad", "N s/m")),
+                 ("dynamics", "friction", "friction", ("N m", "N")))
 
 
 class UrdfError(ValueError):
@@ -77,6 +85,10 @@ def package_dirs(package: str, near: Path | None = None) -> list[Path]:
     """Where ``package://<package>/`` may point: a folder of that name above ``near`` (a
     ROS workspace), in $ROS_PACKAGE_PATH, under $AMENT_PREFIX_PATH's share/, and under a
     Python environment's ``cmeel.prefix/share`` (how example-robot-data installs)."""
+    return [p for p in _package_candidates(package, near) if p.is_dir() and p.name == package]
+
+
+def _package_candidates(package: str, near: Path | None) -> list[Path]:
     candidates: list[Path] = []
     if near is not None:
         candidates += [p for p in Path(near).resolve().parents if p.name == package]
@@ -89,36 +101,95 @@ def package_dirs(package: str, near: Path | None = None) -> list[Path]:
     for entry in sys.path:
         if entry:
             candidates.append(Path(entry) / "cmeel.prefix" / "share" / package)
-    return [p for p in candidates if p.is_dir() and p.name == package]
+    return candidates
+
+
+def _package_not_found(package: str, rest: str, near: Path) -> str:
+    """Why ``package://<package>/<rest>`` leads nowhere: where :func:`package_dirs` looked,
+    and :func:`resolve_uri` after it."""
+    ros, ament = (os.environ.get(name, "") for name in ("ROS_PACKAGE_PATH", "AMENT_PREFIX_PATH"))
+    cmeel = dict.fromkeys(str(Path(entry) / "cmeel.prefix" / "share") for entry in sys.path
+                          if entry and (Path(entry) / "cmeel.prefix" / "share").is_dir())
+    return (f"package '{package}' was not found: no folder '{package}' above "
+            f"{Path(near).resolve()}, in $ROS_PACKAGE_PATH ({ros or 'not set'}), in share/ "
+            f"under $AMENT_PREFIX_PATH ({ament or 'not set'}) or in the Python environment's "
+            f"cmeel.prefix/share ({', '.join(cmeel) or 'none on sys.path'}), and there is no "
+            f"{Path(near) / rest}; install the package, or add the folder that holds it to "
+            "$ROS_PACKAGE_PATH")
+
+
+class _NotFound(type(Path())):
+    """What :func:`resolve_uri` returns for a ``package://`` reference it cannot find: the
+    missing path it returned before (the reference's path in the folder given), with
+    ``uri`` and ``reason`` for the message that refuses it."""
+
+    uri = ""
+    reason = ""
 
 
 def resolve_uri(uri: str, relative_to: Path) -> Path:
-    """The file a URDF reference names: ``package://pkg/rest`` (see :func:`package_dirs`),
-    ``file://path`` or a path relative to the folder ``relative_to``. The returned path may
-    not exist (the caller says what was looked for)."""
+    """The file a URDF reference names: ``package://pkg/rest`` (see :func:`package_dirs`;
+    else ``rest`` in ``relative_to``), ``file://path`` or a path relative to the folder
+    ``relative_to``. The returned path may not exist (the caller says what was looked for;
+    for a ``package://`` reference, :func:`_missing` says why)."""
     if uri.startswith("package://"):
         package, _, rest = uri[len("package://"):].partition("/")
-        for root in package_dirs(package, near=relative_to):
+        roots = package_dirs(package, near=relative_to)
+        for root in roots:
             if (root / rest).exists():
                 return root / rest
-        return Path(relative_to) / rest
+        if (Path(relative_to) / rest).exists():
+            return Path(relative_to) / rest
+        missing = _NotFound(Path(relative_to) / rest)
+        missing.uri = uri
+        if not package:  # "/" is then the package (a folder above everything named "")
+            missing.reason = "the package name is empty (package://NAME/PATH)"
+        elif roots:
+            missing.reason = (f"no such file in package '{package}' (looked for "
+                              f"{' and '.join(str(root / rest) for root in roots)})")
+        else:
+            missing.reason = _package_not_found(package, rest, relative_to)
+        return missing
     if uri.startswith("file://"):
         uri = uri[len("file://"):]
     path = Path(uri).expanduser()
     return path if path.is_absolute() else Path(relative_to) / path
 
 
+def _missing(found: Path) -> str:
+    """Why a reference that :func:`resolve_uri` resolved to ``found`` names no file."""
+    return getattr(found, "reason", "") or f"no such file (looked for {found})"
+
+
 def _load(path: Path):
     import yourdfpy
+    from lxml import etree
 
     if not path.is_file():
+        if isinstance(path, _NotFound) and path.reason:
+            raise UrdfError(f"{path.uri}: {path.reason}")
         raise UrdfError(f"{path}: no such URDF file")
+    # The parser yourdfpy uses, first: yourdfpy would parse what it can of a file that is
+    # not XML and fail later without saying where.
+    try:
+        root = etree.parse(str(path)).getroot()
+    except etree.XMLSyntaxError as exc:
+        line, column = exc.position
+        reason = exc.msg.removesuffix(f", line {line}, column {column}")
+        raise UrdfError(f"{path}: not well-formed XML at line {line}, column {column}: "
+                        f"{reason}") from None
+    except OSError as exc:
+        raise UrdfError(f"{path}: cannot be read ({exc})") from None
+    if etree.QName(root).localname != "robot":
+        raise UrdfError(f"{path}: the XML's root element is <{etree.QName(root).localname}>, "
+                        "not <robot>: not a URDF")
     # yourdfpy logs what it recovers from; our own checks below say what is wrong instead.
     logging.getLogger("yourdfpy").setLevel(logging.CRITICAL)
     try:
-        urdf = yourdfpy.URDF.load(str(path), build_scene_graph=False,
-                                  build_collision_scene_graph=False, load_meshes=False,
-                                  load_collision_meshes=False)
+        with np.errstate(all="ignore"):  # an <origin> of inf: refused below, not warned of
+            urdf = yourdfpy.URDF.load(str(path), build_scene_graph=False,
+                                      build_collision_scene_graph=False, load_meshes=False,
+                                      load_collision_meshes=False)
     except Exception as exc:  # lxml or yourdfpy: either way the file is not a URDF we read
         cause = (f"the attribute {exc} is missing" if isinstance(exc, KeyError)
                  else f"{type(exc).__name__}: {exc}")
@@ -141,13 +212,19 @@ def _check_meshes(robot, path: Path) -> None:
                 if not found.is_file():
                     raise UrdfError(
                         f"{path}: link '{link.name}' <{element}><mesh filename="
-                        f"'{mesh.filename}'>: no such file (looked for {found}). The FMU "
-                        "ignores meshes for its dynamics, but the 3-D view draws them: fix "
-                        "the path, or remove the <mesh>")
+                        f"'{mesh.filename}'>: {_missing(found)}. The FMU ignores meshes "
+                        "for its dynamics, but the 3-D view draws them: fix the path, or "
+                        "remove the <mesh>")
 
 
 def _tree(robot, path: Path) -> tuple[dict, dict]:
     """parent_joint[link] and child_joints[link] (in file order), checked to be a tree."""
+    for kind, elements in (("link", robot.links), ("joint", robot.joints)):
+        for name, count in Counter(element.name for element in elements).items():
+            if count > 1:
+                raise UrdfError(f"{path}: {kind} '{name}' is defined "
+                                f"{'twice' if count == 2 else f'{count} times'}: each "
+                                f"<{kind}> needs a name of its own")
     links = {link.name for link in robot.links}
     parent_joint: dict = {}
     child_joints: dict = {name: [] for name in links}
@@ -245,9 +322,10 @@ def _motion(joint, value: float, path: Path) -> np.ndarray:
 def _unit_axis(joint, path: Path) -> np.ndarray:
     axis = np.array([1.0, 0.0, 0.0]) if joint.axis is None else np.asarray(joint.axis, float)
     norm = np.linalg.norm(axis)
-    if not np.isfinite(norm) or norm == 0.0:
-        raise UrdfError(f"{path}: joint '{joint.name}' <axis xyz='{joint.axis}'>: the axis "
-                        "must be a non-zero vector")
+    if axis.shape != (3,) or not np.isfinite(norm) or norm == 0.0:
+        raise UrdfError(f"{path}: joint '{joint.name}' <axis xyz='"
+                        f"{' '.join(f'{x:g}' for x in axis.ravel())}'>: the axis must be a "
+                        "non-zero vector of three finite numbers")
     return axis / norm
 
 
@@ -255,10 +333,51 @@ def _origin(element) -> np.ndarray:
     return np.eye(4) if element.origin is None else np.asarray(element.origin, float)
 
 
+def _check_origin(element, name: str, path: Path) -> None:
+    """``element``'s <origin> (a 4x4 transform once yourdfpy has read it), ``name`` in the
+    message, is finite."""
+    if not np.all(np.isfinite(_origin(element))):
+        raise UrdfError(f"{path}: {name}: its xyz (m) and rpy (rad) must be finite numbers")
+
+
+def _check_joint(joint, path: Path) -> None:
+    """A joint below the base: a type the plant supports, a finite <origin>; if it moves,
+    a finite non-zero <axis>, finite <limit>s with lower <= upper (a continuous joint's
+    position limits are ignored), velocity, effort, damping and friction >= 0.
+
+    lower == upper is accepted: held (off the chain, or by --fix), the joint is held there;
+    on the chain it is q0's one valid value (the plant bounds q0 alone), and URDFs write
+    0 and 0 for no limits (the spec's default; example-robot-data's double pendulum)."""
+    if joint.type not in SUPPORTED_TYPES:
+        raise UrdfError(f"{path}: joint '{joint.name}' has type '{joint.type}': the plant "
+                        f"supports {', '.join(SUPPORTED_TYPES)} joints")
+    _check_origin(joint, f"joint '{joint.name}' <origin>", path)
+    if joint.type == "fixed":
+        return
+    _unit_axis(joint, path)
+    unit = int(joint.type == "prismatic")
+    for element, attribute, what, units in JOINT_NUMBERS:
+        value = getattr(getattr(joint, element), attribute, None)
+        if value is None or (element == "limit" and attribute in ("lower", "upper") and
+                             joint.type == "continuous"):
+            continue
+        bound = "" if attribute in ("lower", "upper") else " >= 0"
+        if not np.isfinite(float(value)) or (bound and float(value) < 0):
+            raise UrdfError(f"{path}: joint '{joint.name}' <{element} {attribute}="
+                            f"'{float(value):g}'>: the {what} must be a finite number{bound} "
+                            f"({units[unit]})")
+    lower, upper, _, _ = _limits(joint)
+    if lower > upper:
+        raise UrdfError(f"{path}: joint '{joint.name}' <limit lower='{lower:g}' upper="
+                        f"'{upper:g}'>: lower must be <= upper ({('rad', 'm')[unit]}); no "
+                        "position lies within these limits")
+
+
 def _check_inertial(link, carried_by, path: Path) -> None:
-    """A link's <inertial>: required, with a positive mass, where a moving joint carries
-    the link (``carried_by``); elsewhere (massless frames such as a flange) it may be
-    absent or massless, but never negative."""
+    """A link's <inertial>: required, with a finite positive mass, a finite <origin> and a
+    finite positive semi-definite inertia, where a moving joint carries the link
+    (``carried_by``); elsewhere (massless frames such as a flange) it may be absent or
+    massless, but never negative."""
     inertial = link.inertial
     if inertial is None or inertial.mass is None:
         if carried_by is not None:
@@ -268,11 +387,17 @@ def _check_inertial(link, carried_by, path: Path) -> None:
         return
     mass = float(inertial.mass)
     if not np.isfinite(mass) or mass < 0 or (carried_by is not None and mass == 0):
-        raise UrdfError(f"{path}: link '{link.name}' <inertial><mass value='{mass:g}'>"
-                        ": a mass in kg must be positive" +
-                        (f" (moving joint '{carried_by}' carries it)" if mass == 0 else ""))
+        raise UrdfError(f"{path}: link '{link.name}' <inertial><mass value='{mass:g}'>: a "
+                        "mass must be a finite " +
+                        ("positive number" if carried_by is not None else "number >= 0") +
+                        " (kg)" +
+                        (f": moving joint '{carried_by}' carries it" if mass == 0 else ""))
+    _check_origin(inertial, f"link '{link.name}' <inertial><origin>", path)
     inertia = np.asarray(inertial.inertia, float) if inertial.inertia is not None else None
-    if inertia is None or not np.all(np.isfinite(inertia)) or \
+    if inertia is not None and not np.all(np.isfinite(inertia)):
+        raise UrdfError(f"{path}: link '{link.name}' <inertial><inertia>: ixx, ixy, ixz, "
+                        "iyy, iyz and izz must be finite numbers (kg m^2)")
+    if inertia is None or \
             np.linalg.eigvalsh(inertia).min() < -1e-12 * max(1.0, np.abs(inertia).max()):
         raise UrdfError(f"{path}: link '{link.name}' <inertial><inertia>: the inertia tensor "
                         "(kg m^2) must be symmetric positive semi-definite")
@@ -298,7 +423,7 @@ def read_urdf(path: str | os.PathLike, base: str | None = None, tip: str | None 
     (default: from the base, the one way on to a moving joint, stopping where the arm forks;
     see ``_path``), with the joints in ``fixed`` held at their value (rad or m). Raises
     :class:`UrdfError`."""
-    path = Path(path)
+    path = path if isinstance(path, Path) else Path(path)  # resolve_uri's _NotFound kept
     robot = _load(path)
     fixed = dict(fixed or {})
     parent_joint, child_joints = _tree(robot, path)
@@ -309,9 +434,7 @@ def read_urdf(path: str | os.PathLike, base: str | None = None, tip: str | None 
                         f"{sorted(child_joints)}")
     subtree = _subtree(base, child_joints)
     for joint in subtree:
-        if joint.type not in SUPPORTED_TYPES:
-            raise UrdfError(f"{path}: joint '{joint.name}' has type '{joint.type}': the plant "
-                            f"supports {', '.join(SUPPORTED_TYPES)} joints")
+        _check_joint(joint, path)
     _check_meshes(robot, path)
     by_name = {joint.name: joint for joint in subtree}
     for name, value in fixed.items():

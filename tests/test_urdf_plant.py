@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import re
 import zlib
+from pathlib import Path
 
 import numpy as np
 import pinocchio as pin
@@ -19,6 +20,7 @@ from fmu_helpers import FmuInstance
 from urdf_helpers import (
     ARMS,
     OWN_ROBOT,
+    ROBOTS,
     SWING_Q0,
     configuration,
     dynamics_errors,
@@ -33,7 +35,7 @@ from cosim.plant.fmu import Fmu
 from plant_fmu import build_urdf_fmu
 from plant_fmu.build import _build_key
 from plant_fmu.models.spatial_chain import SpatialChainModel
-from plant_fmu.urdf import read_urdf
+from plant_fmu.urdf import read_urdf, resolve_uri
 
 # Five arms of example-robot-data and our own robot, built for FMI 2 or 3 (UR10 and SO-101
 # too in benchmarks/bench_urdf.py).
@@ -249,8 +251,60 @@ MALFORMED = {
         "link 'carriage' has no <inertial> (with <mass>), but moving joint 'lift' carries it"),
     "zero mass": (
         lambda t: t.replace('<mass value="1.2"/>', '<mass value="0"/>'),
-        "link 'turret_link' <inertial><mass value='0'>: a mass in kg must be positive "
-        "(moving joint 'turret' carries it)"),
+        "link 'turret_link' <inertial><mass value='0'>: a mass must be a finite positive "
+        "number (kg): moving joint 'turret' carries it"),
+    "NaN mass": (
+        lambda t: t.replace('<mass value="1.2"/>', '<mass value="nan"/>'),
+        "link 'turret_link' <inertial><mass value='nan'>: a mass must be a finite positive "
+        "number (kg)"),
+    "infinite inertia": (
+        lambda t: t.replace('ixx="0.008"', 'ixx="inf"'),
+        "link 'turret_link' <inertial><inertia>: ixx, ixy, ixz, iyy, iyz and izz must be "
+        "finite numbers (kg m^2)"),
+    "infinite inertial origin": (
+        lambda t: t.replace('<origin xyz="0.02 0 0"/>', '<origin xyz="inf 0 0"/>'),
+        "link 'hand' <inertial><origin>: its xyz (m) and rpy (rad) must be finite numbers"),
+    "NaN joint origin": (
+        lambda t: t.replace('rpy="1.5707963267948966 0 0.2"', 'rpy="nan 0 0.2"'),
+        "joint 'shoulder' <origin>: its xyz (m) and rpy (rad) must be finite numbers"),
+    "NaN axis": (
+        lambda t: t.replace('<axis xyz="0 0.6 0.8"/>', '<axis xyz="0 nan 0.8"/>'),
+        "joint 'shoulder' <axis xyz='0 nan 0.8'>: the axis must be a non-zero vector of three "
+        "finite numbers"),
+    "NaN lower limit": (
+        lambda t: t.replace('lower="-1.5"', 'lower="nan"'),
+        "joint 'wrist' <limit lower='nan'>: the lower limit must be a finite number (rad)"),
+    "infinite velocity limit": (
+        lambda t: t.replace('velocity="0.3"', 'velocity="inf"'),
+        "joint 'lift' <limit velocity='inf'>: the velocity limit must be a finite number >= 0 "
+        "(m/s)"),
+    "NaN damping": (
+        lambda t: t.replace('damping="0.02"', 'damping="nan"'),
+        "joint 'wrist' <dynamics damping='nan'>: the damping must be a finite number >= 0 "
+        "(N m s/rad)"),
+    "limits the wrong way round": (
+        lambda t: t.replace('lower="-1.5" upper="1.5"', 'lower="1.5" upper="-1.5"'),
+        "joint 'wrist' <limit lower='1.5' upper='-1.5'>: lower must be <= upper (rad); no "
+        "position lies within these limits"),
+    "prismatic limits the wrong way round": (
+        lambda t: t.replace('lower="0.0" upper="0.5"', 'lower="0.5" upper="0.0"'),
+        "joint 'lift' <limit lower='0.5' upper='0'>: lower must be <= upper (m)"),
+    "link defined twice": (
+        lambda t: t.replace("</robot>", '<link name="hand"/></robot>'),
+        "link 'hand' is defined twice: each <link> needs a name of its own"),
+    "joint defined twice": (
+        lambda t: t.replace("</robot>", '<joint name="wrist" type="fixed"><parent link="hand"/>'
+                            '<child link="extra"/></joint><link name="extra"/></robot>'),
+        "joint 'wrist' is defined twice: each <joint> needs a name of its own"),
+    "not XML": (
+        lambda t: "solid block\nendsolid block\n",  # an STL given for the URDF
+        "not well-formed XML at line 1, column 1: Start tag expected, '<' not found"),
+    "truncated XML": (
+        lambda t: '<robot name="r">\n  <link name="a">\n',
+        "not well-formed XML at line 3, column 1: Premature end of data in tag link line 2"),
+    "not a robot": (
+        lambda t: '<sdf version="1.6"/>',
+        "the XML's root element is <sdf>, not <robot>: not a URDF"),
     "loop": (
         lambda t: t.replace("</robot>", '<joint name="strut" type="fixed"><parent '
                             'link="pedestal"/><child link="hand"/></joint></robot>'),
@@ -263,14 +317,29 @@ MALFORMED = {
         lambda t: t.replace('name="wrist" type="revolute"', 'name="wrist" type="planar"'),
         "joint 'wrist' has type 'planar'"),
     "a robot without its name": (
-        lambda t: "<robot",
+        lambda t: t.replace('<robot name="slider_turret">', "<robot>"),
         "not a readable URDF (the attribute 'name' is missing); a URDF is a <robot name> "
         "whose every <link> and <joint> has its name, and every joint its <parent link> and "
         "<child link>"),
     "missing mesh": (
         lambda t: t.replace("meshes/block.stl", "meshes/gone.stl"),
         "link 'pedestal' <visual><mesh filename='meshes/gone.stl'>: no such file"),
+    "mesh of an unknown package": (
+        lambda t: t.replace("meshes/block.stl", "package://nopkg/meshes/x.stl"),
+        "link 'pedestal' <visual><mesh filename='package://nopkg/meshes/x.stl'>: package "
+        "'nopkg' was not found: no folder 'nopkg' above "),
 }
+
+
+def refusal(urdf: str, tmp_path, capsys, monkeypatch) -> str:
+    """The one line `cosim build-fmu --urdf URDF` refuses URDF with (exit 2, nothing written,
+    nothing cached), after "--urdf URDF: "."""
+    monkeypatch.setenv("COSIM_CACHE", str(tmp_path / "cache"))
+    assert main(["build-fmu", "--urdf", urdf, "--output", str(tmp_path / "x.fmu")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and err.startswith(f"cosim: error: --urdf {urdf}: ")
+    assert not (tmp_path / "x.fmu").exists() and not (tmp_path / "cache").exists()
+    return err
 
 
 @pytest.mark.parametrize("case", sorted(MALFORMED))
@@ -280,12 +349,49 @@ def test_malformed_urdf_refused_with_one_message(case, tmp_path, capsys, fmu_cac
     robot = tmp_path / "robot.urdf"
     robot.write_text(edit(OWN_ROBOT.read_text()))
     (tmp_path / "meshes").symlink_to(OWN_ROBOT.parent / "meshes")
-    monkeypatch.setenv("COSIM_CACHE", str(tmp_path / "cache"))
-    assert main(["build-fmu", "--urdf", str(robot), "--output", str(tmp_path / "x.fmu")]) == 2
-    err = capsys.readouterr().err.strip()
-    assert len(err.splitlines()) == 1 and err.startswith(f"cosim: error: --urdf {robot}: ")
-    assert expected in err
-    assert not (tmp_path / "x.fmu").exists() and not (tmp_path / "cache").exists()
+    assert expected in refusal(str(robot), tmp_path, capsys, monkeypatch)
+
+
+@pytest.mark.parametrize(("uri", "expected"), [
+    ("package://nosuchpkg/robot.urdf",
+     "package 'nosuchpkg' was not found: no folder 'nosuchpkg' above {cwd}, in "
+     "$ROS_PACKAGE_PATH ({ws}), in share/ under $AMENT_PREFIX_PATH (not set) or in the Python "
+     "environment's cmeel.prefix/share ({cmeel}), and there is no {cwd}/robot.urdf; install "
+     "the package, or add the folder that holds it to $ROS_PACKAGE_PATH"),
+    ("package://example-robot-data/robots/nosuch.urdf",
+     "no such file in package 'example-robot-data' (looked for {robots}/nosuch.urdf)"),
+    ("package:///robots/robot.urdf", "the package name is empty (package://NAME/PATH)"),
+], ids=["unknown package", "no such file in the package", "no package name"])
+def test_unknown_package_refused_saying_where_it_was_looked_for(uri, expected, tmp_path,
+                                                                capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setenv("ROS_PACKAGE_PATH", str(tmp_path / "ws"))
+    monkeypatch.delenv("AMENT_PREFIX_PATH", raising=False)
+    (tmp_path / "ws").mkdir()
+    err = refusal(uri, tmp_path, capsys, monkeypatch)
+    assert err.removeprefix(f"cosim: error: --urdf {uri}: ") == expected.format(
+        cwd=Path.cwd(), ws=tmp_path / "ws", cmeel=ROBOTS.parent.parent, robots=ROBOTS) + \
+        "; nothing was written"
+
+
+def test_packages_resolve_as_before(tmp_path):
+    """example-robot-data's URDFs (pipelines/panda.toml, ur5.toml), and a package that is not
+    found but whose path is there in the folder given."""
+    panda = "package://example-robot-data/robots/panda_description/urdf/panda.urdf"
+    assert resolve_uri(panda, tmp_path) == ARMS["panda"]
+    (tmp_path / "robot.urdf").write_text(OWN_ROBOT.read_text())
+    assert resolve_uri("package://nosuchpkg/robot.urdf", tmp_path) == tmp_path / "robot.urdf"
+
+
+def test_equal_limits_are_a_joint_with_one_start_position(tmp_path):
+    """lower == upper is read as given (URDFs write 0 and 0 for no limits); the plant bounds
+    only q0, so the joint starts there."""
+    robot = tmp_path / "robot.urdf"
+    robot.write_text(OWN_ROBOT.read_text().replace('lower="-1.5" upper="1.5"',
+                                                   'lower="0.2" upper="0.2"'))
+    (tmp_path / "meshes").symlink_to(OWN_ROBOT.parent / "meshes")
+    chain = read_urdf(robot)
+    assert (chain.lower[-1], chain.upper[-1]) == (0.2, 0.2)
 
 
 def test_pipeline_names_a_urdf_plant(tmp_path, monkeypatch, fmu_cache):

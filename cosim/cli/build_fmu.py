@@ -19,7 +19,15 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "3.0)",
         description="Compile a built-in plant model, or the spatial rigid-body chain of a "
         "URDF (--urdf), with the system C compiler into an FMU with Co-Simulation and Model "
-        "Exchange. Prints the FMU's path.")
+        "Exchange. Prints the FMU's path.",
+        epilog="A URDF's FMU has per joint the input tau[i] (N·m; N for a prismatic joint), "
+        "the outputs q[i] (rad; m), qdot[i] (rad/s; m/s), M[i,j] and h[i] (its inertia "
+        "matrix and bias forces), the parameters q0[i] and qdot0[i] (the start; q0's min/max "
+        "the URDF's position limits), qdot_max[i] and tau_max[i] (its velocity and effort "
+        "limits), b[i] and fc[i] (viscous and Coulomb friction) and payload (kg at the tip "
+        "frame's origin); `cosim inspect FMU` lists them all. Built FMUs are cached in "
+        "$COSIM_CACHE (default ~/.cache/cosim/fmus), by everything they are built from: "
+        "--output copies from there.")
     p.add_argument("--model", default=None, choices=list(MODELS),
                    help=f"the plant model: the rigid n-link planar arm (planar_arm), or the "
                    f"arm with elastic joints, motors driving the links through springs "

@@ -19,7 +19,14 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "run", help="run a pipeline (TOML) and write its run folder",
         description="Run every run of a pipeline through the co-simulation master and write "
         "the run folder: summary.json, trace_<run>.npz, recording.rrd (Rerun) and PNG "
-        "figures. SI units, radians.")
+        "figures. SI units, radians.",
+        epilog="Every pipeline key can be set with --set: e.g. simulation.duration=2 (s), "
+        "simulation.step=0.001 (s), cbf_filter.torque_limit=1000 (N·m); `cosim params "
+        "PIPELINE` lists them with their values and units. Exit status: 0 when every run "
+        "finished, whatever its verdict (safe or UNSAFE: the table, summary.json); 2 for a "
+        "mistake in the input, refused before anything runs, or a run that did not finish "
+        "(a plant fault, a diverging state, Ctrl-C: what was computed is kept, and the "
+        "runs not run are named).")
     p.add_argument("pipeline", help="pipeline file, e.g. pipelines/paper_two_link.toml")
     p.add_argument("--out", type=Path, default=None,
                    help="run folder (default: a new runs/<pipeline name>/<YYYYmmdd-HHMMSS>, "
@@ -42,7 +49,8 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
     p.add_argument("--force", action="store_true",
                    help="replace what --out holds (an existing run folder is refused without)")
     p.add_argument("--quiet", action="store_true",
-                   help="print no progress on stderr (errors and the final summary still)")
+                   help="print no progress on stderr (errors, warnings and the final "
+                   "summary still)")
     p.add_argument("--dry-run", action="store_true",
                    help="check everything (pipeline, plant FMU, wiring, sizes), build the FMU, "
                    "print the resolved plan and the memory and disk it needs; run nothing")
