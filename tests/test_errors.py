@@ -85,6 +85,12 @@ CASES = [
      f"{PAPER}: plant.parameters.rk4_step = 1e-10 s makes 10,000,000 RK4 sub-steps per step "
      "of 0.001 s, more than simulation.max_plant_substeps = 1000: use rk4_step ≥ 1e-06 s, or "
      "raise max_plant_substeps if the run is meant to take that long"),
+    ("a --set inside a table refused as a whole",
+     [*SHORT, "--set", "reference.waypoints.times=[0.0,2.0,1.0]",
+      "--set", "reference.waypoints.positions=[[0,0],[1,1],[0,0]]"],
+     "--set reference.waypoints.times=[0.0,2.0,1.0]: key 'reference.waypoints': "
+     "reference.waypoints.times[2] = 1 s does not increase (times[1] = 2 s); times must "
+     "increase strictly"),
     ("a payload range that allows a negative mass",
      [*SHORT, "--set", "uncertainty.payload=[-3,1]"],
      "uncertainty.payload = [-3, 1] (run 'baseline'): the low end allows a plant with a "

@@ -57,6 +57,14 @@ def load_pipeline(path: str | Path | None, overrides: list[str] | None = None,
     return pipeline
 
 
+def _sets_within(assignment: str, key: str, tables: set[str]) -> bool:
+    """Whether a ``--set`` assignment sets ``key`` (or a table holding it), or a key inside
+    one of ``tables``."""
+    assigned = assignment.split("=", 1)[0].strip()
+    return f".{assigned}." in f".{key}." or any(assigned.startswith(f"{table}.")
+                                                for table in tables)
+
+
 def _blamed_on_its_file(exc: PipelineError, path: Path | None, source: str,
                         overrides: list[str]) -> PipelineError:
     """A key's error named against where the key was set: the ``--set`` assignment that set
@@ -69,10 +77,15 @@ def _blamed_on_its_file(exc: PipelineError, path: Path | None, source: str,
     if path is None or not found:
         return exc
     key = found.group(1)
-    for assignment in reversed(overrides):
-        assigned = assignment.split("=", 1)[0].strip()
-        if f".{assigned}." in f".{key}.":  # the key, a table of it, or a run's copy of it
-            return PipelineError(f"--set {assignment.strip()}{message[len(source):]}")
+    # the key as the top-level tables name it too (a run's copy: runs.NAME.reference.…)
+    tables = {key, re.sub(r"^runs\.[^.]+\.", "", key)}
+    # the key, a table of it, or a run's copy of it; or a key inside the table at fault
+    # (reference.waypoints.times set, reference.waypoints refused as a whole), the one the
+    # message names first
+    blamed = [a for a in reversed(overrides) if _sets_within(a, key, tables)]
+    blamed.sort(key=lambda a: a.split("=", 1)[0].strip() not in message)
+    if blamed:
+        return PipelineError(f"--set {blamed[0].strip()}{message[len(source):]}")
     origin = key_origin(path, key)
     if origin is None or origin.resolve() == path.resolve():
         return exc
