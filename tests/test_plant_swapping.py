@@ -383,6 +383,11 @@ def test_inspect_reports_the_fit_and_every_reason_it_does_not(plant_fmu, foreign
 
     wrong = inspect_fmu(foreign_fmu, {"q": ["shoulder", "elbow"], "tau": ["shoulder", "x"]})
     assert len(wrong.problems) == 2  # every reason, not only the first
+    # tau left to its default names, which this FMU does not have: the key to give is named
+    half = inspect_fmu(foreign_fmu, {"q": ["shoulder", "elbow"]})
+    assert half.problems[0].startswith("no inputs named tau[1], tau[2], …: map the joint "
+                                       "torques with plant.variables.tau = [...] (its Real "
+                                       "inputs: "), half.problems
     assert main(["inspect", str(foreign_fmu), *sum((["--set", s] for s in FOREIGN_MAPPING),
                                                    [])]) == 0
     out = capsys.readouterr().out

@@ -119,8 +119,9 @@ class FmiInstance:
         ``fmi<version><what>`` failed."""
         try:
             return function(*args, **kwargs)
-        except FMICallException as exc:
-            raise FmuError(self.describe_failure(what, exc)) from None
+        except FMICallException as exc:  # its text would name the function again
+            status = getattr(exc, "status", None)
+            raise FmuError(self.describe_failure(what, STATUS.get(status, exc))) from None
         except Exception as exc:  # FMPy raises a bare Exception when instantiate gives NULL
             if what != "Instantiate":
                 raise

@@ -141,7 +141,13 @@ def map_variables(md: ModelDescription, requested: dict[str, list[str] | None] |
         names = requested.get(port.name)
         if names is None:
             names = port.default_names(n)
-            if not port.required and not all(name in by_name for name in names):
+            if not all(name in by_name for name in names):
+                if port.required:  # our names, which the user did not give: say so
+                    problems.append(
+                        f"no {port.direction}s named {', '.join(names[:2])}, …: map the "
+                        f"{port.role} with plant.variables.{port.name} = [...] (its Real "
+                        f"{port.direction}s: {_list(real_names(md, port.direction))})")
+                    continue
                 names = None  # optional, and the FMU does not have our names: not mapped
         mapping[port.name] = names or None
         if port.required and not names:
