@@ -232,6 +232,9 @@ def write_csv(path: Path, rows: list[str], header: str = "t,q1,q2") -> Path:
      "reference.csv: {path}, line 3, column 2 (q_1): nan is not a finite number"),
     (["0,0.1,0.1", "1.0,0.2,abc", "2.0,0.1,0.1"],
      "reference.csv: {path}, line 3, column 3: 'abc' is not a number"),
+    (["0;0.1;0.1", "2.0;0.1;0.1"],
+     "reference.csv: {path}, line 2, column 1: '0;0.1;0.1' is not a number; the columns are "
+     "separated by commas (',')"),
     (["0.5,0.1,0.1", "2.0,0.1,0.1"],
      "reference.csv: {path}, line 2: the first time is 0.5 s; the trajectory starts at "
      "t = 0 s, the run's start"),
@@ -240,7 +243,8 @@ def write_csv(path: Path, rows: list[str], header: str = "t,q1,q2") -> Path:
      "give samples up to the run's end, or shorten it"),
 ])
 def test_bad_csv_files_are_refused_with_one_message(tmp_path, rows, message):
-    """A missing file, a row of the wrong width, time not increasing, a NaN, a word, a start
+    """A missing file, a row of the wrong width, time not increasing, a NaN, a word (one with
+    semicolons: the separator named), a start
     other than 0 and a file shorter than the run: each one PipelineError naming the file and
     line, raised when the run is assembled (before anything runs)."""
     csv = tmp_path / "trajectory.csv"

@@ -47,8 +47,10 @@ def read_trajectory(path: str | Path, joints: int) -> Trajectory:
                     if first:
                         continue  # a header
                     bad = values.index(None)
+                    hint = ("; the columns are separated by commas (',')"
+                            if ";" in cells[bad] or "\t" in cells[bad] else "")
                     raise PipelineError(f"{where}, line {line}, column {bad + 1}: "
-                                        f"{cells[bad].strip()!r} is not a number")
+                                        f"{cells[bad].strip()!r} is not a number{hint}")
                 if len(values) not in widths:
                     raise PipelineError(f"{where}, line {line}: {len(values)} columns; for the "
                                         f"plant's {joints} joint{'s' * (joints != 1)} give "
