@@ -85,6 +85,8 @@ def run(pipeline: Pipeline, out_dir: str | Path | None = None, progress: bool = 
     failure: BaseException | None = None
     try:
         folder = RunFolder.create(out_dir, force) if out_dir else None
+        if folder is not None:  # what is to run, said before it runs (a crash keeps it)
+            folder.write_summary(_summary(pipeline, results, plant_info), final=False)
         # The writer imports Rerun in its own process while the first run loads its blocks.
         arm = urdf_arm(pipeline) if folder is not None and record else None
         if folder is not None and record:
@@ -169,7 +171,8 @@ def _finish(folder: RunFolder, pipeline: Pipeline, results: dict, plant_info: di
 
 
 def not_run(pipeline: Pipeline, results: dict) -> list[str]:
-    """The pipeline's runs a failure left not run (they follow the one that failed)."""
+    """The pipeline's runs without a result: those a failure left not run (after the one
+    that failed, whose result is what it computed), or one stopped outside the loop."""
     return [name for name in pipeline.runs if name not in results]
 
 

@@ -213,7 +213,9 @@ def _mark_crashed(out: Path, reason: str) -> None:
         data = json.loads(summary.read_text())
         if not isinstance(data, dict) or "complete" not in data:
             return
-        data.update(complete=False, status="crashed", error=reason)
+        runs = (data.get("pipeline") or {}).get("runs") or {}
+        data.update(complete=False, status="crashed", error=reason,
+                    not_run=[name for name in runs if name not in (data.get("runs") or {})])
         tmp = out / ".summary.json.crashed"
         tmp.write_text(json.dumps(data, indent=2) + "\n")
         tmp.replace(summary)

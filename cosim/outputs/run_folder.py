@@ -243,8 +243,11 @@ class RunFolder:
             "provenance": self._provenance(),
         }
         text = json.dumps(jsonable(document), indent=2) + "\n"
+        # until the final one, padded as the placeholder is: the space the final summary
+        # may need on a full disk stays reserved (JSON allows the trailing blanks)
+        written = text if final else text.rstrip("\n").ljust(SUMMARY_RESERVE) + "\n"
         try:
-            self.write("summary.json", lambda tmp: tmp.write_text(text))
+            self.write("summary.json", lambda tmp: tmp.write_text(written))
         except RunFolderError:
             self._rewrite_in_place("summary.json", text)
         return document["complete"]

@@ -94,12 +94,13 @@ def text_table(runs: dict[str, dict], width: int = 100) -> str:
 
 
 def markdown_table(runs: dict[str, dict], title: str, not_run: list[str] = ()) -> str:
-    """summary.md: the verdicts (and the runs a failure left not run), then the checks with
-    the first exit and time outside."""
+    """summary.md: the verdicts (and the runs a failure left without a result), then the
+    checks with the first exit and time outside."""
     names = list(runs)
     lines = [f"# {title}", "", "## Verdict", ""]
     lines.extend(f"- **{name}**: {verdict(runs[name])}" for name in names)
-    lines.extend(f"- **{name}**: not run (an earlier run failed)" for name in not_run)
+    lines.extend(f"- **{name}**: no result (the runs stopped before it finished)"
+                 for name in not_run)
     lines += ["", "## Safety checks", "", f"Worst value against its bound: {LEGEND}. "
               f"(*) {_footnote()}.", "",
               "| check | " + " | ".join(names) + " |", "|---" * (len(names) + 1) + "|"]

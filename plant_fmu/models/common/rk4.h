@@ -19,8 +19,19 @@ static int rk4_finite(const double *x)
     return 1;
 }
 
-/* x is advanced in place; on failure it is left unchanged, *failed_at holds the time,
- * *diverged whether the state f was given had become non-finite, and 0 is returned. */
+/* f at (t, state) into k, or 0 with *failed_at and *diverged (whether the state it was
+ * given had become non-finite) set: each stage is checked as it is taken, so that the state
+ * judged is the one f failed on. */
+#define RK4_STAGE(tt, state, k)                                                            \
+    if (!f(context, (tt), (state), (k))) {                                                  \
+        *failed_at = t;                                                                     \
+        *diverged = !rk4_finite(state);                                                     \
+        return 0;                                                                           \
+    }
+
+/* x is advanced in place; on failure it is left unchanged, *failed_at holds the time of
+ * the sub-step, *diverged whether the state had become non-finite (f failed on such a
+ * state, or a sub-step ended in one), and 0 is returned. */
 static int rk4_integrate(StateDerivative f, const void *context, double t0, double h,
                          double max_step, double *x, double *failed_at, int *diverged)
 {
@@ -31,31 +42,34 @@ static int rk4_integrate(StateDerivative f, const void *context, double t0, doub
     for (int i = 0; i < N_STATES; i++) y[i] = x[i];
     for (int step = 0; step < n_sub; step++) {
         const double t = t0 + step * dt;
-        int ok = f(context, t, y, k1);
+        RK4_STAGE(t, y, k1)
         for (int i = 0; i < N_STATES; i++) yt[i] = y[i] + 0.5 * dt * k1[i];
-        ok = ok && f(context, t + 0.5 * dt, yt, k2);
+        RK4_STAGE(t + 0.5 * dt, yt, k2)
         for (int i = 0; i < N_STATES; i++) yt[i] = y[i] + 0.5 * dt * k2[i];
-        ok = ok && f(context, t + 0.5 * dt, yt, k3);
+        RK4_STAGE(t + 0.5 * dt, yt, k3)
         for (int i = 0; i < N_STATES; i++) yt[i] = y[i] + dt * k3[i];
-        ok = ok && f(context, t + dt, yt, k4);
-        if (!ok) {
-            *failed_at = t;
-            *diverged = !rk4_finite(y) || !rk4_finite(yt);
-            return 0;
-        }
+        RK4_STAGE(t + dt, yt, k4)
         for (int i = 0; i < N_STATES; i++)
             y[i] += dt / 6.0 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]);
+        if (!rk4_finite(y)) {
+            *failed_at = t;
+            *diverged = 1;
+            return 0;
+        }
     }
     for (int i = 0; i < N_STATES; i++) x[i] = y[i];
     return 1;
 }
 
+#undef RK4_STAGE
+
 /* The message of a step that failed at t: a state that diverged within it (non-finite: a
  * torque or a controller's gains too large for the step, not the model) said as such, with
- * the fastest of the n joint velocities qdot and the largest |tau| at the step's start;
+ * the fastest of the n joint velocities qdot and the largest |tau| at the communication
+ * step's start (``units``: theirs);
  * else ``singular``, what the model could not evaluate. */
 static void rk4_failure(char *msg, size_t len, int diverged, double t, const double *qdot,
-                        const double *tau, int n, const char *singular)
+                        const double *tau, int n, const char *units, const char *singular)
 {
     if (!diverged) {
         snprintf(msg, len, "%s at t = %g s", singular, t);
@@ -67,10 +81,9 @@ static void rk4_failure(char *msg, size_t len, int diverged, double t, const dou
         if (fabs(tau[i]) > fabs(tau[largest])) largest = i;
     }
     snprintf(msg, len, "the state diverged at t = %g s: it became non-finite within the step, "
-             "which began at qdot[%d] = %g and tau[%d] = %g (rad/s and N.m; m/s and N for a "
-             "prismatic joint); a torque or a "
-             "controller's gains too large for the plant's step (the model itself is not at "
-             "fault)", t, fastest + 1, qdot[fastest], largest + 1, tau[largest]);
+             "which began at qdot[%d] = %g and tau[%d] = %g (%s); a torque or a controller's "
+             "gains too large for the plant's step (the model itself is not at fault)", t,
+             fastest + 1, qdot[fastest], largest + 1, tau[largest], units);
 }
 
 #endif

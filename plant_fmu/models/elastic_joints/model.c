@@ -149,7 +149,7 @@ int model_do_step(ModelState *s, double h, char *msg, size_t len)
     if (!rk4_integrate(state_derivative, &context, v[VR_time], h, v[VR_rk4_step], &v[VR_q],
                        &failed_at, &diverged)) {
         rk4_failure(msg, len, diverged, failed_at, &v[VR_qdot], &v[VR_tau], N_LINKS,
-                    "the links' inertia matrix became singular");
+                    "rad/s and N.m", "the links' inertia matrix became singular");
         return 0;
     }
     v[VR_time] += h;

@@ -109,6 +109,7 @@ int model_do_step(ModelState *s, double h, char *msg, size_t len)
     if (!rk4_integrate(state_derivative, &context, v[VR_time], h, sub_step(v), &v[VR_q],
                        &failed_at, &diverged)) {
         rk4_failure(msg, len, diverged, failed_at, &v[VR_qdot], &v[VR_tau], N_LINKS,
+                    "rad/s and N.m; m/s and N for a prismatic joint",
                     "a joint lost its inertia about its axis");
         return 0;
     }
