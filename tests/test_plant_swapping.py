@@ -302,6 +302,45 @@ def test_every_bad_fmu_and_mapping_gets_one_clear_error(plant_fmu, tmp_path, cap
     assert not (Path(tempfile.gettempdir()) / "escaped.txt").exists()
 
 
+def test_units_are_judged_by_what_they_are_and_a_variable_feeds_one_port(plant_fmu):
+    """A unit spelled another way (Simulink's N*m, Nm) or defined by the FMU in SI base
+    units is the port's; one of another quantity or scale (deg, by its definition or its
+    spelling) is refused. One variable may give M[1,2] and M[2,1] (symmetric), never two
+    per-joint entries (q and qdot)."""
+    from fmpy.model_description import BaseUnit, Unit
+
+    from cosim.plant.mapping import map_variables, read_description, unit_differences
+
+    md = read_description(plant_fmu(2, 2))
+    by_name = {v.name: v for v in md.modelVariables}
+
+    def problems(units: dict[str, str], mapping=None) -> list[str]:
+        for name, unit in units.items():
+            by_name[name].unit = unit
+        return map_variables(md, mapping)[1]
+
+    assert problems({"tau[1]": "N*m", "tau[2]": "Nm"}) == []
+    assert unit_differences(md, map_variables(md)[0]) is None  # the same unit: no warning
+    md.unitDefinitions.append(Unit(name="newton_metre",
+                                   baseUnit=BaseUnit(kg=1, m=2, s=-2)))
+    md.unitDefinitions.append(Unit(name="degree", baseUnit=BaseUnit(rad=1, factor=0.0174533)))
+    assert problems({"tau[1]": "newton_metre"}) == []
+    assert problems({"q[1]": "degree"}) == [
+        "plant.variables.q (joint angles) names 'q[1]', declared in degree; the port takes "
+        "rad or m (a prismatic joint's), and cosim converts no units"]
+    assert len(problems({"q[1]": "deg"})) == 1
+    by_name["q[1]"].unit = "rad"
+    symmetric = {"M": ["M[1,1]", "M[1,2]", "M[1,2]", "M[2,2]"]}
+    assert problems({}, symmetric) == []
+    assert problems({}, {"qdot": ["q[1]", "qdot[2]"]}) == [
+        "plant.variables.qdot (joint velocities) names 'q[1]', declared in rad; the port "
+        "takes rad/s or m/s (a prismatic joint's), and cosim converts no units"]
+    by_name["q[1]"].unit = ""
+    assert problems({}, {"qdot": ["q[1]", "qdot[2]"]}) == [
+        "plant.variables.qdot[1] names 'q[1]', which plant.variables.q[1] already names: "
+        "each FMU variable may feed one entry of one port"]
+
+
 def test_an_fmu_that_fails_to_instantiate_names_the_call(foreign_fmu, tmp_path):
     # The PythonFMU arm with its script made to raise in its constructor: no instance.
     with zipfile.ZipFile(foreign_fmu) as archive:
@@ -385,9 +424,9 @@ def test_inspect_reports_the_fit_and_every_reason_it_does_not(plant_fmu, foreign
     assert len(wrong.problems) == 2  # every reason, not only the first
     # tau left to its default names, which this FMU does not have: the key to give is named
     half = inspect_fmu(foreign_fmu, {"q": ["shoulder", "elbow"]})
-    assert half.problems[0].startswith("no inputs named tau[1], tau[2], …: map the joint "
-                                       "torques with plant.variables.tau = [...] (its Real "
-                                       "inputs: "), half.problems
+    assert half.problems[0].startswith("the FMU has no input named tau[1], tau[2]: map the "
+                                       "joint torques with plant.variables.tau = [...] (its "
+                                       "Real inputs: "), half.problems
     assert main(["inspect", str(foreign_fmu), *sum((["--set", s] for s in FOREIGN_MAPPING),
                                                    [])]) == 0
     out = capsys.readouterr().out

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import filecmp
 import os
+import zipfile
 from pathlib import Path
 
 from .common import UserError
@@ -128,14 +128,24 @@ def _build(args: argparse.Namespace) -> Path:
     return build_urdf_fmu(urdf, output=output, **options)
 
 
+def _entries(fmu: Path) -> list[tuple[str, int, int]] | None:
+    """An FMU archive's entries (name, CRC-32, size), sorted; None for a file that is not
+    a readable zip archive."""
+    try:
+        with zipfile.ZipFile(fmu) as archive:
+            return sorted((i.filename, i.CRC, i.file_size) for i in archive.infolist())
+    except (OSError, zipfile.BadZipFile):
+        return None
+
+
 def _may_replace(output: Path | None, built: Path, force: bool) -> None:
     """Refuse to replace a file at ``output`` that is not this very build (``built``, the
     cached FMU the output is a copy of) unless ``force``: another URDF or options, or a file
     cosim did not write."""
     if output is None or force or not output.exists():
         return
-    if output.is_file() and filecmp.cmp(output, built, shallow=False):
-        return  # the same build: copied again, unchanged
+    if output.is_file() and _entries(output) == _entries(built):
+        return  # the same build (its entries', not the archive's own dates): copied again
     raise UserError(f"--output {output}: a different file is already there (another build, "
                     "or a file cosim did not write); give --force to replace it, or another "
                     "--output; nothing was written")

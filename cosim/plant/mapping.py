@@ -143,10 +143,12 @@ def map_variables(md: ModelDescription, requested: dict[str, list[str] | None] |
             names = port.default_names(n)
             if not all(name in by_name for name in names):
                 if port.required:  # our names, which the user did not give: say so
+                    missing = [name for name in names if name not in by_name]
                     problems.append(
-                        f"no {port.direction}s named {', '.join(names[:2])}, …: map the "
-                        f"{port.role} with plant.variables.{port.name} = [...] (its Real "
-                        f"{port.direction}s: {_list(real_names(md, port.direction))})")
+                        f"the FMU has no {port.direction} named {', '.join(missing[:3])}"
+                        f"{', …' * (len(missing) > 3)}: map the {port.role} with "
+                        f"plant.variables.{port.name} = [...] (its Real {port.direction}s: "
+                        f"{_list(real_names(md, port.direction))})")
                     continue
                 names = None  # optional, and the FMU does not have our names: not mapped
         mapping[port.name] = names or None
@@ -176,15 +178,16 @@ def map_variables(md: ModelDescription, requested: dict[str, list[str] | None] |
 
 def _mapped_twice(mapping: dict[str, list[str] | None], wrong: set[str]) -> list[str]:
     """Each FMU variable feeds one entry of one port: a name given twice (``q =
-    ["shoulder", "shoulder"]``, or as both q and qdot) would read one signal as two. Names
-    in ``wrong`` are already refused."""
+    ["shoulder", "shoulder"]``, or as both q and qdot) would read one signal as two; M's
+    entries alone may share one. Names in ``wrong`` are already refused."""
     first: dict[str, tuple[str, int]] = {}
     problems = []
     for key, names in mapping.items():
         for i, name in enumerate(names or []):
             if name in wrong:
                 continue
-            if name not in first:
+            if name not in first or (key == "M" and first[name][0] == "M"):
+                # (M is symmetric: one variable may give M[i,j] and M[j,i])
                 first[name] = (key, i)
                 continue
             other, j = first[name]
@@ -203,6 +206,30 @@ def _declared_unit(var) -> str | None:
 # A prismatic joint's units for each rotational one (cosim converts no units: a mapped
 # variable must be in the port's unit, or in its prismatic counterpart, which is reported)
 PRISMATIC = {"rad": "m", "rad/s": "m/s", "N.m": "N"}
+# Each of those in SI base units, (kg, m, s) exponents: FMI's <BaseUnit> says what a unit
+# is, whatever its spelling (an angle's rad exponent is left out: tools differ on it)
+BASE_UNITS = {"rad": (0, 0, 0), "m": (0, 1, 0), "rad/s": (0, 0, -1), "m/s": (0, 1, -1),
+              "N.m": (1, 2, -2), "N": (1, 1, -2)}
+# Spellings of other quantities, or other scales, refused when the FMU does not define them
+OTHER_UNITS = frozenset({"J", "W", "kg", "kg.m2", "kg.m^2", "deg", "deg/s", "rpm", "mm",
+                         "mm/s", "s", "A", "V", "K", "Pa", "rad/s2", "m/s2", "N.mm", "kN.m"})
+
+
+def _unit_fits(md: ModelDescription, declared: str, allowed: list[str]) -> bool | None:
+    """Whether a variable declared in ``declared`` carries one of the ``allowed`` units:
+    by the FMU's own definition of it where it gives one (its SI base units, with no scale
+    or offset), else by its spelling; None where neither tells (a spelling cosim does not
+    know: accepted, and warned of by :func:`unit_differences`)."""
+    if _unit(declared) in map(_unit, allowed):
+        return True
+    defined = next((u for u in getattr(md, "unitDefinitions", None) or []
+                    if u.name == declared and u.baseUnit is not None), None)
+    if defined is not None:
+        base = defined.baseUnit
+        other = (base.A, base.K, base.mol, base.cd) != (0, 0, 0, 0)
+        return (not other and base.factor == 1.0 and base.offset == 0.0
+                and (base.kg, base.m, base.s) in {BASE_UNITS[_unit(u)] for u in allowed})
+    return False if _unit(declared) in OTHER_UNITS else None
 
 
 def unit_differences(md: ModelDescription, variables: PlantVariables) -> str | None:
@@ -227,8 +254,9 @@ def unit_differences(md: ModelDescription, variables: PlantVariables) -> str | N
 
 
 def _unit(text: str) -> str:
-    """A unit's spelling compared: FMI's "N.m" is cosim's "N·m"."""
-    return text.replace("·", ".").replace(" ", "")
+    """A unit's spelling compared: FMI's "N.m" is cosim's "N·m", and Simulink's "N*m"."""
+    spelled = text.replace("·", ".").replace("*", ".").replace(" ", "").replace("/sec", "/s")
+    return "N.m" if spelled == "Nm" else spelled
 
 
 def _check(md: ModelDescription, by_name: dict, key: str, name: str) -> str | None:
@@ -248,7 +276,7 @@ def _check(md: ModelDescription, by_name: dict, key: str, name: str) -> str | No
     declared, unit = _declared_unit(var), PORT[key].signal.unit
     allowed = [unit] + ([PRISMATIC[_unit(unit)]] if _unit(unit) in PRISMATIC else [])
     # per joint ports only: M's entries mix units on a chain with a prismatic joint
-    if PORT[key].shape == "n" and declared and _unit(declared) not in map(_unit, allowed):
+    if PORT[key].shape == "n" and declared and _unit_fits(md, declared, allowed) is False:
         return (f"{where} names {name!r}, declared in {declared}; the port takes "
                 f"{' or '.join(allowed)} (a prismatic joint's), and cosim converts no units")
     return None
