@@ -162,7 +162,8 @@ def urdf_plant_path(urdf) -> Path:
 
     try:
         return build_urdf_fmu(resolve_uri(urdf.file, Path.cwd()), base=urdf.base, tip=urdf.tip,
-                              fixed=dict(urdf.fixed), fmi_version=urdf.fmi_version)
+                              fixed=dict(urdf.fixed), fmi_version=urdf.fmi_version,
+                              held_by="plant.urdf.fixed")
     except UrdfError as exc:
         raise PipelineError(f"plant.urdf: {exc}") from None
 

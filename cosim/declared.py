@@ -64,6 +64,9 @@ class Safety(Section):
 
     @model_validator(mode="after")
     def _limits_source(self) -> Safety:
+        if self.urdf_fixed and (self.limits != "urdf" or self.urdf is None):
+            raise ValueError("safety.urdf_fixed holds joints of safety.urdf, the limits' URDF: "
+                             'give it with safety.limits = "urdf" and safety.urdf, or drop it')
         if self.limits == "urdf" and self.urdf is None and not (
                 self.position_lower and self.position_upper and self.velocity_limit):
             raise ValueError('safety.limits = "urdf" needs safety.urdf (the robot\'s URDF, '
@@ -131,7 +134,7 @@ def _urdf_limits(urdf: str, base: str | None, tip: str | None,
 
     try:
         chain = read_urdf(resolve_uri(urdf, Path.cwd()), base=base, tip=tip,
-                          fixed=dict(fixed))
+                          fixed=dict(fixed), held_by="safety.urdf_fixed")
     except UrdfError as exc:
         raise PipelineError(f"safety.urdf: {exc}") from None
     return chain.joints, chain.lower, chain.upper, chain.velocity, chain.effort

@@ -138,16 +138,17 @@ def build_fmu(links: int = 2, fmi_version: int = 2, output: str | Path | None = 
 def build_urdf_fmu(urdf: str | Path, base: str | None = None, tip: str | None = None,
                    fixed: dict[str, float] | None = None, fmi_version: int = 2,
                    output: str | Path | None = None,
-                   cache_dir: str | Path | None = None) -> Path:
+                   cache_dir: str | Path | None = None, held_by: str = "--fix") -> Path:
     """Build (or take from the cache) the FMU of the spatial chain that ``urdf`` describes
     from link ``base`` to link ``tip``, the joints in ``fixed`` held at their value (rad or
     m): see :func:`plant_fmu.urdf.read_urdf` and :mod:`plant_fmu.models.spatial_chain`.
     Like :func:`build_fmu` otherwise; cached by everything the chain is made of (the URDF's
-    content among it). Raises :class:`plant_fmu.urdf.UrdfError` for a URDF it refuses."""
+    content among it). Raises :class:`plant_fmu.urdf.UrdfError` for a URDF it refuses
+    (``held_by``: how the caller holds joints, for its messages)."""
     from .models.spatial_chain import SpatialChainModel
     from .urdf import read_urdf
 
-    chain = read_urdf(urdf, base=base, tip=tip, fixed=fixed)
+    chain = read_urdf(urdf, base=base, tip=tip, fixed=fixed, held_by=held_by)
     model = SpatialChainModel(chain, source=str(urdf))
     stem = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in chain.name)
     return _build_cached(model, chain.n, fmi_version, output, cache_dir, stem)

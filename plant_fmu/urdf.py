@@ -417,11 +417,20 @@ def _lumped(parts: list[tuple[float, np.ndarray, np.ndarray]]):
     return mass, com, inertia
 
 
+def _held(held_by: str, name: str, value: float | str | None = None) -> str:
+    """A held joint as the caller's option or key gives it: ``--fix NAME=VALUE`` on the
+    command line, ``inertia_model.fixed.NAME = VALUE`` in a pipeline."""
+    if held_by.startswith("--"):
+        return f"{held_by} {name}" + ("" if value is None else f"={value}")
+    return f"{held_by}.{name}" + ("" if value is None else f" = {value}")
+
+
 def read_urdf(path: str | os.PathLike, base: str | None = None, tip: str | None = None,
-              fixed: dict[str, float] | None = None) -> Chain:
+              fixed: dict[str, float] | None = None, held_by: str = "--fix") -> Chain:
     """The chain of ``path`` from link ``base`` (default: the root link) to link ``tip``
     (default: from the base, the one way on to a moving joint, stopping where the arm forks;
-    see ``_path``), with the joints in ``fixed`` held at their value (rad or m). Raises
+    see ``_path``), with the joints in ``fixed`` held at their value (rad or m); ``held_by``
+    names how the caller holds them, for messages (an option, or a pipeline key). Raises
     :class:`UrdfError`."""
     path = path if isinstance(path, Path) else Path(path)  # resolve_uri's _NotFound kept
     robot = _load(path)
@@ -439,12 +448,12 @@ def read_urdf(path: str | os.PathLike, base: str | None = None, tip: str | None 
     by_name = {joint.name: joint for joint in subtree}
     for name, value in fixed.items():
         if name not in by_name or by_name[name].type == "fixed":
-            raise UrdfError(f"{path}: --fix {name}: not a moving joint below base link "
+            raise UrdfError(f"{path}: {_held(held_by, name)}: not a moving joint below base link "
                             f"'{base}'; moving joints: "
                             f"{[j.name for j in subtree if j.type != 'fixed']}")
         lower, upper, _, _ = _limits(by_name[name])
         if not lower <= value <= upper:
-            raise UrdfError(f"{path}: --fix {name}={value}: outside the joint's limits "
+            raise UrdfError(f"{path}: {_held(held_by, name, value)}: outside the joint's limits "
                             f"[{lower}, {upper}] (rad or m)")
     chain_path = _path(base, tip, parent_joint, child_joints, path)
     on_path = {joint.name for joint in chain_path}
@@ -459,7 +468,7 @@ def read_urdf(path: str | os.PathLike, base: str | None = None, tip: str | None 
             if joint.mimic is not None:
                 raise UrdfError(f"{path}: joint '{joint.name}' mimics '{joint.mimic.joint}': "
                                 "a mimic joint on the chain is not supported; hold it with "
-                                f"--fix {joint.name}=VALUE")
+                                f"{_held(held_by, joint.name, 'VALUE')}")
             moving.append((joint, body))
             placements.append(frame)
             body_of[joint.child], frame_in_body[joint.child] = len(moving) - 1, np.eye(4)

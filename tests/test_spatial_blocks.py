@@ -348,3 +348,6 @@ def test_the_safe_sets_urdf_holds_the_joints_the_plant_holds():
     with pytest.raises(PipelineError, match=r"its chain has 7 moving joints .*, the plant 6: "
                        r"hold the joints the plant holds with safety.urdf_fixed"):
         joint_boxes(Safety(limits="urdf", urdf=package, urdf_tip="panda_hand"), 6)
+    with pytest.raises(PipelineError, match=r"safety.urdf_fixed.panda_joint44: not a moving "
+                       "joint below base link"):
+        joint_boxes(Safety(limits="urdf", urdf=package, urdf_fixed={"panda_joint44": 0.0}), 6)

@@ -57,12 +57,12 @@ def load_pipeline(path: str | Path | None, overrides: list[str] | None = None,
     return pipeline
 
 
-def _sets_within(assignment: str, key: str, tables: set[str]) -> bool:
+def _sets_within(assignment: str, key: str, tables: set[str], message: str) -> bool:
     """Whether a ``--set`` assignment sets ``key`` (or a table holding it), or a key inside
-    one of ``tables``."""
+    one of ``tables`` that ``message`` names."""
     assigned = assignment.split("=", 1)[0].strip()
-    return f".{assigned}." in f".{key}." or any(assigned.startswith(f"{table}.")
-                                                for table in tables)
+    inside = any(assigned.startswith(f"{table}.") for table in tables)
+    return f".{assigned}." in f".{key}." or (inside and assigned in message)
 
 
 def _blamed_on_its_file(exc: PipelineError, path: Path | None, source: str,
@@ -80,10 +80,8 @@ def _blamed_on_its_file(exc: PipelineError, path: Path | None, source: str,
     # the key as the top-level tables name it too (a run's copy: runs.NAME.reference.…)
     tables = {key, re.sub(r"^runs\.[^.]+\.", "", key)}
     # the key, a table of it, or a run's copy of it; or a key inside the table at fault
-    # (reference.waypoints.times set, reference.waypoints refused as a whole), the one the
-    # message names first
-    blamed = [a for a in reversed(overrides) if _sets_within(a, key, tables)]
-    blamed.sort(key=lambda a: a.split("=", 1)[0].strip() not in message)
+    # that the message names (reference.waypoints.times set, reference.waypoints refused)
+    blamed = [a for a in reversed(overrides) if _sets_within(a, key, tables, message)]
     if blamed:
         return PipelineError(f"--set {blamed[0].strip()}{message[len(source):]}")
     origin = key_origin(path, key)

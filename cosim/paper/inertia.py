@@ -126,7 +126,8 @@ def read_nominal_urdf(params: InertiaModelParams, context: BlockContext):
 
     path = resolve_uri(params.urdf, Path.cwd())
     try:
-        chain = read_urdf(path, base=params.base, tip=params.tip, fixed=params.fixed)
+        chain = read_urdf(path, base=params.base, tip=params.tip, fixed=params.fixed,
+                          held_by="inertia_model.fixed")
     except UrdfError as exc:
         raise PipelineError(f"inertia_model.urdf (run '{context.run}'): {exc}") from None
     if chain.n != context.links:
