@@ -54,6 +54,11 @@ MUTANTS = [
      "+ (k0 - kp * a.kd) * x1_err[i]", "+ k0 * x1_err[i]", LAWS + ["tests/test_robust_safety.py"]),
     ("obs-envelope-noise", "cosim/paper/observer.py",
      "spread = 2.0 * noise / span", "spread = 0.0", LAWS + BOUND),
+    # the envelope's forcing without the payload's share, or without the disturbance d̄
+    ("obs-envelope-payload-dropped", "cosim/paper/observer.py",
+     "a, b = -s[0, j] * z, -s[1, j] * z", "a, b = 0.0, 0.0", BOUND),
+    ("obs-envelope-disturbance-dropped", "cosim/paper/observer.py",
+     "work[l] = worst + env.disturbance", "work[l] = worst", BOUND),
     ("ctrl-robust-term-e", "cosim/paper/controller.py", "        v -= e\n", "", LAWS),
     ("ctrl-psi-square", "cosim/paper/controller.py",
      "v -= a.psi_b**2 / (a.delta + r_sq) * r", "v -= a.psi_b / (a.delta + r_sq) * r", LAWS),
@@ -101,6 +106,9 @@ MUTANTS = [
     ("cbf-tube-estimate-floor", "cosim/paper/cbf_filter/backup.py",
      "dv[i] = max(dv[i] * (1.0 - feedback) + TUBE_SAFETY * deviation[i] * h, eps[i])",
      "dv[i] = dv[i] * (1.0 - feedback) + TUBE_SAFETY * deviation[i] * h", VIABILITY),
+    # D taken once, not 1.5 times (the tube's empirical factor, docs/safety.md)
+    ("cbf-tube-factor-one", "cosim/paper/cbf_filter/backup.py",
+     "TUBE_SAFETY = 1.5", "TUBE_SAFETY = 1.0", VIABILITY),
     ("cbf-tube-start-estimate", "cosim/paper/cbf_filter/backup.py",
      "q[i], vel[i], dq[i], dv[i] = y[i], v[i], a.noise_bound, eps[i]",
      "q[i], vel[i], dq[i], dv[i] = y[i], v[i], a.noise_bound, 0.0", VIABILITY),
@@ -115,6 +123,10 @@ MUTANTS = [
      VIABILITY),
     ("cbf-viable-inside", "cosim/paper/cbf_filter/block.py",
      "kept = inside(k, a)", "kept = True", VIABILITY),
+    # the check holding the whole bound: no half-margin left for the motion between its points
+    ("cbf-check-whole-bound", "cosim/paper/cbf_filter/block.py",
+     "viable_bounds=joint_bounds * (1.0 - 0.5 * p.bound_margin) / (1.0 - p.bound_margin),",
+     "viable_bounds=joint_bounds / (1.0 - p.bound_margin),", VIABILITY),
     ("cbf-torque-clip", "cosim/paper/cbf_filter/block.py",
      "tau[i] = min(max(tau[i], -a.torque_limit[i]), a.torque_limit[i])", "pass", VIABILITY),
     ("cbf-interval-deviation", "cosim/paper/cbf_filter/backup.py",
