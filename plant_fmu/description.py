@@ -8,6 +8,7 @@ import math
 from types import ModuleType
 from xml.sax.saxutils import quoteattr
 
+from . import c_literals as c
 from .variables import computed, first_vr, states
 
 # name -> (base-unit exponents, display unit or None). Radian is kept as a base unit so
@@ -59,13 +60,6 @@ def _fmt(x: float) -> str:
     x = float(x)
     if math.isinf(x):
         return "INF" if x > 0 else "-INF"
-    return repr(x)
-
-
-def _c_number(x: float) -> str:
-    x = float(x)
-    if math.isinf(x):
-        return "INFINITY" if x > 0 else "-INFINITY"
     return repr(x)
 
 
@@ -207,8 +201,8 @@ def variables_header(model: ModuleType, links: int, token: str) -> str:
              f"#define N_LINKS {links}",
              f"#define N_VARIABLES {len(table)}",
              f"#define N_STATES {len(pairs)}",
-             f'#define MODEL_IDENTIFIER_STRING "{model.MODEL_IDENTIFIER}"',
-             f'#define INSTANTIATION_TOKEN "{token}"', "",
+             f"#define MODEL_IDENTIFIER_STRING {c.string_literal(model.MODEL_IDENTIFIER)}",
+             f"#define INSTANTIATION_TOKEN {c.string_literal(token)}", "",
              "/* Value reference of the first element of each group (row-major for M). */"]
     stems: dict[str, str] = {}
     for g in groups:
@@ -246,9 +240,10 @@ def variables_source(model: ModuleType, links: int) -> str:
              "#include <math.h>", '#include "variables.h"', "",
              "const VariableInfo VARIABLES[N_VARIABLES] = {"]
     for v in table:
-        start = _c_number(v.start) if v.start is not None else "0.0"
-        lines.append(f'    {{"{v.name}", "{v.unit or ""}", {_KIND[v.causality]}, '
-                     f"{_CHECK[v.check]}, {start}, {int(v.vr in on_demand)}}},")
+        start = c.number(v.start) if v.start is not None else "0.0"
+        lines.append(f"    {{{c.string_literal(v.name)}, {c.string_literal(v.unit or '')}, "
+                     f"{_KIND[v.causality]}, {_CHECK[v.check]}, {start}, "
+                     f"{int(v.vr in on_demand)}}},")
     pairs = states(table)
     lines += ["};", "",
               "const unsigned STATE_VRS[N_STATES] = {"
