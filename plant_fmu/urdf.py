@@ -10,7 +10,8 @@ into the chain from a base link to a tip link:
   0, or at the nearest limit if 0 is outside them) are folded into the body they hang from:
   their links' masses, centres of mass and inertias are lumped into it;
 * meshes are not needed for the dynamics and are ignored by the FMU; they must exist all the
-  same, since the 3-D view draws them (:func:`resolve_uri` finds them).
+  same, since the 3-D view draws them (:func:`resolve_uri` finds them), and be meshes inside
+  the URDF's package or folder, since the recording copies them (:mod:`plant_fmu.meshes`).
 
 A URDF the plant cannot honestly simulate is refused with :class:`UrdfError`, one message
 naming the element at fault. Units are the URDF's: SI, radians.
@@ -26,6 +27,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+
+from .meshes import MeshRefused, check_mesh, urdf_home
 
 GRAVITY = np.array([0.0, 0.0, -9.81])  # m/s^2 along the base's -z
 MOVING_TYPES = ("revolute", "continuous", "prismatic")
@@ -132,14 +135,20 @@ def resolve_uri(uri: str, relative_to: Path) -> Path:
     else ``rest`` in ``relative_to``), ``file://path`` or a path relative to the folder
     ``relative_to``. The returned path may not exist (the caller says what was looked for;
     for a ``package://`` reference, :func:`_missing` says why)."""
+    return _locate(uri, relative_to)[0]
+
+
+def _locate(uri: str, relative_to: Path) -> tuple[Path, Path | None]:
+    """:func:`resolve_uri`'s path, and the package folder it was found in (None: not
+    found in a package)."""
     if uri.startswith("package://"):
         package, _, rest = uri[len("package://"):].partition("/")
         roots = package_dirs(package, near=relative_to)
         for root in roots:
             if (root / rest).exists():
-                return root / rest
+                return root / rest, root
         if (Path(relative_to) / rest).exists():
-            return Path(relative_to) / rest
+            return Path(relative_to) / rest, None
         missing = _NotFound(Path(relative_to) / rest)
         missing.uri = uri
         if not package:  # "/" is then the package (a folder above everything named "")
@@ -149,11 +158,11 @@ def resolve_uri(uri: str, relative_to: Path) -> Path:
                               f"{' and '.join(str(root / rest) for root in roots)})")
         else:
             missing.reason = _package_not_found(package, rest, relative_to)
-        return missing
+        return missing, None
     if uri.startswith("file://"):
         uri = uri[len("file://"):]
     path = Path(uri).expanduser()
-    return path if path.is_absolute() else Path(relative_to) / path
+    return (path if path.is_absolute() else Path(relative_to) / path), None
 
 
 def _missing(found: Path) -> str:
@@ -201,20 +210,31 @@ def _load(path: Path):
     return urdf.robot
 
 
+def check_meshes(path: Path) -> None:
+    """Refuse (:class:`UrdfError`) a URDF one of whose meshes the 3-D view must not read
+    (:mod:`plant_fmu.meshes`): outside its package or folder, or not a mesh."""
+    _check_meshes(_load(path), path)
+
+
 def _check_meshes(robot, path: Path) -> None:
+    home = urdf_home(path)
     for link in robot.links:
         for element, items in (("visual", link.visuals), ("collision", link.collisions)):
             for item in items:
                 mesh = item.geometry.mesh if item.geometry is not None else None
                 if mesh is None:
                     continue
-                found = resolve_uri(mesh.filename, path.parent)
-                if not found.is_file():
+                found, package = _locate(mesh.filename, path.parent)
+                try:
+                    if isinstance(found, _NotFound):
+                        raise MeshRefused(_missing(found))
+                    check_mesh(found, package or home)
+                except MeshRefused as exc:
                     raise UrdfError(
                         f"{path}: link '{link.name}' <{element}><mesh filename="
-                        f"'{mesh.filename}'>: {_missing(found)}. The FMU ignores meshes "
-                        "for its dynamics, but the 3-D view draws them: fix the path, or "
-                        "remove the <mesh>")
+                        f"'{mesh.filename}'>: {exc}. The FMU ignores meshes for its dynamics, "
+                        "but the 3-D view draws them: fix the path, or remove the "
+                        "<mesh>") from None
 
 
 def _tree(robot, path: Path) -> tuple[dict, dict]:
@@ -451,6 +471,9 @@ def read_urdf(path: str | os.PathLike, base: str | None = None, tip: str | None 
             raise UrdfError(f"{path}: {_held(held_by, name)}: not a moving joint below base link "
                             f"'{base}'; moving joints: "
                             f"{[j.name for j in subtree if j.type != 'fixed']}")
+        if not np.isfinite(value):
+            raise UrdfError(f"{path}: {_held(held_by, name, value)}: the value is not a finite "
+                            "number; give the angle in rad (m for a prismatic joint)")
         lower, upper, _, _ = _limits(by_name[name])
         if not lower <= value <= upper:
             raise UrdfError(f"{path}: {_held(held_by, name, value)}: outside the joint's limits "

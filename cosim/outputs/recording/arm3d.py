@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from plant_fmu.urdf import package_dirs
+from plant_fmu.urdf import check_meshes, package_dirs
 
 from .layout import REFERENCE_COLOR, UrdfArm
 
@@ -62,6 +62,9 @@ def log_model(rec, run: str, arm: UrdfArm) -> tuple:
     that do not move, the skeletons. Returns both trees (for :func:`log_pose`)."""
     import rerun as rr
 
+    # Rerun's loader copies every mesh file it is given into the recording, whatever it is:
+    # the URDF's meshes are checked here, beside the loader (plant_fmu.meshes says why).
+    check_meshes(Path(arm.path))
     tree, desired = load_tree(run, arm), load_tree(f"{run}/desired", arm)
     unknown = [name for name in arm.joints if tree.get_joint_by_name(name) is None]
     if unknown:
