@@ -11,6 +11,7 @@ import contextlib
 import hashlib
 import os
 import secrets
+import shlex
 import shutil
 import subprocess
 import sys
@@ -49,11 +50,23 @@ def _fmi_headers() -> Path:
     return path
 
 
-def _compiler() -> str:
-    cc = os.environ.get("CC") or shutil.which("cc") or shutil.which("gcc")
-    if not cc:
+def _compiler() -> list[str]:
+    """The C compiler's command: $CC (which may carry options, as make allows: "gcc -O0"),
+    else cc or gcc on the PATH."""
+    cc = os.environ.get("CC", "").strip()
+    if cc:
+        try:
+            command = shlex.split(cc)
+        except ValueError as exc:
+            raise BuildError(f"CC={cc!r} is not a command ({exc})") from None
+        if not shutil.which(command[0]):
+            raise BuildError(f"CC={cc!r}: no program {command[0]!r} is found (on the PATH or "
+                             "at that path); set CC to an installed C compiler, or unset it")
+        return command
+    found = shutil.which("cc") or shutil.which("gcc")
+    if not found:
         raise BuildError("no C compiler found: install gcc (apt-get install gcc) or set CC")
-    return cc
+    return [found]
 
 
 def _platform_dir(fmi_version: int) -> str:
@@ -95,6 +108,7 @@ def _source_files(model: ModuleType, fmi_version: int) -> list[Path]:
 
 
 def _build_key(model: ModuleType, links: int, fmi_version: int, cc: str) -> str:
+    """The cache key (``cc``: the compiler's command as one string)."""
     h = hashlib.sha256()
     h.update(f"{model.MODEL_IDENTIFIER}|{links}|{fmi_version}|{cc}|{' '.join(_cflags(model))}|"
              .encode())
@@ -150,7 +164,9 @@ def build_urdf_fmu(urdf: str | Path, base: str | None = None, tip: str | None = 
 
     chain = read_urdf(urdf, base=base, tip=tip, fixed=fixed, held_by=held_by)
     model = SpatialChainModel(chain, source=str(urdf))
-    stem = "".join(ch if ch.isalnum() or ch in "-_" else "_" for ch in chain.name)
+    # The file's name from the robot's, kept short: a file system's names end at 255 bytes.
+    stem = "".join(ch if ch.isascii() and (ch.isalnum() or ch in "-_") else "_"
+                   for ch in chain.name)[:64] or "robot"
     return _build_cached(model, chain.n, fmi_version, output, cache_dir, stem)
 
 
@@ -159,16 +175,22 @@ def _build_cached(chosen: ModuleType, links: int, fmi_version: int,
     _check_options(chosen, links, fmi_version)
     cc = _compiler()
     cache = Path(cache_dir) if cache_dir else default_cache_dir()
-    cache.mkdir(parents=True, exist_ok=True)
-    key = _build_key(chosen, links, fmi_version, cc)
+    key = _build_key(chosen, links, fmi_version, " ".join(cc))
     cached = cache / f"{stem}_fmi{fmi_version}_{key}.fmu"
     if not _whole(cached):  # missing, or damaged (truncated): built again
-        _build_into(chosen, cached, links, fmi_version, cc)
+        try:
+            cache.mkdir(parents=True, exist_ok=True)
+            _build_into(chosen, cached, links, fmi_version, cc)
+        except OSError as exc:
+            where = exc.filename or cache
+            raise BuildError(f"the FMU cache {cache}: cannot write there ({where}: "
+                             f"{exc.strerror or exc}); set COSIM_CACHE to a folder you can "
+                             "write") from None
     if output is None:
         return cached
     output = Path(output)
     output.parent.mkdir(parents=True, exist_ok=True)
-    _write_atomically(output, lambda tmp: shutil.copyfile(cached, tmp))
+    write_atomically(output, lambda tmp: shutil.copyfile(cached, tmp))
     return output
 
 
@@ -182,7 +204,7 @@ def _whole(fmu: Path) -> bool:
         return False
 
 
-def _write_atomically(target: Path, produce) -> None:
+def write_atomically(target: Path, produce) -> None:
     """``produce(tmp)`` then rename: an interrupted or failed write leaves nothing behind."""
     tmp = target.with_name(f".{target.name}.{os.getpid()}.tmp")
     try:
@@ -209,7 +231,7 @@ def _scratch_directory(prefix: str) -> Iterator[Path]:
 
 
 def _build_into(model: ModuleType, target: Path, links: int, fmi_version: int,
-                cc: str) -> None:
+                cc: list[str]) -> None:
     token = description.instantiation_token(model, links, _sources_digest(model))
     with _scratch_directory("plant_fmu_") as root:
         sources = root / "sources"
@@ -230,9 +252,14 @@ def _build_into(model: ModuleType, target: Path, links: int, fmi_version: int,
         binary_dir = root / "binaries" / _platform_dir(fmi_version)
         binary_dir.mkdir(parents=True)
         binary = binary_dir / (model.MODEL_IDENTIFIER + _shared_library_suffix())
-        command = [cc, *_cflags(model), f"-I{sources}", f"-I{_fmi_headers()}",
+        command = [*cc, *_cflags(model), f"-I{sources}", f"-I{_fmi_headers()}",
                    *[str(sources / s) for s in compiled], "-o", str(binary), "-lm"]
-        result = subprocess.run(command, capture_output=True, text=True)
+        try:
+            result = subprocess.run(command, capture_output=True, text=True)
+        except OSError as exc:  # found a moment ago, gone or not executable now
+            raise BuildError(f"the C compiler {' '.join(cc)} could not be run "
+                             f"({exc.strerror or exc}); set CC to an installed C compiler"
+                             ) from None
         if result.returncode != 0:
             raise BuildError(f"compiling the {links}-link FMI {fmi_version} "
                              f"{model.MODEL_IDENTIFIER} plant failed ({' '.join(command)}):\n"
@@ -244,4 +271,4 @@ def _build_into(model: ModuleType, target: Path, links: int, fmi_version: int,
                     if path.is_file():
                         archive.write(path, path.relative_to(root).as_posix())
 
-        _write_atomically(target, pack)
+        write_atomically(target, pack)

@@ -294,7 +294,7 @@ def test_build_fmu_into_a_folder_and_refused_paths(tmp_path):
     message = error_line(cosim_cli("build-fmu", "--output", str(_write(tmp_path / "f", b"x")
                                                                   / "x.fmu")))
     assert_message(message, f"--output {tmp_path / 'f' / 'x.fmu'}: cannot write the FMU there: "
-                   "File exists")
+                   f"{tmp_path / 'f'} is a file, not a folder; nothing was written")
     # a folder not yet there, named with a trailing slash, is made (not a zip named "new")
     done = cosim_cli("build-fmu", "--output", f"{tmp_path / 'new'}/")
     assert done.returncode == 0, done.stderr
@@ -306,6 +306,29 @@ def test_build_fmu_into_a_folder_and_refused_paths(tmp_path):
                        f"in .fmu (e.g. {tmp_path / 'newer.fmu'}); for a folder, end it with / "
                        "and the FMU is written into it; nothing was written")
     assert not (tmp_path / "newer").exists()
+
+
+def test_build_fmu_blames_the_compiler_and_the_cache_not_the_output(tmp_path):
+    """$CC may carry options, as make allows; a compiler that is not there, and a cache that
+    cannot be written, are named as such (not as --output's fault)."""
+    env = {**os.environ, "COSIM_CACHE": str(tmp_path / "cache"), "CC": "cc -O1"}
+    done = subprocess.run([sys.executable, "-m", "cosim.cli", "build-fmu", "--links", "1",
+                           "--output", str(tmp_path / "arm.fmu")], capture_output=True,
+                          text=True, timeout=600, env=env)
+    assert done.returncode == 0, done.stderr
+    for variables, expected in (
+            ({"CC": "/nonexistent/cc"}, "CC='/nonexistent/cc': no program '/nonexistent/cc' is "
+             "found (on the PATH or at that path); set CC to an installed C compiler, or unset "
+             "it"),
+            ({"COSIM_CACHE": str(_write(tmp_path / "plain", b"x") / "cache")},
+             f"the FMU cache {tmp_path / 'plain' / 'cache'}: cannot write there "
+             f"({tmp_path / 'plain' / 'cache'}: Not a directory); set COSIM_CACHE to a folder "
+             "you can write")):
+        failed = subprocess.run([sys.executable, "-m", "cosim.cli", "build-fmu", "--links", "1",
+                                 "--output", str(tmp_path / "other.fmu")], capture_output=True,
+                                text=True, timeout=600, env={**env, **variables})
+        assert_message(error_line(failed), expected)
+    assert not (tmp_path / "other.fmu").exists()
 
 
 def test_build_fmu_replaces_a_different_file_only_with_force(tmp_path):

@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import math
 import os
+import shutil
 import zipfile
 from pathlib import Path
 
@@ -64,28 +66,32 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 def fixed_joints(items: list[str]) -> dict[str, float]:
     """``--fix JOINT=VALUE`` options as {joint: value}."""
-    fixed = {}
+    fixed: dict[str, float] = {}
     for item in items:
         name, sep, value = item.partition("=")
+        name = name.strip()
         try:
-            fixed[name.strip()] = float(value)
+            number = float(value)
         except ValueError:
             sep = ""
-        if not sep or not name.strip():
-            raise UserError(f"--fix {item}: give JOINT=VALUE, the value a number in rad (m for "
-                            "a prismatic joint), e.g. --fix panda_finger_joint1=0.02")
+        if not sep or not name or not math.isfinite(number):
+            raise UserError(f"--fix {item}: give JOINT=VALUE, the value a finite number in rad "
+                            "(m for a prismatic joint), e.g. --fix panda_finger_joint1=0.02")
+        if name in fixed:
+            raise UserError(f"--fix {item}: joint '{name}' is already held at {fixed[name]} by "
+                            "an earlier --fix; hold each joint once")
+        fixed[name] = number
     return fixed
 
 
 def _folder(args: argparse.Namespace) -> Path | None:
-    """The folder --output names (made if missing), or None for a file or the cache."""
+    """The folder --output names (made only once the FMU is built), or None for a file or
+    the cache."""
     output = Path(args.output) if args.output is not None else None
     if output is not None and (output.is_dir() or args.output.endswith(os.sep)):
-        try:  # a folder (one ending in / is made): the FMU goes into it
-            output.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise UserError(f"--output {args.output}: cannot make the folder: "
-                            f"{exc.strerror or exc}") from None
+        if output.exists() and not output.is_dir():
+            raise UserError(f"--output {args.output}: {output} is a file, not a folder; "
+                            "nothing was written")
         return output
     if output is not None and output.suffix.lower() != ".fmu":
         raise UserError(f"--output {args.output}: an FMU's file name ends in .fmu (e.g. "
@@ -95,6 +101,8 @@ def _folder(args: argparse.Namespace) -> Path | None:
 
 
 def _build(args: argparse.Namespace) -> Path:
+    """Build into the cache, then copy to --output: an error while building is the build's
+    (the URDF, the compiler, the cache), one while writing the output is --output's."""
     from plant_fmu import DEFAULT_MODEL, MODELS, UrdfError, build_fmu, build_urdf_fmu
     from plant_fmu.urdf import resolve_uri
 
@@ -108,24 +116,42 @@ def _build(args: argparse.Namespace) -> Path:
         if folder is not None:
             identifier = MODELS[model].MODEL_IDENTIFIER
             output = folder / f"{identifier}{links}_fmi{args.fmi_version}.fmu"
-        options = dict(links=links, fmi_version=args.fmi_version, model=model)
-        _may_replace(output, build_fmu(**options), args.force)
-        return build_fmu(output=output, **options)
+        cached = build_fmu(links=links, fmi_version=args.fmi_version, model=model)
+        return _write_output(output, cached, args)
     for option, given in (("--model", args.model), ("--links", args.links)):
         if given is not None:
             raise UserError(f"{option} is for the built-in planar models; --urdf builds the "
                             "robot the URDF describes (its joints are the URDF's): drop one")
     urdf = resolve_uri(args.urdf, Path.cwd())
-    options = dict(base=args.base, tip=args.tip, fixed=fixed_joints(args.fix),
-                   fmi_version=args.fmi_version)
     try:
-        cached = build_urdf_fmu(urdf, **options)
+        cached = build_urdf_fmu(urdf, base=args.base, tip=args.tip, fixed=fixed_joints(args.fix),
+                                fmi_version=args.fmi_version)
     except UrdfError as exc:
         raise UserError(f"--urdf {exc}; nothing was written") from None
     if folder is not None:  # named as in the cache, without its digest
         output = folder / (cached.name.rsplit("_", 1)[0] + ".fmu")
+    return _write_output(output, cached, args)
+
+
+def _write_output(output: Path | None, cached: Path, args: argparse.Namespace) -> Path:
+    """The cached FMU copied to ``output`` (its folder made if missing), unless a different
+    file is there (:func:`_may_replace`); the cached FMU itself without --output."""
+    from plant_fmu.build import write_atomically
+
+    if output is None:
+        return cached
     _may_replace(output, cached, args.force)
-    return build_urdf_fmu(urdf, output=output, **options)
+    above = next((folder for folder in output.parents if folder.exists()), None)
+    if above is not None and not above.is_dir():
+        raise UserError(f"--output {args.output}: cannot write the FMU there: {above} is a "
+                        "file, not a folder; nothing was written")
+    try:
+        output.parent.mkdir(parents=True, exist_ok=True)
+        write_atomically(output, lambda tmp: shutil.copyfile(cached, tmp))
+    except OSError as exc:
+        raise UserError(f"--output {args.output}: cannot write the FMU there: "
+                        f"{exc.strerror or exc}; nothing was written") from None
+    return output
 
 
 def _entries(fmu: Path) -> list[tuple[str, int, int]] | None:
@@ -154,9 +180,6 @@ def _may_replace(output: Path | None, built: Path, force: bool) -> None:
 def handle(args: argparse.Namespace) -> None:
     try:
         path = _build(args)
-    except OSError as exc:
-        raise UserError(f"--output {args.output}: cannot write the FMU there: "
-                        f"{exc.strerror or exc}") from None
     except KeyboardInterrupt as exc:  # written to a temporary and renamed: nothing half-made
         raise UserError(f"{str(exc) or 'interrupted (Ctrl-C)'} while building the FMU; nothing "
                         "was written") from None
