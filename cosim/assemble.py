@@ -227,6 +227,10 @@ def assemble_run(pipeline: Pipeline, name: str, plant) -> RunPlan:
     kinds = offered_kinds(pipeline.plugins)
     signals, inputs, outputs, plant_input = wire(blocks, context, name, plant, kinds)
     constants = wire_constants(blocks, name, kinds)
+    published: dict = {}
+    for block in blocks:
+        block.check(published)
+        published.update(block.publishes)
     return RunPlan(name, blocks, signals, inputs, outputs, plant_input,
                    safe_set(pipeline), links, dt, run, constants, pipeline.uncertainty,
                    context.plant_outputs)

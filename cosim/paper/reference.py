@@ -132,6 +132,10 @@ class Sinusoids:
 class Reference(Block):
     kind = "reference"
     Params = ReferenceParams
+    # reference_trajectory: q_d(t) as an object with ``evaluate(t) -> (q_d, q̇_d, q̈_d)``
+    # (rad, rad/s, rad/s²), for the checks blocks make before the run (the sampled loop's
+    # configurations, cosim.paper.sampled_loop)
+    PUBLISHES = {"reference_trajectory": object}
 
     def __init__(self, params: ReferenceParams, context: BlockContext):
         super().__init__(params, context)
@@ -144,6 +148,7 @@ class Reference(Block):
             "qdot_s": Signal("n", "rad/s", "safe-set centre q̇_s (Remark 1)"),
         }
         self.trajectory = trajectory(params, context)
+        self.publishes = {"reference_trajectory": self.trajectory}
         self._centres: tuple[np.ndarray, np.ndarray] | None = None  # centres(), once
         self.limits_left = self._check_limits()
 
