@@ -218,6 +218,11 @@ def assemble_run(pipeline: Pipeline, name: str, plant) -> RunPlan:
     context = BlockContext(links, dt, name, plant_outputs(plant), pipeline.safety,
                            pipeline.uncertainty, file, pipeline.simulation.duration)
     check_sizes(run, name, plant)
+    for key in ("viscous_friction", "coulomb_friction"):  # per joint, or one for all
+        value = getattr(pipeline.uncertainty, key)
+        if isinstance(value, list) and len(value) != links:
+            raise PipelineError(f"uncertainty.{key} has {len(value)} entries; the plant "
+                                f"({file}) has {links} joint{'s' * (links != 1)}")
     blocks = []
     for instance, kind in run.chain():
         block = BLOCKS[kind](run.block_params(instance), context)

@@ -90,6 +90,13 @@ class Uncertainty(Section):
       |q̇(0) − x̂2(0)| per joint, rad/s.
     - ``disturbance``: bound on the error of the disturbance model |τ_d − τ_d,model| per
       joint, N·m.
+    - ``viscous_friction``: bound on the error of the nominal viscous friction
+      |b_i − b̂_i| per joint (or one for all), N·m·s/rad: the true friction torque differs
+      from the nominal model's (inertia_model.b, the URDF's <dynamics damping>) by at most
+      that times |q̇_i|.
+    - ``coulomb_friction``: bound on the error of the nominal Coulomb friction
+      |fc_i − f̂c_i| per joint (or one for all), N·m (inertia_model.fc, the URDF's
+      <dynamics friction>).
     - ``observer_residual_rate``: a bound J̄ on the rate of the observer's unmodelled
       acceleration, rad/s³, which the observer's bound ε(t) once rested on. No longer used
       by it: ε(t) is certified from the quantities above, the applied torque and the
@@ -102,6 +109,8 @@ class Uncertainty(Section):
     noise_bound: NonNegativeFloat = 0.0
     initial_velocity_error: NonNegativeFloat = 0.0
     disturbance: NonNegativeFloat = 0.0
+    viscous_friction: NonNegativeFloat | list[NonNegativeFloat] = 0.0
+    coulomb_friction: NonNegativeFloat | list[NonNegativeFloat] = 0.0
     observer_residual_rate: NonNegativeFloat = 4.0e4
 
     @model_validator(mode="after")

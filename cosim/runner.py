@@ -2,7 +2,9 @@
 by chunk, and hand the evaluated result to the outputs (run folder, recording, figures).
 
 A run that diverges or is interrupted keeps what was computed: its completed rows are
-evaluated and written, and summary.json says ``"complete": false`` with the reason.
+evaluated and written, and summary.json says ``"complete": false`` with the reason. A run
+that diverges does not stop the others (:class:`RunsFailed` names each after all ran); an
+interrupt does; a run that did not finish gets no figures.
 """
 
 from __future__ import annotations
@@ -28,6 +30,20 @@ from .plant import PLANT_OUTPUTS
 from .plant.mapping import FmuError
 from .progress import percent, phase
 from .signals import Trace
+
+
+class RunsFailed(Diverged):
+    """Runs that did not finish (each diverged, or its plant or a block failed), after every
+    run of the pipeline was run: ``failed`` (their results, each with its ``error``) and
+    ``results`` (every run's)."""
+
+    def __init__(self, failed: list, results: dict):
+        self.failed, self.results = failed, results
+        first = failed[0].failure
+        self.where, self.t = first.where, first.t
+        RuntimeError.__init__(self, "; ".join(
+            f"run '{r.name}': {r.error}" if len(failed) > 1 else str(r.error)
+            for r in failed))
 
 
 @dataclass
@@ -98,9 +114,13 @@ def run(pipeline: Pipeline, out_dir: str | Path | None = None, progress: bool = 
             if folder is not None:
                 folder.write_trace(name, result.trace, result.evaluation)
                 folder.write_summary(_summary(pipeline, results, plant_info), final=False)
-            if not result.complete:
-                failure = result.failure
+            if not result.complete and not isinstance(result.failure, Diverged):
+                failure = result.failure  # Ctrl-C: nothing more runs
                 break
+        # A run that diverged does not stop the others: each is run, then the failures said
+        failed = [r for r in results.values() if isinstance(r.failure, Diverged)]
+        if failed and failure is None:
+            failure = RunsFailed(failed, results)
     except FmuError as exc:
         failure = PipelineError(str(exc))
     except BaseException as exc:  # Ctrl-C, SIGTERM, an OS error: still close and summarise
@@ -134,15 +154,16 @@ def _finish(folder: RunFolder, pipeline: Pipeline, results: dict, plant_info: di
         except BaseException as exc:  # noqa: BLE001 (a second Ctrl-C, or the writer failed)
             folder.note("recording.rrd", False, _describe(exc))
             failure = failure or exc
-    if figures and results:
+    drawn = {n: r for n, r in results.items() if r.complete}  # a failed run has no figure
+    if figures and drawn:
         try:
             with phase(f"drawing the figures ({len(FIGURE_FILES)} PNG)", progress):
-                write_figures(folder, {n: r.trace.time for n, r in results.items()},
-                              {n: r.evaluation.checks for n, r in results.items()},
-                              {n: r.trace["tau"] for n, r in results.items()},
-                              {n: r.evaluation.barriers for n, r in results.items()},
+                write_figures(folder, {n: r.trace.time for n, r in drawn.items()},
+                              {n: r.evaluation.checks for n, r in drawn.items()},
+                              {n: r.trace["tau"] for n, r in drawn.items()},
+                              {n: r.evaluation.barriers for n, r in drawn.items()},
                               {n: (r.trace[r.torque_asked[0]], r.torque_asked[1])
-                               for n, r in results.items() if r.torque_asked})
+                               for n, r in drawn.items() if r.torque_asked})
         except BaseException as exc:  # noqa: BLE001
             for name in FIGURE_FILES:
                 if name not in folder.files:

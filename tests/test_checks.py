@@ -203,10 +203,13 @@ def test_a_three_link_run_whose_third_joint_leaves_its_set_is_unsafe_everywhere(
     assert safety["error_joint3"]["first_violation_s"] == 0.0
     assert not is_safe(safety)
     line = verdict(summary)
-    assert line.startswith("UNSAFE: left error_joint3 at 0.00 s")
-    printed = [s for s in third_joint["off_stdout"].splitlines() if s.startswith("  proposed ")]
-    assert printed == [f"  proposed  {line}"]
-    assert "UNSAFE: left error_joint3" in (third_joint["off"] / "summary.md").read_text()
+    assert line.startswith("limits kept (every joint's position, velocity); tracking: left "
+                           "error_joint3 at 0.00 s")
+    lines = third_joint["off_stdout"].splitlines()
+    first = next(i for i, s in enumerate(lines) if s.startswith("  proposed "))
+    limits, tracking = line.split("; ", 1)  # printed on two lines: it is wider than 100
+    assert lines[first:first + 2] == [f"  proposed  {limits};", f"            {tracking}"]
+    assert "tracking: left error_joint3" in (third_joint["off"] / "summary.md").read_text()
     assert "error_joint3 ≤ 0.2 rad" in third_joint["off_stdout"]
     # the figures draw joint 3 (a row per joint): taller than a two-joint figure
     import matplotlib.image
@@ -262,8 +265,8 @@ def test_an_entry_is_kept_exactly_when_no_row_is_outside_its_bounds():
     entry = safety_entries({"tau_positive_joint1": left}, 0.5)["tau_positive_joint1"]
     assert (entry["satisfied"], entry["first_violation_s"], entry["time_outside_s"],
             entry["worst"], entry["rows_unknown"]) == (False, 1.0, 0.5, 2.0, 1)
-    assert verdict({"safety": {"tau_positive_joint1": entry}}).startswith(
-        "UNSAFE: left tau_positive_joint1 at 1.00 s (0.50 s out)")
+    assert verdict({"safety": {"tau_positive_joint1": entry}}) == (
+        "no limits (no hard set); tracking: left tau_positive_joint1 at 1.00 s (0.50 s out)")
     kept_ = Check(np.array([1.0, np.nan, 0.5]), 5.0, 0.0, None, positive, 1)
     entry = safety_entries({"c": kept_}, 0.5)["c"]
     assert entry["satisfied"] is True and entry["first_violation_s"] is None

@@ -146,8 +146,8 @@ BLOCKS: dict[str, type[Block]] = {}
 
 # A pipeline's own top-level keys (cosim.config.pipeline.Pipeline's fields, runs and extends):
 # no block kind may take one, its table would be the pipeline's.
-PIPELINE_TABLES = ("name", "description", "plugins", "simulation", "plant", "safety",
-                   "uncertainty", "runs", "extends")
+PIPELINE_TABLES = ("name", "description", "plugins", "simulation", "robot", "plant",
+                   "safety", "uncertainty", "runs", "extends")
 
 
 def register_block(cls: type[Block]) -> type[Block]:

@@ -56,6 +56,8 @@ def read_toml(path: Path, chain: tuple[Path, ...] = ()) -> dict:
         plant["fmu"] = str(fmu if fmu.is_absolute() else (path.parent / fmu).resolve())
     if isinstance(plant, dict) and "urdf" in plant:
         plant["urdf"] = urdf_relative_to(plant["urdf"], path.parent)
+    if "robot" in data:  # [robot] file: relative to this file, like plant.urdf
+        data["robot"] = urdf_relative_to(data["robot"], path.parent)
     parent = data.pop("extends", None)
     if parent is None:
         return data

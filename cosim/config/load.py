@@ -36,6 +36,8 @@ def load_pipeline(path: str | Path | None, overrides: list[str] | None = None,
         data = apply_override(data, assignment)
         if assignment.split("=", 1)[0].strip().startswith("plant.urdf"):
             data["plant"]["urdf"] = urdf_relative_to(data["plant"]["urdf"], Path.cwd())
+        if assignment.split("=", 1)[0].strip().startswith("robot"):
+            data["robot"] = urdf_relative_to(data["robot"], Path.cwd())
         for warning in shadowed(data, assignment) if warn else ():
             warn(warning)
     plugins = data.get("plugins")

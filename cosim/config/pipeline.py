@@ -15,7 +15,7 @@ from ..blocks.plugins import load_entry_points
 from ..declared import Safety, Uncertainty
 from ..schema import Section
 from .runs import Run, chain_entry
-from .sections import Plant, Simulation, check_name
+from .sections import Plant, Robot, Simulation, check_name, robot_defaults
 
 
 class Pipeline(Section):
@@ -31,6 +31,10 @@ class Pipeline(Section):
     # importable module names, paths or names
     plugins: list[str] = []
     simulation: Simulation = Simulation()
+    # the robot the pipeline is about, named once (its URDF, base, tip and held joints): the
+    # plant, the nominal model and the safe sets where they are not given (a path, or a
+    # table: file, base, tip, fixed)
+    robot: Robot | None = None
     plant: Plant = Plant()
     safety: Safety = Safety()
     uncertainty: Uncertainty = Uncertainty()
@@ -58,6 +62,7 @@ class Pipeline(Section):
         """Each run inherits the top-level block tables, then overrides."""
         if not isinstance(data, dict):
             return data
+        data = robot_defaults(data)
         runs = data.get("runs")
         if runs is not None and not isinstance(runs, dict):
             raise ValueError(f"runs must be a table of runs ([runs.NAME] ...), got {runs!r}")

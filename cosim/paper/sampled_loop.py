@@ -197,3 +197,51 @@ def check_step(block, published: Mapping[str, object], gains: LinearGains,
         f"{'kg' if prismatic else 'kg·m²'} at the reference's q = [{where}] rad with a "
         f"payload of {worst.payload:g} kg, is stable up to a step of "
         f"{largest * 1e3:.3g} ms; lower {keys} or the step{scale}")
+
+
+# The viscous friction the observer's certified bound can hold at a step: its velocity box
+# must be confirmed by the acceleration bound it implies, dt·|M̂⁻¹ B̂| r ≤ ρ, which needs
+# dt·Σ_l |(M̂⁻¹)_il| b̂_l < 1 per joint i (the friction's error is bounded there, not used as
+# the damping it is); half of that, for the rest of the bound.
+FRICTION_STEP_SHARE = 0.5
+
+
+def check_friction_step(block, published: Mapping[str, object]) -> None:
+    """Refuse (:class:`PipelineError`) a nominal viscous friction too stiff for the master
+    step: dt·Σ_l |(M̂⁻¹)_il| (b̂_l + |Δb_l|) ≥ FRICTION_STEP_SHARE for a joint i at a
+    configuration of the reference (the light end of the payload range), naming the joint,
+    its friction and inertia, and the step it needs. Without the model or the reference:
+    nothing to check."""
+    from ..dynamics.model import DAMPING, DAMPING_ERROR
+
+    model = published.get("nominal_model")
+    reference = published.get("reference_trajectory")
+    friction = getattr(model, "friction", None)
+    if reference is None or friction is None or not np.any(friction[DAMPING]
+                                                           + friction[DAMPING_ERROR]):
+        return
+    context = block.context
+    damping = friction[DAMPING] + friction[DAMPING_ERROR]
+    loop = cases(model, reference_positions(reference, context.duration),
+                 [float(context.uncertainty.payload[0])], False)
+    worst, where = 0.0, (0, 0)
+    for index, mass in enumerate(loop.masses):
+        rates = np.abs(np.linalg.inv(mass)) @ damping  # 1/s per joint
+        joint = int(np.argmax(rates))
+        if rates[joint] > worst:
+            worst, where = float(rates[joint]), (index, joint)
+    if context.dt * worst < FRICTION_STEP_SHARE:
+        return
+    index, joint = where
+    mass = loop.masses[index]
+    chain = published.get("nominal_urdf")
+    name = f" ('{chain.joints[joint]}')" if chain is not None else ""
+    raise PipelineError(
+        f"run '{context.run}': joint {joint + 1}{name}'s viscous friction (the nominal model's "
+        f"b̂ = {friction[DAMPING, joint]:g} N·m·s/rad, the URDF's <dynamics damping> unless "
+        f"inertia_model.b) against its inertia {mass[joint, joint]:.3g} kg·m² damps in "
+        f"{1e3 / worst:.3g} ms, too fast for simulation.step = {context.dt * 1e3:g} ms: the "
+        "observer's certified bound takes friction as a bounded error, which holds for a "
+        f"step up to {FRICTION_STEP_SHARE / worst * 1e3:.3g} ms; shorten the step, or leave "
+        "that joint's friction out of the plant (plant.parameters.b[i]) and the nominal "
+        "model (inertia_model.b)")
