@@ -48,6 +48,29 @@ class RunsFailed(Diverged):
 
 @dataclass
 class RunResult:
+    """One run's result, as :func:`run` returns it by run name.
+
+    Attributes:
+        name: the run's name (``[runs.NAME]``).
+        trace: every signal of every completed row (:class:`cosim.signals.Trace`:
+            ``trace["q"]`` an array (rows × joints), ``trace.time`` in s,
+            ``trace.signals[name]`` its unit and meaning).
+        evaluation: the evaluators' result: ``checks``, ``metrics``, ``safety`` (what
+            summary.json holds), ``headlines`` and ``lines`` (what `cosim run` prints).
+        complete: whether the run reached its end (False: it diverged, a block or the
+            plant failed, or it was interrupted; ``error`` says which).
+        error: why the run did not finish, or None.
+        failure: the exception it ended with, or None.
+        inertia_model: the model of the plant the run's blocks used (source, URDF, links).
+        wall_time_s: the wall-clock time of its loop, s.
+        blocks: what each block says of itself (its ``describe()``), by instance name.
+        torque_asked: where the torque before a filter is in the trace (trace key, filter
+            kind), or None without a filter.
+
+    ``metrics`` and ``safety`` are the evaluation's; ``summary()`` is the run's entry of
+    summary.json. SI units, radians.
+    """
+
     name: str
     trace: Trace
     evaluation: Evaluation
