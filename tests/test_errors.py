@@ -70,7 +70,7 @@ CASES = [
     ("unknown key", [*SHORT, "--set", "controller.kvv=1"],
      "--set controller.kvv=1: unknown key 'controller.kvv'; allowed keys here: variant, kv, "
      "lambda, f, g, kappa, kz, z_b, z_wc, c0, c1, delta, psi_b, hidden, velocity, init, "
-     "init_scale, seed"),
+     "init_scale, seed, scale"),
     ("negative sensor seed", [*SHORT, "--set", "sensor.seed=-1"],
      "--set sensor.seed=-1: key 'sensor.seed': Input should be greater than or equal to 0 "
      "(got -1)"),
@@ -144,7 +144,9 @@ def test_a_failing_rerun_does_not_claim_complete(finished, tmp_path):
     assert "diverged in the observer block" in error_line(result)
     summary = json.loads((out / "summary.json").read_text())
     assert summary["complete"] is False and summary["status"] == "incomplete"
-    assert list(summary["runs"]) == ["baseline"]
+    # both runs diverge in their observer (a run that diverges does not stop the others)
+    assert list(summary["runs"]) == ["baseline", "proposed"]
+    assert not any(run["complete"] for run in summary["runs"].values())
 
 
 def test_a_second_writer_is_refused_while_the_first_runs(tmp_path):

@@ -12,6 +12,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from fmu_helpers import FmuInstance
+from test_observer_bound import NEAR_BOUNDARY, excess
+from test_robust_safety import MC
 from urdf_helpers import OWN_ROBOT
 
 from cosim.blocks.base import BlockContext
@@ -122,3 +124,76 @@ def test_a_declared_friction_range_must_have_one_entry_per_joint():
                        r"the plant \(.*\) has 2 joints$"):
         assemble(pipeline)
     assert Uncertainty().viscous_friction == 0.0 and Uncertainty().coulomb_friction == 0.0
+
+
+FRICTION_PLANT = ['plant.parameters."b[1]"=2.4', 'plant.parameters."b[2]"=1.0',
+                  'plant.parameters."fc[1]"=3.3', 'plant.parameters."fc[2]"=0.8']
+FRICTION_MODEL = ["inertia_model.b=[2.0, 1.0]", "inertia_model.fc=[3.0, 1.0]"]
+DECLARED = ["uncertainty.viscous_friction=[0.5, 0.1]",
+            "uncertainty.coulomb_friction=[0.4, 0.3]"]
+
+
+@pytest.fixture(scope="module")
+def with_friction():
+    """proposed_cbf from the near-boundary start (tests/test_observer_bound.py), its plant's
+    friction within what is declared of the nominal model's, run through cosim's own
+    runner: the pipeline and the run's result."""
+    from cosim.config import load_pipeline
+    from cosim.runner import run
+
+    pipeline = load_pipeline(MC, ["simulation.duration=1.0", *NEAR_BOUNDARY,
+                                  'plant.parameters."m[2]"=2.9',
+                                  "uncertainty.initial_velocity_error=0.5",
+                                  *FRICTION_PLANT, *FRICTION_MODEL, *DECLARED], warn=None)
+    pipeline.runs = {"proposed_cbf": pipeline.runs["proposed_cbf"]}
+    result = run(pipeline, None, progress=False, record=False, figures=False)
+    return pipeline, result["proposed_cbf"]
+
+
+def test_the_observer_bound_holds_with_friction_within_what_is_declared(with_friction):
+    """On every step, both joints: |q̇ − x̂2| ≤ ε(t) with the plant's friction departing from
+    the nominal model's by up to what is declared; the filter braking hard and keeping its
+    hard sets."""
+    pipeline, result = with_friction
+    trace = result.trace
+    worst = excess(trace)
+    assert np.all(np.isfinite(trace["qdot_hat_bound"]))
+    assert worst.max() <= 0.0, (worst.max(), np.unravel_index(worst.argmax(), worst.shape))
+    assert np.any(trace["cbf_position_active"] + trace["cbf_velocity_active"] > 0)
+    bound = pipeline.safety.position_bound
+    assert np.max(np.abs(trace["q"] - trace["q_s"])) <= bound
+
+
+def test_the_classifier_covers_friction_within_the_declared_bounds_and_names_it_beyond():
+    """The run with its friction inside what is declared is covered; 0.2 N·m·s/rad more on
+    joint 1 than declared, or another smoothing velocity, is named as outside."""
+    from cosim.paper.guarantee import undeclared_differences
+
+    params = {"b[1]": 2.4, "b[2]": 1.0, "fc[1]": 3.3, "fc[2]": 0.8, "fc_vel[1]": 0.01,
+              "fc_vel[2]": 0.01}
+    declared = Uncertainty(viscous_friction=[0.5, 0.1], coulomb_friction=[0.4, 0.3])
+    table = friction_table(2, [2.0, 1.0], [3.0, 1.0], 0.01, [0.5, 0.1], [0.4, 0.3])
+    assert undeclared_differences(params, None, declared, np.zeros(2), 2, table) == []
+    beyond = {**params, "b[1]": 2.7, "fc_vel[2]": 0.02}
+    assert undeclared_differences(beyond, None, declared, np.zeros(2), 2, table) == [
+        "b[1] = 2.7 N·m·s/rad (nominal 2 ± 0.5): viscous friction beyond "
+        "uncertainty.viscous_friction",
+        "fc_vel[2] = 0.02 rad/s (the nominal model's 0.01 rad/s, inertia_model.fc_vel): "
+        "another Coulomb friction law"]
+    # the planar arm's one smoothing velocity, named once
+    planar = {**params, "fc_vel": 0.05}
+    del planar["fc_vel[1]"], planar["fc_vel[2]"]
+    assert undeclared_differences(planar, None, declared, np.zeros(2), 2, table) == [
+        "fc_vel = 0.05 rad/s (the nominal model's 0.01 rad/s, inertia_model.fc_vel): another "
+        "Coulomb friction law"]
+    # without a declared bound, any friction the nominal model does not have is named
+    assert undeclared_differences({"b[1]": 0.1}, None, Uncertainty(), np.zeros(2), 2) == [
+        "b[1] = 0.1 N·m·s/rad (nominal 0): viscous friction is not declared uncertain "
+        "(uncertainty.viscous_friction)"]
+
+
+def test_a_run_with_friction_within_its_bounds_is_covered(with_friction):
+    _, result = with_friction
+    guarantee = result.metrics["guarantee"]
+    assert guarantee["outside"] == [] and guarantee["covered"] and not guarantee["broken"]
+    assert guarantee["hard_kept"] and guarantee["observer_bound_exceeded_steps"] == 0

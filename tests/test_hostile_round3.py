@@ -255,7 +255,7 @@ def test_plugin_signal_names_the_trace_cannot_hold_are_refused_before_the_run(tm
         assert not (pipeline.parent / "out").exists()
 
 
-@pytest.mark.parametrize("kind", ["runs", "plant", "safety"])
+@pytest.mark.parametrize("kind", ["runs", "plant", "safety", "robot"])
 def test_a_plugin_block_kind_may_not_take_a_pipeline_key(kind, tmp_path):
     from cosim.blocks.plugins import load_plugins
     from cosim.schema import PipelineError
@@ -267,8 +267,9 @@ def test_a_plugin_block_kind_may_not_take_a_pipeline_key(kind, tmp_path):
         load_plugins([str(path)])
     assert str(caught.value) == (
         f"plugins: {path}: failed to import: ValueError: Hostile.kind = {kind!r} is the name "
-        "of a pipeline's own key (name, description, plugins, simulation, plant, safety, "
-        "uncertainty, runs, extends); a block's table would collide with it: choose another "
+        "of a pipeline's own key (name, description, plugins, simulation, robot, plant, "
+        "safety, uncertainty, runs, extends); a block's table would collide with it: choose "
+        "another "
         f"kind ({path}, line 16, in <module>)")
 
 
@@ -351,8 +352,10 @@ def test_compare_refuses_what_is_not_like_with_like(finished, others):
         assert message.endswith("; compare runs of the same duration and bounds that both ran "
                                 "to their end")
     early = error_line(here("compare", str(a), str(others["early"])))
+    # a run that diverges does not stop the others: B's proposed ran, and stopped early too
     assert re.search(r"run baseline stopped early in B \(at 0\.0\d+ s of 0\.5 s: the run "
                      r"diverged in the observer block at t = 0\.0\d+ s: a non-finite value\); "
+                     r"run proposed stopped early in B \(at 0\.0\d+ s of 0\.5 s: .+\); "
                      r"compare", early), early
 
 
@@ -603,7 +606,8 @@ def test_a_typo_in_an_extended_file_is_named_against_that_file(tmp_path):
     done = here("params", "top.toml", cwd=tmp_path)
     assert_message(error_line(done), "base.toml (extended by top.toml): unknown key "
                    "'controller.kvv'; allowed keys here: variant, kv, lambda, f, g, kappa, kz, "
-                   "z_b, z_wc, c0, c1, delta, psi_b, hidden, velocity, init, init_scale, seed")
+                   "z_b, z_wc, c0, c1, delta, psi_b, hidden, velocity, init, init_scale, seed, "
+                   "scale")
 
 
 def test_a_pipeline_file_with_a_byte_order_mark_reads_as_its_text(tmp_path):

@@ -7,7 +7,7 @@ import argparse
 import os
 from pathlib import Path
 
-from .build_fmu import fixed_joints
+from .build_fmu import add_chain_options, fixed_joints
 from .common import UserError
 
 
@@ -23,18 +23,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         epilog="Then: cosim run FILE.toml --dry-run (checks every key, the motion against "
         "every limit and the step against the gains), cosim run FILE.toml --out runs/NAME, "
         "cosim view runs/NAME.")
-    p.add_argument("--urdf", required=True, metavar="ROBOT.urdf",
-                   help="the robot's URDF: a path, or package://PKG/... (found above the "
-                   "file, in $ROS_PACKAGE_PATH, $AMENT_PREFIX_PATH or an installed "
-                   "example-robot-data)")
-    p.add_argument("--base", default=None, metavar="LINK",
-                   help="the link the chain is fixed to (default: the URDF's root link)")
-    p.add_argument("--tip", default=None, metavar="LINK",
-                   help="the chain's last link, where the payload sits (default: from the "
-                   "base, follow the one way on to a moving joint; stop where it forks)")
-    p.add_argument("--fix", action="append", default=[], metavar="JOINT=VALUE",
-                   help="hold a moving joint at VALUE (rad, or m for a prismatic joint), "
-                   "folding it into its parent body (repeatable)")
+    add_chain_options(p, required=True)
     p.add_argument("--friction", default="auto", choices=("auto", "keep", "none"),
                    help="the URDF's <dynamics> friction in the plant and the nominal model: "
                    "auto (default) keeps it but on joints whose viscous friction damps faster "

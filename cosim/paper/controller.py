@@ -28,10 +28,6 @@ from ..schema import GainVector, NonNegativeFloat, PipelineError, PositiveFloat,
 from ..signals import Signal
 from .sampled_loop import LinearGains, check_step
 
-# The keys that set a controller's feedback, by variant, for the step check's message.
-GAIN_KEYS = {"proposed": "controller.kv, kz, c0, psi_b (or raise delta)",
-             "baseline": "controller.kv, kz"}
-
 
 class ControllerParams(Section):
     """Kv [N·m·s/rad], Λ [1/s], F, G (scalars × I), κ, Kz, Z_B or Z_Wc, C0, C1, δ, ψ_B,
@@ -291,6 +287,7 @@ class NnController(Block):
                 f"{context.plant_file} has no qdot mapping (no outputs qdot[1]..qdot[{n}]); map "
                 "them with plant.variables.qdot = [...] or drop the run")
         self.velocity_source = velocity
+        self.chatter: str | None = None  # what the step check says of the robust terms
         self.publishes = {"nn_gains": kernel_args(
             NnGains, Lambda=np.broadcast_to(np.asarray(params.lam, float),
                                             (context.links,)).copy(),
@@ -333,26 +330,34 @@ class NnController(Block):
         return weights
 
     def linear_gains(self) -> LinearGains:
-        """The feedback near r̂ = 0, where it is stiffest: Kv plus the robust terms' gains
-        at the initial weights (Kz(‖Ẑ(0)‖ + Z), and for the proposed controller (27)'s
-        smooth sign and ψ_B terms at their largest, (κ(Z_Wc + C1/κ)²/4 + C0)/√δ and
-        ψ_B²/δ) on r̂ = ė + Λe, and (27)'s −e. The robust term's gain grows with ‖Ẑ‖ as the
-        weights adapt, which a check before the run cannot foresee."""
+        """The feedback near r̂ = 0: Kv plus the robust term's Kz(‖Ẑ(0)‖ + Z) at the initial
+        weights on r̂ = ė + Λe, and for the proposed controller (27)'s −e, which grow with
+        the error; and, bounded, (27)'s smooth-sign and ψ_B terms at their largest gain,
+        (κ(Z_Wc + C1/κ)²/4 + C0)/√δ and ψ_B²/δ (their torque is at most
+        κ(Z_Wc + C1/κ)²/4 + C0 and ψ_B²/(2√δ): they cannot make the loop diverge, only
+        chatter). The robust term's gain grows with ‖Ẑ‖ as the weights adapt, which a check
+        before the run cannot foresee."""
         p, n = self.params, self.context.links
         proposed = p.variant == "proposed"
         z_w = p.z_wc if proposed else p.z_b
         velocity = (np.broadcast_to(np.asarray(p.kv, float), (n,))
                     + p.kz * (np.linalg.norm(self.initial_weights()) + z_w))
-        if proposed:
-            velocity = velocity + ((p.kappa * (z_w + p.c1 / p.kappa) ** 2 / 4.0 + p.c0)
-                                   / np.sqrt(p.delta) + p.psi_b ** 2 / p.delta)
         lam = np.broadcast_to(np.asarray(p.lam, float), (n,))
+        bounded = None
+        if proposed:
+            bounded = np.full(n, (p.kappa * (z_w + p.c1 / p.kappa) ** 2 / 4.0 + p.c0)
+                              / np.sqrt(p.delta) + p.psi_b ** 2 / p.delta)
         return LinearGains(lam * velocity + (1.0 if proposed else 0.0), velocity,
                            inertia_scaled=p.scale == "inertia",
-                           difference=self.velocity_source == "finite_difference")
+                           difference=self.velocity_source == "finite_difference",
+                           bounded=bounded, bounded_lambda=lam)
 
     def check(self, published) -> None:
-        check_step(self, published, self.linear_gains(), GAIN_KEYS[self.params.variant])
+        self.chatter = check_step(self, published, self.linear_gains(), "controller.kv or kz",
+                                  "controller.c0, psi_b, or raise delta")
+
+    def headline(self) -> str | None:
+        return f"the controller: {self.chatter}" if self.chatter else None
 
     def reset(self, ports: Ports) -> None:
         p, n = self.params, self.context.links

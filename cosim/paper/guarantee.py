@@ -212,13 +212,26 @@ def undeclared_differences(parameters: Mapping[str, float], chain, uncertainty: 
             out.append(f"{name}[{i}] = {value:g} {unit} (nominal {nominal:g}"
                        + (f" ± {declared:g}): {what} beyond uncertainty.{key}" if declared
                           else f"): {what} is not declared uncertain (uncertainty.{key})"))
-    for i in range(1, links + 1):
+    for i in range(1, links + 1):  # a URDF arm's fc_vel[i], the planar arm's one fc_vel
         coulomb = float(parameters.get(f"fc[{i}]", 0.0))
-        smoothing = float(parameters.get(f"fc_vel[{i}]", table[COULOMB_VELOCITY, i - 1]))
+        key = f"fc_vel[{i}]" if f"fc_vel[{i}]" in parameters else "fc_vel"
         nominal = table[COULOMB_VELOCITY, i - 1]
+        smoothing = float(parameters.get(key, nominal))
         if (coulomb or table[COULOMB, i - 1]) and abs(smoothing - nominal) > PARAMETER_TOLERANCE:
-            out.append(f"fc_vel[{i}] = {smoothing:g} rad/s (the nominal model's {nominal:g} "
-                       "rad/s, inertia_model.fc_vel): another Coulomb friction law")
+            named = f"{key} = {smoothing:g} rad/s (the nominal model's {nominal:g} rad/s, "
+            if named not in "".join(out):  # the planar arm's one value, named once
+                out.append(f"{named}inertia_model.fc_vel): another Coulomb friction law")
+    return out + disturbance_differences(parameters, uncertainty, tau_d_model, links)
+
+
+def disturbance_differences(parameters: Mapping[str, float], uncertainty: Uncertainty,
+                            tau_d_model: np.ndarray | None, links: int,
+                            key: str | None = None) -> list[str]:
+    """Per joint, the plant's disturbance error |τ_d − τ_d,model| + |tau_d_amp| beyond
+    ``uncertainty.disturbance``, named; ``key``: the block's key whose model it is, for a
+    model other than the filter's own (the observer's, whose bound ε(t) the margins rest
+    on)."""
+    out = []
     model = np.broadcast_to(np.asarray(0.0 if tau_d_model is None else tau_d_model, float),
                             (links,))
     for i in range(1, links + 1):
@@ -227,13 +240,18 @@ def undeclared_differences(parameters: Mapping[str, float], chain, uncertainty: 
         error = abs(constant) + abs(amplitude)
         if error <= uncertainty.disturbance + PARAMETER_TOLERANCE:
             continue
-        named = [*([f"tau_d[{i}] = {constant + model[i - 1]:g} N·m (model "
+        whose = "model" if key is None else key
+        named = [*([f"tau_d[{i}] = {constant + model[i - 1]:g} N·m ({whose} "
                     f"{model[i - 1]:g} N·m)"] if abs(constant) > PARAMETER_TOLERANCE else []),
                  *([f"tau_d_amp[{i}] = {amplitude:g} N·m at tau_d_freq[{i}] = "
                     f"{float(parameters.get(f'tau_d_freq[{i}]', math.nan)):g} Hz (nominal 0)"]
                    if abs(amplitude) > PARAMETER_TOLERANCE else [])]
+        consequence = ("" if key is None else
+                       f"; the bound ε(t) on the velocity's estimate, which the filter's "
+                       f"margins rest on, assumes {key}")
         out.append(f"{', '.join(named)}: a disturbance error up to {error:g} N·m on joint {i} "
-                   f"> the declared {uncertainty.disturbance:g} N·m (uncertainty.disturbance)")
+                   f"> the declared {uncertainty.disturbance:g} N·m (uncertainty.disturbance)"
+                   f"{consequence}")
     return out
 
 
@@ -557,6 +575,12 @@ class Guarantee(Part):
         model = self.given.get("nominal_model")
         other += undeclared_differences(parameters, chain, uncertainty, tau_d, trace.links,
                                         getattr(model, "friction", None))
+        observer = self.given.get(OBSERVER_TAU_D)
+        if assumes is not None and observer is not None \
+                and not np.array_equal(np.asarray(observer), np.asarray(assumes.tau_d)):
+            # the filter has a disturbance model of its own: the observer's is compared too
+            other += disturbance_differences(parameters, uncertainty, observer, trace.links,
+                                             "observer.tau_d")
         if chain is None and "nominal_urdf" in self.given:  # no parameters to compare
             difference = plant_model_difference(trace, self.given.get("nominal_model"),
                                                 payload)

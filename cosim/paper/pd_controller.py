@@ -132,7 +132,7 @@ class PdController(Block):
                            difference=p.velocity == "finite_difference")
 
     def check(self, published) -> None:
-        check_step(self, published, self.linear_gains(), "pd_controller.kp, kd")
+        check_step(self, published, self.linear_gains(), "pd_controller.kp or kd")
 
     def reset(self, ports: Ports) -> None:
         p, n = self.params, self.context.links

@@ -19,9 +19,10 @@ and a velocity read as the measured position's backward difference adds the prev
 error to the state. The loop is stable at q if Φ's spectral radius is below 1. The check
 takes q along the reference (what the run visits) and the plant's inertia M at both ends of
 the declared payload range (the light end is the stiff one); the controller's linear gains
-are its largest, at r̂ = 0 (each controller's ``linear_gains``). The observer's error
-dynamics are its own (the separation of a linear observer and controller; its sub-steps
-keep it stable), so the velocity is taken as known. SI units, radians.
+are the feedback that grows with the error (each controller's ``linear_gains``: a bounded
+term, the paper's smooth sign, cannot make the loop diverge). The observer's error dynamics
+are its own (the separation of a linear observer and controller; its sub-steps keep it
+stable), so the velocity is taken as known. SI units, radians.
 """
 
 from __future__ import annotations
@@ -47,6 +48,18 @@ class LinearGains:
     velocity: np.ndarray
     inertia_scaled: bool = False
     difference: bool = False  # ė from (y_k − y_k−1)/h
+    # a bounded term's gain near the reference, on r̂ = ė + Λe, per joint (the paper's
+    # smooth sign and ψ_B terms: at most a fixed torque, so they cannot make the loop
+    # diverge, only chatter), with its Λ; none for a controller without one
+    bounded: np.ndarray | None = None
+    bounded_lambda: np.ndarray | None = None
+
+    def with_bounded(self) -> LinearGains:
+        """The small-signal feedback, the bounded term's gain added."""
+        if self.bounded is None:
+            return self
+        return LinearGains(self.position + self.bounded_lambda * self.bounded,
+                           self.velocity + self.bounded, self.inertia_scaled, self.difference)
 
 
 @dataclass(frozen=True)
@@ -165,38 +178,59 @@ def reference_positions(reference, duration: float,
 
 
 def check_step(block, published: Mapping[str, object], gains: LinearGains,
-               keys: str) -> None:
+               keys: str, bounded_keys: str = "") -> str | None:
     """Refuse (:class:`PipelineError`) a controller ``block`` whose sampled loop is unstable
     at the master step anywhere along the reference (the constant ``reference_trajectory``)
     for the nominal model's inertia (``nominal_model``) at either end of the declared
     payload range, naming the joint, its inertia and the largest stable step; ``keys``:
-    the gains that set its feedback. Without the model or the reference: nothing to check."""
+    the gains that set its feedback ("controller.kv or kz"). Where only its bounded terms
+    (``gains.bounded``, set by ``bounded_keys``) make the small-signal loop unstable, the
+    run goes on (they cannot make it diverge) and what it will do is returned, to be said
+    as the run starts. Without the model or the reference: nothing to check (None)."""
     model = published.get("nominal_model")
     reference = published.get("reference_trajectory")
     if model is None or reference is None:
-        return
+        return None
     context = block.context
     low, high = map(float, context.uncertainty.payload)
     loop = cases(model, reference_positions(reference, context.duration),
                  sorted({low, high}), gains.inertia_scaled)
     worst = worst_case(loop, gains, context.dt)
+    if worst.radius >= 1.0:
+        raise PipelineError(
+            f"run '{context.run}': the {block.name}'s gains make its sampled loop unstable at "
+            + _unstable(published, loop, gains, worst, context.dt)
+            + f"; lower {keys} or the step{_scale_hint(block, gains)}")
+    small = gains.with_bounded()
+    worst = worst_case(loop, small, context.dt)
     if worst.radius < 1.0:
-        return
-    largest = largest_stable_step(loop, gains, context.dt)
+        return None
+    return (f"its bounded robust terms ({bounded_keys}) at r̂ = 0 make its sampled loop "
+            f"chatter about the reference at this step, "
+            + _unstable(published, loop, small, worst, context.dt)
+            + f"; they cannot make it diverge, but the chatter drives the NN's weights: "
+            f"lower {bounded_keys} or the step{_scale_hint(block, gains)}")
+
+
+def _unstable(published: Mapping[str, object], loop: Cases, gains: LinearGains,
+              worst: Worst, dt: float) -> str:
+    """Where a sampled loop is unstable and the step it needs, for a message."""
+    largest = largest_stable_step(loop, gains, dt)
     chain = published.get("nominal_urdf")
     name = f" ('{chain.joints[worst.joint]}')" if chain is not None else ""
     prismatic = chain is not None and int(chain.kind[worst.joint]) == 1
     where = ", ".join(f"{x:.3g}" for x in worst.q)
-    scale = ("" if gains.inertia_scaled else
-             f", or give {block.kind}.scale = \"inertia\" (gains in accelerations, scaled by "
-             "each joint's inertia)")
-    raise PipelineError(
-        f"run '{context.run}': the {block.name}'s gains make its sampled loop unstable at "
-        f"simulation.step = {context.dt * 1e3:g} ms (spectral radius {worst.radius:.3g} > 1): "
-        f"joint {worst.joint + 1}{name}, inertia {worst.inertia:.3g} "
-        f"{'kg' if prismatic else 'kg·m²'} at the reference's q = [{where}] rad with a "
-        f"payload of {worst.payload:g} kg, is stable up to a step of "
-        f"{largest * 1e3:.3g} ms; lower {keys} or the step{scale}")
+    return (f"simulation.step = {dt * 1e3:g} ms (spectral radius {worst.radius:.3g} > 1): "
+            f"joint {worst.joint + 1}{name}, inertia {worst.inertia:.3g} "
+            f"{'kg' if prismatic else 'kg·m²'} at the reference's q = [{where}] rad with a "
+            f"payload of {worst.payload:g} kg, is stable up to a step of "
+            f"{largest * 1e3:.3g} ms")
+
+
+def _scale_hint(block, gains: LinearGains) -> str:
+    return ("" if gains.inertia_scaled else
+            f", or give {block.kind}.scale = \"inertia\" (gains in accelerations, scaled by "
+            "each joint's inertia)")
 
 
 # The viscous friction the observer's certified bound can hold at a step: its velocity box
