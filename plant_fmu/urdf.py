@@ -216,8 +216,14 @@ def check_meshes(path: Path) -> None:
     _check_meshes(_load(path), path)
 
 
-def _check_meshes(robot, path: Path) -> None:
+def mesh_files(path: Path) -> list[Path]:
+    """The mesh files a URDF names, each checked as :func:`check_meshes` checks it."""
+    return _check_meshes(_load(path), path)
+
+
+def _check_meshes(robot, path: Path) -> list[Path]:
     home = urdf_home(path)
+    found_all = []
     for link in robot.links:
         for element, items in (("visual", link.visuals), ("collision", link.collisions)):
             for item in items:
@@ -235,6 +241,8 @@ def _check_meshes(robot, path: Path) -> None:
                         f"'{mesh.filename}'>: {exc}. The FMU ignores meshes for its dynamics, "
                         "but the 3-D view draws them: fix the path, or remove the "
                         "<mesh>") from None
+                found_all.append(found)
+    return found_all
 
 
 def _tree(robot, path: Path) -> tuple[dict, dict]:

@@ -17,7 +17,7 @@ import zipfile
 from pathlib import Path
 
 import pytest
-from cli_helpers import PAPER, assert_message, cosim_cli, error_line, signal_when
+from cli_helpers import PAPER, assert_message, cosim_cli, error_line, here, signal_when
 
 from plant_fmu import build_fmu
 
@@ -816,6 +816,15 @@ def test_record_when_every_row_failed_says_so(tmp_path):
     rows = pq_rows(out)
     assert len(rows) == 2 and all(r["status"] == "failed" for r in rows)
     assert not [p for p in out.iterdir() if p.name.startswith(("best_", "worst_"))]
+    # without --record, a sweep whose every row failed is no success either (it exited 0):
+    # the same sweep resumed (every point done, nothing runs) says so, exit 2
+    again = here("sweep", PAPER, "--resume", str(out), "--quiet", "--runs", "proposed",
+                 "--grid", "controller.kv=10,20", "--workers", "1", *SHORT, *LOW_GAIN_LAGGED)
+    assert_message(error_line(again), re.compile(
+        r"every row failed \(2 of 2; the first, point 0 run proposed: .+\); each row's "
+        r"error is in "
+        rf"{re.escape(str(out / 'results.csv'))}"))
+    assert "2 row(s) in" in again.stdout and "2 failed" in again.stdout
 
 
 def pq_rows(out: Path) -> list[dict]:

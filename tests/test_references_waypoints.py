@@ -9,6 +9,8 @@ O(1–100) numbers: 1e-9 relative to the quantity's scale (measured ≤ 2e-13)."
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
 from pathlib import Path
 
@@ -275,6 +277,12 @@ def test_a_csv_trajectory_runs_relative_to_its_pipeline_and_the_loop_reads_it(tm
                   engine="fused")
     trace = results["pd_full_state"].trace
     assert results["pd_full_state"].complete
+    # the run folder's provenance: each file the pipeline names, by key, with its digest
+    files = json.loads((tmp_path / "out" / "summary.json").read_text())["provenance"]["files"]
+    assert [(e["key"], e["path"], e["sha256"]) for e in files] == [
+        (key, str(path), hashlib.sha256(path.read_bytes()).hexdigest()) for key, path in sorted(
+            [("reference.csv", tmp_path / "data" / "pick.csv"), ("extends", Path(PD)),
+             ("the pipeline file", tmp_path / "user.toml")], key=lambda item: str(item[1]))]
     expected = reference.evaluate(trace.time)
     for key, want in zip(("q_d", "qdot_d", "qddot_d"), expected, strict=True):
         assert close(trace[key], want), key

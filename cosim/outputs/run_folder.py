@@ -80,20 +80,24 @@ class RunFolder:
         self._lock = lock_file
         self.files: dict[str, dict] = {}
         self.started = datetime.now(UTC).isoformat(timespec="seconds")
+        # the files the pipeline names, with their digests (cosim.config.named_files)
+        self.named_files: list[dict] = []
 
     @classmethod
-    def create(cls, path: str | Path, force: bool = False, keep: bool = False) -> RunFolder:
+    def create(cls, path: str | Path, force: bool = False, keep: bool = False,
+               option: str = "--out") -> RunFolder:
         """The folder at ``path``, locked: emptied (refused if it holds files, unless
-        ``force`` and they are cosim's), or, ``keep``, as it is (a sweep resumed there)."""
+        ``force`` and they are cosim's), or, ``keep``, as it is (a sweep resumed there).
+        ``option``: what named the folder, for messages."""
         path = Path(path)
         try:
             if path.exists() and not path.is_dir():
-                raise RunFolderError(f"--out {path}: is a file, not a folder; choose another "
-                                     "--out")
+                raise RunFolderError(f"{option} {path}: is a file, not a folder; choose "
+                                     "another --out")
             path.mkdir(parents=True, exist_ok=True)
             lock_file = (path / LOCK).open("a+")
         except OSError as exc:
-            raise RunFolderError(f"--out {path}: cannot create the run folder there: "
+            raise RunFolderError(f"{option} {path}: cannot create the run folder there: "
                                  f"{exc.strerror or exc}") from None
         try:
             fcntl.flock(lock_file, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -101,7 +105,7 @@ class RunFolder:
             lock_file.seek(0)
             owner = lock_file.read().strip() or "unknown"
             lock_file.close()
-            raise RunFolderError(f"--out {path}: another cosim run is writing this folder "
+            raise RunFolderError(f"{option} {path}: another cosim run is writing this folder "
                                  f"(pid {owner}); wait for it, or choose another --out") from None
         folder = cls(path, lock_file)
         if keep:
@@ -255,7 +259,8 @@ class RunFolder:
     def _provenance(self) -> dict:
         return {"command": list(sys.argv), "started": self.started,
                 "written": datetime.now(UTC).isoformat(timespec="seconds"),
-                "host": socket.gethostname(), "versions": package_versions()}
+                "host": socket.gethostname(), "versions": package_versions(),
+                **({"files": self.named_files} if self.named_files else {})}
 
     def _rewrite_in_place(self, name: str, text: str) -> None:
         """Overwrite the reserved file's own blocks (no new space needed on a full disk)."""
