@@ -214,3 +214,12 @@ def test_every_file_a_pipeline_names_is_listed_by_its_key(tmp_path):
                      str(urdf.parent / "meshes" / "block.stl"): "a <mesh> of plant.urdf",
                      str(tmp_path / "traj.csv"): "runs.a.reference.csv"}
     assert [e["sha256"] for e in file_digests(named)] == [digest(Path(p)) for p in sorted(named)]
+
+
+def test_compare_of_a_sweep_folder_says_it_is_one(swept):
+    """It said "not a cosim run folder (no summary.json with runs)" of a sweep's folder."""
+    folder = swept[0] / "sweep"
+    assert_message(error_line(here("compare", str(folder), str(folder))), (
+        f"A {folder}: a sweep's folder, not a run folder; compare two run folders (a sweep's "
+        "--record writes its best and worst points' run folders), or read the sweep's "
+        "results.parquet"))
