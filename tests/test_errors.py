@@ -853,6 +853,26 @@ def test_a_worker_killed_by_its_plant_leaves_failed_rows_named_by_run(tmp_path):
     assert all(r["status"] == "failed" for r in rows)
 
 
+def test_an_inherited_supervisor_note_is_not_written_by_a_cosim_it_does_not_own(tmp_path):
+    """COSIM_SUPERVISED=1 and COSIM_RUN_NOTE naming a user's file, inherited by a cosim that
+    no supervisor started (a nested cosim, a user's shell): the file was overwritten with the
+    run's note and a .fault file made beside it. Only the run process of a supervisor (its
+    parent's pid in COSIM_SUPERVISED) writes the note, and only the one the supervisor made."""
+    note = tmp_path / "notes.txt"
+    note.write_text("the user's notes\n")
+    (tmp_path / "blocks.py").write_text("# no blocks\n")
+    pipeline = tmp_path / "p.toml"
+    pipeline.write_text(f'extends = "{Path(PAPER).resolve()}"\nplugins = ["blocks.py"]\n')
+    done = subprocess.run([sys.executable, "-m", "cosim.cli", "run", str(pipeline),
+                           "--dry-run", *SHORT], capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "COSIM_SUPERVISED": "1",
+                               "COSIM_RUN_NOTE": str(note)})
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert f"cosim: importing plugin {tmp_path / 'blocks.py'}" in done.stderr  # (it told)
+    assert note.read_text() == "the user's notes\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["blocks.py", "notes.txt", "p.toml"]
+
+
 def test_the_run_process_ends_when_its_supervisor_is_killed(tmp_path):
     """SIGKILL to `cosim run` (the thin supervisor) must not orphan the process that runs:
     it notices within a second, ends as on SIGTERM and leaves a true summary."""
