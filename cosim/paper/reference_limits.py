@@ -10,6 +10,7 @@ finds those roots per segment. Other references are checked on a 0.1 ms grid.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,13 +40,22 @@ class JointLimits:
             raise ValueError(f"joint limits of different lengths: {sorted(sizes)}")
 
 
-def safe_set_limits(safety: Safety, q_s: np.ndarray, qdot_s: np.ndarray) -> JointLimits:
+def safe_set_limits(safety: Safety, q_s: np.ndarray, qdot_s: np.ndarray,
+                    centred: str = "") -> JointLimits:
     """The pipeline's safe sets as joint limits: |q − q_s| ≤ position_bound and
-    |q̇ − q̇_s| ≤ velocity_bound, per joint."""
+    |q̇ − q̇_s| ≤ velocity_bound, per joint; ``centred``: where the centres come from, when
+    not given (said in the message: a centre the reference itself moves explains a limit
+    the reference leaves where it is at rest)."""
     alpha, beta = safety.position_bound, safety.velocity_bound
+    centres = (f"; q_s = {_shown(q_s)} rad, q̇_s = {_shown(qdot_s)} rad/s, {centred}"
+               if centred else "")
     return JointLimits(q_s - alpha, q_s + alpha, np.full(len(q_s), beta), np.asarray(qdot_s),
                        f"the safe sets: |q − q_s| ≤ safety.position_bound = {alpha:g} rad, "
-                       f"|q̇ − q̇_s| ≤ safety.velocity_bound = {beta:g} rad/s")
+                       f"|q̇ − q̇_s| ≤ safety.velocity_bound = {beta:g} rad/s{centres}")
+
+
+def _shown(values: np.ndarray) -> str:
+    return "[" + ", ".join(f"{v:.6g}" for v in values) + "]"
 
 
 @dataclass(frozen=True)
@@ -98,11 +108,13 @@ def breaches(reference, limits: JointLimits, end: float) -> list[Breach]:
     return sorted(found, key=lambda b: (b.t, b.joint))
 
 
+@functools.lru_cache(maxsize=8)  # joints × trajectories: a few of each at a time
 def _candidate_times(reference: Trajectory, j: int, end: float) -> np.ndarray:
     """Where joint j's position or speed can be extreme on [0, end]: the knots, the roots of
-    q̇_d and of q̈_d, and ``end``."""
-    roots = [reference.joint(j, order).roots(extrapolate=False) for order in (1, 2)]
-    t = np.concatenate([reference.knots, *roots, [end]])
+    q̇_d and of q̈_d, and ``end``. Found once per trajectory (every run of a pipeline checks
+    the same one against its own limits: SciPy takes ~6 µs a segment)."""
+    roots = [reference.joint(j, order, until=end).roots(extrapolate=False) for order in (1, 2)]
+    t = np.concatenate([reference.knots[reference.knots <= end], *roots, [end]])
     t = t[np.isfinite(t) & (t >= 0.0) & (t <= end)]
     return np.unique(t)
 
