@@ -12,7 +12,7 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import Field, model_validator
 
-from .schema import FiniteFloat, NonNegativeFloat, PipelineError, PositiveFloat, Section
+from .schema import FileName, FiniteFloat, NonNegativeFloat, PipelineError, PositiveFloat, Section
 
 
 class Safety(Section):
@@ -45,7 +45,7 @@ class Safety(Section):
     # the robot whose joint limits are the safe sets (limits = "urdf"), its chain from
     # ``urdf_base`` to ``urdf_tip`` as inertia_model.urdf reads it: a URDF file relative to
     # the pipeline file (to where cosim runs when given by --set) or package://…, a path
-    urdf: str | None = None
+    urdf: FileName | None = None
     urdf_base: str | None = None  # the limits' URDF's base link (a name)
     urdf_tip: str | None = None  # the limits' URDF's tip link (a name)
     # joints of the limits' URDF held at a value (rad or m), as plant.urdf.fixed holds them:

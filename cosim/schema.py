@@ -12,6 +12,8 @@ from pydantic import BaseModel, ConfigDict, Field, Strict
 PositiveFloat = Annotated[float, Strict(), Field(gt=0, allow_inf_nan=False)]
 NonNegativeFloat = Annotated[float, Strict(), Field(ge=0, allow_inf_nan=False)]
 FiniteFloat = Annotated[float, Strict(), Field(allow_inf_nan=False)]
+# A file's name: never empty (an empty path is the folder it is relative to, not a file)
+FileName = Annotated[str, Field(min_length=1)]
 Seed = Annotated[int, Field(ge=0)]  # numpy's generators take non-negative seeds only
 GainVector = PositiveFloat | list[PositiveFloat]  # one value for every joint, or one each
 

@@ -59,7 +59,7 @@ def read_toml(path: Path, chain: tuple[Path, ...] = (), read: list[Path] | None 
     for table in urdf_tables(data):  # safety.urdf, inertia_model.urdf: relative to this file
         table["urdf"] = urdf_relative_to(table["urdf"], path.parent)
     plant = data.get("plant")
-    if isinstance(plant, dict) and isinstance(plant.get("fmu"), str):
+    if isinstance(plant, dict) and isinstance(plant.get("fmu"), str) and plant["fmu"]:
         fmu = Path(plant["fmu"]).expanduser()
         plant["fmu"] = str(fmu if fmu.is_absolute() else (path.parent / fmu).resolve())
     if isinstance(plant, dict) and "urdf" in plant:
@@ -96,7 +96,8 @@ def reference_tables(data: dict) -> list[dict]:
     tables = [data.get("reference"),
               *(run.get("reference") for run in (runs.values() if isinstance(runs, dict)
                                                  else ()) if isinstance(run, dict))]
-    return [t for t in tables if isinstance(t, dict) and isinstance(t.get("csv"), str)]
+    return [t for t in tables if isinstance(t, dict) and isinstance(t.get("csv"), str)
+            and t["csv"]]  # (an empty name is left for the schema to refuse)
 
 
 def urdf_tables(data: dict) -> list[dict]:
@@ -107,7 +108,8 @@ def urdf_tables(data: dict) -> list[dict]:
     scopes = [data, *(run for run in (runs.values() if isinstance(runs, dict) else ())
                       if isinstance(run, dict))]
     tables = [scope.get(key) for scope in scopes for key in ("safety", "inertia_model")]
-    return [t for t in tables if isinstance(t, dict) and isinstance(t.get("urdf"), str)]
+    return [t for t in tables if isinstance(t, dict) and isinstance(t.get("urdf"), str)
+            and t["urdf"]]
 
 
 def absolute(name: str, folder: Path) -> Path:
@@ -121,7 +123,7 @@ def urdf_relative_to(urdf, folder: Path):
     from ``folder``; a package:// or file:// address as is; anything else as is (the schema
     says what is wrong with it)."""
     file = urdf.get("file") if isinstance(urdf, dict) else urdf
-    if not isinstance(file, str) or "://" in file:
+    if not isinstance(file, str) or "://" in file or not file:
         return urdf
     path = Path(file).expanduser()
     file = str(path if path.is_absolute() else (folder / path).resolve())

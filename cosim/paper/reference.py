@@ -14,7 +14,14 @@ from pydantic import Field, model_validator
 
 from ..blocks.base import Block, BlockContext, Ports, register_block
 from ..declared import joint_boxes
-from ..schema import FiniteFloat, NonNegativeFloat, PipelineError, PositiveFloat, Section
+from ..schema import (
+    FileName,
+    FiniteFloat,
+    NonNegativeFloat,
+    PipelineError,
+    PositiveFloat,
+    Section,
+)
 from ..signals import Signal
 from .reference_limits import JointLimits, breaches, refusal, safe_set_limits
 from .trajectory import SegmentOverflow, Trajectory, minimum_jerk
@@ -80,7 +87,7 @@ class ReferenceParams(Section):
     # a CSV trajectory: rows of t, q_1…q_n, optionally q̇_1…q̇_n and q̈_1…q̈_n (s, rad,
     # rad/s, rad/s²), joined by quintic segments; relative to the pipeline file; given, it
     # replaces the sinusoids, a path
-    csv: str | None = None
+    csv: FileName | None = None
     # a reference that leaves a joint's limits (today the safe sets per joint, |q_d − q_s| ≤
     # safety.position_bound and |q̇_d − q̇_s| ≤ safety.velocity_bound), a name: "refuse" it
     # before the run, naming the joint, time and value; "report" it (summary.json lists it,
