@@ -182,8 +182,10 @@ def joint_boxes(safety: Safety, n: int) -> JointBoxes | None:
         raise PipelineError(f"safety.position_margin = {safety.position_margin:g} rad leaves "
                             f"joint {bad} no room between its position limits")
     if not np.all(np.isfinite(values["velocity_limit"])):
-        raise PipelineError("safety.limits = \"urdf\": a joint has no velocity limit in the "
-                            "URDF; give safety.velocity_limit per joint, rad/s")
+        bad = int(np.flatnonzero(~np.isfinite(values["velocity_limit"]))[0])
+        name = f" ({joints[bad]}, <limit velocity> none or 0)" if safety.urdf is not None else ""
+        raise PipelineError(f"safety.limits = \"urdf\": joint {bad + 1}{name} has no velocity "
+                            "limit in the URDF; give safety.velocity_limit per joint, rad/s")
     return JointBoxes(0.5 * (lower + upper), 0.5 * (upper - lower), np.zeros(n),
                       values["velocity_limit"], values["effort_limit"], source)
 

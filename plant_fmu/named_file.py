@@ -78,3 +78,10 @@ def sha256(path: str | os.PathLike) -> tuple[str, int]:
         except OSError as exc:
             raise NotAFile(f"{path} cannot be read ({exc.strerror or exc})") from None
     return digest.hexdigest(), size
+
+
+def read_text(path: str | os.PathLike, encoding: str = "utf-8") -> str:
+    """The text of the regular file at ``path`` (:func:`open_regular`: a named pipe in a
+    folder cosim reads, a summary.json or sweep.json, is :class:`NotAFile`, not a hang)."""
+    with open_regular(path) as f:
+        return f.read().decode(encoding)

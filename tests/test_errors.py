@@ -746,6 +746,30 @@ def test_a_scheduler_address_that_is_not_dask_fails_in_bounded_time(banner, tmp_
     assert not (tmp_path / "out" / ".cosim.lock").exists()
 
 
+def test_a_sweep_whose_scheduler_never_answered_says_so_and_how_to_go_on(tmp_path):
+    """Something that answers in another protocol (its banner read as a message length):
+    "no Dask scheduler answered there (MemoryError: Unable to allocate 2.8 EiB …)". The
+    folder it leaves (its summary says why) was refused by the same command again as "an
+    incomplete run folder of ?"; now named a sweep's, with --resume offered."""
+    port, stop = _server(b"SSH-2.0-OpenSSH_9.2p1 Debian-2\r\n" * 4)
+    out = tmp_path / "out"
+    command = ["sweep", PAPER, "--out", str(out), "--scheduler", f"tcp://127.0.0.1:{port}",
+               "--grid", "controller.kv=10,20", *SHORT]
+    try:
+        first, again = here(*command), here(*command)
+    finally:
+        stop()
+    assert_message(error_line(first), re.compile(
+        rf"--scheduler tcp://127\.0\.0\.1:{port}: no Dask scheduler answered there "
+        r"\(something answered, but not in Dask's protocol: its first bytes, read as a "
+        r"message's length, asked for [\d.]+ EiB\)"))
+    assert_message(error_line(again), re.compile(
+        rf"--out {re.escape(str(out))}: already holds 3 files \(an incomplete sweep folder "
+        r"started \d{4}-\d\d-\d\dT[\d:]{8}\+00:00, 0 row\(s\) in its journal\); pass --force "
+        rf"to replace them, `cosim sweep … --resume {re.escape(str(out))}` to go on with it, "
+        r"or choose another --out"))
+
+
 def test_a_finished_sweeps_summary_says_complete(tmp_path):
     out = tmp_path / "sweep"
     done = cosim_cli("sweep", PAPER, "--out", str(out), "--quiet", "--grid",
@@ -941,6 +965,11 @@ def test_without_out_every_run_gets_a_new_folder_and_latest_points_to_it(tmp_pat
     (base / "latest").write_text("the user's own")
     done = subprocess.run(args, cwd=tmp_path, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0 and (base / "latest").read_text() == "the user's own"
+    # ... and said: `cosim view runs/NAME/latest` would show the user's thing, not this run
+    third = done.stdout.split("run folder: ")[1].split()[0]
+    assert "cosim: warning: runs/paper_two_link/latest is a file cosim did not make, so it " \
+        "was left as it is and does not lead to this run: view this one with cosim view " \
+        f"{third}\n" in done.stderr
 
 
 def test_a_cold_kernel_cache_is_announced_not_silent(tmp_path):

@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from plant_fmu.named_file import not_a_file
+from plant_fmu.named_file import not_a_file, read_text
 
 from ..config.sections import check_name
 from ..evaluate.checks import VERDICT_KINDS, Kind, is_left, kind, unit
@@ -46,14 +46,11 @@ def _summary(folder: Path, label: str) -> dict:
     JSON, and a sweep's folder are each named as such."""
     where = f"{label} {folder}"
     path = folder / "summary.json"
-    why = not_a_file(path) if folder.is_dir() else "does not exist"
-    if why == "does not exist":
+    if not folder.is_dir() or not_a_file(path) == "does not exist":
         raise CompareError(f"{where}: not a cosim run folder (no summary.json with runs); "
                            "give folders `cosim run --out` wrote")
     try:
-        if why is not None:
-            raise OSError(why)
-        document = json.loads(path.read_text(encoding="utf-8"))
+        document = json.loads(read_text(path))
     except (OSError, ValueError) as exc:
         why = f"not JSON: {exc}" if isinstance(exc, ValueError) else str(exc)
         raise CompareError(f"{where}: its summary.json cannot be read ({why}); give folders "

@@ -14,6 +14,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from plant_fmu.named_file import read_text
+
 from ..config import PipelineError, load_pipeline
 from ..config.params import key_units
 from ..evaluate.reports import SWEEP_REPORTS
@@ -238,7 +240,7 @@ def _open_folder(out: Path, start: dict, args: argparse.Namespace, all_points: l
 
 def _previous_files(out: Path) -> dict:
     try:
-        return json.loads((out / "summary.json").read_text()).get("files") or {}
+        return json.loads(read_text(out / "summary.json")).get("files") or {}
     except (OSError, ValueError, AttributeError):
         return {}
 

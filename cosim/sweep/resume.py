@@ -9,6 +9,8 @@ import json
 import sys
 from pathlib import Path
 
+from plant_fmu.named_file import read_text
+
 from ..config import load_pipeline
 from ..config.named_files import changed_files
 from ..outputs.run_folder import jsonable
@@ -32,7 +34,7 @@ def identity(spec: SweepSpec, total_points: int, files: list[dict]) -> dict:
 def stored_identity(folder: Path) -> dict:
     """The identity DIR/sweep.json holds, or :class:`SweepError` saying why there is none."""
     try:
-        document = json.loads((folder / SPEC_FILE).read_text(encoding="utf-8"))
+        document = json.loads(read_text(folder / SPEC_FILE))
     except FileNotFoundError:
         raise SweepError(f"--resume {folder}: no sweep was started there (no {SPEC_FILE}); "
                          "give the folder of an earlier cosim sweep") from None
