@@ -358,3 +358,25 @@ def test_compare_counts_a_check_of_one_side_only(folders, tmp_path):
     assert gone.returncode == 1, gone.stderr
     assert json.loads(gone.stdout)["regressions"] == [
         f"proposed/{check}: checked in A ({shown}), not in B (-)"]
+
+
+def test_compare_reads_no_trace_entry_larger_than_its_run(folders, tmp_path):
+    """A trace's check values are read to verify the summary (a new reader of a shared
+    folder's files): an entry larger than the run's rows is refused before it is read."""
+    import shutil
+    import zipfile
+
+    a, _ = folders
+    b = tmp_path / "b"
+    shutil.copytree(a, b)
+    with np.load(b / "trace_proposed.npz") as data:
+        arrays = {key: data[key] for key in data.files}
+    arrays["check_error_joint1"] = np.tile(arrays["check_error_joint1"], 1000)
+    np.savez(b / "trace_proposed.npz", **arrays)
+    with zipfile.ZipFile(b / "trace_proposed.npz") as archive:
+        size = archive.getinfo("check_error_joint1.npy").file_size
+    from cli_helpers import assert_message, error_line, here
+
+    assert_message(error_line(here("compare", str(a), str(b))), re.compile(
+        rf"B {re.escape(str(b))}: trace_proposed\.npz's check_error_joint1 cannot be read "
+        rf"\(it says it holds {size} bytes, more than the run's rows take \(\d+\)\)"))

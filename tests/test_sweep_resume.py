@@ -135,6 +135,19 @@ def test_a_damaged_journal_is_refused_naming_the_line_and_nothing_is_touched(swe
     assert json.loads((copy / "summary.json").read_text())["status"] == "complete"
 
 
+def test_a_journal_line_no_row_could_be_is_refused_unread(swept, copy):
+    """A line of 65 MiB (no newline in it) was read whole into memory, then failed to parse."""
+    _, command = swept
+    with (copy / "rows.jsonl").open("ab") as journal:
+        journal.write(b"x" * (65 * 2**20) + b"\n")
+    before = tree(copy)
+    assert_message(error_line(here(*command, "--resume", str(copy))),
+                   f"--resume {copy}: {copy / 'rows.jsonl'} holds a line longer than 64 MiB "
+                   "(line 3), which no row is; nothing was run: remove it and resume (its "
+                   "point is then run again), or start a new sweep in another --out")
+    assert tree(copy) == before
+
+
 @pytest.mark.parametrize("kind", ["named pipe", "link"])
 def test_a_journal_that_is_not_a_file_is_refused_without_blocking(swept, copy, tmp_path,
                                                                    kind):

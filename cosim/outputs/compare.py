@@ -96,12 +96,19 @@ def _verified(folder: Path, label: str, summary: dict) -> None:
         if done is not None and not _number(done):
             raise CompareError(f"{where} runs.{name}.metrics.simulated_time_s = "
                                f"{json.dumps(done)[:40]} is not a number")
-        trace = _TraceChecks(folder, label, name) if safety else None
-        for check, entry in (safety or {}).items():
-            _check_verified(f"{where} runs.{name}.safety.{check}", entry, trace, check)
+        if not safety:
+            continue
+        rows = (round(simulation["duration"] / simulation["step"]) + 1
+                if simulation.get("duration") and simulation.get("step") else None)
+        trace = _TraceChecks(folder, label, name, rows)
+        try:
+            for check, entry in safety.items():
+                _check_verified(f"{where} runs.{name}.safety.{check}", entry, trace, check)
+        finally:
+            trace.close()
 
 
-def _check_verified(key: str, entry: object, trace: _TraceChecks | None, check: str) -> None:
+def _check_verified(key: str, entry: object, trace: _TraceChecks, check: str) -> None:
     """One check's entry against itself and its trace (see :func:`_verified`)."""
     if not isinstance(entry, dict):
         raise CompareError(f"{key} is not a check's table")
@@ -130,8 +137,6 @@ def _check_verified(key: str, entry: object, trace: _TraceChecks | None, check: 
                               f"{worst}{u} is {'within' if held else 'beyond'} its bound "
                               f"{bound}{u}")
                            + "; a summary.json edited or damaged is not judged")
-    if trace is None:
-        return
     values = trace.values(check, key)
     known = values[np.isfinite(values)]
     traced_worst = float(np.max(np.abs(known))) if known.size else None
@@ -145,11 +150,14 @@ def _check_verified(key: str, entry: object, trace: _TraceChecks | None, check: 
 
 
 class _TraceChecks:
-    """The check values of a run's trace file, read as they are asked for."""
+    """The check values of a run's trace file, read as they are asked for, each at most
+    ``rows`` long (the run's steps + 1; None: unknown): an entry that says it is larger is
+    refused before it is read (a shared folder's trace could declare terabytes)."""
 
-    def __init__(self, folder: Path, label: str, run: str):
+    def __init__(self, folder: Path, label: str, run: str, rows: int | None):
         self.path = folder / f"trace_{run}.npz"
         self.where = f"{label} {folder}"
+        self.largest = NPY_HEADER + 8 * rows if rows is not None else None
         why = not_a_file(self.path)
         if why is not None:
             raise CompareError(f"{self.where}: {self.path.name} {why}, so the checks of run "
@@ -167,10 +175,20 @@ class _TraceChecks:
             raise CompareError(f"{key} has no values in {self.path.name} (no {entry}): the "
                                "summary names a check its trace does not hold")
         try:
+            size = self.archive.zip.getinfo(f"{entry}.npy").file_size
+            if self.largest is not None and size > self.largest:
+                raise ValueError(f"it says it holds {size} bytes, more than the run's rows "
+                                 f"take ({self.largest})")
             return np.asarray(self.archive[entry], float)
-        except (OSError, ValueError) as exc:
+        except (OSError, ValueError, KeyError) as exc:
             raise CompareError(f"{self.where}: {self.path.name}'s {entry} cannot be read "
                                f"({exc})") from None
+
+    def close(self) -> None:
+        self.archive.close()
+
+
+NPY_HEADER = 4096  # bytes: an .npy entry's header is 128 (at most a few kB), then its values
 
 
 def verdict(entry: dict | None) -> str:

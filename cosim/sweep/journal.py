@@ -32,6 +32,7 @@ if TYPE_CHECKING:
 
 JOURNAL = "rows.jsonl"
 CHUNK = 256  # rows a chunk when reading back: as dicts, ~15 kB a row of 200 columns
+LONGEST_LINE = 64 * 2**20  # bytes: a row of thousands of columns is well below
 
 
 class Journal:
@@ -94,7 +95,14 @@ def _lines(path: Path) -> Iterator[tuple[int, bytes]]:
     with os.fdopen(fd, "rb") as f:
         if not stat.S_ISREG(os.fstat(fd).st_mode):
             raise _not_rows(path, not_a_file(path) or "is not a regular file")
-        for number, line in enumerate(f, start=1):
+        number = 0
+        while line := f.readline(LONGEST_LINE + 1):
+            number += 1
+            if len(line) > LONGEST_LINE:  # not a row: read no more of it into memory
+                raise SweepError(f"{path} holds a line longer than {LONGEST_LINE // 2**20} "
+                                 f"MiB (line {number}), which no row is; nothing was run: "
+                                 "remove it and resume (its point is then run again), or "
+                                 "start a new sweep in another --out")
             if not line.endswith(b"\n"):
                 return
             yield number, line
