@@ -100,15 +100,15 @@ def test_a_named_pipe_for_summary_json_hangs_no_command(tmp_path):
                    f"--out {folder}: --force replaces only what cosim wrote, and this folder "
                    "holds 1 entry it did not write (summary.json); nothing was deleted: choose "
                    "another --out, or remove them yourself")
-    assert_message(error_line(here("view", str(folder))),
-                   f"{folder} has no recording.rrd (was it run with --no-recording?)")
-    assert_message(error_line(here("export", str(folder))),
-                   f"{folder}: not a cosim run folder (no summary.json of ours); give the "
-                   "folder `cosim run --out` wrote")
-    assert_message(error_line(here("compare", str(folder), str(folder))),
-                   f"A {folder}: its summary.json cannot be read ({folder / 'summary.json'} "
-                   "is a named pipe (FIFO), not a file); give folders `cosim run --out` wrote, "
-                   "as it wrote them")
+    for command, expected in (
+            (["view"], f"{folder} has no recording.rrd (was it run with --no-recording?)"),
+            (["export"], f"{folder}: not a cosim run folder (no summary.json of ours); give "
+                         "the folder `cosim run --out` wrote"),
+            (["compare", str(folder)], f"A {folder}: its summary.json cannot be read "
+                                       f"({folder / 'summary.json'} is a named pipe (FIFO), "
+                                       "not a file); give folders `cosim run --out` wrote, as "
+                                       "it wrote them")):
+        assert_message(error_line(here(command[0], str(folder), *command[1:])), expected)
     assert tree(tmp_path) == before
 
 
@@ -135,14 +135,12 @@ def test_an_edited_summarys_run_name_leads_nowhere_outside_the_folder(finished, 
     shutil.copy(folder / "trace_pd_full_state.npz", folder / "trace_.." / "x.npz")
     (folder / "export_..").mkdir()
     before = tree(tmp_path)
+    rule = ("run name '../x': use up to 64 letters, digits, '_', '-' and '.', starting with a "
+            "letter or digit (it names files and recording entities)")
     assert_message(error_line(here("export", str(folder), "--format", "csv")),
-                   f"{folder}: its summary.json names the run name '../x': use up to 64 "
-                   "letters, digits, '_', '-' and '.', starting with a letter or digit (it "
-                   "names files and recording entities)")
+                   f"{folder}: its summary.json names the {rule}")
     assert_message(error_line(here("compare", str(finished), str(folder))),
-                   f"B {folder}: summary.json's runs: run name '../x': use up to 64 letters, "
-                   "digits, '_', '-' and '.', starting with a letter or digit (it names files "
-                   "and recording entities)")
+                   f"B {folder}: summary.json's runs: {rule}")
     assert tree(tmp_path) == before
 
 

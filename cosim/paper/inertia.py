@@ -46,14 +46,7 @@ from ..dynamics.planar import (  # noqa: F401  (re-exported: the planar chain's 
     planar_bias,
     planar_mass_matrix,
 )
-from ..schema import (
-    FileName,
-    FiniteFloat,
-    NonNegativeFloat,
-    PipelineError,
-    PositiveFloat,
-    Section,
-)
+from ..schema import FileName, FiniteFloat, NonNegativeFloat, PipelineError, PositiveFloat, Section
 from ..signals import Signal
 
 

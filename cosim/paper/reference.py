@@ -14,14 +14,7 @@ from pydantic import Field, model_validator
 
 from ..blocks.base import Block, BlockContext, Ports, register_block
 from ..declared import joint_boxes
-from ..schema import (
-    FileName,
-    FiniteFloat,
-    NonNegativeFloat,
-    PipelineError,
-    PositiveFloat,
-    Section,
-)
+from ..schema import FileName, FiniteFloat, NonNegativeFloat, PipelineError, PositiveFloat, Section
 from ..signals import Signal
 from .reference_limits import JointLimits, breaches, refusal, safe_set_limits
 from .trajectory import SegmentOverflow, Trajectory, minimum_jerk
