@@ -233,14 +233,14 @@ OWNERS = ("link", "joint", "material")  # what a message names an element by
 
 
 def _check_xacro(root, path: Path) -> None:
-    """Refuse a xacro file (macros, properties, ${…}): it is a program that makes a URDF,
-    read here as the URDF it is not (a link its macro would make "undefined")."""
+    """Refuse a xacro file (its <xacro:…> elements: macros, properties, includes): it is a
+    program that makes a URDF, read here as the URDF it is not (a link its macro would make
+    "undefined"). The namespace alone is no xacro: URDFs xacro made keep declaring it."""
     element = next((e for e in root.iter() if isinstance(e.tag, str)
                     and e.tag.startswith(f"{{{XACRO}}}")), None)
-    if element is None and XACRO not in root.nsmap.values():
+    if element is None:
         return
-    what = (f"<xacro:{element.tag.split('}')[1]}> at line {element.sourceline}"
-            if element is not None else "the xacro namespace")
+    what = f"<xacro:{element.tag.split('}')[1]}> at line {element.sourceline}"
     raise UrdfError(f"{path}: a xacro file ({what}), not a URDF: expand it first (ROS's "
                     f"xacro: xacro {path.name} > {path.name.split('.')[0]}.urdf) and give the "
                     "URDF it makes")

@@ -842,8 +842,9 @@ def test_record_when_every_row_failed_says_so(tmp_path):
     assert not [p for p in out.iterdir() if p.name.startswith(("best_", "worst_"))]
     # without --record, a sweep whose every row failed is no success either (it exited 0):
     # the same sweep resumed (every point done, nothing runs) says so, exit 2
-    again = here("sweep", PAPER, "--resume", str(out), "--quiet", "--runs", "proposed",
-                 "--grid", "controller.kv=10,20", "--workers", "1", *SHORT, *LOW_GAIN_LAGGED)
+    again = cosim_cli("sweep", PAPER, "--resume", str(out), "--quiet", "--runs", "proposed",
+                      "--grid", "controller.kv=10,20", "--workers", "1", *SHORT,
+                      *LOW_GAIN_LAGGED)
     assert_message(error_line(again), re.compile(
         r"every row failed \(2 of 2; the first, point 0 run proposed: .+\); each row's "
         r"error is in "

@@ -53,9 +53,9 @@ def recording_path(run_dir: str | Path) -> Path:
             head = f.read(len(RRD_MAGIC))
     except NotAFile as exc:
         raise ViewerError(f"{exc}: give a run folder or an .rrd file") from None
-    if not head.startswith(RRD_MAGIC):
+    if not head.startswith(RRD_MAGIC) and path.suffix != ".rrd":  # (an .rrd: Rerun's verify
         hint = (f" (a pipeline file: run it with cosim run {path}, then view its run folder)"
-                if path.suffix == ".toml" else "")
+                if path.suffix == ".toml" else "")                   # says what is wrong)
         raise ViewerError(f"{path} is not a Rerun recording{hint}: give a run folder or an "
                           ".rrd file")
     return path

@@ -10,7 +10,6 @@ finds those roots per segment. Other references are checked on a 0.1 ms grid.
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -108,15 +107,16 @@ def breaches(reference, limits: JointLimits, end: float) -> list[Breach]:
     return sorted(found, key=lambda b: (b.t, b.joint))
 
 
-@functools.lru_cache(maxsize=8)  # joints × trajectories: a few of each at a time
 def _candidate_times(reference: Trajectory, j: int, end: float) -> np.ndarray:
     """Where joint j's position or speed can be extreme on [0, end]: the knots, the roots of
-    q̇_d and of q̈_d, and ``end``. Found once per trajectory (every run of a pipeline checks
-    the same one against its own limits: SciPy takes ~6 µs a segment)."""
-    roots = [reference.joint(j, order, until=end).roots(extrapolate=False) for order in (1, 2)]
-    t = np.concatenate([reference.knots[reference.knots <= end], *roots, [end]])
-    t = t[np.isfinite(t) & (t >= 0.0) & (t <= end)]
-    return np.unique(t)
+    q̇_d and of q̈_d, and ``end``. Found once per trajectory (``reference.extremes``: SciPy
+    takes ~6 µs a segment)."""
+    if (j, end) not in reference.extremes:
+        roots = [reference.joint(j, order, until=end).roots(extrapolate=False)
+                 for order in (1, 2)]
+        t = np.concatenate([reference.knots[reference.knots <= end], *roots, [end]])
+        reference.extremes[j, end] = np.unique(t[np.isfinite(t) & (t >= 0.0) & (t <= end)])
+    return reference.extremes[j, end]
 
 
 def refusal(breach_list: list[Breach], what: str, limits: JointLimits,

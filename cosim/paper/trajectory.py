@@ -23,7 +23,7 @@ fit in double precision (positions of 1e308, a segment of 1e-300 s) is refused
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.interpolate import BPoly, CubicSpline, PPoly
@@ -37,6 +37,9 @@ class Trajectory:
     curve: BPoly  # vector-valued: curve(t) has shape (len(t), n)
     end: float  # s, the last knot
     source: str  # what it was built from, for messages and summary.json
+    # what the limit check found of it, kept with it (a long CSV's roots take seconds, and
+    # every run of a pipeline checks the same trajectory against its own limits)
+    extremes: dict = field(default_factory=dict, repr=False)
 
     @property
     def knots(self) -> np.ndarray:

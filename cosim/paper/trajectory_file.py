@@ -153,7 +153,7 @@ def read_trajectory(path: str | Path, joints: int, until: float = math.inf) -> T
                                        status.st_mtime_ns))
 
 
-@functools.lru_cache(maxsize=4)
+@functools.lru_cache(maxsize=2)  # (a long CSV's trajectory is ~100 MB)
 def _read(path: Path, joints: int, until: float, version: tuple) -> Trajectory:
     """:func:`read_trajectory`, for one ``version`` of the file (device, inode, size and
     time of its last change)."""
