@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from plant_fmu import build_fmu
+from plant_fmu.named_file import not_a_file
 
 from . import interface as io
 from .blocks import BLOCKS, Block, BlockContext, Ports
@@ -145,8 +146,10 @@ def plant_path(pipeline: Pipeline) -> Path:
         if path.is_dir():
             raise PipelineError(f"plant.fmu: {path} is a folder, not an FMU file (an "
                                 "unpacked FMU cannot be used: give its .fmu archive)")
-        if not path.is_file():
-            raise PipelineError(f"plant.fmu: {path} does not exist")
+        why = not_a_file(path)
+        if why is not None:
+            raise PipelineError(f"plant.fmu: {path} "
+                                f"{why.replace(', not a file', ', not an FMU file')}")
         return path
     if pipeline.plant.urdf is not None:
         return urdf_plant_path(pipeline.plant.urdf)

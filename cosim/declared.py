@@ -12,7 +12,7 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import Field, model_validator
 
-from .schema import FiniteFloat, NonNegativeFloat, PipelineError, PositiveFloat, Section
+from .schema import FileName, FiniteFloat, NonNegativeFloat, PipelineError, PositiveFloat, Section
 
 
 class Safety(Section):
@@ -45,7 +45,7 @@ class Safety(Section):
     # the robot whose joint limits are the safe sets (limits = "urdf"), its chain from
     # ``urdf_base`` to ``urdf_tip`` as inertia_model.urdf reads it: a URDF file relative to
     # the pipeline file (to where cosim runs when given by --set) or package://…, a path
-    urdf: str | None = None
+    urdf: FileName | None = None
     urdf_base: str | None = None  # the limits' URDF's base link (a name)
     urdf_tip: str | None = None  # the limits' URDF's tip link (a name)
     # joints of the limits' URDF held at a value (rad or m), as plant.urdf.fixed holds them:
@@ -191,8 +191,10 @@ def joint_boxes(safety: Safety, n: int) -> JointBoxes | None:
         raise PipelineError(f"safety.position_margin = {safety.position_margin:g} rad leaves "
                             f"joint {bad} no room between its position limits")
     if not np.all(np.isfinite(values["velocity_limit"])):
-        raise PipelineError("safety.limits = \"urdf\": a joint has no velocity limit in the "
-                            "URDF; give safety.velocity_limit per joint, rad/s")
+        bad = int(np.flatnonzero(~np.isfinite(values["velocity_limit"]))[0])
+        name = f" ({joints[bad]}, <limit velocity> none or 0)" if safety.urdf is not None else ""
+        raise PipelineError(f"safety.limits = \"urdf\": joint {bad + 1}{name} has no velocity "
+                            "limit in the URDF; give safety.velocity_limit per joint, rad/s")
     return JointBoxes(0.5 * (lower + upper), 0.5 * (upper - lower), np.zeros(n),
                       values["velocity_limit"], values["effort_limit"], source)
 

@@ -17,6 +17,7 @@ from pathlib import Path
 from . import interface as io
 from .assemble import RunPlan, Scenario, assemble, link_lengths
 from .config import Pipeline, PipelineError
+from .config.named_files import file_digests, named_files
 from .engine import Diverged, simulate
 from .evaluate import Evaluation
 from .evaluate.parts import LOOP_METRIC_UNITS
@@ -123,8 +124,10 @@ def run(pipeline: Pipeline, out_dir: str | Path | None = None, progress: bool = 
     folder = recorder = None
     failure: BaseException | None = None
     try:
+        named = file_digests(named_files(pipeline)) if out_dir else []
         folder = RunFolder.create(out_dir, force) if out_dir else None
         if folder is not None:  # what is to run, said before it runs (a crash keeps it)
+            folder.named_files = named
             folder.write_summary(_summary(pipeline, results, plant_info), final=False)
         # The writer imports Rerun in its own process while the first run loads its blocks.
         arm = urdf_arm(pipeline) if folder is not None and record else None

@@ -227,6 +227,21 @@ def test_a_three_link_run_whose_third_joint_leaves_its_set_is_unsafe_everywhere(
                    if line.strip().startswith("filtered_error_norm"))
 
 
+def test_compare_does_not_judge_plants_of_other_joint_counts(declared_check, third_joint):
+    """Two joints against three: judged like with like before (only a note that the plants
+    differ), and a check only B has was never counted; now named and not judged."""
+    import re
+
+    from cli_helpers import assert_message, error_line, here
+
+    a, b = declared_check / "a", third_joint["inside"]
+    assert_message(error_line(here("compare", str(a), str(b))), re.compile(
+        rf"A {re.escape(str(a))} and B {re.escape(str(b))} do not compare like with like, so "
+        r"no verdict: the plant has 2 joints in A, 3 in B \(a joint's checks compare only "
+        r"with the same joint's, a norm only over the same joints\); .+; compare runs of the "
+        r"same duration and bounds that both ran to their end"))
+
+
 def test_the_sweep_judges_safe_as_the_run_does(third_joint, tmp_path):
     """The same two starts as a sweep: each row's safe column and per-check columns are the
     run's verdict and entries, and the table's rates follow (the third joint's error set

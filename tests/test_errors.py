@@ -17,7 +17,7 @@ import zipfile
 from pathlib import Path
 
 import pytest
-from cli_helpers import PAPER, assert_message, cosim_cli, error_line, signal_when
+from cli_helpers import PAPER, assert_message, cosim_cli, error_line, here, signal_when
 
 from plant_fmu import build_fmu
 
@@ -757,6 +757,30 @@ def test_a_scheduler_address_that_is_not_dask_fails_in_bounded_time(banner, tmp_
     assert not (tmp_path / "out" / ".cosim.lock").exists()
 
 
+def test_a_sweep_whose_scheduler_never_answered_says_so_and_how_to_go_on(tmp_path):
+    """Something that answers in another protocol (its banner read as a message length):
+    "no Dask scheduler answered there (MemoryError: Unable to allocate 2.8 EiB …)". The
+    folder it leaves (its summary says why) was refused by the same command again as "an
+    incomplete run folder of ?"; now named a sweep's, with --resume offered."""
+    port, stop = _server(b"SSH-2.0-OpenSSH_9.2p1 Debian-2\r\n" * 4)
+    out = tmp_path / "out"
+    command = ["sweep", PAPER, "--out", str(out), "--scheduler", f"tcp://127.0.0.1:{port}",
+               "--grid", "controller.kv=10,20", *SHORT]
+    try:
+        first, again = here(*command), here(*command)
+    finally:
+        stop()
+    assert_message(error_line(first), re.compile(
+        rf"--scheduler tcp://127\.0\.0\.1:{port}: no Dask scheduler answered there "
+        r"\(something answered, but not in Dask's protocol: its first bytes, read as a "
+        r"message's length, asked for [\d.]+ EiB\)"))
+    assert_message(error_line(again), re.compile(
+        rf"--out {re.escape(str(out))}: already holds 3 files \(an incomplete sweep folder "
+        r"started \d{4}-\d\d-\d\dT[\d:]{8}\+00:00, 0 row\(s\) in its journal\); pass --force "
+        rf"to replace them, `cosim sweep … --resume {re.escape(str(out))}` to go on with it, "
+        r"or choose another --out"))
+
+
 def test_a_finished_sweeps_summary_says_complete(tmp_path):
     out = tmp_path / "sweep"
     done = cosim_cli("sweep", PAPER, "--out", str(out), "--quiet", "--grid",
@@ -827,6 +851,16 @@ def test_record_when_every_row_failed_says_so(tmp_path):
     rows = pq_rows(out)
     assert len(rows) == 2 and all(r["status"] == "failed" for r in rows)
     assert not [p for p in out.iterdir() if p.name.startswith(("best_", "worst_"))]
+    # without --record, a sweep whose every row failed is no success either (it exited 0):
+    # the same sweep resumed (every point done, nothing runs) says so, exit 2
+    again = cosim_cli("sweep", PAPER, "--resume", str(out), "--quiet", "--runs", "proposed",
+                      "--grid", "controller.kv=10,20", "--workers", "1", *SHORT,
+                      *LOW_GAIN_LAGGED)
+    assert_message(error_line(again), re.compile(
+        r"every row failed \(2 of 2; the first, point 0 run proposed: .+\); each row's "
+        r"error is in "
+        rf"{re.escape(str(out / 'results.csv'))}"))
+    assert "2 row(s) in" in again.stdout and "2 failed" in again.stdout
 
 
 def pq_rows(out: Path) -> list[dict]:
@@ -853,6 +887,26 @@ def test_a_worker_killed_by_its_plant_leaves_failed_rows_named_by_run(tmp_path):
     rows = pq_rows(tmp_path / "sweep")
     assert {r["run"] for r in rows} == {"baseline", "proposed"}
     assert all(r["status"] == "failed" for r in rows)
+
+
+def test_an_inherited_supervisor_note_is_not_written_by_a_cosim_it_does_not_own(tmp_path):
+    """COSIM_SUPERVISED=1 and COSIM_RUN_NOTE naming a user's file, inherited by a cosim that
+    no supervisor started (a nested cosim, a user's shell): the file was overwritten with the
+    run's note and a .fault file made beside it. Only the run process of a supervisor (its
+    parent's pid in COSIM_SUPERVISED) writes the note, and only the one the supervisor made."""
+    note = tmp_path / "notes.txt"
+    note.write_text("the user's notes\n")
+    (tmp_path / "blocks.py").write_text("# no blocks\n")
+    pipeline = tmp_path / "p.toml"
+    pipeline.write_text(f'extends = "{Path(PAPER).resolve()}"\nplugins = ["blocks.py"]\n')
+    done = subprocess.run([sys.executable, "-m", "cosim.cli", "run", str(pipeline),
+                           "--dry-run", *SHORT], capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "COSIM_SUPERVISED": "1",
+                               "COSIM_RUN_NOTE": str(note)})
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert f"cosim: importing plugin {tmp_path / 'blocks.py'}" in done.stderr  # (it told)
+    assert note.read_text() == "the user's notes\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["blocks.py", "notes.txt", "p.toml"]
 
 
 def test_the_run_process_ends_when_its_supervisor_is_killed(tmp_path):
@@ -923,6 +977,11 @@ def test_without_out_every_run_gets_a_new_folder_and_latest_points_to_it(tmp_pat
     (base / "latest").write_text("the user's own")
     done = subprocess.run(args, cwd=tmp_path, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0 and (base / "latest").read_text() == "the user's own"
+    # ... and said: `cosim view runs/NAME/latest` would show the user's thing, not this run
+    third = done.stdout.split("run folder: ")[1].split()[0]
+    assert "cosim: warning: runs/paper_two_link/latest is a file cosim did not make, so it " \
+        "was left as it is and does not lead to this run: view this one with cosim view " \
+        f"{third}\n" in done.stderr
 
 
 def test_a_cold_kernel_cache_is_announced_not_silent(tmp_path):

@@ -12,12 +12,12 @@ import shutil
 import subprocess
 import sys
 import zipfile
-from contextlib import chdir, redirect_stderr, redirect_stdout
+from contextlib import chdir, redirect_stderr
 from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_helpers import PAPER, assert_message, error_line
+from cli_helpers import PAPER, assert_message, error_line, here, tree
 
 ROOT = Path(__file__).resolve().parents[1]
 SHORT = ["--set", "simulation.duration=0.5", "--no-figures"]
@@ -80,39 +80,11 @@ def plugin(folder: Path, kind: str, names: tuple[str, ...] = (),
     return pipeline
 
 
-def here(*args: str, cwd: Path | None = None, env: dict | None = None
-         ) -> subprocess.CompletedProcess:
-    """The command run in this process (``main(argv)``: no supervisor, the kernels already
-    loaded), its output and status as :func:`run_in` gives them: most cases need no process
-    of their own, and a test suite's seconds count."""
-    from cosim.cli import main
-
-    out, err, saved = io.StringIO(), io.StringIO(), dict(os.environ)
-    os.environ.update(env or {})
-    try:
-        with redirect_stdout(out), redirect_stderr(err), chdir(cwd or os.getcwd()):
-            try:
-                status = main(list(args))
-            except SystemExit as exc:  # argparse: --version, --help, a bad option
-                status = exc.code
-    finally:
-        os.environ.clear()
-        os.environ.update(saved)
-    return subprocess.CompletedProcess(args, status, out.getvalue(), err.getvalue())
-
-
 def run_in(folder: Path, *args: str, env: dict | None = None,
            program: tuple[str, ...] = (sys.executable, "-m", "cosim.cli")
            ) -> subprocess.CompletedProcess:
     return subprocess.run([*program, *args], capture_output=True, text=True, timeout=300,
                           cwd=folder, env=env)
-
-
-def tree(folder: Path) -> dict[str, tuple[int, int]]:
-    """Every entry under ``folder``: a file's or link's (size, modification time); a
-    folder's (0, 0) (its time moves when an entry comes and goes)."""
-    return {str(p.relative_to(folder)): (0, 0) if p.is_dir() and not p.is_symlink()
-            else (p.lstat().st_size, p.lstat().st_mtime_ns) for p in sorted(folder.rglob("*"))}
 
 
 @pytest.fixture(scope="module")

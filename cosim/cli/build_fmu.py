@@ -127,6 +127,8 @@ def _build(args: argparse.Namespace) -> Path:
         if given is not None:
             raise UserError(f"{option} is for the built-in planar models; --urdf builds the "
                             "robot the URDF describes (its joints are the URDF's): drop one")
+    if not args.urdf.strip():  # (the working folder, resolved)
+        raise UserError("--urdf '': an empty name; give the robot's URDF file")
     urdf = resolve_uri(args.urdf, Path.cwd())
     try:
         cached = build_urdf_fmu(urdf, base=args.base, tip=args.tip, fixed=fixed_joints(args.fix),

@@ -170,7 +170,9 @@ def _settle_named_folder(out: Path) -> None:
     from ..outputs.run_folder import point_latest
 
     if (out / "summary.json").is_file():
-        point_latest(out)
+        left = point_latest(out)
+        if left is not None:
+            print(f"cosim: warning: {left}", file=sys.stderr)
         return
     try:
         out.rmdir()  # only if empty: it is ours, made a moment ago

@@ -30,7 +30,8 @@ def load_pipeline(path: str | Path | None, overrides: list[str] | None = None,
         source, base = "--set", Path.cwd()  # plant.fmu relative to where the user is
     else:
         path = Path(path)
-        data = read_toml(path)
+        read: list[Path] = []
+        data = read_toml(path, read=read)
         source, base = str(path), path.parent
     for assignment in overrides or []:
         data = apply_override(data, assignment)
@@ -49,6 +50,8 @@ def load_pipeline(path: str | Path | None, overrides: list[str] | None = None,
         pipeline = validate(data, source)
     except PipelineError as exc:
         raise _blamed_on_its_file(exc, path, source, overrides or []) from None
+    if path is not None:
+        pipeline._source_files = tuple(str(p.absolute()) for p in read)
     if pipeline.plant.fmu is not None:
         fmu = Path(pipeline.plant.fmu).expanduser()
         pipeline.plant.fmu = str(fmu if fmu.is_absolute() else (base / fmu).resolve())

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from pydantic import create_model, model_validator
+from pydantic import PrivateAttr, create_model, model_validator
 
 from ..blocks import BLOCKS
 from ..blocks.plugins import load_entry_points
@@ -40,6 +40,13 @@ class Pipeline(Section):
     uncertainty: Uncertainty = Uncertainty()
     # Then a table per registered block, and last ``runs: dict[str, Run]`` (added by
     # pipeline_model, so that a bad top-level key is reported before the runs inheriting it).
+    _source_files: tuple[str, ...] = PrivateAttr(default=())
+
+    @property
+    def source_files(self) -> tuple[str, ...]:
+        """The pipeline file and those it extends, as :func:`~cosim.config.load_pipeline`
+        read them (none: a pipeline of the defaults and ``--set``)."""
+        return self._source_files
 
     @model_validator(mode="after")
     def _bounded_plant_work(self) -> Pipeline:

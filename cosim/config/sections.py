@@ -12,7 +12,7 @@ from pydantic import Field, create_model, model_validator
 from plant_fmu import DEFAULT_MODEL, MODELS
 
 from ..plant.ports import PORTS
-from ..schema import FiniteFloat, PositiveFloat, Section
+from ..schema import FileName, FiniteFloat, PositiveFloat, Section
 
 
 class Simulation(Section):
@@ -71,7 +71,7 @@ class UrdfPlant(Section):
 
     # the URDF: a path relative to the pipeline file, or package://PKG/... (e.g.
     # package://example-robot-data/robots/panda_description/urdf/panda.urdf), a path
-    file: str
+    file: FileName
     base: str | None = None  # the link the chain is fixed to (default: the root link), a name
     # the chain's last link, where the payload sits (default: from the base, the one way on
     # to a moving joint, stopping where it forks), a name
@@ -95,7 +95,7 @@ class Robot(Section):
     "arm.urdf"``."""
 
     # the robot's URDF: a path relative to the pipeline file, or package://PKG/..., a path
-    file: str
+    file: FileName
     base: str | None = None  # the link the chain is fixed to (default: the root link), a name
     # the chain's last link, where the payload sits (default: from the base, the one way on
     # to a moving joint, stopping where it forks), a name
@@ -160,7 +160,7 @@ VariableMapping = create_model(
 
 class Plant(Section):
     builtin: BuiltinPlant | None = None
-    fmu: str | None = None  # the plant FMU's file, relative to the pipeline file, a path
+    fmu: FileName | None = None  # the plant FMU's file, relative to the pipeline file, a path
     # a robot's URDF built into the plant FMU at run time: its file, relative to the pipeline
     # file or package://..., a path (or a table: file, base, tip, fixed, fmi_version)
     urdf: UrdfPlant | None = None

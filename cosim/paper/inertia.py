@@ -48,7 +48,7 @@ from ..dynamics.planar import (  # noqa: F401  (re-exported: the planar chain's 
     planar_bias,
     planar_mass_matrix,
 )
-from ..schema import FiniteFloat, NonNegativeFloat, PipelineError, PositiveFloat, Section
+from ..schema import FileName, FiniteFloat, NonNegativeFloat, PipelineError, PositiveFloat, Section
 from ..signals import Signal
 
 
@@ -75,7 +75,7 @@ class InertiaModelParams(Section):
     # ur5_robot.urdf): its spatial chain from ``base`` to ``tip`` (link names; defaults as
     # cosim build-fmu --urdf), ``fixed`` joints held at a value (rad or m); the payload's
     # point is the tip link's origin
-    urdf: str | None = None
+    urdf: FileName | None = None
     base: str | None = None  # the nominal URDF's base link (a name)
     tip: str | None = None  # the nominal URDF's tip link, where the payload is (a name)
     # joints of the nominal URDF held at a value, by name, rad or m
