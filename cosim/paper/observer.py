@@ -679,8 +679,13 @@ def observer_step(k, a):
     else:
         envelope_step(k, a.dt, a.q_meas, a.tau[k - 1], a.tau_d, a.noise_bound, env)
     for i in range(n):
-        centre = 0.5 * (interval[0, i] + interval[1, i])
-        a.error_bound[k, i] = abs(qdot_hat[i] - centre) + 0.5 * (interval[1, i] - interval[0, i])
+        low, high = interval[0, i], interval[1, i]
+        if np.isfinite(low) and np.isfinite(high):
+            centre = 0.5 * (low + high)
+            a.error_bound[k, i] = abs(qdot_hat[i] - centre) + 0.5 * (high - low)
+        else:  # no enclosure confirmed: nothing is known of q̇ (ε infinite, never NaN)
+            centre = qdot_hat[i]
+            a.error_bound[k, i] = np.inf
         a.envelope_centre[k, i] = centre
     # dx̂2/dt = Ŵoᵀσo + M̂⁻¹(τ − τ_d) + (k0 − kp kD) x̃1 + kp x̃2: all but M̂⁻¹τ and the
     # unknown kp x̃2 (|·| ≤ kp ε) is the drift the filter's rows on x̂2 need.
