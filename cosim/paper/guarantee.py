@@ -66,6 +66,7 @@ from .cbf_filter.assumptions import (
     VIABLE,
     FilterAssumptions,
 )
+from .premises import between_samples, interval_exceedances, tube_exceedances
 
 # A tolerance for comparing declared and actual parameter values (rounding in TOML, FMI).
 PARAMETER_TOLERANCE = 1e-9
@@ -95,6 +96,15 @@ COMPARED = frozenset({*CHAIN, GRAVITY, *(name for name, _, _ in FRICTION), *DIST
 NOT_MODEL = frozenset({"q0", "qdot0", "rk4_step", "fc_vel", "tau_d_freq"})
 
 
+def apart(value: float, other: float, digits: int = 6) -> str:
+    """``value`` with as many significant digits as it takes to tell it from ``other`` (up
+    to 17), at least ``digits``: a value just past a bound never reads as the bound."""
+    for shown in range(digits, 18):
+        if f"{value:.{shown}g}" != f"{other:.{shown}g}":
+            return f"{value:.{shown}g}"
+    return f"{value:.17g}"
+
+
 def rigid_chain_parameters(links: int) -> frozenset[str] | None:
     """The parameter names of the rigid arm's FMU: the model the filter's guarantee
     assumes (None beyond the built-in arm's link count)."""
@@ -120,7 +130,8 @@ def plant_payload(parameters: dict, chain, modelled: frozenset[str] | None = Non
     names = {"m": chain.m, "l": chain.l, "lc": chain.lc, "I": chain.inertia}
     if not all(f"{key}[{i}]" in parameters for key in names for i in range(1, n + 1)):
         return None, []
-    differ = [f"{key}[{i + 1}] = {parameters[f'{key}[{i + 1}]']:g} (nominal {values[i]:g})"
+    differ = [f"{key}[{i + 1}] = {apart(parameters[f'{key}[{i + 1}]'], values[i])} (nominal "
+              f"{values[i]:g})"
               for key, values in names.items() for i in range(n)
               if not (key == "m" and i == n - 1)
               and abs(parameters[f"{key}[{i + 1}]"] - values[i]) > PARAMETER_TOLERANCE]
@@ -193,13 +204,14 @@ def undeclared_differences(parameters: Mapping[str, float], chain, uncertainty: 
     its largest value; compared whatever tau_d_freq, even 0 Hz where the plant's
     sin(2π·f·t) is 0: conservative) against ``uncertainty.disturbance``. ``tau_d_model``:
     the τ_d the filter's model assumes, N·m per joint (None: no model, 0). A parameter the
-    plant does
-    not have is not compared (a foreign FMU is judged by its missing chain instead)."""
+    plant does not have is not compared (a foreign FMU is judged by its missing chain
+    instead). Each value is shown with the digits that tell it from what it passed."""
     out = []
     if chain is not None and GRAVITY in parameters \
             and abs(float(parameters[GRAVITY]) - chain.gravity) > PARAMETER_TOLERANCE:
-        out.append(f"g = {float(parameters[GRAVITY]):g} m/s² (the nominal chain's "
-                   f"{chain.gravity:g} m/s²): gravity is not declared uncertain")
+        gravity = apart(float(parameters[GRAVITY]), chain.gravity)
+        out.append(f"g = {gravity} m/s² (the nominal chain's {chain.gravity:g} m/s²): gravity "
+                   "is not declared uncertain")
     table = friction_table(links) if friction is None else friction
     for (name, what, unit), row, error, key in zip(
             FRICTION, (DAMPING, COULOMB), (DAMPING_ERROR, COULOMB_ERROR),
@@ -209,7 +221,8 @@ def undeclared_differences(parameters: Mapping[str, float], chain, uncertainty: 
             nominal, declared = table[row, i - 1], table[error, i - 1]
             if abs(value - nominal) <= declared + PARAMETER_TOLERANCE:
                 continue
-            out.append(f"{name}[{i}] = {value:g} {unit} (nominal {nominal:g}"
+            edge = nominal + np.sign(value - nominal) * declared  # the bound it passed
+            out.append(f"{name}[{i}] = {apart(value, edge)} {unit} (nominal {nominal:g}"
                        + (f" ± {declared:g}): {what} beyond uncertainty.{key}" if declared
                           else f"): {what} is not declared uncertain (uncertainty.{key})"))
     for i in range(1, links + 1):  # a URDF arm's fc_vel[i], the planar arm's one fc_vel
@@ -218,7 +231,8 @@ def undeclared_differences(parameters: Mapping[str, float], chain, uncertainty: 
         nominal = table[COULOMB_VELOCITY, i - 1]
         smoothing = float(parameters.get(key, nominal))
         if (coulomb or table[COULOMB, i - 1]) and abs(smoothing - nominal) > PARAMETER_TOLERANCE:
-            named = f"{key} = {smoothing:g} rad/s (the nominal model's {nominal:g} rad/s, "
+            named = (f"{key} = {apart(smoothing, nominal)} rad/s (the nominal model's "
+                     f"{nominal:g} rad/s, ")
             if named not in "".join(out):  # the planar arm's one value, named once
                 out.append(f"{named}inertia_model.fc_vel): another Coulomb friction law")
     return out + disturbance_differences(parameters, uncertainty, tau_d_model, links)
@@ -348,10 +362,12 @@ def stopping_need(trace: Signals, safe: SafeSet) -> str | None:
             f"needs at least {need:.3g} rad/s²")
 
 
-def viability(trace: Signals, safe: SafeSet, starts_inside: bool) -> tuple[bool, str | None]:
+def viability(trace: Signals, safe: SafeSet, starts_inside: bool,
+              check_bounds: np.ndarray | None = None) -> tuple[bool, str | None]:
     """(whether the run starts in the filter's viable set, why not for a start inside the
     box): the filter's ``cbf_viable`` flag at t = 0, where it wrote one; else the box, the
-    set of an unfiltered run (or of a filter that does not say)."""
+    set of an unfiltered run (or of a filter that does not say). ``check_bounds``: the
+    half-widths of the sets the filter's check holds, where it says."""
     flag = np.asarray(trace[VIABLE][0], float) if VIABLE in trace else np.array(np.nan)
     if not np.isfinite(flag).all():
         return starts_inside, None
@@ -361,9 +377,39 @@ def viability(trace: Signals, safe: SafeSet, starts_inside: bool) -> tuple[bool,
     uncertain = velocity_uncertain(trace, safe)
     if uncertain:
         return viable, uncertain
+    band = in_the_margin(trace, safe, check_bounds)
+    if band:
+        return viable, band
     need = stopping_need(trace, safe)
     return viable, ("the filter found no torque that keeps the hard sets from this start"
                     + (f" ({need})" if need else ""))
+
+
+def in_the_margin(trace: Signals, safe: SafeSet, check_bounds: np.ndarray | None
+                  ) -> str | None:
+    """Why a start inside the box is not viable when a joint starts between the set its
+    filter's check holds and the bound (``check_bounds``, (2, n), the check's half-widths;
+    the measured position within the noise bound, the velocity's interval): the check
+    leaves that band to what its tube does not model, and never calls a state in it
+    viable. None otherwise (or without the check's bounds)."""
+    sets = position_and_velocity_sets(trace, safe)
+    if sets is None or check_bounds is None or "q" not in trace:
+        return None
+    held = [np.abs(np.asarray(trace["q"][0], float) - sets[0])]
+    if all(name in trace for name in ("cbf_velocity_centre", "cbf_velocity_spread")):
+        held.append(np.abs(trace["cbf_velocity_centre"][0] - sets[2])
+                    + trace["cbf_velocity_spread"][0])
+    for row, (reach, quantity, unit) in enumerate(zip(held, ("position", "velocity"),
+                                                      ("rad", "rad/s"), strict=False)):
+        past = np.flatnonzero(reach > check_bounds[row])
+        if len(past):
+            j = int(past[np.argmax(reach[past] - check_bounds[row][past])])
+            bound = sets[1 + 2 * row][j]
+            return (f"joint {j + 1}'s {quantity} starts within the "
+                    f"{bound - check_bounds[row][j]:.3g} {unit} the filter's check leaves "
+                    f"between its set and the bound ({reach[j]:.5g} against its "
+                    f"{check_bounds[row][j]:.5g}, the bound {bound:g}): never viable there")
+    return None
 
 
 def velocity_uncertain(trace: Signals, safe: SafeSet) -> str | None:
@@ -401,7 +447,8 @@ def declared_inputs(trace: Signals, safe: SafeSet, uncertainty: Uncertainty,
         outside.append("payload unknown (the plant does not expose the nominal chain's "
                        "parameters)")
     elif not low - PARAMETER_TOLERANCE <= payload <= high + PARAMETER_TOLERANCE:
-        outside.append(f"payload {payload:g} kg outside [{low:g}, {high:g}]")
+        outside.append(f"payload {apart(payload, min(max(payload, low), high))} kg outside "
+                       f"[{low:g}, {high:g}]")
     outside += [f"plant {text}" for text in other_parameters]
     if not true_velocity:
         outside.append("true velocity unknown (the plant does not map qdot): the velocity set "
@@ -411,7 +458,8 @@ def declared_inputs(trace: Signals, safe: SafeSet, uncertainty: Uncertainty,
     if position == "q_meas" and "q_meas" in trace:
         noise = float(np.max(np.abs(trace["q_meas"] - trace["q"])))
         if noise > uncertainty.noise_bound:
-            outside.append(f"noise {noise:.3g} rad > {uncertainty.noise_bound:g}")
+            outside.append(f"noise {apart(noise, uncertainty.noise_bound, 3)} rad > "
+                           f"{uncertainty.noise_bound:g}")
     facts: dict[str, Any] = {"observer_bound_exceeded_steps": None}
     violation = None
     if not (true_velocity and "qdot_hat" in trace and np.isfinite(trace["qdot_hat"][0]).all()):
@@ -422,7 +470,9 @@ def declared_inputs(trace: Signals, safe: SafeSet, uncertainty: Uncertainty,
     if velocity != "qdot_hat":  # the filter reads the true velocity: the observer is moot
         return outside, facts, violation
     if np.max(error[0]) > uncertainty.initial_velocity_error:
-        outside.append(f"initial observer error {np.max(error[0]):.3g} rad/s > "
+        outside.append(f"initial observer error "
+                       f"{apart(float(np.max(error[0])), uncertainty.initial_velocity_error, 3)}"
+                       " rad/s > "
                        f"{uncertainty.initial_velocity_error:g}")
     if "qdot_hat_bound" in trace:
         rows = np.flatnonzero((error > trace["qdot_hat_bound"]).any(axis=1))
@@ -503,7 +553,8 @@ def classify(trace: Trace, safe: SafeSet, uncertainty: Uncertainty,
         hard = {name: c for name, c in hard.items()
                 if c.declared.family in assumes.keeps or c.declared.family not in KEPT_SETS}
     starts_inside = not any(bool(c.outside[0]) for c in hard.values())
-    starts_viable, not_viable = viability(trace, safe, starts_inside)
+    check_bounds = None if assumes is None else assumes.check_bounds
+    starts_viable, not_viable = viability(trace, safe, starts_inside, check_bounds)
     outside, facts, observer_violation = declared_inputs(
         trace, safe, uncertainty, payload, other_parameters, true_velocity, assumes)
     exit_ = first_exit(hard, trace.dt)
@@ -519,21 +570,80 @@ def classify(trace: Trace, safe: SafeSet, uncertainty: Uncertainty,
     # A filter that keeps no hard set (cbf_filter.hard = []) promises nothing either.
     filtered = (bool(assumes.keeps) if assumes is not None
                 else INFEASIBLE in trace or VIABLE in trace)
-    # A start outside a set is the filter's to bring back (recovery, reported), not to keep.
-    covered = bool(filtered and starts_inside and starts_viable and not outside)
+    # A start outside a set is the filter's to bring back (recovery, reported), not to keep;
+    # one whose velocity the filter could not tell inside at first is covered from the step
+    # it could (covered_from).
+    start = covered_from(trace, safe, starts_inside, starts_viable, hard, assumes)
+    covered = bool(filtered and starts_inside and start is not None and not outside)
+    premises = measured_premises(trace, safe, start if covered else 0, check_bounds)
+    premises_failed = premises.pop("violations")
+    infeasible_after = (int(np.sum(trace[INFEASIBLE][start:trace.rows_done] > 0))
+                        if covered and INFEASIBLE in trace else 0)
     violations = [] if not covered else [
         *([f"left {exit_['set']} at {exit_['t']:.3f} s (|value| {exit_['value']:.4g} > "
            f"{exit_['bound']:g})"] if exit_ else []),
-        *([f"{out['infeasible_steps']} infeasible step(s)"] if feasible is False else []),
+        *([f"{infeasible_after} infeasible step(s)"] if infeasible_after else []),
         *([observer_violation] if observer_violation else []),
-        *([over_limit] if over_limit else [])]
+        *([over_limit] if over_limit else []),
+        *premises_failed]
     out.update(feasible=feasible, within_bounds=not outside, outside=outside,
                hard_kept=exit_ is None, first_exit=exit_, torque_over_limit_steps=over_steps,
-               filtered=filtered, covered=covered, violations=violations,
-               broken=bool(violations), **recovery(hard, trace.dt),
+               filtered=filtered, covered=covered,
+               covered_from_s=float(start * trace.dt) if covered else None,
+               **premises, violations=violations, broken=bool(violations),
+               **recovery(hard, trace.dt),
                keeps=None if assumes is None else list(assumes.keeps))
     if filtered:
         out["torque"] = torque_peaks(trace, assumes)
+    return out
+
+
+def covered_from(trace: Signals, safe: SafeSet, starts_inside: bool, starts_viable: bool,
+                 hard: Mapping[str, Check], assumes: FilterAssumptions | None) -> int | None:
+    """The row from which the guarantee speaks for the run: 0 for a start in the viable set;
+    for a filter reading the observer's velocity whose start was not viable only because
+    the velocity it held at t = 0 reached past a bound (what the declared initial observer
+    error allows: :func:`velocity_uncertain`), the first row it found viable (its interval,
+    tightened by the measured positions, inside the sets and a torque verified), provided
+    no hard set was left up to it (the start-up, which promises nothing, kept them); else
+    None."""
+    if not starts_inside:
+        return None
+    if starts_viable:
+        return 0
+    reads = "qdot_hat" if assumes is None else assumes.velocity
+    if reads != "qdot_hat" or VIABLE not in trace or velocity_uncertain(trace, safe) is None:
+        return None
+    viable = np.flatnonzero(np.asarray(trace[VIABLE][:trace.rows_done], float) > 0.5)
+    if not len(viable):
+        return None
+    first = int(viable[0])
+    if any(check.outside[:first + 1].any() for check in hard.values()):
+        return None
+    return first
+
+
+def measured_premises(trace: Signals, safe: SafeSet, start: int,
+                      check_bounds: np.ndarray | None) -> dict:
+    """The check's premises measured from row ``start`` on (cosim/paper/premises.py): the
+    steps where each failed (None: not measured, the signals or the check's bounds
+    missing), the least room left (``tube_slack``, ``between_samples_room``: per quantity,
+    rad and rad/s), and ``violations``, what failed."""
+    out: dict[str, Any] = {"violations": []}
+    out["interval_exceeded_steps"], text = interval_exceedances(trace, start)
+    out["violations"] += [text] if text else []
+    sets = position_and_velocity_sets(trace, safe)
+    tube = (None, None, None)
+    if sets is not None and check_bounds is not None:
+        allowance = np.array([sets[1], sets[3]]) - check_bounds
+        tube = tube_exceedances(trace, start, allowance)
+    out["tube_exceeded_steps"], out["tube_slack"], text = tube
+    out["violations"] += [text] if text else []
+    between = (None, None, None)
+    if sets is not None:
+        between = between_samples(trace, start, (sets[0], sets[2]), (sets[1], sets[3]))
+    out["between_samples_exceeded_steps"], out["between_samples_room"], text = between
+    out["violations"] += [text] if text else []
     return out
 
 
@@ -557,7 +667,15 @@ class Guarantee(Part):
                     "guarantee.torque.startup_steps": "steps", "guarantee.torque.peak_t": "s",
                     "guarantee.torque.peak_of_limit": "1",
                     "guarantee.torque.peak_backup_share": "1",
-                    "guarantee.torque.peak_after_startup": "N·m"}
+                    "guarantee.torque.peak_after_startup": "N·m",
+                    "guarantee.covered_from_s": "s",
+                    "guarantee.interval_exceeded_steps": "steps",
+                    "guarantee.tube_exceeded_steps": "steps",
+                    "guarantee.tube_slack.position": "rad",
+                    "guarantee.tube_slack.velocity": "rad/s",
+                    "guarantee.between_samples_exceeded_steps": "steps",
+                    "guarantee.between_samples_room.position": "rad",
+                    "guarantee.between_samples_room.velocity": "rad/s"}
 
     def metrics(self, trace: Signals, series: Mapping[str, np.ndarray]) -> dict:
         if ACTIVE not in trace or not len(trace[ACTIVE]):
@@ -606,7 +724,9 @@ class Guarantee(Part):
         why = [*(["started outside"] if not g["starts_inside"] else []),
                *([f"not viable: {g['not_viable']}"] if g["not_viable"] else []),
                *g["outside"]]
+        later = g.get("covered_from_s")
         return (f"{exit_text}; guarantee "
-                + ("covers this run" if g["covered"] else "does not cover this run: "
-                   + "; ".join(why))
+                + (("covers this run" + (f" from {later:.3g} s (its start-up, the velocity "
+                                         "not yet shown inside)" if later else ""))
+                   if g["covered"] else "does not cover this run: " + "; ".join(why))
                 + (" — BROKEN: " + "; ".join(g["violations"]) if g["broken"] else "")), []

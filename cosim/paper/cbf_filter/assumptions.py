@@ -24,3 +24,8 @@ class FilterAssumptions(NamedTuple):
     # "position" -> "position", "velocity" -> "velocity_true"): a hard set it does not keep
     # is never held against it, and a filter that keeps none promises nothing
     keeps: tuple[str, ...] = ("position", "velocity_true")
+    # (2, n) the half-widths of the sets its check holds, position (rad) and velocity
+    # (rad/s) per joint, about the sets' centres: what is left to the true bound is the
+    # allowance for what its first-order tube does not model (None: a filter that does not
+    # say)
+    check_bounds: np.ndarray | None = None

@@ -77,8 +77,16 @@ from .scratch import (
     LU,
     MINV,
     NOMINAL_NOW,
+    PLAN_STEP,
+    PLAN_TUBE,
     R_ACC,
+    R_ACC_HIGH,
+    R_ACC_LOW,
     R_BIAS,
+    R_BOX_Q,
+    R_BOX_Q_HALF,
+    R_BOX_V,
+    R_BOX_V_HALF,
     R_CENTRE,
     R_DEV,
     R_DQ,
@@ -96,10 +104,19 @@ from .scratch import (
     R_TAU,
     R_V,
     R_WEIGHT,
+    R_WIDEN,
     ROLL_LU,
     ROLL_MASS,
     ROLL_MINV,
+    T_ACC,
+    T_DQ,
+    T_DV,
+    T_FEEDBACK,
+    T_Q,
+    T_V,
+    T_WIDEN,
     TAU,
+    TUBE_TRIAL,
     VEC,
 )
 from .solver import newton
@@ -340,6 +357,42 @@ def backup_at(k, a, policy, limit, out):
 
 
 @no_refcount_jit(cache=True, inline="always")
+def plan_box(k, a):
+    """The box the plan in force (the rollout of the last torque verified, at step k0) puts
+    the true state in at row k + 1, into R_BOX_Q … R_BOX_V_HALF: its tube (k + 1 − k0)·dt
+    after its start, within the segment holding that time (the nominal state exactly, q̈
+    constant over a segment; δq, δv as the check grows them). NaN past the rollout's end.
+    The classifier holds the true state to it (the tube measured along the run)."""
+    w = a.work
+    r = w.rollout
+    n = r.shape[1]
+    for i in range(n):
+        r[R_BOX_Q, i] = r[R_BOX_Q_HALF, i] = r[R_BOX_V, i] = r[R_BOX_V_HALF, i] = np.nan
+    plan = int(w.flags[PLAN_TUBE])
+    tube, lengths, eps = w.tube[plan], w.tube_steps[plan], w.tube_eps[plan]
+    offset = (k + 1 - w.flags[PLAN_STEP]) * a.dt
+    start = 0.0
+    for j in range(lengths.shape[0]):
+        h = lengths[j]
+        if h <= 0.0:
+            return
+        if offset <= start + h * (1.0 + 1e-9):
+            s = offset - start
+            segment = tube[j]
+            for i in range(n):
+                r[R_BOX_Q, i] = (segment[T_Q, i] + s * segment[T_V, i]
+                                 + 0.5 * s * s * segment[T_ACC, i])
+                r[R_BOX_Q_HALF, i] = (segment[T_DQ, i] + s * segment[T_DV, i]
+                                      + 0.5 * s * s * segment[T_WIDEN, i])
+                r[R_BOX_V, i] = segment[T_V, i] + s * segment[T_ACC, i]
+                r[R_BOX_V_HALF, i] = max(
+                    segment[T_DV, i] * (1.0 - segment[T_FEEDBACK, i] * s / h)
+                    + segment[T_WIDEN, i] * s, eps[i])
+            return
+        start += h
+
+
+@no_refcount_jit(cache=True, inline="always")
 def velocity_interval(k, a):
     """The true velocity's interval at row k (centre into R_CENTRE, half-width into
     R_HALF): the estimate's (the certified interval its ε is taken from, inside v ± ε),
@@ -357,14 +410,20 @@ def velocity_interval(k, a):
         # part holding q̇ (ε bounds |q̇ − v| for every q̇ in it)
         half = max(eps[i] - abs(v[i] - centre[i]), 0.0)
         low, high = centre[i] - half, centre[i] + half
+        if not (np.isfinite(low) and np.isfinite(high)):
+            low, high = -np.inf, np.inf  # the observer confirmed no enclosure of q̇
         # a little room for rounding: a true velocity (ε = 0) may sit on the prediction's edge
         meets = r[R_NEXT_LOW, i] <= high + 1e-9 and r[R_NEXT_HIGH, i] >= low - 1e-9
         consistent = consistent and meets
         if k > 0 and meets:
             low, high = max(low, r[R_NEXT_LOW, i]), min(high, r[R_NEXT_HIGH, i])
             high = max(high, low)
-        r[R_CENTRE, i] = a.velocity_centre[k, i] = 0.5 * (low + high)
-        r[R_HALF, i] = a.velocity_spread[k, i] = 0.5 * (high - low)
+        if np.isfinite(low) and np.isfinite(high):
+            r[R_CENTRE, i], r[R_HALF, i] = 0.5 * (low + high), 0.5 * (high - low)
+        else:  # nothing holds q̇: the estimate as the centre, the half-width infinite
+            r[R_CENTRE, i], r[R_HALF, i] = v[i], np.inf
+            consistent = False
+        a.velocity_centre[k, i], a.velocity_spread[k, i] = r[R_CENTRE, i], r[R_HALF, i]
     a.work.flags[CONSISTENT] = 1.0 if consistent else 0.0
 
 
@@ -382,6 +441,12 @@ def predict_interval(k, a, tau):
     for i in range(n):
         r[R_Q, i], r[R_V, i] = y[i], r[R_CENTRE, i]
         low[i], high[i] = np.inf, -np.inf
+        r[R_ACC_LOW, i] = r[R_ACC_HIGH, i] = np.nan
+    for i in range(n):
+        if not r[R_HALF, i] < np.inf:  # q̇ unknown now: nothing predicted
+            for j in range(n):
+                low[j], high[j] = -np.inf, np.inf
+            return
     deviation, acceleration = r[R_DEV], r[R_ACC]
     _fixed_deviation(a, r[R_HALF])
     for end in range(2):
@@ -395,6 +460,7 @@ def predict_interval(k, a, tau):
                 r[R_Q, i] += a.dt * r[R_V, i] + 0.5 * a.dt * a.dt * acceleration[i]
                 r[R_V, i] += a.dt * acceleration[i]
     for i in range(n):
+        r[R_ACC_LOW, i], r[R_ACC_HIGH, i] = low[i], high[i]  # the check's bound on q̈
         low[i] = r[R_CENTRE, i] - r[R_HALF, i] + a.dt * low[i]
         high[i] = r[R_CENTRE, i] + r[R_HALF, i] + a.dt * high[i]
 
@@ -420,33 +486,46 @@ def verified(k, a, y, v, eps, first, hold, policy, limit):
     """Whether the backup keeps every hard set from the estimate (y, v) (|q − y| ≤ n̄,
     |q̇ − v| ≤ ε), after ``first`` is held for one step if ``hold`` (module docstring), with
     the backup's ``policy`` within the torques ``limit`` (the torque limits or less)."""
-    r = a.work.rollout
+    w = a.work
+    r = w.rollout
     q, vel, dq, dv, acc = r[R_Q], r[R_V], r[R_DQ], r[R_DV], r[R_ACC]
-    limit_q, limit_v, deviation = r[R_LIMIT_Q], r[R_LIMIT_V], r[R_DEV]
+    limit_q, limit_v, deviation, widen = r[R_LIMIT_Q], r[R_LIMIT_V], r[R_DEV], r[R_WIDEN]
     n = y.shape[0]
+    for i in range(n):
+        if not eps[i] < np.inf:  # nothing known of the velocity: nothing is verified
+            return False
+    trial = int(w.flags[TUBE_TRIAL])  # the rollout is kept here; the plan, if verified
+    tube, lengths = w.tube[trial], w.tube_steps[trial]
     for i in range(n):
         q[i], vel[i], dq[i], dv[i] = y[i], v[i], a.noise_bound, eps[i]
         # what each set allows: its bound, or the excess it starts with (recovery)
         limit_q[i] = max(a.viable_bounds[0, i], abs(y[i] - a.centres[0, i]) + a.noise_bound)
         limit_v[i] = max(a.viable_bounds[1, i], abs(v[i] - a.centres[1, i]) + eps[i])
         r[R_TARGET, i] = 0.0
+        w.tube_eps[trial, i] = eps[i]
     _fixed_deviation(a, eps)
     t = 0.0
     step = 0
-    while t < a.backup_horizon:
+    while t < a.backup_horizon and step < lengths.shape[0]:
         backup = not (hold and step == 0)
         h = a.backup_step if backup else a.dt
         clipped = _nominal_acceleration(k, a, first, backup, policy, limit)
         # the bias error's velocity error is the estimate's, ε: the backup acts on the
         # state as measured, whatever the tube (the true state's spread about the rollout)
         _deviation(a, vel, eps, acc, deviation)
+        for i in range(n):
+            widen[i] = TUBE_SAFETY * deviation[i]
         decay = np.exp(-a.recovery_rate * (t + h))
         stopped = backup and not clipped
+        segment = tube[step]
         for i in range(n):
             # the backup's feedback acts on a joint whose torque is free (the held torque:
             # on none): a limited joint brakes as hard as it can, the others still steer
             free = backup and abs(r[R_TAU, i]) < limit[i] * (1.0 - 1e-9)
             feedback = min(a.backup_rate * h, 1.0) if free else 0.0
+            segment[T_Q, i], segment[T_V, i], segment[T_ACC, i] = q[i], vel[i], acc[i]
+            segment[T_DQ, i], segment[T_DV, i] = dq[i], dv[i]
+            segment[T_WIDEN, i], segment[T_FEEDBACK, i] = widen[i], feedback
             # exact for q̈ constant over the step (the position's error would be ~v·h/2),
             # with its turning point inside the step checked too
             turn = q[i]
@@ -454,9 +533,9 @@ def verified(k, a, y, v, eps, first, hold, policy, limit):
                 turn = q[i] - 0.5 * vel[i] * vel[i] / acc[i]
             q[i] += h * vel[i] + 0.5 * h * h * acc[i]
             vel[i] += h * acc[i]
-            dq[i] += h * dv[i] + 0.5 * h * h * TUBE_SAFETY * deviation[i]
+            dq[i] += h * dv[i] + 0.5 * h * h * widen[i]
             # the feedback acts on the estimate: the true velocity keeps its error, ε
-            dv[i] = max(dv[i] * (1.0 - feedback) + TUBE_SAFETY * deviation[i] * h, eps[i])
+            dv[i] = max(dv[i] * (1.0 - feedback) + widen[i] * h, eps[i])
             allowed_q = a.viable_bounds[0, i] + (limit_q[i] - a.viable_bounds[0, i]) * decay
             allowed_v = a.viable_bounds[1, i] + (limit_v[i] - a.viable_bounds[1, i]) * decay
             if a.hard[0] and max(abs(q[i] - a.centres[0, i]), abs(turn - a.centres[0, i])) + dq[i] \
@@ -465,9 +544,15 @@ def verified(k, a, y, v, eps, first, hold, policy, limit):
             if a.hard[1] and abs(vel[i] - a.centres[1, i]) + dv[i] > allowed_v:
                 return False
             stopped = stopped and abs(vel[i] - a.centres[1, i] - r[R_TARGET, i]) <= STOPPED
+        lengths[step] = h
         t += h
         step += 1
         if stopped:
+            if step < lengths.shape[0]:
+                lengths[step] = 0.0  # the rollout's end
+            # verified: this rollout is the plan (the next check writes the other buffer)
+            w.flags[PLAN_TUBE], w.flags[TUBE_TRIAL] = trial, 1 - trial
+            w.flags[PLAN_STEP] = k
             return True
     return False
 

@@ -16,7 +16,7 @@ from ...schema import FiniteFloat, PipelineError, PositiveFloat, Section
 from ...signals import Signal
 from ..linalg import dot
 from .assumptions import BACKUP, FILTER_ASSUMES, KEPT_CHECKS, VIABLE, FilterAssumptions
-from .backup import backup_at, inside, predict_interval, verified
+from .backup import backup_at, inside, plan_box, predict_interval, verified
 from .rows import add_cuts, cbf_rows, groups_record, groups_violated, rows_inline
 from .scratch import (
     ANSWER,
@@ -25,6 +25,12 @@ from .scratch import (
     PEAK,
     PLAN,
     PLAN_RESERVE,
+    R_ACC_HIGH,
+    R_ACC_LOW,
+    R_BOX_Q,
+    R_BOX_Q_HALF,
+    R_BOX_V,
+    R_BOX_V_HALF,
     R_CANDIDATE,
     R_CENTRE,
     R_HALF,
@@ -307,11 +313,26 @@ def cbf_record(k, a, count, tau):
 
 @no_refcount_jit(cache=True, inline="always")
 def record_inline(k, a, count, tau):
-    """cbf_record, inlined into the step. ``tau`` is the solver's, changed in place."""
+    """cbf_record, inlined into the step. ``tau`` is the solver's, changed in place. Also
+    what the run's classifier measures the check's premises with: the box the plan of the
+    step before put this row's state in, and the check's bound on q̈ over this step."""
+    r = a.work.rollout
+    for i in range(tau.shape[0]):
+        a.tube_position[k, i] = r[R_BOX_Q, i] if k > 0 else np.nan
+        a.tube_position_spread[k, i] = r[R_BOX_Q_HALF, i] if k > 0 else np.nan
+        a.tube_velocity[k, i] = r[R_BOX_V, i] if k > 0 else np.nan
+        a.tube_velocity_spread[k, i] = r[R_BOX_V_HALF, i] if k > 0 else np.nan
     viable, share = choose(k, a, tau)
     for i in range(tau.shape[0]):
         a.tau[k, i] = tau[i]
     predict_interval(k, a, tau)
+    for i in range(tau.shape[0]):
+        a.acceleration_low[k, i], a.acceleration_high[k, i] = r[R_ACC_LOW, i], r[R_ACC_HIGH, i]
+    if viable:  # the plan in force (verified now, or followed) says where the state goes
+        plan_box(k, a)
+    else:
+        for i in range(tau.shape[0]):
+            r[R_BOX_Q, i] = r[R_BOX_Q_HALF, i] = r[R_BOX_V, i] = r[R_BOX_V_HALF, i] = np.nan
     chosen = a.tau[k]
     a.viable[k] = 1.0 if viable else 0.0
     a.infeasible[k] = 0.0 if viable else 1.0
@@ -468,6 +489,14 @@ class CbfFilter(Block):
             "cbf_rows_met": Signal("1", "-", "1 where the torque applied met every hard row of "
                                    "the QP as given (its conditions; the backup's check is "
                                    "apart)", "cbf_filter/rows_met"),
+            **{f"cbf_tube_{quantity}{part}": Signal(
+                "n", unit, f"{what} of the box the plan in force at the step before puts the "
+                f"true {quantity} in at this step (NaN: no plan)", kept=True)
+               for quantity, unit in (("position", "rad"), ("velocity", "rad/s"))
+               for part, what in (("", "centre"), ("_spread", "half-width"))},
+            **{f"cbf_acceleration_{end}": Signal(
+                "n", "rad/s²", f"{end} end of the check's bound on the true q̈ over the step "
+                "held from this row", kept=True) for end in ("low", "high")},
         })
         boxes = joint_boxes(context.safety, context.links)
         if params.torque_limit is not None:
@@ -483,6 +512,9 @@ class CbfFilter(Block):
         keeps = tuple(KEPT_CHECKS[name] for name in params.hard)
         self.publishes = {FILTER_ASSUMES: FilterAssumptions(
             self.position, self.velocity, limit, np.zeros(context.links), keeps)}
+        # the check's rollout steps no finer than the hold it models (the backup is applied
+        # at the control step)
+        self.backup_step = max(params.backup_step, context.dt)
         if params.solver == "newton":
             self.kernel = cbf_step
         else:
@@ -510,7 +542,8 @@ class CbfFilter(Block):
                     "reference.safe_case = \"midpoint\" or drop the filter")
         self.args = self._arguments(ports)
         published = self.publishes[FILTER_ASSUMES]
-        self.publishes[FILTER_ASSUMES] = published._replace(tau_d=self.args.tau_d.copy())
+        self.publishes[FILTER_ASSUMES] = published._replace(
+            tau_d=self.args.tau_d.copy(), check_bounds=self.args.viable_bounds.copy())
 
     def _arguments(self, ports: Ports) -> CbfArgs:
         """The step's arguments: the parameters, the declared bounds, the trace's arrays it
@@ -562,7 +595,7 @@ class CbfFilter(Block):
             tracking_authority=p.tracking_torque == "controller" and any(
                 getattr(p, name) for name in ("soft", "soft_norms")),
             backup_rate=p.backup_rate, recovery_speed=p.recovery_speed,
-            recovery_rate=p.recovery_rate, backup_step=p.backup_step,
+            recovery_rate=p.recovery_rate, backup_step=self.backup_step,
             backup_horizon=p.backup_horizon,
             payload_grid=p.payload_grid, iterations=p.iterations, tolerance=p.tolerance,
             noise_bound=uncertainty.noise_bound, payload_low=payload_low,
@@ -588,7 +621,12 @@ class CbfFilter(Block):
             viable=out[VIABLE], backup_share=out[BACKUP], rows_met=out["cbf_rows_met"],
             velocity_centre=out["cbf_velocity_centre"],
             velocity_spread=out["cbf_velocity_spread"],
-            work=cbf_work(n, rows, p.payload_grid, dim))
+            **{f"tube_{quantity}{part}": out[f"cbf_tube_{quantity}{part}"]
+               for quantity in ("position", "velocity") for part in ("", "_spread")},
+            acceleration_low=out["cbf_acceleration_low"],
+            acceleration_high=out["cbf_acceleration_high"],
+            work=cbf_work(n, rows, p.payload_grid, dim,
+                          int(np.ceil(p.backup_horizon / self.backup_step)) + 2))
 
     def step(self, k: int) -> bool:
         """With a qpsolvers solver (no kernel): the same rows, the hard ones as hard

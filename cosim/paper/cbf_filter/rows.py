@@ -340,12 +340,19 @@ def rows_inline(k, a, every):
     product(minv, bias, base)
     velocity_interval(k, a)
     a.work.flags[GROUPS] = 0.0
-    hard_groups(a, k, y, v, eps, minv, base, False)
+    # ε infinite (the observer confirmed no enclosure of q̇): no hard row holds for every
+    # velocity, and none is made; the check verifies nothing from such a state either
+    known = True
+    for i in range(y.shape[0]):
+        known = known and eps[i] < np.inf
+    if known:
+        hard_groups(a, k, y, v, eps, minv, base, False)
     _predict_hold(k, a, y, v, minv, base)
     y_end, v_end = vectors[Y_END], vectors[V_END]
     minv_end, base_end = matrices[MINV_END], vectors[BASE_END]
     moved_model(a, y_end, v_end, mass, minv_end, base_end)
-    hard_groups(a, k, y_end, v_end, eps, minv_end, base_end, True)
+    if known:
+        hard_groups(a, k, y_end, v_end, eps, minv_end, base_end, True)
     # The soft rows take the plant's q̈ averaged over the hold (the midpoint rule: at the bound
     # of a set, q̈'s drift within one 1 ms hold is what would carry the state across), and
     # how v moves: the observer's drift + M̂⁻¹τ (the observer holds M̂ over the step), or the

@@ -44,11 +44,14 @@ ROLL_MASS, ROLL_MINV, ROLL_LU, BACKUP_FACTOR = range(8, 12)
 # interval at this step (its centre and half-width) and the one predicted for the next step;
 # the backup's √weight per joint; D's part that is fixed over a rollout (the bias error's
 # quadratic part and the disturbance, per row of b); the friction's error per joint at the
-# rollout's state.
+# rollout's state; the tube's widening per step (TUBE_SAFETY D); the box the plan predicts
+# for the true state at the next step (position centre and half-width, velocity centre and
+# half-width); the check's bound on the true q̈ over the held step (its low and high ends).
 (R_Q, R_V, R_DQ, R_DV, R_TAU, R_ACC, R_BIAS, R_DEV, R_LIMIT_Q, R_LIMIT_V, R_TARGET, R_SCRATCH,
  R_CANDIDATE, R_CENTRE, R_HALF, R_NEXT_LOW, R_NEXT_HIGH, R_WEIGHT, R_QUADRATIC,
- R_FRICTION) = range(20)
-ROLLOUT_ROWS = 20
+ R_FRICTION, R_WIDEN, R_BOX_Q, R_BOX_Q_HALF, R_BOX_V, R_BOX_V_HALF, R_ACC_LOW,
+ R_ACC_HIGH) = range(27)
+ROLLOUT_ROWS = 27
 # CbfWork.flags: CONSISTENT, 1 where the velocity's intervals met at this step; PLAN, the
 # backup policy of the last torque verified (a row of their own: an arm of one joint has a
 # rollout row of one)
@@ -56,6 +59,19 @@ CONSISTENT, PLAN = 0, 1
 # … and PLAN_RESERVE, 1 where that torque was verified with the backup within the torque
 # limits, 0 within braking_torque; GROUPS, the number of hard row groups at this step
 PLAN_RESERVE, GROUPS = 2, 3
+# … the tube's buffers (CbfWork.tube): TUBE_TRIAL, the one a check writes its rollout into,
+# PLAN_TUBE, the one that holds the rollout of the last torque verified, PLAN_STEP, the step
+# it was verified at (TUBE_TRIAL, not TRIAL: that is the solver's row of CbfWork.solver)
+TUBE_TRIAL, PLAN_TUBE, PLAN_STEP = 4, 5, 6
+FLAGS = 7
+# Of CbfWork.tube[buffer, segment] (n each): a rollout's segment, kept so that the plan it
+# verified can say where it puts the true state later (the tube measured along the run):
+# the nominal state at its start (q, q̇), the tube's half-widths there (δq, δv), its nominal
+# q̈, the tube's widening (TUBE_SAFETY D) and the share of δv the backup's feedback removes
+# over it; and of CbfWork.tube_steps[buffer, segment]: the segment's length, s (0 past the
+# rollout's last segment).
+T_Q, T_V, T_DQ, T_DV, T_ACC, T_WIDEN, T_FEEDBACK = range(7)
+TUBE_ROWS = 7
 # The hard rows in groups (cosim.paper.cbf_filter.rows): a joint's side of a hard set, now or
 # at the hold's end, one row per payload corner c, g_c = g_0 + Σ_j s_cj u_j with the limit
 # h_c = h_0 + Σ_j s_cj o_j (unscaled). Of CbfWork.group_values: h_0, a bound on every ‖g_c‖,
@@ -91,7 +107,7 @@ class CbfWork(NamedTuple):
     per_row: np.ndarray  # (2, rows) the limits and the weights the QP is solved with
     binding: np.ndarray  # (rows,) the rows violated at the solver's iterate
     rollout: np.ndarray  # (ROLLOUT_ROWS, n) R_Q …
-    flags: np.ndarray  # (4,) CONSISTENT, PLAN, PLAN_RESERVE, GROUPS
+    flags: np.ndarray  # (FLAGS,) CONSISTENT, PLAN, PLAN_RESERVE, GROUPS, TUBE_TRIAL …
     # tracking_torque = "controller": the largest |τ_nom,i| so far and the QP's answer
     # with the tracking rows while the hard rows' alone is solved, (2, n) PEAK, ANSWER
     authority: np.ndarray
@@ -111,6 +127,12 @@ class CbfWork(NamedTuple):
     group_labels: np.ndarray
     group_added: np.ndarray
     s_phase: np.ndarray
+    # two rollouts (the trial a check writes, the plan last verified), segment by segment:
+    # (2, segments, TUBE_ROWS, n) T_Q …, their lengths (2, segments) and the velocity error
+    # ε each was checked with (2, n)
+    tube: np.ndarray
+    tube_steps: np.ndarray
+    tube_eps: np.ndarray
 
 
 def payload_corners(grid: int, d: int) -> np.ndarray:
@@ -131,9 +153,9 @@ def payload_corners(grid: int, d: int) -> np.ndarray:
     return corner_index
 
 
-def cbf_work(n: int, rows: int, grid: int, d: int) -> CbfWork:
+def cbf_work(n: int, rows: int, grid: int, d: int, segments: int) -> CbfWork:
     """The scratch of a filter on n joints with at most ``rows`` rows, the payload's point
-    of d coordinates."""
+    of d coordinates, and rollouts of at most ``segments`` segments."""
     return kernel_args(
         CbfWork, polar=np.zeros((POLAR_ROWS, n)), solver=np.zeros((5, n)),
         vectors=np.zeros((X + 4, n)), matrices=np.zeros((12, n, n)),
@@ -141,13 +163,14 @@ def cbf_work(n: int, rows: int, grid: int, d: int) -> CbfWork:
         point_vectors=np.zeros((4, d)), squares=np.zeros((3, d, d)), s_grid=np.zeros((grid + 1, d)),
         corner_index=payload_corners(grid, d),
         per_row=np.zeros((2, rows)), binding=np.zeros(rows, np.bool_),
-        rollout=np.zeros((ROLLOUT_ROWS, n)), flags=np.zeros(4), authority=np.zeros((2, n)),
+        rollout=np.zeros((ROLLOUT_ROWS, n)), flags=np.zeros(FLAGS), authority=np.zeros((2, n)),
         backup_rows=np.zeros((2 * n, n)),
         backup_limits=np.zeros((2, 2 * n)), backup_solver=np.zeros((5, n)),
         backup_binding=np.zeros(2 * n, np.bool_), group_rows=np.zeros((8 * n, 1 + d, n)),
         group_values=np.zeros((8 * n + 1, 2 + d)), group_labels=np.zeros((8 * n, 4), np.int64),
         group_added=np.zeros((8 * n, (2**d - 1) * grid + 1), np.bool_),
-        s_phase=np.zeros((2, grid + 1, d)))
+        s_phase=np.zeros((2, grid + 1, d)), tube=np.zeros((2, segments, TUBE_ROWS, n)),
+        tube_steps=np.zeros((2, segments)), tube_eps=np.zeros((2, n)))
 
 
 class CbfArgs(NamedTuple):
@@ -230,5 +253,15 @@ class CbfArgs(NamedTuple):
     rows_met: np.ndarray  # 1 where the torque applied met every hard row as given
     velocity_centre: np.ndarray  # (rows, n) the true velocity's interval: centre
     velocity_spread: np.ndarray  # and half-width
+    # (rows, n) the box the plan in force at the step before puts the true state in at this
+    # row (its position's centre and half-width, its velocity's; NaN: no plan, the step
+    # before was not viable), and the check's bound on the true q̈ over the step held from
+    # this row (its low and high ends)
+    tube_position: np.ndarray
+    tube_position_spread: np.ndarray
+    tube_velocity: np.ndarray
+    tube_velocity_spread: np.ndarray
+    acceleration_low: np.ndarray
+    acceleration_high: np.ndarray
     work: CbfWork
 
