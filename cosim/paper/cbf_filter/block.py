@@ -41,6 +41,7 @@ from .scratch import (
     cbf_work,
 )
 from .solver import newton
+from .steps import check_step_range
 
 # Bisections of the blend between the QP's torque and the backup's, where the QP's alone is
 # not verified: the blend found is within 2⁻⁴ of the largest verified one.
@@ -519,6 +520,9 @@ class CbfFilter(Block):
             self.kernel = cbf_step
         else:
             self._check_solver(params.solver)
+
+    def check(self, published) -> None:
+        check_step_range(self, published)
 
     @staticmethod
     def _check_solver(name: str) -> None:
