@@ -72,19 +72,25 @@ def test_the_true_velocity_outside_the_filters_interval_breaks_it(joint, side):
 def test_the_tube_may_be_left_by_the_room_the_check_leaves_and_no_more(quantity, half,
                                                                        room, joint):
     """Past the plan's box by less than the half-margin the check leaves to the bound: the
-    premise holds; past it by more (either side, at either joint): broken."""
+    premise holds; past it by more (either side, at either joint): reported, naming it, on
+    the run's line. (Not yet held against the guarantee: guarantee.py's measured_premises
+    says why.)"""
     trace = measured_trace()
     trace[f"cbf_tube_{quantity}"][800, joint] += half + room - 1e-6
     g = judge(trace, WITH_CHECK)
-    assert g["tube_exceeded_steps"] == 0 and g["broken"] is False
+    assert g["tube_exceeded_steps"] == 0 and g["tube_left"] is None
     assert g["tube_slack"][quantity] == pytest.approx(1e-6, abs=1e-9)
     trace[f"cbf_tube_{quantity}"][800, joint] -= 2 * (half + room)
     g = judge(trace, WITH_CHECK)
-    assert g["tube_exceeded_steps"] == 1 and g["broken"] is True
+    assert g["tube_exceeded_steps"] == 1
     assert g["tube_slack"][quantity] == pytest.approx(-1e-6, abs=1e-9)
-    assert g["violations"][0].startswith(
+    assert g["tube_left"].startswith(
         "the true state outside the check's tube by more than the room it leaves to the "
         f"bounds at 1 steps (first t = 0.8 s; the {quantity} by up to 1e-06")
+    assert g["broken"] is False and g["violations"] == []
+    from test_guarantee import report_line
+
+    assert report_line(g).endswith(f" (measured, not yet held against it: {g['tube_left']})")
 
 
 def test_no_plan_no_tube_and_a_filter_that_does_not_say_its_sets_is_not_judged():
