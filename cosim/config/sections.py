@@ -9,7 +9,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, create_model, model_validator
 
-from plant_fmu import DEFAULT_MODEL, MODELS
+from plant_fmu import ARMS, DEFAULT_MODEL
 
 from ..plant.ports import PORTS
 from ..schema import FiniteFloat, PositiveFloat, Section
@@ -59,7 +59,7 @@ class BuiltinPlant(Section):
     # the built-in plant model (a name): "planar_arm", the rigid arm, or "elastic_joints",
     # the arm whose motors drive the links through springs (extra parameters k, d, J per
     # joint)
-    model: Literal[tuple(MODELS)] = DEFAULT_MODEL
+    model: Literal[ARMS] = DEFAULT_MODEL
     links: Annotated[int, Field(ge=1, le=7)] = 2  # number of joints, dimensionless (a count)
     fmi_version: Literal[2, 3] = 2  # the FMI version it is built for, 2 or 3 (a name)
 
