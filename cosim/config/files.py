@@ -16,10 +16,10 @@ MAX_EXTENDS = 32  # files in an `extends` chain: far more than any real layering
 def read_toml(path: Path, chain: tuple[Path, ...] = ()) -> dict:
     """A pipeline file's tables, with ``extends = "other.toml"`` (relative to it) resolved:
     the other file's tables first, this file's merged over them key by key (runs by name).
-    Paths in a file (``plant.fmu``, the URDFs, a reference's CSV, plugins) are relative to the
-    file that declares them; a file that
-    names a plant (``plant.fmu``, ``plant.builtin`` or ``plant.urdf``) replaces the one it
-    extends."""
+    Paths in a file (``plant.fmu``, ``plant.ssp``, a system's FMUs, the URDFs, a reference's
+    CSV, plugins) are relative to the file that declares them; a file that names a plant
+    (``plant.fmu``, ``plant.builtin``, ``plant.urdf``, ``plant.ssp`` or ``plant.system``)
+    replaces the one it extends."""
     where = f" (extended by {chain[-1]})" if chain else ""
     if len(chain) >= MAX_EXTENDS:
         raise PipelineError(f"{path}: the 'extends' chain is more than {MAX_EXTENDS} files "
@@ -51,9 +51,8 @@ def read_toml(path: Path, chain: tuple[Path, ...] = ()) -> dict:
     for table in urdf_tables(data):  # safety.urdf, inertia_model.urdf: relative to this file
         table["urdf"] = urdf_relative_to(table["urdf"], path.parent)
     plant = data.get("plant")
-    if isinstance(plant, dict) and isinstance(plant.get("fmu"), str):
-        fmu = Path(plant["fmu"]).expanduser()
-        plant["fmu"] = str(fmu if fmu.is_absolute() else (path.parent / fmu).resolve())
+    for table, key in plant_files(plant):
+        table[key] = str(absolute(table[key], path.parent))
     if isinstance(plant, dict) and "urdf" in plant:
         plant["urdf"] = urdf_relative_to(plant["urdf"], path.parent)
     parent = data.pop("extends", None)
@@ -80,6 +79,20 @@ def read_toml(path: Path, chain: tuple[Path, ...] = ()) -> dict:
                     if other not in plant:
                         merged["plant"].pop(other, None)
     return merged
+
+
+def plant_files(plant) -> list[tuple[dict, str]]:
+    """The (table, key) pairs of a ``[plant]`` table that name a file relative to the
+    pipeline file: ``plant.fmu``, ``plant.ssp``, and each ``plant.system`` component's
+    ``fmu``."""
+    if not isinstance(plant, dict):
+        return []
+    tables = [(plant, "fmu"), (plant, "ssp")]
+    system = plant.get("system")
+    components = system.get("components") if isinstance(system, dict) else None
+    if isinstance(components, dict):
+        tables += [(c, "fmu") for c in components.values() if isinstance(c, dict)]
+    return [(table, key) for table, key in tables if isinstance(table.get(key), str)]
 
 
 def reference_tables(data: dict) -> list[dict]:

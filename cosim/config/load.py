@@ -48,8 +48,13 @@ def load_pipeline(path: str | Path | None, overrides: list[str] | None = None,
     except PipelineError as exc:
         raise _blamed_on_its_file(exc, path, source, overrides or []) from None
     if pipeline.plant.fmu is not None:
-        fmu = Path(pipeline.plant.fmu).expanduser()
-        pipeline.plant.fmu = str(fmu if fmu.is_absolute() else (base / fmu).resolve())
+        pipeline.plant.fmu = str(absolute(pipeline.plant.fmu, base))
+    if pipeline.plant.ssp is not None:
+        pipeline.plant.ssp = str(absolute(pipeline.plant.ssp, base))
+    for component in (pipeline.plant.system.components.values()
+                      if pipeline.plant.system is not None else ()):
+        if component.fmu is not None:
+            component.fmu = str(absolute(component.fmu, base))
     for table in [pipeline, *pipeline.runs.values()]:  # a CSV given by --set: from ``base``
         reference = getattr(table, "reference", None)
         if reference is not None and reference.csv is not None:
