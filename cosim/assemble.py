@@ -28,9 +28,11 @@ from .evaluate.parts import select
 from .memory import check_memory
 from .plant import PLANT_INPUT, PLANT_INPUT_ENTITY, PLANT_OUTPUTS, Plant
 from .plant.fmu import Fmu, FmuError
+from .plant.mapping import check_plant_fmu
 from .plant.ports import traced_outputs
 from .plant.unpack import remove
 from .signals import Signal, Trace, trace_name_clash
+from .system.export import single_fmu_system
 from .system.plant import SystemPlant
 from .system.ssp import read_ssp
 from .system.structure import Component, System, parse_connection
@@ -221,18 +223,32 @@ def open_plant(pipeline: Pipeline) -> Fmu | SystemPlant:
     variable, component or connection."""
     mapping, parameters = pipeline.plant.variables.model_dump(), dict(pipeline.plant.parameters)
     try:
-        if pipeline.plant.system is not None:
-            return SystemPlant(table_system(pipeline.plant.system), mapping, parameters)
-        if pipeline.plant.ssp is not None:
-            system, folder = read_ssp(plant_path(pipeline))
-            try:
-                return SystemPlant(system, mapping, parameters, folder)
-            except BaseException:
+        if pipeline.plant.system is None and pipeline.plant.ssp is None:
+            return Fmu(plant_path(pipeline), mapping, parameters)
+        system, folder = plant_system(pipeline)
+        try:
+            return SystemPlant(system, mapping, parameters, folder)
+        except BaseException:
+            if folder is not None:
                 remove(folder)
-                raise
-        return Fmu(plant_path(pipeline), mapping, parameters)
+            raise
     except FmuError as exc:
         raise PipelineError(str(exc)) from None
+
+
+def plant_system(pipeline: Pipeline) -> tuple[System, str | None]:
+    """The pipeline's plant as a system of FMUs, and the folder an SSP archive was unpacked
+    into (the caller removes it; None for the others): ``plant.ssp``, ``plant.system``, or
+    one FMU as a system of one component (:func:`~cosim.system.export.single_fmu_system`).
+    :class:`FmuError` where the plant is not valid."""
+    if pipeline.plant.ssp is not None:
+        return read_ssp(plant_path(pipeline))
+    if pipeline.plant.system is not None:
+        return table_system(pipeline.plant.system), None
+    path = plant_path(pipeline)
+    _, variables = check_plant_fmu(path, pipeline.plant.variables.model_dump(),
+                                   dict(pipeline.plant.parameters))
+    return single_fmu_system(path, variables.names, dict(pipeline.plant.parameters)), None
 
 
 def assemble(pipeline: Pipeline, plant: Fmu | SystemPlant | None = None) -> Scenario:

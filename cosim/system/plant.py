@@ -109,7 +109,7 @@ class SystemPlant:
         self.parameters = dict(parameters or {})
         self.wiring: Wiring = check_system(system, self.parameters)
         self.passes: list[Pass] = schedule(self.wiring)
-        self.model_description = self._description()
+        self.model_description = self.description_of(self.wiring)
         variables, problems = map_variables(self.model_description, mapping)
         if variables is None:
             raise FmuError(f"{self.path.name}: the system does not fit the plant interface: "
@@ -142,11 +142,12 @@ class SystemPlant:
 
     # What the system is, and where each value sits ----------------------------------------
 
-    def _description(self) -> ModelDescription:
-        """The system's own connectors as one FMU's variables (the ports' checks read them)."""
+    @staticmethod
+    def description_of(wiring: Wiring) -> ModelDescription:
+        """A system's own connectors as one FMU's variables (the ports' checks read them)."""
         md = ModelDescription()
-        md.fmiVersion, md.modelName = "2.0", self.system.name
-        for vr, port in enumerate(self.wiring.ports):
+        md.fmiVersion, md.modelName = "2.0", wiring.system.name
+        for vr, port in enumerate(wiring.ports):
             md.modelVariables.append(ModelVariable(name=port.name, valueReference=vr,
                                                    type="Real", causality=port.kind,
                                                    unit=port.unit))

@@ -163,7 +163,7 @@ def _check_declared(component: Component, md: ModelDescription, system: System) 
                            f"{var.type}")
         own = declared_unit(var)
         if connector.unit and own and not _same_unit(connector.unit, system.units, own,
-                                                     _definitions(md, system)):
+                                                     definitions(md, system)):
             raise FmuError(f"{where}: declared in {connector.unit}, but the FMU's variable is "
                            f"in {own}; cosim converts no units")
 
@@ -215,7 +215,7 @@ def _check_units(connection: Connection, start: str | None, end: str | None, sys
                  descriptions: dict[str, ModelDescription]) -> None:
     if start is None or end is None:
         return
-    defined = [_definitions(descriptions.get(end.element), system)
+    defined = [definitions(descriptions.get(end.element), system)
                for end in (connection.start, connection.end)]
     if not _same_unit(start, defined[0], end, defined[1]):
         raise FmuError(f"connection {connection}{_at(connection.where)}: {connection.start} is "
@@ -223,7 +223,7 @@ def _check_units(connection: Connection, start: str | None, end: str | None, sys
                        "(connect variables of one unit)")
 
 
-def _definitions(md: ModelDescription | None, system: System) -> dict[str, tuple]:
+def definitions(md: ModelDescription | None, system: System) -> dict[str, tuple]:
     """Unit name -> (kg, m, s, A, K, mol, cd, rad exponents, factor, offset): an FMU's
     <UnitDefinitions>, or the system's <Units>."""
     if md is None:
@@ -240,7 +240,7 @@ def _definitions(md: ModelDescription | None, system: System) -> dict[str, tuple
 def _same_unit(a: str, a_defined: dict[str, tuple], b: str, b_defined: dict[str, tuple]
                ) -> bool:
     """Whether units ``a`` and ``b`` are one: the same spelling, or the same definition
-    (:func:`_definitions`) where both sides define theirs."""
+    (:func:`definitions`) where both sides define theirs."""
     if unit_spelling(a) == unit_spelling(b):
         return True
     return a in a_defined and b in b_defined and a_defined[a] == b_defined[b]
