@@ -48,8 +48,11 @@ class Pass:
 
 def schedule(wiring: Wiring) -> list[Pass]:
     """The passes at each communication point, in dependency order: every fed input of
-    every component set once, after whatever feeds it; every output that depends on an
-    input got once, after those inputs are set. :class:`FmuError` naming an algebraic loop."""
+    every component set once, after whatever feeds it; an output that depends on a fed
+    input within the instant got after those inputs are set, where the component has one
+    that feeds another input (the others are read after the step). Component by component
+    (a set, then a get) where the components can be ordered so, else variable by variable.
+    :class:`FmuError` naming an algebraic loop."""
     through = {name: feedthrough(md) for name, md in wiring.descriptions.items()}
     # The graph's nodes: fed inputs, and outputs that depend on a fed input.
     fed = [end for end in wiring.sources if end.element is not None]
@@ -65,25 +68,61 @@ def schedule(wiring: Wiring) -> list[Pass]:
                     waiting[node] = 0
                 after.setdefault(end, []).append(node)
                 waiting[node] += 1
+    passed_on: set[Endpoint] = set()  # outputs another input waits for within the instant
     for end in fed:
         waiting.setdefault(end, 0)
         source = wiring.sources[end]
         if end not in wiring.delayed and source in waiting:
             after.setdefault(source, []).append(end)
             waiting[end] += 1
-    order = _kahn(nodes, after, waiting, wiring)
+            passed_on.add(source)
+    order = _kahn(nodes, after, waiting, wiring)  # refuses a loop, named
+    place = {name: {v.name: i for i, v in enumerate(md.modelVariables)}
+             for name, md in wiring.descriptions.items()}
+    # a component got from: all its outputs that changed (one call; the trace holds them)
+    getting = {n.element for n in passed_on}
+    wanted = [n for n in order if n in wiring.sources or n.element in getting]
+    components = _component_order(wanted, after, wiring)
+    if components is not None:
+        wanted = [n for c in components for action in (True, False) for n in wanted
+                  if n.element == c and (n in wiring.sources) == action]
     grouped: list[tuple[str, str, list[str]]] = []
-    for node in order:
+    for node in wanted:
         action = "set" if node in wiring.sources else "get"
         if grouped and grouped[-1][:2] == (node.element, action):
             grouped[-1][2].append(node.connector)
         else:
             grouped.append((node.element, action, [node.connector]))
     # within a pass, the FMU's own order (a family such as tau[1], tau[2] stays together)
-    place = {name: {v.name: i for i, v in enumerate(md.modelVariables)}
-             for name, md in wiring.descriptions.items()}
     return [Pass(element, action, tuple(sorted(names, key=place[element].get)))
             for element, action, names in grouped]
+
+
+def _component_order(nodes: list[Endpoint], after: dict, wiring: Wiring) -> list[str] | None:
+    """The components in an order where each one's inputs are all set after everything
+    they wait for (so that one set and one get a component do), or None where none is
+    (a component whose output feeds, through others, an input of its own that another of
+    its outputs does not depend on: then the passes go variable by variable)."""
+    names = list(dict.fromkeys(n.element for n in nodes))
+    edges = {name: set() for name in names}
+    for node in nodes:
+        for successor in after.get(node, []):
+            if successor.element != node.element:
+                edges[node.element].add(successor.element)
+    count = {name: 0 for name in names}
+    for targets in edges.values():
+        for target in targets:
+            count[target] += 1
+    ready = [name for name in names if count[name] == 0]
+    order = []
+    while ready:
+        name = ready.pop(0)
+        order.append(name)
+        for target in sorted(edges[name], key=names.index):
+            count[target] -= 1
+            if count[target] == 0:
+                ready.append(target)
+    return order if len(order) == len(names) else None
 
 
 def _kahn(nodes: list[Endpoint], after: dict, waiting: dict, wiring: Wiring
@@ -113,16 +152,25 @@ def _kahn(nodes: list[Endpoint], after: dict, waiting: dict, wiring: Wiring
 
 
 def _loop_message(stuck: list[Endpoint], after: dict, wiring: Wiring) -> str:
-    """One cycle among the nodes left waiting, from input through output round to itself."""
+    """One cycle among the nodes left waiting, from input through output round to itself
+    (those only downstream of a cycle, which lead into none, set aside first)."""
     left = set(stuck)
-    path, seen = [stuck[0]], {stuck[0]: 0}
+    while dead := {n for n in left if not any(m in left for m in after.get(n, []))}:
+        left -= dead
+    start = next(n for n in stuck if n in left)
+    path, seen = [start], {start: 0}
     while True:
         successor = next(n for n in after.get(path[-1], []) if n in left)
         if successor in seen:
-            cycle = path[seen[successor]:] + [successor]
+            cycle = path[seen[successor]:]
             break
         seen[successor] = len(path)
         path.append(successor)
+    # from the first declared component's input, round to it again
+    rank = {name: i for i, name in enumerate(wiring.descriptions)}
+    first = min(range(len(cycle)), key=lambda i: (rank[cycle[i].element],
+                                                  cycle[i] not in wiring.sources))
+    cycle = cycle[first:] + cycle[:first + 1]
     components = list(dict.fromkeys(n.element for n in cycle))
     return (f"{wiring.system.origin or 'the system'}: an algebraic loop through "
             f"{', '.join(components)}: {' -> '.join(map(str, cycle))} (each output there "

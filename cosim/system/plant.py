@@ -61,7 +61,12 @@ class _Component:
     parameters: dict[str, float]
     outputs: list[str]
     inputs: list[str]
-    at: int = 0  # outputs at flat[at:at + len(outputs)], then the inputs
+    # where each output and input sits in the flat array: its outputs from ``at`` on, then
+    # its inputs of their own (``own``: those no connection feeds, or a delayed one feeds);
+    # an input a connection feeds is its source's place (the values are one)
+    at: int = 0
+    own: list[str] = field(default_factory=list)
+    where: dict[str, int] = field(default_factory=dict)
     fmi: FmiInstance | None = None
     # Bound when it is instantiated: its (set, doStep, get) functions, value references,
     # doStep's trailing arguments, and the calls that read all its outputs and inputs.
@@ -78,20 +83,18 @@ class _Component:
 
     def index(self, variable: str) -> int:
         """Where ``variable`` (an output or input) sits in the flat array."""
-        if variable in self.outputs:
-            return self.at + self.outputs.index(variable)
-        return self.at + len(self.outputs) + self.inputs.index(variable)
+        return self.where[variable]
 
 
 @dataclass
 class _Call:
-    """One pass's FMI call and the copy before it: ``flat[copy_to] = flat[copy_from]``."""
+    """One pass's FMI call, and the gather before it: ``copy_to[:] = flat[copy_from]``."""
 
     component: _Component
     what: str  # the call, for messages: "SetReal (inputs)", "GetReal (outputs)"
     function: object
     args: tuple
-    copy_to: slice | np.ndarray | None = None
+    copy_to: np.ndarray | None = None
     copy_from: np.ndarray | None = None
 
 
@@ -125,9 +128,8 @@ class SystemPlant:
         self.mapped = frozenset(p.name for p in OUTPUT_PORTS if p.name in variables.mapped)
         self.fmi_version = sorted({int(md.fmiVersion[0])
                                    for md in self.wiring.descriptions.values()})
-        self._components = self._lay_out()
-        self._flat = np.zeros(self.links + sum(len(c.outputs) + len(c.inputs)
-                                               for c in self._components))
+        self._components, width = self._lay_out()
+        self._flat = np.zeros(width)
         self.tau = self._flat[:self.links]
         self.values, self._copied = self._ports()
         self.signals: dict[str, Signal] = {}
@@ -153,9 +155,11 @@ class SystemPlant:
                                                    unit=port.unit))
         return md
 
-    def _lay_out(self) -> list[_Component]:
-        """Each component's outputs and inputs, ordered so that each pass's variables are
-        adjacent (one FMI call on a slice of the flat array), the others after them."""
+    def _lay_out(self) -> tuple[list[_Component], int]:
+        """Each component's outputs, ordered so that each pass's are adjacent (one FMI call
+        on a slice of the flat array), then its inputs of its own; an input a connection
+        feeds (not delayed) takes its source's place. Returns the components and the flat
+        array's length."""
         by_pass: dict[str, list[str]] = {}
         for step in self.passes:
             by_pass.setdefault(f"{step.component}/{step.action}", []).extend(step.variables)
@@ -167,14 +171,26 @@ class SystemPlant:
                                [v.name for v in real if v.causality == "output"])
             inputs = _ordered(by_pass.get(f"{component.name}/set", []),
                               [v.name for v in real if v.causality == "input"])
+            own = [n for n in inputs if Endpoint(component.name, n) not in self.wiring.sources
+                   or Endpoint(component.name, n) in self.wiring.delayed]
             parameters = {**component.parameters,
                           **{key.partition(".")[2]: value for key, value in
                              self.parameters.items()
                              if key.partition(".")[0] == component.name}}
-            out.append(_Component(component.name, component.source, md,
-                                  component.step_multiple, parameters, outputs, inputs, at))
-            at += len(outputs) + len(inputs)
-        return out
+            c = _Component(component.name, component.source, md, component.step_multiple,
+                           parameters, outputs, inputs, at, own)
+            c.where = {name: at + i for i, name in enumerate(outputs + own)}
+            out.append(c)
+            at += len(outputs) + len(own)
+        by_name = {c.name: c for c in out}
+        for c in out:
+            for name in c.inputs:
+                if name not in c.where:
+                    source = self.wiring.sources[Endpoint(c.name, name)]
+                    c.where[name] = (self.variables.tau.index(source.connector)
+                                     if source.element is None
+                                     else by_name[source.element].where[source.connector])
+        return out, at
 
     def _component(self, name: str) -> _Component:
         return next(c for c in self._components if c.name == name)
@@ -277,36 +293,37 @@ class SystemPlant:
         flags = c.flags.ctypes.data  # fmi3DoStep reports through four pointers
         c.tail = (1,) if c.version == 2 else (True, flags, flags + 8, flags + 16, flags + 24)
         c.read_outputs = self._on_flat(c, "get", c.outputs, c.at, "outputs")
-        c.read_inputs = self._on_flat(c, "get", c.inputs, c.at + len(c.outputs), "inputs")
+        c.read_inputs = self._on_flat(c, "get", c.own, c.at + len(c.outputs), "inputs")
 
     def _on_flat(self, c: _Component, action: str, names: list[str], first: int,
-                 what: str) -> _Call:
+                 what: str, values: np.ndarray | None = None) -> _Call:
         """An FMI call that sets or gets ``names`` of ``c`` from or into the flat array's
-        slice at ``first``."""
+        slice at ``first`` (or ``values``, from its start)."""
         vrs = (ctypes.c_uint32 * len(names))(*(c.refs[n] for n in names))
         count = (len(names),) if c.version == 3 else ()
         function = c.functions[0 if action == "set" else 2]
         name = c.fmi.set_name if action == "set" else c.fmi.get_name
+        array = self._flat if values is None else values
         return _Call(c, f"{name} ({what})", function,
                      (c.fmi.fmu.component, vrs, len(names),
-                      self._flat.ctypes.data + 8 * first, *count))
+                      array.ctypes.data + 8 * int(first), *count))
 
     def _pass_calls(self) -> list[_Call]:
-        """The passes (:mod:`.order`) as calls on the flat array, each set preceded by the
-        copy of its fed inputs' sources (not of a delayed connection's: copied first)."""
+        """The passes (:mod:`.order`) as calls on the flat array: on the slice their
+        variables sit in, or (inputs whose sources are not adjacent) on a buffer gathered
+        from them just before."""
         calls = []
         for step in self.passes:
             c = self._component(step.component)
-            names = list(step.variables)
-            call = self._on_flat(c, step.action, names, c.index(names[0]),
-                                 "inputs" if step.action == "set" else "outputs")
-            live = [n for n in names if step.action == "set"
-                    and Endpoint(c.name, n) not in self.wiring.delayed]
-            if live:
-                to = np.array([c.index(n) for n in live])
-                call.copy_to = (slice(to[0], to[-1] + 1) if np.all(np.diff(to) == 1) else to)
-                call.copy_from = np.array([self._source_index(Endpoint(c.name, n))
-                                           for n in live])
+            index = np.array([c.index(n) for n in step.variables])
+            what = "inputs" if step.action == "set" else "outputs"
+            if np.all(np.diff(index) == 1):
+                calls.append(self._on_flat(c, step.action, list(step.variables), index[0],
+                                           what))
+                continue
+            buffer = np.zeros(len(index))
+            call = self._on_flat(c, step.action, list(step.variables), 0, what, buffer)
+            call.copy_to, call.copy_from = buffer, index
             calls.append(call)
         return calls
 
@@ -330,7 +347,7 @@ class SystemPlant:
             if k % call.component.multiple:
                 continue
             if call.copy_from is not None:
-                flat[call.copy_to] = flat[call.copy_from]
+                flat.take(call.copy_from, out=call.copy_to)
             status = call.function(*call.args)
             if status > 1:
                 raise FmuError(self._failure(call.component, call.what, status, t))
@@ -357,8 +374,8 @@ class SystemPlant:
                 self._call(c.read_outputs, t + h)
         self._copy_ports()
         self._k, self.time = k + 1, t + h
-        if self._record is not None:  # the last row's, until the next step's exchange
-            self._record[k + 1] = self._flat
+        if self._record is not None and k + 1 == len(self._record) - 1:
+            self._record[k + 1] = self._flat  # the last row: as read after the last step
 
     def bind_trace(self, trace: Trace) -> None:
         """Record into ``trace``: its arrays of this plant's :attr:`signals` become views

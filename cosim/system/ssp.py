@@ -172,7 +172,7 @@ def _component(element: etree._Element, archive: Path, folder: Path, where: str,
     component = Component(name, path, connectors=connectors, where=at)
     component.parameters = {
         key: value for key, value in _bindings(element, archive, folder, where).items()}
-    for annotation in element.findall(f"ssc:Annotations/ssc:Annotation[@type='{ANNOTATION}']",
+    for annotation in element.findall(f"ssd:Annotations/ssc:Annotation[@type='{ANNOTATION}']",
                                       NS):
         stepping = annotation.find("cosim:Component", NS)
         if stepping is not None:
@@ -257,7 +257,7 @@ def _connection(element: etree._Element, where: str) -> Connection:
                        f"{etree.QName(transform).localname}: cosim converts no values; connect "
                        "connectors of one unit")
     delayed = any(mark.get("delayed") == "true" for mark in element.findall(
-        f"ssc:Annotations/ssc:Annotation[@type='{ANNOTATION}']/cosim:Connection", NS))
+        f"ssd:Annotations/ssc:Annotation[@type='{ANNOTATION}']/cosim:Connection", NS))
     return Connection(start, end, delayed, at)
 
 
@@ -298,13 +298,11 @@ def write_ssp(system: System, path: str | Path, units: dict[str, tuple] | None =
                              stepMultiple=str(component.step_multiple))
     connections = etree.SubElement(element, f"{{{SSD}}}Connections")
     for connection in system.connections:
-        ends = {"startConnector": connection.start.connector,
-                "endConnector": connection.end.connector}
-        if connection.start.element is not None:
-            ends["startElement"] = connection.start.element
-        if connection.end.element is not None:
-            ends["endElement"] = connection.end.element
-        child = etree.SubElement(connections, f"{{{SSD}}}Connection", **ends)
+        ends = {"startElement": connection.start.element,
+                "startConnector": connection.start.connector,
+                "endElement": connection.end.element, "endConnector": connection.end.connector}
+        child = etree.SubElement(connections, f"{{{SSD}}}Connection",
+                                 **{k: v for k, v in ends.items() if v is not None})
         if connection.delayed:
             etree.SubElement(_annotation(child), f"{{{COSIM}}}Connection",
                              nsmap={"cosim": COSIM}, delayed="true")
@@ -339,7 +337,7 @@ def write_ssp(system: System, path: str | Path, units: dict[str, tuple] | None =
 
 
 def _annotation(parent: etree._Element) -> etree._Element:
-    annotations = etree.SubElement(parent, f"{{{SSC}}}Annotations")
+    annotations = etree.SubElement(parent, f"{{{SSD}}}Annotations")
     return etree.SubElement(annotations, f"{{{SSC}}}Annotation", type=ANNOTATION)
 
 
