@@ -24,6 +24,9 @@ from fmpy.fmi3 import FMU3Slave
 from fmpy.ssp.ssd import read_ssd
 from test_plant_swapping import FOREIGN_ARM, build_pythonfmu
 
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
+from bench_systems import plain_fmpy_loop  # noqa: E402 (the benchmarks' folder, just added)
+
 from cosim.assemble import assemble, open_plant
 from cosim.cli import main
 from cosim.config import PipelineError, load_pipeline
@@ -242,71 +245,15 @@ def test_an_exported_ssp_is_read_by_fmpy_and_runs_as_the_pipeline_did(exported):
             assert np.array_equal(values, from_ssp[name].trace[key], equal_nan=True), key
 
 
-def started(ssd, folder: Path) -> tuple[dict, dict]:
-    """Every component of an SSP read by FMPy, instantiated and initialised by FMPy with its
-    parameter values: (FMPy slaves, value references) by component name."""
-    fmus, vr = {}, {}
-    for component in ssd.system.elements:
-        path = str(folder / component.source)
-        md = read_model_description(path)
-        cls = FMU2Slave if md.fmiVersion.startswith("2") else FMU3Slave
-        fmu = cls(guid=md.guid, unzipDirectory=extract(path), instanceName=component.name,
-                  modelIdentifier=md.coSimulation.modelIdentifier)
-        fmu.instantiate()
-        refs = {v.name: v.valueReference for v in md.modelVariables}
-        values = {p.name: float(p.value) for binding in component.parameterBindings
-                  for parameters in binding.parameterValues for p in parameters.parameters}
-        if md.fmiVersion.startswith("2"):
-            fmu.setupExperiment(startTime=0.0)
-            fmu.enterInitializationMode()
-            fmu.setReal([refs[k] for k in values], list(values.values()))
-        else:
-            fmu.enterInitializationMode(startTime=0.0)
-            fmu.setFloat64([refs[k] for k in values], list(values.values()))
-        fmu.exitInitializationMode()
-        fmus[component.name], vr[component.name] = fmu, refs
-    return fmus, vr
-
-
 def test_a_plain_fmpy_loop_gives_the_same_trajectories(exported, tmp_path):
-    """The exported system stepped by FMPy alone, in the order its structure asks (the
-    drives, whose torque depends on their command within the instant, before the arm; the
-    drives every 2 steps, as the SSP's annotation says), with the torque cosim's run
-    commanded: the same joint angles."""
+    """The exported system stepped by FMPy alone (benchmarks/bench_systems.py's loop, which
+    reads it with FMPy's SSP reader and steps the drives, whose torque depends on their
+    command within the instant, before the arm, every 2 steps as the SSP's annotation
+    says), with the torque cosim's run commanded: the same joint angles."""
     ssp, inline, _ = exported
-    ssd = read_ssd(str(ssp))
-    with zipfile.ZipFile(ssp) as archive:
-        archive.extractall(tmp_path)
     for name, result in inline.items():
-        fmus, vr = started(ssd, tmp_path)
-        arm, drives = fmus["arm"], fmus["drives"]
-        given = [vr["drives"][n] for n in ("tau[1]", "tau[2]", "J_reflected[1]",
-                                           "J_reflected[2]")]
-        taken = [vr["arm"][n] for n in ("tau[1]", "tau[2]", "J_drive[1]", "J_drive[2]")]
-        angles = [vr["arm"]["q[1]"], vr["arm"]["q[2]"]]
-        steps, h, tau = result.trace.steps, result.trace.dt, result.trace["tau"]
-        q = np.empty((steps + 1, 2))
-        q[0] = arm.getReal(angles)
-        out = drives.getFloat64(given)
-        try:
-            for k in range(steps):
-                t = k * h
-                if k % 2 == 0:
-                    drives.setFloat64([vr["drives"]["tau_cmd[1]"], vr["drives"]["tau_cmd[2]"]],
-                                      list(tau[k]))
-                    out = drives.getFloat64(given)
-                arm.setReal(taken, list(out))
-                if k % 2 == 0:
-                    drives.doStep(t, 2 * h)
-                arm.doStep(t, h)
-                if (k + 1) % 2 == 0:
-                    out = drives.getFloat64(given)
-                q[k + 1] = arm.getReal(angles)
-        finally:
-            for fmu in fmus.values():
-                fmu.terminate()
-                fmu.freeInstance()
         assert result.complete
+        q = plain_fmpy_loop(ssp, tmp_path / name, result.trace["tau"], result.trace.dt, 2)
         assert np.abs(q - result.trace["q"]).max() <= 1e-9, name
 
 

@@ -32,8 +32,9 @@ def single_fmu_system(path: Path, names: dict[str, list[str] | None],
 
 def export_ssp(system: System, path: str | Path, parameters: dict[str, float] | None = None,
                duration: float | None = None) -> Path:
-    """Write ``system`` (checked first) to ``path`` with ``parameters`` ("COMPONENT.VARIABLE")
-    over its components' own, and ``duration`` (s) as its default experiment."""
+    """Write ``system`` (checked first) to ``path`` with ``parameters`` (plant.parameters,
+    read as a system reads them) over its components' own, and ``duration`` (s) as its
+    default experiment."""
     wiring = check_system(system, parameters)
     used: dict[str, set[str]] = {}
     for connection in system.connections:
@@ -53,10 +54,9 @@ def export_ssp(system: System, path: str | Path, parameters: dict[str, float] | 
             connectors[var.name] = Connector(var.name, var.causality, "Real", unit)
             if unit is not None:
                 units[unit] = _defined(unit, defined, component.name)
-        values = {**component.parameters,
-                  **{key.partition(".")[2]: value for key, value in (parameters or {}).items()
-                     if key.partition(".")[0] == component.name}}
-        components.append(replace(component, connectors=connectors, parameters=values))
+        components.append(replace(component, connectors=connectors,
+                                  parameters=wiring.component_parameters(component.name,
+                                                                         parameters)))
     ports = [Connector(p.name, p.kind, "Real", p.unit) for p in wiring.ports]
     return write_ssp(replace(system, components=components, connectors=ports), path, units,
                      duration)

@@ -97,13 +97,16 @@ class _Call:
     copy_to: np.ndarray | None = None
     copy_from: np.ndarray | None = None
 
+    def __post_init__(self) -> None:
+        self.multiple = self.component.multiple  # read each step: one lookup, not two
+
 
 class SystemPlant:
     """A system of FMU components run as the plant (module docstring). ``system`` (read from
     an SSP archive or a pipeline's ``[plant.system]``) is checked first, then its connectors
-    mapped by ``mapping`` (``plant.variables``); ``parameters``: "COMPONENT.VARIABLE" ->
-    value over the components' own; ``folder``: an unpacked SSP this plant removes when it
-    closes."""
+    mapped by ``mapping`` (``plant.variables``); ``parameters``: plant.parameters over the
+    components' own ("COMPONENT.VARIABLE", or the arm's variable); ``folder``: an unpacked
+    SSP this plant removes when it closes."""
 
     def __init__(self, system: System, mapping: dict[str, list[str] | None] | None = None,
                  parameters: dict[str, float] | None = None, folder: str | None = None):
@@ -126,8 +129,8 @@ class SystemPlant:
                            f"{', '.join(variables.tau)}); nothing would drive it")
         self.links = len(variables.q)
         self.mapped = frozenset(p.name for p in OUTPUT_PORTS if p.name in variables.mapped)
-        self.fmi_version = sorted({int(md.fmiVersion[0])
-                                   for md in self.wiring.descriptions.values()})
+        self.fmi_version = tuple(sorted({int(md.fmiVersion[0])
+                                         for md in self.wiring.descriptions.values()}))
         self._components, width = self._lay_out()
         self._flat = np.zeros(width)
         self.tau = self._flat[:self.links]
@@ -138,6 +141,9 @@ class SystemPlant:
         self._signals()
         self._record: np.ndarray | None = None
         self._calls: list[_Call] = []
+        # per component, what each step calls: (component, step multiple, doStep, its
+        # instance, doStep's trailing arguments, the call that reads its outputs)
+        self._steppers: list[tuple] = []
         self._delayed = self._delayed_copies()
         self._k = 0
         self.time = 0.0
@@ -173,10 +179,7 @@ class SystemPlant:
                               [v.name for v in real if v.causality == "input"])
             own = [n for n in inputs if Endpoint(component.name, n) not in self.wiring.sources
                    or Endpoint(component.name, n) in self.wiring.delayed]
-            parameters = {**component.parameters,
-                          **{key.partition(".")[2]: value for key, value in
-                             self.parameters.items()
-                             if key.partition(".")[0] == component.name}}
+            parameters = self.wiring.component_parameters(component.name, self.parameters)
             c = _Component(component.name, component.source, md, component.step_multiple,
                            parameters, outputs, inputs, at, own)
             c.where = {name: at + i for i, name in enumerate(outputs + own)}
@@ -277,6 +280,8 @@ class SystemPlant:
                 raise FmuError(f"component {c.name!r}: {exc}") from None
         if not self._calls:
             self._calls = self._pass_calls()
+            self._steppers = [(c, c.multiple, c.functions[1], c.fmi.fmu.component, c.tail,
+                               c.read_outputs) for c in self._components]
         self.tau[:] = 0.0
         self.time, self._k = start_time, 0
         for c in self._components:
@@ -344,7 +349,7 @@ class SystemPlant:
         if self._delayed is not None:
             flat[self._delayed[0]] = flat[self._delayed[1]]
         for call in self._calls:
-            if k % call.component.multiple:
+            if k % call.multiple:
                 continue
             if call.copy_from is not None:
                 flat.take(call.copy_from, out=call.copy_to)
@@ -364,15 +369,18 @@ class SystemPlant:
         self._exchange(k, t)
         if self._record is not None:
             self._record[k] = self._flat
-        for c in self._components:
-            if k % c.multiple == 0:
-                status = c.functions[1](c.fmi.fmu.component, t, c.multiple * h, *c.tail)
+        for c, multiple, do_step, handle, tail, _ in self._steppers:
+            if k % multiple == 0:
+                status = do_step(handle, t, multiple * h, *tail)
                 if status > 1:
                     raise FmuError(self._failure(c, "DoStep", status, t))
-        for c in self._components:
-            if (k + 1) % c.multiple == 0:
-                self._call(c.read_outputs, t + h)
-        self._copy_ports()
+        for c, multiple, _, _, _, read in self._steppers:
+            if (k + 1) % multiple == 0:
+                status = read.function(*read.args)
+                if status > 1:
+                    raise FmuError(self._failure(c, read.what, status, t + h))
+        if self._copied:
+            self._copy_ports()
         self._k, self.time = k + 1, t + h
         if self._record is not None and k + 1 == len(self._record) - 1:
             self._record[k + 1] = self._flat  # the last row: as read after the last step
@@ -395,13 +403,14 @@ class SystemPlant:
 
     def info(self) -> dict:
         """What the recording and summary say of the plant (as :meth:`Fmu.info`): the
-        system's name and file, the ports' names, the parameters of the component the joint
-        angles come from (the arm: the guarantee compares them with the nominal model), and
+        system's name and file, the ports' names, the parameters of the arm (the component
+        that feeds most of the system's outputs: the guarantee compares them with the nominal
+        model), and
         under ``system``: that component's name, the trace key of its per-joint torque
         input (what it was given, beside the torque the plant was asked for), and per
         component its model, file, FMI version, step and every real parameter as used."""
         components = {c.name: _component_info(c) for c in self._components}
-        arm = self.wiring.sources[Endpoint(None, self.variables.q[0])].element
+        arm = self.wiring.arm
         torque = next((key for key, signal in self.signals.items()
                        if key.startswith(f"{arm}.") and signal.shape == "n"
                        and self._directions[key] == "input"
@@ -420,10 +429,8 @@ class SystemPlant:
         """Parameter values ("COMPONENT.VARIABLE") for the next :meth:`start`, checked."""
         check_system(self.system, parameters)
         self.parameters = dict(parameters)
-        for c, component in zip(self._components, self.system.components, strict=True):
-            c.parameters = {**component.parameters,
-                            **{key.partition(".")[2]: value for key, value in
-                               parameters.items() if key.partition(".")[0] == c.name}}
+        for c in self._components:
+            c.parameters = self.wiring.component_parameters(c.name, parameters)
 
     def close(self) -> None:
         """Terminate and free every component; remove the unpacked SSP."""
@@ -431,7 +438,7 @@ class SystemPlant:
             if c.fmi is not None:
                 fmi, c.fmi = c.fmi, None
                 fmi.close()
-        self._calls = []
+        self._calls, self._steppers = [], []
         if self.folder is not None:
             remove(self.folder)
             self.folder = None

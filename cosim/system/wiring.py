@@ -50,10 +50,29 @@ class Wiring:
     ports: list[SystemPort]
     sources: dict[Endpoint, Endpoint]
     delayed: set[Endpoint]
+    arm: str  # the component that feeds most of the system's outputs (first at a tie)
 
     def variable(self, end: Endpoint):
         """The FMU variable behind a component's endpoint."""
         return _by_name(self.descriptions[end.element])[end.connector]
+
+    def parameter(self, key: str) -> tuple[str, str]:
+        """(component, variable) a ``plant.parameters`` key names: "COMPONENT.VARIABLE",
+        or a variable of the arm (a key whose first part names no component), so that a
+        pipeline's or a sweep's arm parameters (``q0[1]``, ``m[2]``) reach the arm of a
+        system as they reach one FMU."""
+        head, dot, rest = key.partition(".")
+        if dot and self.system.component(head) is not None:
+            return head, rest
+        return self.arm, key
+
+    def component_parameters(self, name: str, parameters: dict[str, float] | None
+                             ) -> dict[str, float]:
+        """Component ``name``'s parameter values: its own, ``parameters`` (plant.parameters)
+        over them."""
+        over = {variable: value for key, value in (parameters or {}).items()
+                for component, variable in (self.parameter(key),) if component == name}
+        return {**self.system.component(name).parameters, **over}
 
 
 def _by_name(md: ModelDescription) -> dict:
@@ -65,8 +84,8 @@ def _named(component: Component) -> str:
 
 
 def check_system(system: System, parameters: dict[str, float] | None = None) -> Wiring:
-    """``system`` checked (module docstring), with ``parameters`` ("COMPONENT.VARIABLE" ->
-    value) over its components' own."""
+    """``system`` checked (module docstring), with ``parameters`` (plant.parameters: keys as
+    :meth:`Wiring.parameter` reads them) over its components' own."""
     if not system.components:
         raise FmuError(f"{system.origin or 'the system'}: has no components")
     descriptions = {}
@@ -88,15 +107,6 @@ def check_system(system: System, parameters: dict[str, float] | None = None) -> 
         _check_declared(component, md, system)
         check_parameters(component.source, md, component.parameters,
                          f"{_named(component)}, its parameter values")
-    for key, value in (parameters or {}).items():
-        name, _, variable = key.partition(".")
-        component = system.component(name)
-        if component is None or not variable:
-            raise FmuError(f"plant.parameters.{key!r}: a system's parameter is named "
-                           "COMPONENT.VARIABLE (its components: "
-                           f"{', '.join(c.name for c in system.components)})")
-        check_parameters(component.source, descriptions[name], {variable: value},
-                         "plant.parameters")
     ports = {c.name: c for c in system.own_connectors()}
     for port in ports.values():
         if port.kind not in ("input", "output"):
@@ -135,9 +145,17 @@ def check_system(system: System, parameters: dict[str, float] | None = None) -> 
         if port.kind == "input" and not any(s == end for s in sources.values()):
             raise FmuError(f"{system.origin}: the system's input {port.name!r} feeds no "
                            "connection")
-    return Wiring(system, descriptions,
-                  [SystemPort(p.name, p.kind, p.unit or units.get(p.name))
-                   for p in ports.values()], sources, delayed)
+    feeding = [sources[Endpoint(None, p.name)].element for p in ports.values()
+               if p.kind == "output"]
+    arm = max(dict.fromkeys(feeding), key=feeding.count)
+    wiring = Wiring(system, descriptions,
+                    [SystemPort(p.name, p.kind, p.unit or units.get(p.name))
+                     for p in ports.values()], sources, delayed, arm)
+    for key, value in (parameters or {}).items():
+        name, variable = wiring.parameter(key)
+        check_parameters(system.component(name).source, descriptions[name], {variable: value},
+                         "plant.parameters")
+    return wiring
 
 
 def _at(where: str) -> str:
