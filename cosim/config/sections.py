@@ -113,6 +113,8 @@ class SystemComponent(Section):
     """One FMU of a system: a file (``fmu``) or a built-in model (``builtin``)."""
 
     fmu: str | None = None  # the component's FMU file, relative to the pipeline file, a path
+    # a built-in model built into its FMU at run time (a table: model, links, fmi_version),
+    # names
     builtin: BuiltinComponent | None = None
     # its parameter and start values by its own variables' names, each in that variable's
     # unit, mixed units
@@ -162,8 +164,8 @@ class Plant(Section):
     # docs/systems.md), names
     system: SystemTable | None = None
     # FMU parameter and start values by the FMU's variable name (a system's: by
-    # COMPONENT.VARIABLE), each in that variable's own unit (cosim inspect lists them), mixed
-    # units
+    # COMPONENT.VARIABLE, or by the name alone for its arm's), each in that variable's own
+    # unit (cosim inspect lists them), mixed units
     parameters: dict[str, FiniteFloat] = {}
     variables: VariableMapping = VariableMapping()
 

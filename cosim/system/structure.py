@@ -10,8 +10,6 @@ from pathlib import Path
 
 from ..plant.errors import FmuError
 
-CONNECTOR_KINDS = ("input", "output", "parameter", "calculatedParameter", "inout")
-
 
 @dataclass(frozen=True)
 class Endpoint:
