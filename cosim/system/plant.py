@@ -11,7 +11,9 @@ A step from t_k to t_k + h (every value held over it, as cosim holds τ):
    them within the instant are read, so that a direct-feedthrough component adds no delay;
    a delayed connection carries the value its source had before this pass;
 2. every component due at t_k steps over its own step (``step_multiple`` master steps);
-3. the outputs of every component whose step ends at t_k + h are read.
+3. the outputs of every component whose step ends at t_k + h are read (those of a
+   component every output of which the next exchange gets before anything reads it, there
+   instead: the same values, one FMI call fewer).
 
 Every value lives in one flat array: the plant's ports and the trace's signals of the
 components' inputs and outputs (``<component>.<variable>``, recorded under
@@ -97,9 +99,6 @@ class _Call:
     copy_to: np.ndarray | None = None
     copy_from: np.ndarray | None = None
 
-    def __post_init__(self) -> None:
-        self.multiple = self.component.multiple  # read each step: one lookup, not two
-
 
 class SystemPlant:
     """A system of FMU components run as the plant (module docstring). ``system`` (read from
@@ -114,7 +113,7 @@ class SystemPlant:
         self.path = Path(system.origin) if system.origin else Path(system.name)
         self.parameters = dict(parameters or {})
         self.wiring: Wiring = check_system(system, self.parameters)
-        self.passes: list[Pass] = schedule(self.wiring)
+        self.passes, self._read_after = self._folded(schedule(self.wiring))
         self.model_description = self.description_of(self.wiring)
         variables, problems = map_variables(self.model_description, mapping)
         if variables is None:
@@ -141,6 +140,9 @@ class SystemPlant:
         self._signals()
         self._record: np.ndarray | None = None
         self._calls: list[_Call] = []
+        # what the exchange does with each: (its component's step multiple, its function and
+        # arguments, the gather before it, the call); built once, read each step
+        self._plan: list[tuple] = []
         # per component, what each step calls: (component, step multiple, doStep, its
         # instance, doStep's trailing arguments, the call that reads its outputs)
         self._steppers: list[tuple] = []
@@ -149,6 +151,34 @@ class SystemPlant:
         self.time = 0.0
 
     # What the system is, and where each value sits ----------------------------------------
+
+    def _folded(self, passes: list[Pass]) -> tuple[list[Pass], set[str]]:
+        """The passes, and the components whose outputs are read after each step. A
+        component stepped every master step whose outputs are got in the exchange anyway,
+        whose every reader (none of them the system's outputs, none through a delayed
+        connection) is set after that get, has all its outputs got there instead: the
+        values are the same (what depends on no input is unchanged by setting them) and a
+        step makes one FMI call fewer."""
+        sources = self.wiring.sources
+        read_after = set()
+        out = list(passes)
+        for component in self.system.components:
+            name = component.name
+            gets = [i for i, p in enumerate(passes) if (p.component, p.action) == (name, "get")]
+            readers = [end for end, source in sources.items() if source.element == name]
+            folds = component.step_multiple == 1 and len(gets) == 1 and all(
+                end.element is not None and end not in self.wiring.delayed
+                and any(i > gets[0] and p.action == "set" and p.component == end.element
+                        and end.connector in p.variables for i, p in enumerate(passes))
+                for end in readers)
+            if not folds:
+                read_after.add(name)
+                continue
+            md = self.wiring.descriptions[name]
+            out[gets[0]] = Pass(name, "get", tuple(
+                v.name for v in md.modelVariables if v.causality == "output"
+                and v.type in REAL_TYPES and not v.dimensions))
+        return out, read_after
 
     @staticmethod
     def description_of(wiring: Wiring) -> ModelDescription:
@@ -280,8 +310,11 @@ class SystemPlant:
                 raise FmuError(f"component {c.name!r}: {exc}") from None
         if not self._calls:
             self._calls = self._pass_calls()
+            self._plan = [(c.component.multiple, c.function, c.args, c.copy_from, c.copy_to, c)
+                          for c in self._calls]
             self._steppers = [(c, c.multiple, c.functions[1], c.fmi.fmu.component, c.tail,
-                               c.read_outputs) for c in self._components]
+                               c.read_outputs if c.name in self._read_after else None)
+                              for c in self._components]
         self.tau[:] = 0.0
         self.time, self._k = start_time, 0
         for c in self._components:
@@ -348,12 +381,12 @@ class SystemPlant:
         flat = self._flat
         if self._delayed is not None:
             flat[self._delayed[0]] = flat[self._delayed[1]]
-        for call in self._calls:
-            if k % call.multiple:
+        for multiple, function, args, copy_from, copy_to, call in self._plan:
+            if k % multiple:
                 continue
-            if call.copy_from is not None:
-                flat.take(call.copy_from, out=call.copy_to)
-            status = call.function(*call.args)
+            if copy_from is not None:
+                flat.take(copy_from, out=copy_to)
+            status = function(*args)
             if status > 1:
                 raise FmuError(self._failure(call.component, call.what, status, t))
 
@@ -374,15 +407,17 @@ class SystemPlant:
                 status = do_step(handle, t, multiple * h, *tail)
                 if status > 1:
                     raise FmuError(self._failure(c, "DoStep", status, t))
+        last = self._record is not None and k + 1 == len(self._record) - 1
         for c, multiple, _, _, _, read in self._steppers:
-            if (k + 1) % multiple == 0:
+            if (k + 1) % multiple == 0 and (read is not None or last):
+                read = read or c.read_outputs  # the last row's: every output as it ended
                 status = read.function(*read.args)
                 if status > 1:
                     raise FmuError(self._failure(c, read.what, status, t + h))
         if self._copied:
             self._copy_ports()
         self._k, self.time = k + 1, t + h
-        if self._record is not None and k + 1 == len(self._record) - 1:
+        if last:
             self._record[k + 1] = self._flat  # the last row: as read after the last step
 
     def bind_trace(self, trace: Trace) -> None:
@@ -438,7 +473,7 @@ class SystemPlant:
             if c.fmi is not None:
                 fmi, c.fmi = c.fmi, None
                 fmi.close()
-        self._calls, self._steppers = [], []
+        self._calls, self._plan, self._steppers = [], [], []
         if self.folder is not None:
             remove(self.folder)
             self.folder = None
