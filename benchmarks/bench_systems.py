@@ -135,7 +135,8 @@ def second_master(duration: float) -> float:
     with tempfile.TemporaryDirectory() as tmp:
         ssp = Path(tmp) / "arm_with_drives.ssp"
         subprocess.run([sys.executable, "-m", "cosim", "export-ssp", str(SYSTEM), "--output",
-                        str(ssp), *(a for s in sets for a in ("--set", s))], check=True)
+                        str(ssp), *(a for s in sets for a in ("--set", s))], check=True,
+                       capture_output=True)
         results = run(load_pipeline(SYSTEM, sets), None, progress=False)
         worst = 0.0
         for name, result in results.items():
