@@ -101,7 +101,7 @@ def plain_fmpy_loop(ssp: Path, folder: Path, tau: np.ndarray, h: float,
     fmus, vr = started(ssd, folder)
     arm, drives = fmus["arm"], fmus["drives"]
     given = [vr["drives"][n] for n in ("tau[1]", "tau[2]", "J_reflected[1]", "J_reflected[2]")]
-    taken = [vr["arm"][n] for n in ("tau[1]", "tau[2]", "J_drive[1]", "J_drive[2]")]
+    taken = [vr["arm"][n] for n in ("tau[1]", "tau[2]", "Jm[1]", "Jm[2]")]
     command = [vr["drives"]["tau_cmd[1]"], vr["drives"]["tau_cmd[2]"]]
     angles = [vr["arm"]["q[1]"], vr["arm"]["q[2]"]]
     steps = len(tau) - 1

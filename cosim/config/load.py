@@ -36,6 +36,9 @@ def load_pipeline(path: str | Path | None, overrides: list[str] | None = None,
         data = apply_override(data, assignment)
         if assignment.split("=", 1)[0].strip().startswith("plant.urdf"):
             data["plant"]["urdf"] = urdf_relative_to(data["plant"]["urdf"], Path.cwd())
+        if assignment.split("=", 1)[0].strip() == "plant.ssp" and \
+                isinstance(data["plant"].get("ssp"), str):  # from where the user is, as urdf
+            data["plant"]["ssp"] = str(absolute(data["plant"]["ssp"], Path.cwd()))
         for warning in shadowed(data, assignment) if warn else ():
             warn(warning)
     plugins = data.get("plugins")
@@ -49,8 +52,6 @@ def load_pipeline(path: str | Path | None, overrides: list[str] | None = None,
         raise _blamed_on_its_file(exc, path, source, overrides or []) from None
     if pipeline.plant.fmu is not None:
         pipeline.plant.fmu = str(absolute(pipeline.plant.fmu, base))
-    if pipeline.plant.ssp is not None:
-        pipeline.plant.ssp = str(absolute(pipeline.plant.ssp, base))
     for component in (pipeline.plant.system.components.values()
                       if pipeline.plant.system is not None else ()):
         if component.fmu is not None:

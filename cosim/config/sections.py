@@ -173,9 +173,9 @@ class Plant(Section):
     def _one_source(self) -> Plant:
         given = [key for key in PLANT_SOURCES if getattr(self, key) is not None]
         if len(given) > 1:
-            raise ValueError(f"give one of plant.builtin, plant.fmu, plant.urdf, plant.ssp or "
-                             f"plant.system, not "
-                             f"{' and '.join('plant.' + key for key in given)}")
+            raise ValueError(f"give one of plant.builtin, plant.fmu or plant.urdf, not "
+                             f"{' and '.join('plant.' + key for key in given)}; or in their "
+                             "place a system of FMUs, plant.ssp or plant.system")
         if not given:
             self.builtin = BuiltinPlant()
         return self

@@ -25,12 +25,12 @@ typedef struct {
 
 /* The chain's parameters of a model whose variable table has the rigid arm's link
  * parameters (m, l, lc, I, b, fc, tau_d, tau_d_amp, tau_d_freq, fc_vel, g), and the drives'
- * inertia input J_drive where it has one. */
+ * inertia input Jm where it has one. */
 static ChainParams chain_params(const ModelState *s)
 {
     const double *v = s->v;
-#ifdef VR_J_drive
-    const double *drive_inertia = &v[VR_J_drive];
+#ifdef VR_Jm
+    const double *drive_inertia = &v[VR_Jm];
 #else
     const double *drive_inertia = NULL;
 #endif

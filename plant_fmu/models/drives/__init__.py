@@ -9,7 +9,7 @@ torque constant kt, current limit i_max and current-loop time constant T:
     τ = N kt i                          (the joint-side torque, the output ``tau[i]``),
 
 and the rotor's inertia J reflected through the gear, J N², as the output ``J_reflected[i]``
-for the arm's ``J_drive[i]`` input (it turns with the joint: the arm carries it on M's
+for the arm's ``Jm[i]`` input (it turns with the joint: the arm carries it on M's
 diagonal; a drive cannot add it itself without the joint's acceleration of the same instant,
 an algebraic loop). Ideal drives (T = 0, i_max = INF, J = 0) deliver the command exactly.
 The current starts settled on the command the drive is given while it initialises (0 unless

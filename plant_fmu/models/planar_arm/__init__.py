@@ -6,7 +6,7 @@ Everything else is generated from :func:`variables`: the FMI 2.0 and 3.0
 ``modelDescription.xml`` and the C header ``variables.h`` that the model and the FMI glue
 index by value reference. Adding a variable here adds it everywhere.
 
-Names: ``tau[i]``, ``J_drive[i]`` (inputs), ``q[i]``, ``qdot[i]``, ``M[i,j]``, ``energy``
+Names: ``tau[i]``, ``Jm[i]`` (inputs), ``q[i]``, ``qdot[i]``, ``M[i,j]``, ``energy``
 and the parameters below.
 All units are SI with angles in radians.
 """
@@ -71,11 +71,11 @@ TORQUE = VariableFamily("tau", "n", "input", "continuous", "N.m", "Applied torqu
 # What a drive adds to its joint's inertia: its rotor's, reflected through its gear (J N²).
 # An input, so that a drive component of a system supplies it (plant_fmu/models/drives)
 # rather than a second copy of its parameters; 0 when nothing is connected.
-DRIVE_INERTIA = VariableFamily("J_drive", "n", "input", "continuous", "kg.m2",
+DRIVE_INERTIA = VariableFamily("Jm", "n", "input", "continuous", "kg.m2",
                                "Inertia a drive adds at joint i (its rotor's reflected through "
                                "its gear, J N^2), on M's diagonal", constant(0.0), "nonnegative")
 # The outputs' direct dependencies: q and qdot are states (no input reaches them within an
-# instant), M depends on q (and on J_drive where the model has it).
+# instant), M depends on q (and on Jm where the model has it).
 ANGLE = VariableFamily("q", "n", "output", "continuous", "rad",
                        "Angle of joint i (link 1 from the horizontal, others relative)",
                        depends=("q[i]",))
@@ -86,10 +86,10 @@ INERTIA = VariableFamily("M", "nn", "output", "continuous", "kg.m2",
 
 FAMILIES: tuple[VariableFamily, ...] = (
     TIME, *LINK_PARAMETERS, TORQUE, DRIVE_INERTIA, ANGLE, VELOCITY,
-    replace(INERTIA, depends=("q", "J_drive")),
+    replace(INERTIA, depends=("q", "Jm")),
     VariableFamily("energy", "", "output", "continuous", "J",
                    "Kinetic plus potential energy (zero potential at y = 0)",
-                   depends=("q", "qdot", "J_drive")),
+                   depends=("q", "qdot", "Jm")),
     VariableFamily("der(qdot)", "n", "local", "continuous", "rad/s2",
                    "Acceleration of joint i", derivative_of="qdot"),
 )
