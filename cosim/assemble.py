@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from plant_fmu import build_fmu
+from plant_fmu.named_file import not_a_file
 
 from . import interface as io
 from .blocks import BLOCKS, Block, BlockContext, Ports
@@ -164,8 +165,9 @@ def existing_file(name: str, key: str, kind: str) -> Path:
     if path.is_dir():
         raise PipelineError(f"{key}: {path} is a folder, not an {kind} file (an unpacked "
                             f"{kind} cannot be used: give its .{kind.lower()} archive)")
-    if not path.is_file():
-        raise PipelineError(f"{key}: {path} does not exist")
+    why = not_a_file(path)
+    if why is not None:
+        raise PipelineError(f"{key}: {path} {why.replace(', not a file', f', not an {kind} file')}")
     return path
 
 
@@ -291,6 +293,11 @@ def assemble_run(pipeline: Pipeline, name: str, plant) -> RunPlan:
     context = BlockContext(links, dt, name, plant_outputs(plant), pipeline.safety,
                            pipeline.uncertainty, file, pipeline.simulation.duration)
     check_sizes(run, name, plant)
+    for key in ("viscous_friction", "coulomb_friction"):  # per joint, or one for all
+        value = getattr(pipeline.uncertainty, key)
+        if isinstance(value, list) and len(value) != links:
+            raise PipelineError(f"uncertainty.{key} has {len(value)} entries; the plant "
+                                f"({file}) has {links} joint{'s' * (links != 1)}")
     blocks = []
     for instance, kind in run.chain():
         block = BLOCKS[kind](run.block_params(instance), context)
@@ -300,6 +307,10 @@ def assemble_run(pipeline: Pipeline, name: str, plant) -> RunPlan:
     kinds = offered_kinds(pipeline.plugins)
     signals, inputs, outputs, plant_input = wire(blocks, context, name, plant, kinds)
     constants = wire_constants(blocks, name, kinds)
+    published: dict = {}
+    for block in blocks:
+        block.check(published)
+        published.update(block.publishes)
     return RunPlan(name, blocks, signals, inputs, outputs, plant_input,
                    safe_set(pipeline), links, dt, run, constants, pipeline.uncertainty,
                    context.plant_outputs)

@@ -12,7 +12,7 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import Field, model_validator
 
-from .schema import FiniteFloat, NonNegativeFloat, PipelineError, PositiveFloat, Section
+from .schema import FileName, FiniteFloat, NonNegativeFloat, PipelineError, PositiveFloat, Section
 
 
 class Safety(Section):
@@ -45,7 +45,7 @@ class Safety(Section):
     # the robot whose joint limits are the safe sets (limits = "urdf"), its chain from
     # ``urdf_base`` to ``urdf_tip`` as inertia_model.urdf reads it: a URDF file relative to
     # the pipeline file (to where cosim runs when given by --set) or package://…, a path
-    urdf: str | None = None
+    urdf: FileName | None = None
     urdf_base: str | None = None  # the limits' URDF's base link (a name)
     urdf_tip: str | None = None  # the limits' URDF's tip link (a name)
     # joints of the limits' URDF held at a value (rad or m), as plant.urdf.fixed holds them:
@@ -90,6 +90,13 @@ class Uncertainty(Section):
       |q̇(0) − x̂2(0)| per joint, rad/s.
     - ``disturbance``: bound on the error of the disturbance model |τ_d − τ_d,model| per
       joint, N·m.
+    - ``viscous_friction``: bound on the error of the nominal viscous friction
+      |b_i − b̂_i| per joint (or one for all), N·m·s/rad: the true friction torque differs
+      from the nominal model's (inertia_model.b, the URDF's <dynamics damping>) by at most
+      that times |q̇_i|.
+    - ``coulomb_friction``: bound on the error of the nominal Coulomb friction
+      |fc_i − f̂c_i| per joint (or one for all), N·m (inertia_model.fc, the URDF's
+      <dynamics friction>).
     - ``observer_residual_rate``: a bound J̄ on the rate of the observer's unmodelled
       acceleration, rad/s³, which the observer's bound ε(t) once rested on. No longer used
       by it: ε(t) is certified from the quantities above, the applied torque and the
@@ -102,6 +109,8 @@ class Uncertainty(Section):
     noise_bound: NonNegativeFloat = 0.0
     initial_velocity_error: NonNegativeFloat = 0.0
     disturbance: NonNegativeFloat = 0.0
+    viscous_friction: NonNegativeFloat | list[NonNegativeFloat] = 0.0
+    coulomb_friction: NonNegativeFloat | list[NonNegativeFloat] = 0.0
     observer_residual_rate: NonNegativeFloat = 4.0e4
 
     @model_validator(mode="after")
@@ -182,8 +191,10 @@ def joint_boxes(safety: Safety, n: int) -> JointBoxes | None:
         raise PipelineError(f"safety.position_margin = {safety.position_margin:g} rad leaves "
                             f"joint {bad} no room between its position limits")
     if not np.all(np.isfinite(values["velocity_limit"])):
-        raise PipelineError("safety.limits = \"urdf\": a joint has no velocity limit in the "
-                            "URDF; give safety.velocity_limit per joint, rad/s")
+        bad = int(np.flatnonzero(~np.isfinite(values["velocity_limit"]))[0])
+        name = f" ({joints[bad]}, <limit velocity> none or 0)" if safety.urdf is not None else ""
+        raise PipelineError(f"safety.limits = \"urdf\": joint {bad + 1}{name} has no velocity "
+                            "limit in the URDF; give safety.velocity_limit per joint, rad/s")
     return JointBoxes(0.5 * (lower + upper), 0.5 * (upper - lower), np.zeros(n),
                       values["velocity_limit"], values["effort_limit"], source)
 

@@ -79,9 +79,11 @@ def check_memory(scenario, share: float = 0.8) -> None:
     if available is not None and needed > share * available:
         sim = scenario.pipeline.simulation
         which = f" under {limited[1]}" if limited else ""
+        rows = steps + 1  # digit by digit while a reader can count them (1e300 s: 301 digits)
+        shown = f"{rows:,}" if rows < 10**15 else f"{rows:.3g}"
         raise PipelineError(
             f"the traces would need {needed / 1e9:.3g} GB ({len(scenario.runs)} run(s) × "
-            f"{steps + 1:,} rows of {simulation_width(scenario)} values × 8 B) but "
+            f"{shown} rows of {simulation_width(scenario)} values × 8 B) but "
             f"{available / 1e9:.3g} GB of memory is available{which} (at most {share:.0%} is "
             "used); "
             f"shorten simulation.duration ({sim.duration:g} s) or lengthen simulation.step "

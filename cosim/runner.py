@@ -2,7 +2,9 @@
 by chunk, and hand the evaluated result to the outputs (run folder, recording, figures).
 
 A run that diverges or is interrupted keeps what was computed: its completed rows are
-evaluated and written, and summary.json says ``"complete": false`` with the reason.
+evaluated and written, and summary.json says ``"complete": false`` with the reason. A run
+that diverges does not stop the others (:class:`RunsFailed` names each after all ran); an
+interrupt does; a run that did not finish gets no figures.
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ from pathlib import Path
 from . import interface as io
 from .assemble import RunPlan, Scenario, assemble, link_lengths
 from .config import Pipeline, PipelineError
+from .config.named_files import file_digests, named_files
 from .engine import Diverged, simulate
 from .evaluate import Evaluation
 from .evaluate.parts import LOOP_METRIC_UNITS
@@ -30,8 +33,45 @@ from .progress import percent, phase
 from .signals import Trace
 
 
+class RunsFailed(Diverged):
+    """Runs that did not finish (each diverged, or its plant or a block failed), after every
+    run of the pipeline was run: ``failed`` (their results, each with its ``error``) and
+    ``results`` (every run's)."""
+
+    def __init__(self, failed: list, results: dict):
+        self.failed, self.results = failed, results
+        first = failed[0].failure
+        self.where, self.t = first.where, first.t
+        RuntimeError.__init__(self, "; ".join(
+            f"run '{r.name}': {r.error}" if len(failed) > 1 else str(r.error)
+            for r in failed))
+
+
 @dataclass
 class RunResult:
+    """One run's result, as :func:`run` returns it by run name.
+
+    Attributes:
+        name: the run's name (``[runs.NAME]``).
+        trace: every signal of every completed row (:class:`cosim.signals.Trace`:
+            ``trace["q"]`` an array (rows × joints), ``trace.time`` in s,
+            ``trace.signals[name]`` its unit and meaning).
+        evaluation: the evaluators' result: ``checks``, ``metrics``, ``safety`` (what
+            summary.json holds), ``headlines`` and ``lines`` (what `cosim run` prints).
+        complete: whether the run reached its end (False: it diverged, a block or the
+            plant failed, or it was interrupted; ``error`` says which).
+        error: why the run did not finish, or None.
+        failure: the exception it ended with, or None.
+        inertia_model: the model of the plant the run's blocks used (source, URDF, links).
+        wall_time_s: the wall-clock time of its loop, s.
+        blocks: what each block says of itself (its ``describe()``), by instance name.
+        torque_asked: where the torque before a filter is in the trace (trace key, filter
+            kind), or None without a filter.
+
+    ``metrics`` and ``safety`` are the evaluation's; ``summary()`` is the run's entry of
+    summary.json. SI units, radians.
+    """
+
     name: str
     trace: Trace
     evaluation: Evaluation
@@ -84,8 +124,10 @@ def run(pipeline: Pipeline, out_dir: str | Path | None = None, progress: bool = 
     folder = recorder = None
     failure: BaseException | None = None
     try:
+        named = file_digests(named_files(pipeline)) if out_dir else []
         folder = RunFolder.create(out_dir, force) if out_dir else None
         if folder is not None:  # what is to run, said before it runs (a crash keeps it)
+            folder.named_files = named
             folder.write_summary(_summary(pipeline, results, plant_info), final=False)
         # The writer imports Rerun in its own process while the first run loads its blocks.
         arm = urdf_arm(pipeline) if folder is not None and record else None
@@ -98,9 +140,13 @@ def run(pipeline: Pipeline, out_dir: str | Path | None = None, progress: bool = 
             if folder is not None:
                 folder.write_trace(name, result.trace, result.evaluation)
                 folder.write_summary(_summary(pipeline, results, plant_info), final=False)
-            if not result.complete:
-                failure = result.failure
+            if not result.complete and not isinstance(result.failure, Diverged):
+                failure = result.failure  # Ctrl-C: nothing more runs
                 break
+        # A run that diverged does not stop the others: each is run, then the failures said
+        failed = [r for r in results.values() if isinstance(r.failure, Diverged)]
+        if failed and failure is None:
+            failure = RunsFailed(failed, results)
     except FmuError as exc:
         failure = PipelineError(str(exc))
     except BaseException as exc:  # Ctrl-C, SIGTERM, an OS error: still close and summarise
@@ -134,15 +180,16 @@ def _finish(folder: RunFolder, pipeline: Pipeline, results: dict, plant_info: di
         except BaseException as exc:  # noqa: BLE001 (a second Ctrl-C, or the writer failed)
             folder.note("recording.rrd", False, _describe(exc))
             failure = failure or exc
-    if figures and results:
+    drawn = {n: r for n, r in results.items() if r.complete}  # a failed run has no figure
+    if figures and drawn:
         try:
             with phase(f"drawing the figures ({len(FIGURE_FILES)} PNG)", progress):
-                write_figures(folder, {n: r.trace.time for n, r in results.items()},
-                              {n: r.evaluation.checks for n, r in results.items()},
-                              {n: r.trace["tau"] for n, r in results.items()},
-                              {n: r.evaluation.barriers for n, r in results.items()},
+                write_figures(folder, {n: r.trace.time for n, r in drawn.items()},
+                              {n: r.evaluation.checks for n, r in drawn.items()},
+                              {n: r.trace["tau"] for n, r in drawn.items()},
+                              {n: r.evaluation.barriers for n, r in drawn.items()},
                               {n: (r.trace[r.torque_asked[0]], r.torque_asked[1])
-                               for n, r in results.items() if r.torque_asked})
+                               for n, r in drawn.items() if r.torque_asked})
         except BaseException as exc:  # noqa: BLE001
             for name in FIGURE_FILES:
                 if name not in folder.files:

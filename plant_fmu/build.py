@@ -159,10 +159,17 @@ def build_urdf_fmu(urdf: str | Path, base: str | None = None, tip: str | None = 
     Like :func:`build_fmu` otherwise; cached by everything the chain is made of (the URDF's
     content among it). Raises :class:`plant_fmu.urdf.UrdfError` for a URDF it refuses
     (``held_by``: how the caller holds joints, for its messages)."""
-    from .models.spatial_chain import SpatialChainModel
-    from .urdf import read_urdf
+    from .models.spatial_chain import MAX_LINKS, SpatialChainModel
+    from .urdf import UrdfError, read_urdf
 
     chain = read_urdf(urdf, base=base, tip=tip, fixed=fixed, held_by=held_by)
+    if chain.n > MAX_LINKS:
+        tip_option, fix = (("--tip", "--fix NAME=VALUE") if held_by.startswith("--") else
+                           (f"{held_by.rsplit('.', 1)[0]}.tip", f"{held_by}.NAME = VALUE"))
+        raise UrdfError(f"{urdf}: {chain.n} joints move between base link "
+                        f"'{chain.base_link}' and tip link '{chain.tip_link}', more than the "
+                        f"{MAX_LINKS} a URDF plant has: choose a nearer tip ({tip_option}) or "
+                        f"hold joints ({fix})")
     model = SpatialChainModel(chain, source=str(urdf))
     # The file's name from the robot's, kept short: a file system's names end at 255 bytes.
     stem = "".join(ch if ch.isascii() and (ch.isalnum() or ch in "-_") else "_"

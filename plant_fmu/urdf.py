@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from .meshes import MeshRefused, check_mesh, urdf_home
+from .named_file import not_a_file
 
 GRAVITY = np.array([0.0, 0.0, -9.81])  # m/s^2 along the base's -z
 MOVING_TYPES = ("revolute", "continuous", "prismatic")
@@ -177,7 +178,9 @@ def _load(path: Path):
     if not path.is_file():
         if isinstance(path, _NotFound) and path.reason:
             raise UrdfError(f"{path.uri}: {path.reason}")
-        raise UrdfError(f"{path}: no such URDF file")
+        why = not_a_file(path)
+        raise UrdfError(f"{path}: no such URDF file" if why == "does not exist" else
+                        f"{path}: {why.replace(', not a file', ', not a URDF file')}")
     # The parser yourdfpy uses, first: yourdfpy would parse what it can of a file that is
     # not XML and fail later without saying where.
     try:
@@ -192,6 +195,8 @@ def _load(path: Path):
     if etree.QName(root).localname != "robot":
         raise UrdfError(f"{path}: the XML's root element is <{etree.QName(root).localname}>, "
                         "not <robot>: not a URDF")
+    _check_xacro(root, path)
+    _check_numbers(root, path)
     # yourdfpy logs what it recovers from; our own checks below say what is wrong instead.
     logging.getLogger("yourdfpy").setLevel(logging.CRITICAL)
     try:
@@ -210,14 +215,90 @@ def _load(path: Path):
     return urdf.robot
 
 
+XACRO = "http://www.ros.org/wiki/xacro"
+# The attributes of URDF elements that hold numbers (each a list of them, space-separated),
+# with their unit for messages, and those the URDF format requires of their element.
+NUMBERS = {"mass": {"value": "kg"},
+           "inertia": {name: "kg m^2" for name in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")},
+           "origin": {"xyz": "m", "rpy": "rad"}, "axis": {"xyz": "a unit vector"},
+           "limit": {"lower": "rad or m", "upper": "rad or m", "effort": "N m or N",
+                     "velocity": "rad/s or m/s"},
+           "dynamics": {"damping": "N m s/rad or N s/m", "friction": "N m or N"},
+           "mimic": {"multiplier": "a ratio", "offset": "rad or m"},
+           "box": {"size": "m"}, "cylinder": {"radius": "m", "length": "m"},
+           "sphere": {"radius": "m"}, "mesh": {"scale": "a ratio"}, "color": {"rgba": "0 to 1"}}
+REQUIRED = {"mass": ("value",), "inertia": tuple(NUMBERS["inertia"])}
+VECTORS = frozenset({"xyz", "rpy", "size", "scale", "rgba"})  # several numbers each
+OWNERS = ("link", "joint", "material")  # what a message names an element by
+
+
+def _check_xacro(root, path: Path) -> None:
+    """Refuse a xacro file (its <xacro:…> elements: macros, properties, includes): it is a
+    program that makes a URDF, read here as the URDF it is not (a link its macro would make
+    "undefined"). The namespace alone is no xacro: URDFs xacro made keep declaring it."""
+    element = next((e for e in root.iter() if isinstance(e.tag, str)
+                    and e.tag.startswith(f"{{{XACRO}}}")), None)
+    if element is None:
+        return
+    what = f"<xacro:{element.tag.split('}')[1]}> at line {element.sourceline}"
+    raise UrdfError(f"{path}: a xacro file ({what}), not a URDF: expand it first (ROS's "
+                    f"xacro: xacro {path.name} > {path.name.split('.')[0]}.urdf) and give the "
+                    "URDF it makes")
+
+
+def _owner(element) -> str:
+    """The link, joint or material an element belongs to, and the elements down to it:
+    "link 'l1' <inertial><mass"."""
+    tags, node = [], element
+    while node is not None and node.tag not in OWNERS:
+        tags.append(node.tag)
+        node = node.getparent()
+    inside = "".join(f"<{tag}>" for tag in reversed(tags[1:])) + f"<{tags[0]}"
+    if node is None:
+        return inside
+    return f"{node.tag} '{node.get('name')}' {inside}"
+
+
+def _check_numbers(root, path: Path) -> None:
+    """Every attribute that holds numbers holds them, and a <mass> or <inertia> has its
+    attributes: one message naming the element (yourdfpy's "could not convert string to
+    float" named none; a <mass/> without a value was read as 0)."""
+    for element in root.iter(*NUMBERS):
+        where = f"{path}: {_owner(element)}"
+        for name in REQUIRED.get(element.tag, ()):
+            if element.get(name) is None:
+                raise UrdfError(f"{where}>: no {name}='…': give "
+                                + ("the link's mass in kg, e.g. <mass value='1.5'/>"
+                                   if element.tag == "mass" else
+                                   "all of ixx, ixy, ixz, iyy, iyz and izz (kg m^2)"))
+        for name, unit in NUMBERS[element.tag].items():
+            text = element.get(name)
+            if text is None:
+                continue
+            try:
+                for token in text.split() if name in VECTORS else [text]:
+                    float(token)
+            except ValueError:
+                what = ("a xacro expression, not a number: expand the xacro first (ROS's "
+                        "xacro makes the URDF)" if "$" in text else
+                        f"not {'numbers' if name in VECTORS else 'a number'} ({unit})")
+                raise UrdfError(f"{where} {name}='{text}'>: {what}") from None
+
+
 def check_meshes(path: Path) -> None:
     """Refuse (:class:`UrdfError`) a URDF one of whose meshes the 3-D view must not read
     (:mod:`plant_fmu.meshes`): outside its package or folder, or not a mesh."""
     _check_meshes(_load(path), path)
 
 
-def _check_meshes(robot, path: Path) -> None:
+def mesh_files(path: Path) -> list[Path]:
+    """The mesh files a URDF names, each checked as :func:`check_meshes` checks it."""
+    return _check_meshes(_load(path), path)
+
+
+def _check_meshes(robot, path: Path) -> list[Path]:
     home = urdf_home(path)
+    found_all = []
     for link in robot.links:
         for element, items in (("visual", link.visuals), ("collision", link.collisions)):
             for item in items:
@@ -235,6 +316,8 @@ def _check_meshes(robot, path: Path) -> None:
                         f"'{mesh.filename}'>: {exc}. The FMU ignores meshes for its dynamics, "
                         "but the 3-D view draws them: fix the path, or remove the "
                         "<mesh>") from None
+                found_all.append(found)
+    return found_all
 
 
 def _tree(robot, path: Path) -> tuple[dict, dict]:
@@ -280,12 +363,15 @@ def _path(base: str, tip: str | None, parent_joint: dict, child_joints: dict,
     that moves or leads to a moving joint; past the last moving joint, follow fixed joints
     while a link has just one; stop where the way forks."""
     if tip is None:
-        def moves(joint) -> bool:
-            return joint.type != "fixed" or any(moves(j) for j in child_joints[joint.child])
-
+        # the joints that move or lead to one, children before parents (not recursive: a
+        # URDF may hang thousands of fixed links one below the other)
+        leading: set[str] = set()
+        for joint in reversed(_subtree(base, child_joints)):
+            if joint.type != "fixed" or any(j.name in leading for j in child_joints[joint.child]):
+                leading.add(joint.name)
         joints, link = [], base
         while True:
-            ahead = [j for j in child_joints[link] if moves(j)]
+            ahead = [j for j in child_joints[link] if j.name in leading]
             if len(ahead) > 1 or (not ahead and len(child_joints[link]) != 1):
                 return joints
             joints.append(ahead[0] if ahead else child_joints[link][0])
@@ -412,15 +498,49 @@ def _check_inertial(link, carried_by, path: Path) -> None:
                         ("positive number" if carried_by is not None else "number >= 0") +
                         " (kg)" +
                         (f": moving joint '{carried_by}' carries it" if mass == 0 else ""))
+    if mass and not LIGHTEST <= mass <= HEAVIEST:
+        raise UrdfError(f"{path}: link '{link.name}' <inertial><mass value='{mass:g}'>: "
+                        f"outside {LIGHTEST:g} to {HEAVIEST:g} kg, the masses the plant "
+                        "simulates (double precision makes nothing of the dynamics beyond "
+                        "them); a massless frame has mass 0")
     _check_origin(inertial, f"link '{link.name}' <inertial><origin>", path)
-    inertia = np.asarray(inertial.inertia, float) if inertial.inertia is not None else None
-    if inertia is not None and not np.all(np.isfinite(inertia)):
+    if inertial.inertia is None:
+        if not mass:
+            return
+        raise UrdfError(f"{path}: link '{link.name}' <inertial> has no <inertia>: give ixx, "
+                        "ixy, ixz, iyy, iyz and izz (kg m^2) about its centre of mass")
+    inertia = np.asarray(inertial.inertia, float)
+    if not np.all(np.isfinite(inertia)):
         raise UrdfError(f"{path}: link '{link.name}' <inertial><inertia>: ixx, ixy, ixz, "
                         "iyy, iyz and izz must be finite numbers (kg m^2)")
-    if inertia is None or \
-            np.linalg.eigvalsh(inertia).min() < -1e-12 * max(1.0, np.abs(inertia).max()):
+    if np.abs(inertia).max() > HEAVIEST:
+        raise UrdfError(f"{path}: link '{link.name}' <inertial><inertia>: ixx, ixy, ixz, "
+                        f"iyy, iyz and izz must be at most {HEAVIEST:g} kg m^2, what the plant "
+                        "simulates")
+    moments = np.linalg.eigvalsh(inertia)
+    if moments.min() < -1e-12 * max(1.0, np.abs(inertia).max()):
         raise UrdfError(f"{path}: link '{link.name}' <inertial><inertia>: the inertia tensor "
                         "(kg m^2) must be symmetric positive semi-definite")
+    if carried_by is not None and moments[0] + moments[1] < moments[2] * (1 - 1e-6):
+        _warn_once(f"{path}: link '{link.name}' <inertial><inertia>: its principal moments "
+                   f"{', '.join(f'{m:.6g}' for m in moments)} kg m^2 break the triangle "
+                   "inequality (the two smaller sum to less than the largest): no rigid body "
+                   "has this inertia; simulated as given")
+
+
+# The masses (kg) and inertias (kg m^2, their largest entry) a link may have: far beyond any
+# robot's links either way (example-robot-data's lightest frame is 1e-9 kg), yet far from
+# where the dynamics' products leave double precision (a mass of 1e300 or 1e-300 kg).
+LIGHTEST, HEAVIEST = 1e-12, 1e12
+_warned: set[str] = set()
+
+
+def _warn_once(text: str) -> None:
+    """A warning on stderr, once per process (the URDF is read by the build, the nominal
+    model, the limits and the 3-D view alike)."""
+    if text not in _warned:
+        _warned.add(text)
+        print(f"cosim: warning: {text}", file=sys.stderr)
 
 
 def _lumped(parts: list[tuple[float, np.ndarray, np.ndarray]]):

@@ -4,6 +4,7 @@ run's tables."""
 
 from __future__ import annotations
 
+import io
 import os
 import re
 import signal
@@ -11,6 +12,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Callable
+from contextlib import chdir, redirect_stderr, redirect_stdout
 from pathlib import Path
 
 import numpy as np
@@ -35,6 +37,34 @@ def dask_environment(scratch: Path) -> dict[str, str]:
 def cosim_cli(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, "-m", "cosim.cli", *args], capture_output=True,
                           text=True, timeout=600)
+
+
+def here(*args: str, cwd: Path | None = None, env: dict | None = None
+         ) -> subprocess.CompletedProcess:
+    """The command run in this process (``main(argv)``: no supervisor, the kernels already
+    loaded), its output and status as :func:`cosim_cli` gives them: most cases need no process
+    of their own, and a test suite's seconds count."""
+    from cosim.cli import main
+
+    out, err, saved = io.StringIO(), io.StringIO(), dict(os.environ)
+    os.environ.update(env or {})
+    try:
+        with redirect_stdout(out), redirect_stderr(err), chdir(cwd or os.getcwd()):
+            try:
+                status = main(list(args))
+            except SystemExit as exc:  # argparse: --version, --help, a bad option
+                status = exc.code
+    finally:
+        os.environ.clear()
+        os.environ.update(saved)
+    return subprocess.CompletedProcess(args, status, out.getvalue(), err.getvalue())
+
+
+def tree(folder: Path) -> dict[str, tuple[int, int]]:
+    """Every entry under ``folder``: a file's or link's (size, modification time); a
+    folder's (0, 0) (its time moves when an entry comes and goes)."""
+    return {str(p.relative_to(folder)): (0, 0) if p.is_dir() and not p.is_symlink()
+            else (p.lstat().st_size, p.lstat().st_mtime_ns) for p in sorted(folder.rglob("*"))}
 
 
 def signal_when(child: subprocess.Popen, ready: Callable[[], bool], signal_name: str,

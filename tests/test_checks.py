@@ -203,10 +203,13 @@ def test_a_three_link_run_whose_third_joint_leaves_its_set_is_unsafe_everywhere(
     assert safety["error_joint3"]["first_violation_s"] == 0.0
     assert not is_safe(safety)
     line = verdict(summary)
-    assert line.startswith("UNSAFE: left error_joint3 at 0.00 s")
-    printed = [s for s in third_joint["off_stdout"].splitlines() if s.startswith("  proposed ")]
-    assert printed == [f"  proposed  {line}"]
-    assert "UNSAFE: left error_joint3" in (third_joint["off"] / "summary.md").read_text()
+    assert line.startswith("limits kept (every joint's position, velocity); tracking: left "
+                           "error_joint3 at 0.00 s")
+    lines = third_joint["off_stdout"].splitlines()
+    first = next(i for i, s in enumerate(lines) if s.startswith("  proposed "))
+    limits, tracking = line.split("; ", 1)  # printed on two lines: it is wider than 100
+    assert lines[first:first + 2] == [f"  proposed  {limits};", f"            {tracking}"]
+    assert "tracking: left error_joint3" in (third_joint["off"] / "summary.md").read_text()
     assert "error_joint3 ≤ 0.2 rad" in third_joint["off_stdout"]
     # the figures draw joint 3 (a row per joint): taller than a two-joint figure
     import matplotlib.image
@@ -222,6 +225,21 @@ def test_a_three_link_run_whose_third_joint_leaves_its_set_is_unsafe_everywhere(
     assert "filtered_error_norm" not in regressions
     assert not any("REGRESSED" in line for line in compared.stdout.splitlines()
                    if line.strip().startswith("filtered_error_norm"))
+
+
+def test_compare_does_not_judge_plants_of_other_joint_counts(declared_check, third_joint):
+    """Two joints against three: judged like with like before (only a note that the plants
+    differ), and a check only B has was never counted; now named and not judged."""
+    import re
+
+    from cli_helpers import assert_message, error_line, here
+
+    a, b = declared_check / "a", third_joint["inside"]
+    assert_message(error_line(here("compare", str(a), str(b))), re.compile(
+        rf"A {re.escape(str(a))} and B {re.escape(str(b))} do not compare like with like, so "
+        r"no verdict: the plant has 2 joints in A, 3 in B \(a joint's checks compare only "
+        r"with the same joint's, a norm only over the same joints\); .+; compare runs of the "
+        r"same duration and bounds that both ran to their end"))
 
 
 def test_the_sweep_judges_safe_as_the_run_does(third_joint, tmp_path):
@@ -262,8 +280,8 @@ def test_an_entry_is_kept_exactly_when_no_row_is_outside_its_bounds():
     entry = safety_entries({"tau_positive_joint1": left}, 0.5)["tau_positive_joint1"]
     assert (entry["satisfied"], entry["first_violation_s"], entry["time_outside_s"],
             entry["worst"], entry["rows_unknown"]) == (False, 1.0, 0.5, 2.0, 1)
-    assert verdict({"safety": {"tau_positive_joint1": entry}}).startswith(
-        "UNSAFE: left tau_positive_joint1 at 1.00 s (0.50 s out)")
+    assert verdict({"safety": {"tau_positive_joint1": entry}}) == (
+        "no limits (no hard set); tracking: left tau_positive_joint1 at 1.00 s (0.50 s out)")
     kept_ = Check(np.array([1.0, np.nan, 0.5]), 5.0, 0.0, None, positive, 1)
     entry = safety_entries({"c": kept_}, 0.5)["c"]
     assert entry["satisfied"] is True and entry["first_violation_s"] is None

@@ -17,7 +17,7 @@ import zipfile
 from pathlib import Path
 
 import pytest
-from cli_helpers import PAPER, assert_message, cosim_cli, error_line, signal_when
+from cli_helpers import PAPER, assert_message, cosim_cli, error_line, here, signal_when
 
 from plant_fmu import build_fmu
 
@@ -70,7 +70,7 @@ CASES = [
     ("unknown key", [*SHORT, "--set", "controller.kvv=1"],
      "--set controller.kvv=1: unknown key 'controller.kvv'; allowed keys here: variant, kv, "
      "lambda, f, g, kappa, kz, z_b, z_wc, c0, c1, delta, psi_b, hidden, velocity, init, "
-     "init_scale, seed"),
+     "init_scale, seed, scale"),
     ("negative sensor seed", [*SHORT, "--set", "sensor.seed=-1"],
      "--set sensor.seed=-1: key 'sensor.seed': Input should be greater than or equal to 0 "
      "(got -1)"),
@@ -129,7 +129,8 @@ def test_force_replaces_the_folder_without_stale_files(finished, tmp_path):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["complete"] and set(summary["files"]) == {"trace_baseline.npz",
                                                             "trace_proposed.npz", "summary.md"}
-    assert "- **proposed**: safe: kept every attainable set" in (out / "summary.md").read_text()
+    assert "- **proposed**: limits kept (every joint's position, velocity); tracking kept" in \
+        (out / "summary.md").read_text()
     assert summary["provenance"]["command"][-1] == "simulation.duration=0.5"
     assert {"started", "host", "versions"} <= set(summary["provenance"])
 
@@ -143,7 +144,9 @@ def test_a_failing_rerun_does_not_claim_complete(finished, tmp_path):
     assert "diverged in the observer block" in error_line(result)
     summary = json.loads((out / "summary.json").read_text())
     assert summary["complete"] is False and summary["status"] == "incomplete"
-    assert list(summary["runs"]) == ["baseline"]
+    # both runs diverge in their observer (a run that diverges does not stop the others)
+    assert list(summary["runs"]) == ["baseline", "proposed"]
+    assert not any(run["complete"] for run in summary["runs"].values())
 
 
 def test_a_second_writer_is_refused_while_the_first_runs(tmp_path):
@@ -439,23 +442,31 @@ def test_a_full_disk_ends_in_seconds_naming_the_path(tmp_path):
         subprocess.run(["umount", str(disk)], capture_output=True)
 
 
-def test_a_diverging_run_is_named_as_such_and_the_runs_after_it_as_not_run(tmp_path):
-    """Gains far too high for the 1 ms step: the plant's state becomes non-finite within
-    the step, which the plant says (not "the inertia matrix became singular", which it once
-    said), and the pipeline's run after it, never run, is named in the message,
-    summary.json and summary.md."""
+def test_a_diverging_run_is_named_as_such_and_the_runs_after_it_still_run(tmp_path):
+    """A reference a million million radians out drives the baseline's plant until its
+    state becomes non-finite within a step, which the plant says (not "the inertia matrix
+    became singular", which it once said). The pipeline's run after it still runs (a run
+    that diverges does not stop the others): the table is printed with both, then the
+    failure named, exit 2; summary.json and summary.md have both runs, the failed one
+    without figures. (Gains far too high for the step, which once did this, are refused
+    before the run now: tests/test_sampled_loop.py.)"""
     out = tmp_path / "diverged"
-    result = cosim_cli("run", PAPER, "--out", str(out), "--no-figures", *SHORT,
-                       "--set", "runs.baseline.controller.kv=1e9")
+    result = cosim_cli("run", PAPER, "--out", str(out), *SHORT,
+                       "--set", "runs.baseline.reference.amplitude=[[1e15],[1e15]]")
     assert result.returncode == 2
     message = error_line(result)
     assert "doStep: the state diverged at t = " in message, message
     assert "the model itself is not at fault" in message and "singular" not in message
-    assert message.endswith("; not run: proposed (run it with --run proposed)"), message
+    assert "not run" not in message and message.endswith(
+        f"; what was computed is kept in {out}; summary.json says what is incomplete"), message
+    assert "verdict:" in result.stdout and "  proposed  limits kept" in result.stdout
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["not_run"] == ["proposed"] and list(summary["runs"]) == ["baseline"]
-    assert "- **proposed**: no result (the runs stopped before it finished)" in \
-        (out / "summary.md").read_text()
+    assert summary["not_run"] == [] and list(summary["runs"]) == ["baseline", "proposed"]
+    assert summary["runs"]["proposed"]["complete"] is True
+    assert summary["runs"]["baseline"]["complete"] is False
+    assert "doStep: the state diverged" in summary["runs"]["baseline"]["error"]
+    assert "(the run did not finish)" in (out / "summary.md").read_text()
+    assert (out / "fig2_position_velocity.png").is_file()  # the proposed run's figures
 
 
 def test_a_plant_that_crashes_mid_run_is_named_and_what_was_computed_is_kept(tmp_path):
@@ -746,6 +757,30 @@ def test_a_scheduler_address_that_is_not_dask_fails_in_bounded_time(banner, tmp_
     assert not (tmp_path / "out" / ".cosim.lock").exists()
 
 
+def test_a_sweep_whose_scheduler_never_answered_says_so_and_how_to_go_on(tmp_path):
+    """Something that answers in another protocol (its banner read as a message length):
+    "no Dask scheduler answered there (MemoryError: Unable to allocate 2.8 EiB …)". The
+    folder it leaves (its summary says why) was refused by the same command again as "an
+    incomplete run folder of ?"; now named a sweep's, with --resume offered."""
+    port, stop = _server(b"SSH-2.0-OpenSSH_9.2p1 Debian-2\r\n" * 4)
+    out = tmp_path / "out"
+    command = ["sweep", PAPER, "--out", str(out), "--scheduler", f"tcp://127.0.0.1:{port}",
+               "--grid", "controller.kv=10,20", *SHORT]
+    try:
+        first, again = here(*command), here(*command)
+    finally:
+        stop()
+    assert_message(error_line(first), re.compile(
+        rf"--scheduler tcp://127\.0\.0\.1:{port}: no Dask scheduler answered there "
+        r"\(something answered, but not in Dask's protocol: its first bytes, read as a "
+        r"message's length, asked for [\d.]+ EiB\)"))
+    assert_message(error_line(again), re.compile(
+        rf"--out {re.escape(str(out))}: already holds 3 files \(an incomplete sweep folder "
+        r"started \d{4}-\d\d-\d\dT[\d:]{8}\+00:00, 0 row\(s\) in its journal\); pass --force "
+        rf"to replace them, `cosim sweep … --resume {re.escape(str(out))}` to go on with it, "
+        r"or choose another --out"))
+
+
 def test_a_finished_sweeps_summary_says_complete(tmp_path):
     out = tmp_path / "sweep"
     done = cosim_cli("sweep", PAPER, "--out", str(out), "--quiet", "--grid",
@@ -816,6 +851,16 @@ def test_record_when_every_row_failed_says_so(tmp_path):
     rows = pq_rows(out)
     assert len(rows) == 2 and all(r["status"] == "failed" for r in rows)
     assert not [p for p in out.iterdir() if p.name.startswith(("best_", "worst_"))]
+    # without --record, a sweep whose every row failed is no success either (it exited 0):
+    # the same sweep resumed (every point done, nothing runs) says so, exit 2
+    again = cosim_cli("sweep", PAPER, "--resume", str(out), "--quiet", "--runs", "proposed",
+                      "--grid", "controller.kv=10,20", "--workers", "1", *SHORT,
+                      *LOW_GAIN_LAGGED)
+    assert_message(error_line(again), re.compile(
+        r"every row failed \(2 of 2; the first, point 0 run proposed: .+\); each row's "
+        r"error is in "
+        rf"{re.escape(str(out / 'results.csv'))}"))
+    assert "2 row(s) in" in again.stdout and "2 failed" in again.stdout
 
 
 def pq_rows(out: Path) -> list[dict]:
@@ -842,6 +887,26 @@ def test_a_worker_killed_by_its_plant_leaves_failed_rows_named_by_run(tmp_path):
     rows = pq_rows(tmp_path / "sweep")
     assert {r["run"] for r in rows} == {"baseline", "proposed"}
     assert all(r["status"] == "failed" for r in rows)
+
+
+def test_an_inherited_supervisor_note_is_not_written_by_a_cosim_it_does_not_own(tmp_path):
+    """COSIM_SUPERVISED=1 and COSIM_RUN_NOTE naming a user's file, inherited by a cosim that
+    no supervisor started (a nested cosim, a user's shell): the file was overwritten with the
+    run's note and a .fault file made beside it. Only the run process of a supervisor (its
+    parent's pid in COSIM_SUPERVISED) writes the note, and only the one the supervisor made."""
+    note = tmp_path / "notes.txt"
+    note.write_text("the user's notes\n")
+    (tmp_path / "blocks.py").write_text("# no blocks\n")
+    pipeline = tmp_path / "p.toml"
+    pipeline.write_text(f'extends = "{Path(PAPER).resolve()}"\nplugins = ["blocks.py"]\n')
+    done = subprocess.run([sys.executable, "-m", "cosim.cli", "run", str(pipeline),
+                           "--dry-run", *SHORT], capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "COSIM_SUPERVISED": "1",
+                               "COSIM_RUN_NOTE": str(note)})
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert f"cosim: importing plugin {tmp_path / 'blocks.py'}" in done.stderr  # (it told)
+    assert note.read_text() == "the user's notes\n"
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["blocks.py", "notes.txt", "p.toml"]
 
 
 def test_the_run_process_ends_when_its_supervisor_is_killed(tmp_path):
@@ -912,6 +977,11 @@ def test_without_out_every_run_gets_a_new_folder_and_latest_points_to_it(tmp_pat
     (base / "latest").write_text("the user's own")
     done = subprocess.run(args, cwd=tmp_path, capture_output=True, text=True, timeout=600)
     assert done.returncode == 0 and (base / "latest").read_text() == "the user's own"
+    # ... and said: `cosim view runs/NAME/latest` would show the user's thing, not this run
+    third = done.stdout.split("run folder: ")[1].split()[0]
+    assert "cosim: warning: runs/paper_two_link/latest is a file cosim did not make, so it " \
+        "was left as it is and does not lead to this run: view this one with cosim view " \
+        f"{third}\n" in done.stderr
 
 
 def test_a_cold_kernel_cache_is_announced_not_silent(tmp_path):

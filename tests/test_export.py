@@ -260,3 +260,123 @@ def test_compare_says_when_units_are_missing_or_differ(folders, tmp_path):
     shown = cosim_cli("compare", str(a), str(copies["kilo"]), "--run", "proposed").stdout
     assert re.search(r"^  peak_torque\[1\] \(A N·m, B kN·m\) .*units differ: not "
                      r"subtracted$", shown, re.M), shown
+
+
+# compare as a gate that verifies: a summary edited or damaged is not judged ------------------
+
+def edited(source, folder, change) -> object:
+    """A copy of the run folder ``source`` at ``folder`` whose summary.json's proposed run's
+    error_joint1 entry (or, given a whole-summary change, the summary) ``change`` edits."""
+    import shutil
+
+    shutil.copytree(source, folder)
+    summary = json.loads((folder / "summary.json").read_text())
+    change(summary, summary["runs"]["proposed"]["safety"]["error_joint1"])
+    (folder / "summary.json").write_text(json.dumps(summary))
+    return folder
+
+
+KEY = "summary.json's runs.proposed.safety.error_joint1"
+EDITS = {
+    # (the catalogue's false successes: a verdict believed, not recomputed)
+    "worse than its bound, said held": (lambda s, e: e.update(worst=99), "{key} disagrees with "
+                                        "its own numbers: satisfied = true, but its worst value "
+                                        "99 rad is beyond its bound 1.0 rad; a summary.json "
+                                        "edited or damaged is not judged"),
+    "NaN": (lambda s, e: e.update(worst=float("nan")), "{key} disagrees with its own numbers: "
+            "satisfied = true, but its worst value is NaN, not known to be within its bound "
+            "1.0 rad; a summary.json edited or damaged is not judged"),
+    "not its trace's": (lambda s, e: e.update(worst=0.5), "{key} disagrees with the run's trace: "
+                        "worst 0.5 rad, satisfied = true in summary.json; worst {worst} rad, "
+                        "satisfied = true from trace_proposed.npz's check_error_joint1 against "
+                        "the bound 1.0 rad; a summary.json edited or damaged is not judged"),
+    # (a traceback, and a string taken as true)
+    "a worst value in quotes": (lambda s, e: e.update(worst="0.1"),
+                                '{key}.worst = "0.1" is not a number (or null: unknown)'),
+    "satisfied = 'yes'": (lambda s, e: e.update(satisfied="yes"),
+                          '{key}.satisfied = "yes" is not true or false (or null: unknown)'),
+    "an unknown kind": (lambda s, e: e.update(kind="bogus"),
+                        '{key}.kind = "bogus" is not one of hard, soft, sufficient'),
+}
+
+
+@pytest.mark.parametrize("case", EDITS)
+def test_compare_refuses_a_summary_its_numbers_disagree_with(folders, tmp_path, case):
+    from cli_helpers import error_line, here, tree
+
+    a, _ = folders
+    change, expected = EDITS[case]
+    worst = json.loads((a / "summary.json").read_text())[
+        "runs"]["proposed"]["safety"]["error_joint1"]["worst"]
+    b = edited(a, tmp_path / "b", change)
+    before = tree(tmp_path)
+    message = error_line(here("compare", str(a), str(b)))
+    assert message == "cosim: error: B " + f"{b}: " + expected.format(key=KEY, worst=worst)
+    assert tree(tmp_path) == before
+
+
+def test_compare_refuses_a_folder_it_cannot_verify(folders, tmp_path):
+    """A summary that is not JSON (it said "no summary.json" of one it has), a run without
+    its trace."""
+    from cli_helpers import error_line, here
+
+    a, _ = folders
+    garbled = edited(a, tmp_path / "garbled", lambda s, e: None)
+    (garbled / "summary.json").write_text("{not json")
+    traceless = edited(a, tmp_path / "traceless", lambda s, e: None)
+    (traceless / "trace_baseline.npz").unlink()
+    assert error_line(here("compare", str(a), str(garbled))) == (
+        f"cosim: error: B {garbled}: its summary.json cannot be read (not JSON: Expecting "
+        "property name enclosed in double quotes: line 1 column 2 (char 1)); give folders "
+        "`cosim run --out` wrote, as it wrote them")
+    assert error_line(here("compare", str(traceless), str(a))) == (
+        f"cosim: error: A {traceless}: trace_baseline.npz does not exist, so the checks of run "
+        "baseline cannot be verified against their values; give folders `cosim run --out` "
+        "wrote, as it wrote them")
+
+
+def test_compare_counts_a_check_of_one_side_only(folders, tmp_path):
+    """A check new in B and violated there was never counted (regression: false); one
+    violated in A and gone from B is counted too (B no longer checks it)."""
+    from cli_helpers import here
+
+    a, b = folders
+    check = "velocity_true_joint1"
+    entry = json.loads((b / "summary.json").read_text())["runs"]["proposed"]["safety"][check]
+    assert entry["satisfied"] is False  # violated in B (the faster reference)
+    shown = f"{entry['worst']:.4g} VIOLATED"
+
+    def without(summary, _):
+        del summary["runs"]["proposed"]["safety"][check]
+
+    new = here("compare", str(edited(a, tmp_path / "a_without", without)), str(b), "--json")
+    assert new.returncode == 1, new.stderr
+    document = json.loads(new.stdout)
+    assert f"proposed/{check}: not in A, {shown} in B" in document["regressions"]
+    assert document["runs"]["proposed"]["checks"][check]["change"] == "only in b"
+    gone = here("compare", str(b), str(edited(b, tmp_path / "b_without", without)), "--json")
+    assert gone.returncode == 1, gone.stderr
+    assert json.loads(gone.stdout)["regressions"] == [
+        f"proposed/{check}: checked in A ({shown}), not in B (-)"]
+
+
+def test_compare_reads_no_trace_entry_larger_than_its_run(folders, tmp_path):
+    """A trace's check values are read to verify the summary (a new reader of a shared
+    folder's files): an entry larger than the run's rows is refused before it is read."""
+    import shutil
+    import zipfile
+
+    a, _ = folders
+    b = tmp_path / "b"
+    shutil.copytree(a, b)
+    with np.load(b / "trace_proposed.npz") as data:
+        arrays = {key: data[key] for key in data.files}
+    arrays["check_error_joint1"] = np.tile(arrays["check_error_joint1"], 1000)
+    np.savez(b / "trace_proposed.npz", **arrays)
+    with zipfile.ZipFile(b / "trace_proposed.npz") as archive:
+        size = archive.getinfo("check_error_joint1.npy").file_size
+    from cli_helpers import assert_message, error_line, here
+
+    assert_message(error_line(here("compare", str(a), str(b))), re.compile(
+        rf"B {re.escape(str(b))}: trace_proposed\.npz's check_error_joint1 cannot be read "
+        rf"\(it says it holds {size} bytes, more than the run's rows take \(\d+\)\)"))

@@ -248,6 +248,24 @@ def test_the_disturbance_model_is_the_filters_else_the_observers():
         make_trace(), {"tau_d[1]": 0.5}, None, tau_d_model=np.array([0.01, 0.01]))["outside"][0]
 
 
+def test_the_observers_disturbance_model_is_compared_too_when_the_filter_has_its_own():
+    """The issue's reproducer, as the classifier sees it: cbf_filter.tau_d right (the
+    plant's 0.01 N·m) but observer.tau_d = 1000 N·m. The filter's margins rest on the
+    observer's bound ε(t), which then does not hold: outside, naming the observer's key
+    (not "covered — broken")."""
+    right = OUTPUT_FEEDBACK._replace(tau_d=np.array([0.01, 0.01]))
+    g = conclude(make_trace(), {}, right, tau_d_model=np.array([1000.0, 1000.0]))
+    assert g["covered"] is False and g["broken"] is False
+    assert g["outside"] == [
+        f"plant tau_d[{i}] = 0.01 N·m (observer.tau_d 1000 N·m): a disturbance error up to "
+        "999.99 N·m on joint {i} > the declared 0.3 N·m (uncertainty.disturbance); the bound "
+        "ε(t) on the velocity's estimate, which the filter's margins rest on, assumes "
+        "observer.tau_d".replace("{i}", str(i)) for i in (1, 2)]
+    # the observer's model the same as the filter's: compared once
+    assert conclude(make_trace(), {}, right,
+                    tau_d_model=np.array([0.01, 0.01]))["outside"] == []
+
+
 def test_the_initial_state_and_the_integrator_are_not_model_differences():
     changes = {"q0[1]": 1.0, "qdot0[2]": -3.0, "rk4_step": 1e-5, "fc_vel": 0.5,
                "tau_d_freq[1]": 3.0}

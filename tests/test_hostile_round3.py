@@ -12,12 +12,12 @@ import shutil
 import subprocess
 import sys
 import zipfile
-from contextlib import chdir, redirect_stderr, redirect_stdout
+from contextlib import chdir, redirect_stderr
 from pathlib import Path
 
 import numpy as np
 import pytest
-from cli_helpers import PAPER, assert_message, error_line
+from cli_helpers import PAPER, assert_message, error_line, here, tree
 
 ROOT = Path(__file__).resolve().parents[1]
 SHORT = ["--set", "simulation.duration=0.5", "--no-figures"]
@@ -80,39 +80,11 @@ def plugin(folder: Path, kind: str, names: tuple[str, ...] = (),
     return pipeline
 
 
-def here(*args: str, cwd: Path | None = None, env: dict | None = None
-         ) -> subprocess.CompletedProcess:
-    """The command run in this process (``main(argv)``: no supervisor, the kernels already
-    loaded), its output and status as :func:`run_in` gives them: most cases need no process
-    of their own, and a test suite's seconds count."""
-    from cosim.cli import main
-
-    out, err, saved = io.StringIO(), io.StringIO(), dict(os.environ)
-    os.environ.update(env or {})
-    try:
-        with redirect_stdout(out), redirect_stderr(err), chdir(cwd or os.getcwd()):
-            try:
-                status = main(list(args))
-            except SystemExit as exc:  # argparse: --version, --help, a bad option
-                status = exc.code
-    finally:
-        os.environ.clear()
-        os.environ.update(saved)
-    return subprocess.CompletedProcess(args, status, out.getvalue(), err.getvalue())
-
-
 def run_in(folder: Path, *args: str, env: dict | None = None,
            program: tuple[str, ...] = (sys.executable, "-m", "cosim.cli")
            ) -> subprocess.CompletedProcess:
     return subprocess.run([*program, *args], capture_output=True, text=True, timeout=300,
                           cwd=folder, env=env)
-
-
-def tree(folder: Path) -> dict[str, tuple[int, int]]:
-    """Every entry under ``folder``: a file's or link's (size, modification time); a
-    folder's (0, 0) (its time moves when an entry comes and goes)."""
-    return {str(p.relative_to(folder)): (0, 0) if p.is_dir() and not p.is_symlink()
-            else (p.lstat().st_size, p.lstat().st_mtime_ns) for p in sorted(folder.rglob("*"))}
 
 
 @pytest.fixture(scope="module")
@@ -255,7 +227,7 @@ def test_plugin_signal_names_the_trace_cannot_hold_are_refused_before_the_run(tm
         assert not (pipeline.parent / "out").exists()
 
 
-@pytest.mark.parametrize("kind", ["runs", "plant", "safety"])
+@pytest.mark.parametrize("kind", ["runs", "plant", "safety", "robot"])
 def test_a_plugin_block_kind_may_not_take_a_pipeline_key(kind, tmp_path):
     from cosim.blocks.plugins import load_plugins
     from cosim.schema import PipelineError
@@ -267,8 +239,9 @@ def test_a_plugin_block_kind_may_not_take_a_pipeline_key(kind, tmp_path):
         load_plugins([str(path)])
     assert str(caught.value) == (
         f"plugins: {path}: failed to import: ValueError: Hostile.kind = {kind!r} is the name "
-        "of a pipeline's own key (name, description, plugins, simulation, plant, safety, "
-        "uncertainty, runs, extends); a block's table would collide with it: choose another "
+        "of a pipeline's own key (name, description, plugins, simulation, robot, plant, "
+        "safety, uncertainty, runs, extends); a block's table would collide with it: choose "
+        "another "
         f"kind ({path}, line 16, in <module>)")
 
 
@@ -351,8 +324,10 @@ def test_compare_refuses_what_is_not_like_with_like(finished, others):
         assert message.endswith("; compare runs of the same duration and bounds that both ran "
                                 "to their end")
     early = error_line(here("compare", str(a), str(others["early"])))
+    # a run that diverges does not stop the others: B's proposed ran, and stopped early too
     assert re.search(r"run baseline stopped early in B \(at 0\.0\d+ s of 0\.5 s: the run "
                      r"diverged in the observer block at t = 0\.0\d+ s: a non-finite value\); "
+                     r"run proposed stopped early in B \(at 0\.0\d+ s of 0\.5 s: .+\); "
                      r"compare", early), early
 
 
@@ -603,7 +578,8 @@ def test_a_typo_in_an_extended_file_is_named_against_that_file(tmp_path):
     done = here("params", "top.toml", cwd=tmp_path)
     assert_message(error_line(done), "base.toml (extended by top.toml): unknown key "
                    "'controller.kvv'; allowed keys here: variant, kv, lambda, f, g, kappa, kz, "
-                   "z_b, z_wc, c0, c1, delta, psi_b, hidden, velocity, init, init_scale, seed")
+                   "z_b, z_wc, c0, c1, delta, psi_b, hidden, velocity, init, init_scale, seed, "
+                   "scale")
 
 
 def test_a_pipeline_file_with_a_byte_order_mark_reads_as_its_text(tmp_path):

@@ -33,7 +33,9 @@ FULL = os.environ.get("COSIM_README_FULL") == "1"
 SKIPPED = {
     "cosim view runs/paper": "opens a window (tests/test_recording.py: without a display it "
     "says how to view the file elsewhere)",
-    "cosim view runs/panda": "opens a window (tests/test_recording_arm3d.py reads the 3-D "
+    "cosim view runs/xarm7": "opens a window (tests/test_recording_arm3d.py reads the 3-D "
+    "view back from a Panda's recording)",
+    "cosim view runs/ur10": "opens a window (tests/test_recording_arm3d.py reads the 3-D "
     "view back from a Panda's recording)",
     "cosim run pipelines/paper_two_link.toml --spawn": "starts a viewer window "
     "(tests/test_recording.py: refused without a display)",

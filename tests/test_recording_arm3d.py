@@ -186,3 +186,37 @@ def test_the_links_meshes_and_skeleton_are_in_the_recording(recorded):
     arms = [column.contents[-1].contents[-1] for column in columns]  # the row's last view
     assert isinstance(arms[0], rrb.Spatial3DView) and arms[0].origin == "/out/arm3d"
     assert isinstance(arms[1], rrb.Spatial2DView) and arms[1].origin == "/back/arm"
+
+
+def test_urdf_names_with_slashes_are_one_entity_each(tmp_path):
+    """A link 'a/b' and joints 'j/1', 'j 2': their entities were not escaped (skeleton/a/b a
+    child of a link 'a', joints/j/1 of a joint 'j'), while run names are checked for exactly
+    this. Each name is now one part of its path, escaped as Rerun's own loader escapes it."""
+    import rerun as rr
+
+    from cosim.outputs.recording.arm3d import log_model, log_pose
+    from cosim.outputs.recording.layout import UrdfArm
+
+    inertial = ('<inertial><mass value="1"/><inertia ixx="0.01" iyy="0.01" izz="0.01" ixy="0" '
+                'ixz="0" iyz="0"/></inertial>')
+    joint = ('<joint name="{name}" type="revolute"><parent link="{parent}"/><child '
+             'link="{child}"/><origin xyz="0 0 0.1"/><axis xyz="0 0 1"/><limit lower="-1" '
+             'upper="1" effort="1" velocity="1"/></joint>')
+    urdf = tmp_path / "slashes.urdf"
+    urdf.write_text(f'<robot name="s"><link name="base"/><link name="a/b">{inertial}</link>'
+                    f'<link name="c">{inertial}</link>'
+                    + joint.format(name="j/1", parent="base", child="a/b")
+                    + joint.format(name="j 2", parent="a/b", child="c") + "</robot>")
+    arm = UrdfArm(str(urdf), ("j/1", "j 2"))
+    recording = tmp_path / "arm.rrd"
+    rec = rr.RecordingStream("slashes")
+    rec.save(str(recording))
+    trees = log_model(rec, "run", arm)
+    log_pose(rec, "run", arm, trees, np.array([0.0, 0.1]), np.zeros((2, 2)), np.zeros((2, 2)))
+    rec.flush()
+    rec.disconnect()
+    entities = {str(chunk.entity_path) for chunk in RrdReader(recording).stream()}
+    for prefix in ("/run/arm3d", "/run/arm3d/desired"):
+        assert {f"{prefix}/joints/j\\/1", f"{prefix}/joints/j\\ 2",
+                f"{prefix}/skeleton/a\\/b", f"{prefix}/skeleton/base"} <= entities
+    assert not [e for e in entities if "/joints/j/" in e or "/skeleton/a/" in e]

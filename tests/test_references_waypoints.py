@@ -9,6 +9,8 @@ O(1–100) numbers: 1e-9 relative to the quantity's scale (measured ≤ 2e-13)."
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
 from pathlib import Path
 
@@ -256,6 +258,128 @@ def test_bad_csv_files_are_refused_with_one_message(tmp_path, rows, message):
     assert str(caught.value) == message.format(path=csv)
 
 
+def assembled_reference(tmp_path: Path, table: str, *overrides: str):
+    """The PD run's reference block, assembled from ``table`` (TOML under [reference])."""
+    _, pipeline = waypoint_pipeline(tmp_path, table, *overrides)
+    return assemble_run(pipeline, "pd_full_state", _TwoLinkArm()).block("reference")
+
+
+@pytest.mark.parametrize(("rows", "message"), [
+    # (SciPy's "Internal error in root finding" and "dydx must contain only finite values"
+    # tracebacks, with LAPACK's "illegal value" lines)
+    (["0,0,0", "1e-300,0.1,0.1", "3.0,0.2,0.2"],
+     "reference.csv: {path}, lines 2 and 3: the segment from t = 0 s to 1e-300 s (1e-300 s, "
+     "values up to 0.1) makes q_d, q̇_d or q̈_d too large for double precision: give samples "
+     "of a robot's scale"),
+    (["0,0,0", "1.0,1e308,0", "3.0,0,0"],
+     "reference.csv: {path}, lines 2 and 3: the segment from t = 0 s to 1 s (1 s, values up "
+     "to 1e+308) makes q_d, q̇_d or q̈_d too large for double precision: give samples of a "
+     "robot's scale"),
+    # (read as 10)
+    (["0,0,0", "1_0,0,0"], "reference.csv: {path}, line 3, column 1: '1_0' is not a number"),
+])
+def test_a_csv_beyond_double_precision_or_python_syntax_is_refused(tmp_path, rows, message):
+    csv = write_csv(tmp_path / "trajectory.csv", rows)
+    with pytest.raises(PipelineError) as caught:
+        assembled_reference(tmp_path, 'csv = "trajectory.csv"\nlimits = "report"',
+                            "simulation.duration=2")
+    assert str(caught.value) == message.format(path=csv)
+
+
+def test_a_csv_that_is_a_named_pipe_is_said_to_be_one(tmp_path):
+    """It was refused at once, but as "does not exist"."""
+    import os
+
+    os.mkfifo(tmp_path / "trajectory.csv")
+    with pytest.raises(PipelineError) as caught:
+        assembled_reference(tmp_path, 'csv = "trajectory.csv"')
+    assert str(caught.value) == (f"reference.csv: {tmp_path / 'trajectory.csv'} is a named pipe "
+                                 "(FIFO), not a CSV file")
+
+
+def test_a_byte_order_mark_is_not_taken_for_a_header(tmp_path):
+    """A file without a header whose first line starts with a byte-order mark: that line,
+    a sample, was taken as a header ("the first time is 1 s")."""
+    path = tmp_path / "trajectory.csv"
+    path.write_bytes("\ufeff0,0.1,0.2\n1,0.1,0.2\n3,0.1,0.2\n".encode())
+    block = assembled_reference(tmp_path, 'csv = "trajectory.csv"')
+    assert close(block.evaluate(np.array([0.0]))[0], [[0.1, 0.2]])
+
+
+def test_a_long_csv_is_read_only_as_far_as_the_run_uses_it(tmp_path):
+    """The blow-up: 10⁶ rows for a 1 s run took 3 min 25 s and 1 GB, every row interpolated.
+    Now reading stops 64 samples past the run's end (or the safe sets' horizon), what lies
+    beyond is not even parsed (a word there passes), and the reference over the run is the
+    whole file's to the last bits (the not-a-knot spline's dependence on a sample decays by
+    ~3.7 times a sample); a mistake deep in the file is still named by its line."""
+    from cosim.paper.trajectory_file import read_trajectory
+
+    t = np.arange(0.0, 4.0, 0.002)  # 2000 samples: the blocks NumPy parses at once
+    body = [f"{x:.3f},{np.sin(3 * x):.9f},{np.cos(2 * x):.9f}" for x in t]
+    whole = write_csv(tmp_path / "whole.csv", body)
+    cut = write_csv(tmp_path / "cut.csv", [*body, "abc,not,read"])
+    read = read_trajectory(cut, 2, until=1.0)
+    assert read.end == pytest.approx(1.0 + 65 * 0.002)
+    assert read.source == f"cut.csv (its samples up to t = {read.end:g} s)"
+    everything = read_trajectory(whole, 2)
+    inside = np.linspace(0.0, 1.0, 5001)
+    for got, want in zip(read.evaluate(inside), everything.evaluate(inside), strict=True):
+        assert np.max(np.abs(got - want)) <= 1e-12 * max(1.0, np.max(np.abs(want)))
+    with pytest.raises(PipelineError) as caught:
+        read_trajectory(cut, 2)
+    assert str(caught.value) == (f"reference.csv: {cut}, line 2002, column 1: 'abc' is not a "
+                                 "number")
+    bad = write_csv(tmp_path / "bad.csv", [*body[:1500], "2.5,0.1,0.1", *body[1500:]])
+    with pytest.raises(PipelineError) as caught:
+        read_trajectory(bad, 2)
+    assert str(caught.value) == (f"reference.csv: {bad}, line 1502: time 2.5 s does not "
+                                 "increase (line 1501: 2.998 s); times must increase strictly")
+
+
+@pytest.mark.parametrize(("table", "message"), [
+    ("times = [0.0, 1.0]\npositions = [[0, 0], [1e308, 0]]",
+     "reference.waypoints: the segment from times[0] = 0 s to times[1] = 1 s (positions up to "
+     "1e+308) makes q_d, q̇_d or q̈_d too large for double precision: give times and "
+     "positions of a robot's scale"),
+    ("times = [0.0, 1e308]\npositions = [[0, 0], [1, 0]]",
+     "reference.waypoints: the segment from times[0] = 0 s to times[1] = 1e+308 s (positions "
+     "up to 1) makes q_d, q̇_d or q̈_d too large for double precision: give times and "
+     "positions of a robot's scale"),
+    ("times = [0.0, 1.0]\npositions = [[true, false], [0, 0]]",
+     "{path}: key 'reference.waypoints.positions.0.0': Input should be a valid number (got "
+     "True)"),
+    ('times = [0.0, 1.0]\npositions = [["0.1", "0"], [0, 0]]',
+     "{path}: key 'reference.waypoints.positions.0.0': Input should be a valid number (got "
+     "'0.1')"),
+])
+def test_waypoints_beyond_double_precision_or_not_numbers_are_refused(tmp_path, table,
+                                                                      message):
+    """SciPy's root-finding tracebacks; booleans and strings taken for numbers."""
+    with pytest.raises(PipelineError) as caught:
+        assembled_reference(tmp_path, f'limits = "report"\n[reference.waypoints]\n{table}')
+    assert str(caught.value) == message.format(path=tmp_path / "user.toml")
+
+
+def test_a_limit_left_because_the_reference_moves_the_centre_says_so(tmp_path):
+    """A fast segment just after the run's end moves the velocity set's centre (the midpoint
+    over 20 s): "q̇_d = 0 rad/s at t = 0 s, below its lower limit 155.25 rad/s" named a time
+    where the trajectory is at rest without saying why; now the centres and their source."""
+    path = tmp_path / "user.toml"
+    path.write_text(f'extends = "{PD}"\n[simulation]\nduration = 1.0\n'
+                    "[reference.waypoints]\ntimes = [0.0, 1.0, 1.1]\n"
+                    "positions = [[0.0, 0.0], [0.0, 0.0], [10.0, 0.0]]\n")
+    with pytest.raises(PipelineError) as caught:
+        assemble_run(load_pipeline(path), "pd_full_state", _TwoLinkArm())
+    assert str(caught.value) == (
+        "run 'pd_full_state': reference.waypoints leaves joint 1's velocity: q̇_d = 0 rad/s at "
+        "t = 0 s, below its lower limit 80.25 rad/s (the safe sets: |q − q_s| ≤ "
+        "safety.position_bound = 20 rad, |q̇ − q̇_s| ≤ safety.velocity_bound = 13.5 rad/s; "
+        "q_s = [5, 0] rad, q̇_s = [93.75, 0] rad/s, the midpoints of the reference over 0–20 s "
+        "(reference.safe_horizon), beyond the run's end too; give reference.safe_centre and "
+        "reference.safe_velocity_centre to fix them). Change the trajectory, or set "
+        'reference.limits = "report" to run it anyway and have those sets reported unattainable')
+
+
 def test_a_csv_trajectory_runs_relative_to_its_pipeline_and_the_loop_reads_it(tmp_path):
     """A CSV of t, q, q̇, q̈ sampled from the minimum-jerk waypoints every 10 ms, named
     relative to the pipeline file: the run's q_d, q̇_d, q̈_d rows equal the waypoints' own
@@ -275,6 +399,12 @@ def test_a_csv_trajectory_runs_relative_to_its_pipeline_and_the_loop_reads_it(tm
                   engine="fused")
     trace = results["pd_full_state"].trace
     assert results["pd_full_state"].complete
+    # the run folder's provenance: each file the pipeline names, by key, with its digest
+    files = json.loads((tmp_path / "out" / "summary.json").read_text())["provenance"]["files"]
+    assert [(e["key"], e["path"], e["sha256"]) for e in files] == [
+        (key, str(path), hashlib.sha256(path.read_bytes()).hexdigest()) for key, path in sorted(
+            [("reference.csv", tmp_path / "data" / "pick.csv"), ("extends", Path(PD)),
+             ("the pipeline file", tmp_path / "user.toml")], key=lambda item: str(item[1]))]
     expected = reference.evaluate(trace.time)
     for key, want in zip(("q_d", "qdot_d", "qddot_d"), expected, strict=True):
         assert close(trace[key], want), key

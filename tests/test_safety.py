@@ -49,18 +49,27 @@ def test_the_safety_table_reads_at_a_glance(compared, capsys):
     bound is stated once, each cell's mark is its entry's verdict, and one verdict line per
     run names the first set left (Theorem 1's sufficient condition and the sets the
     reference leaves are not counted). Expectations from docs/safety.md's comparison table."""
-    from cosim.outputs.table import markdown_table, text_table
+    from cosim.outputs.table import markdown_table, text_table, verdict
 
     summaries = {name: r.summary() for name, r in compared.items()}
     text = text_table(summaries, 100)
     assert max(len(line) for line in text.splitlines()) <= 100
-    verdicts = dict(line.split(None, 1) for line in text.split("verdict:\n")[1].splitlines())
+    verdicts = {name: verdict(summary) for name, summary in summaries.items()}
     assert verdicts == {
-        "baseline": "UNSAFE: left error_rate_norm at 0.03 s (7.09 s out), +10 more",
-        "proposed": "UNSAFE: left position_joint1 at 3.01 s (0.56 s out)",
-        "baseline_matched": "UNSAFE: left position_joint1 at 3.01 s (0.52 s out)",
-        "proposed_cbf": "safe: kept every attainable set",
-        "baseline_cbf": "safe: kept every attainable set"}
+        "baseline": "limits LEFT: velocity_true_joint1 at 0.19 s (1.77 s out), +2 more; "
+                    "tracking: left error_rate_norm at 0.03 s (7.09 s out), +7 more",
+        "proposed": "limits LEFT: position_joint1 at 3.01 s (0.56 s out); tracking kept",
+        "baseline_matched": "limits LEFT: position_joint1 at 3.01 s (0.52 s out); "
+                            "tracking kept",
+        "proposed_cbf": "limits kept (every joint's position, velocity); tracking kept",
+        "baseline_cbf": "limits kept (every joint's position, velocity); tracking kept"}
+    # the text says each, its tracking part on a line of its own where it would not fit
+    printed = text.split("verdict:\n")[1].splitlines()
+    assert printed[:2] == [
+        "  baseline          limits LEFT: velocity_true_joint1 at 0.19 s (1.77 s out), +2 more;",
+        "                    tracking: left error_rate_norm at 0.03 s (7.09 s out), +7 more"]
+    assert printed[2:] == [f"  {name.ljust(16)}  {verdicts[name]}" for name in
+                           ("proposed", "baseline_matched", "proposed_cbf", "baseline_cbf")]
     rows = [line for line in text.splitlines() if line.startswith("position_joint1 ≤ 20 rad ")]
     assert len(rows) == 2  # two column groups, the bound in the label, once each
     assert rows[0].split()[4:] == ["21.392", "✗", "20.081", "✗", "20.082", "✗", "19.959",
@@ -77,7 +86,8 @@ def test_the_safety_table_reads_at_a_glance(compared, capsys):
     markdown = markdown_table(summaries, "paper_safety")
     assert "| velocity_true_joint1 ≤ 13.5 rad/s | 18.782 ✗ from 0.19 s, 1.77 s out |" \
         in markdown
-    assert "- **proposed_cbf**: safe: kept every attainable set" in markdown
+    assert ("- **proposed_cbf**: limits kept (every joint's position, velocity); tracking "
+            "kept") in markdown
 
 
 def test_the_filter_acts_where_the_nominal_controller_would_leave_the_set(compared):

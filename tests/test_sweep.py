@@ -163,7 +163,7 @@ def test_a_diverging_point_is_a_failed_row_and_the_others_complete(tmp_path):
 def test_a_bad_key_is_refused_before_anything_runs(tmp_path):
     out = tmp_path / "bad"
     keys = ("variant, kv, lambda, f, g, kappa, kz, z_b, z_wc, c0, c1, delta, psi_b, hidden, "
-            "velocity, init, init_scale, seed")
+            "velocity, init, init_scale, seed, scale")
     for args, message in [
             (["--grid", "controller.kvv=1,2"], "point 0 (controller.kvv=1): unknown "
              f"key 'controller.kvv'; allowed keys here: {keys}"),

@@ -136,7 +136,7 @@ def test_resuming_another_sweep_is_refused_naming_what_differs(killed_and_resume
         '(["simulation.duration=1"] → ["simulation.duration=1", "controller.delta=5"]), '
         f"--seed (0 → 4), the pipeline {PAPER} (controller.delta: 1.0 → 5.0; "
         "runs.baseline.controller.delta: 1.0 → 5.0). Resume "
-        "with the same command, or start a new sweep in another --out"))
+        "with the same command and files, or start a new sweep in another --out"))
     assert (out / "rows.jsonl").read_bytes() == before
 
 

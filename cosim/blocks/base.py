@@ -16,6 +16,9 @@ A block that reads and writes the same signal *filters* it: it sees the value pr
 before it, and the value it writes replaces it downstream (the earlier value stays in the
 trace as ``<signal>_<producer kind>``).
 
+Checking: ``check(published)``, as the run is assembled, refuses parameters that cannot
+work with the constants the blocks before publish (the step against a controller's gains).
+
 Stepping: ``reset(ports)`` binds the trace arrays and sets the initial state;
 ``step(k)`` computes row k and returns False if an output is not finite. A block whose
 work is a numba kernel ``kernel(k, args) -> bool`` (``args``: a NamedTuple set by reset,
@@ -121,6 +124,13 @@ class Block:
     def step(self, k: int) -> bool:
         return True if self.kernel is None else self.kernel(k, self.args)
 
+    def check(self, published: Mapping[str, object]) -> None:
+        """Refuse, with a :class:`~cosim.schema.PipelineError` naming the key, parameters
+        that cannot work with what the blocks before this one publish (``published``: every
+        constant so far, by name; a controller's gains against the model's inertia along
+        the reference, say). Called as the run is assembled, so `--dry-run` refuses them
+        too. Nothing by default."""
+
     def describe(self) -> dict:
         """What summary.json records of this block beyond its parameters (none by default)."""
         return {}
@@ -136,8 +146,8 @@ BLOCKS: dict[str, type[Block]] = {}
 
 # A pipeline's own top-level keys (cosim.config.pipeline.Pipeline's fields, runs and extends):
 # no block kind may take one, its table would be the pipeline's.
-PIPELINE_TABLES = ("name", "description", "plugins", "simulation", "plant", "safety",
-                   "uncertainty", "runs", "extends")
+PIPELINE_TABLES = ("name", "description", "plugins", "simulation", "robot", "plant",
+                   "safety", "uncertainty", "runs", "extends")
 
 
 def register_block(cls: type[Block]) -> type[Block]:

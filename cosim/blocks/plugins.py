@@ -29,6 +29,8 @@ from importlib.metadata import entry_points
 from pathlib import Path
 from types import ModuleType
 
+from plant_fmu.named_file import not_a_file
+
 from ..schema import PipelineError
 
 ENTRY_POINT_GROUP = "cosim.blocks"
@@ -78,9 +80,12 @@ def _key(plugin: str) -> str:
 def _load(plugin: str) -> ModuleType:
     if not isinstance(plugin, str) or not plugin:
         raise PipelineError(f"plugins: {plugin!r} is neither a .py file nor a module name")
-    if plugin.endswith(".py") and not Path(plugin).is_file():
+    why = not_a_file(plugin) if plugin.endswith(".py") else None
+    if why == "does not exist":
         raise PipelineError(f"plugins: {plugin}: no such file (a .py file is relative "
                             "to the pipeline file that names it)")
+    if why is not None:  # (importing a named pipe would wait for a writer)
+        raise PipelineError(f"plugins: {plugin} {why.replace(', not a file', ', not a .py file')}")
     key = _key(plugin)
     if key not in _LOADED:
         _announce(f"plugin {plugin}")

@@ -7,7 +7,6 @@ Ctrl-C and SIGTERM end a command cleanly.
 
 from __future__ import annotations
 
-import os
 import signal
 import sys
 from collections.abc import Sequence
@@ -19,16 +18,18 @@ from collections.abc import Sequence
 from .common import StdoutReaderGone, UserError, print_error
 from .parser import build_parser
 from .stopping import follow_the_supervisor, on_sigterm
-from .supervisor import SUPERVISED, supervise
+from .supervisor import supervise
 
 __all__ = ["main"]
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    if argv is None and sys.argv[1:2] == ["run"] and not os.environ.get(SUPERVISED) \
+    from ..run_note import supervised
+
+    if argv is None and sys.argv[1:2] == ["run"] and not supervised() \
             and not {"-h", "--help", "--dry-run"} & set(sys.argv[2:]):
         return supervise(sys.argv[1:])
-    if argv is None and os.environ.get(SUPERVISED):
+    if argv is None and supervised():
         follow_the_supervisor()
         _dump_fatal_signals()
     from plant_fmu import BuildError
@@ -57,13 +58,13 @@ def _dump_fatal_signals() -> None:
     """In the supervised run process: a fatal signal (a plugin's or a plant's binary
     crashing) dumps the Python stack where the supervisor reads whose code it was in."""
     import faulthandler
-    from pathlib import Path
 
-    from ..run_note import NOTE
+    from ..run_note import note_path
     from .supervisor import fault_file
 
-    if os.environ.get(NOTE):
+    note = note_path()
+    if note is not None:
         try:  # kept open for the life of the process: faulthandler writes to its descriptor
-            faulthandler.enable(fault_file(Path(os.environ[NOTE])).open("w"))
+            faulthandler.enable(fault_file(note).open("w"))
         except OSError:
             pass

@@ -45,18 +45,7 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "joints move, fixed joints (and joints off that path, held at 0 or their nearest "
         "limit) are folded into their parent body. Meshes are not needed for the dynamics "
         "(the FMU ignores them) but must exist: the 3-D view draws them.")
-    urdf.add_argument("--urdf", default=None, metavar="ROBOT.urdf",
-                      help="the robot's URDF: a path, or package://PKG/... (found above the "
-                      "file, in $ROS_PACKAGE_PATH, $AMENT_PREFIX_PATH or an installed "
-                      "example-robot-data)")
-    urdf.add_argument("--base", default=None, metavar="LINK",
-                      help="the link the chain is fixed to (default: the URDF's root link)")
-    urdf.add_argument("--tip", default=None, metavar="LINK",
-                      help="the chain's last link, where the payload sits (default: from the "
-                      "base, follow the one way on to a moving joint; stop where it forks)")
-    urdf.add_argument("--fix", action="append", default=[], metavar="JOINT=VALUE",
-                      help="hold a moving joint at VALUE (rad, or m for a prismatic joint), "
-                      "folding it into its parent body (repeatable)")
+    add_chain_options(urdf, required=False)
     p.add_argument("--fmi-version", type=int, default=2, choices=(2, 3),
                    help="FMI version (default 2)")
     p.add_argument("--output", default=None, metavar="FILE.fmu|FOLDER/",
@@ -66,6 +55,22 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
                    help="replace a different file already at the output path (an FMU built "
                    "the same way is left as it is either way)")
     p.set_defaults(func=handle)
+
+
+def add_chain_options(group, required: bool) -> None:
+    """--urdf, --base, --tip and --fix: a robot's chain, as `build-fmu` and `new` take it."""
+    group.add_argument("--urdf", default=None, required=required, metavar="ROBOT.urdf",
+                       help="the robot's URDF: a path, or package://PKG/... (found above the "
+                       "file, in $ROS_PACKAGE_PATH, $AMENT_PREFIX_PATH or an installed "
+                       "example-robot-data)")
+    group.add_argument("--base", default=None, metavar="LINK",
+                       help="the link the chain is fixed to (default: the URDF's root link)")
+    group.add_argument("--tip", default=None, metavar="LINK",
+                       help="the chain's last link, where the payload sits (default: from the "
+                       "base, follow the one way on to a moving joint; stop where it forks)")
+    group.add_argument("--fix", action="append", default=[], metavar="JOINT=VALUE",
+                       help="hold a moving joint at VALUE (rad, or m for a prismatic joint), "
+                       "folding it into its parent body (repeatable)")
 
 
 def fixed_joints(items: list[str]) -> dict[str, float]:
@@ -126,6 +131,8 @@ def _build(args: argparse.Namespace) -> Path:
         if given is not None:
             raise UserError(f"{option} is for the built-in planar models; --urdf builds the "
                             "robot the URDF describes (its joints are the URDF's): drop one")
+    if not args.urdf.strip():  # (the working folder, resolved)
+        raise UserError("--urdf '': an empty name; give the robot's URDF file")
     urdf = resolve_uri(args.urdf, Path.cwd())
     try:
         cached = build_urdf_fmu(urdf, base=args.base, tip=args.tip, fixed=fixed_joints(args.fix),

@@ -14,11 +14,14 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "held in A fails in B, or one violated in A got worse",
         description="Print each run's safety checks (worst value, its unit, and verdict) and "
         "the numeric metrics that differ, from two run folders side by side with the "
-        "difference B - A. A and B must compare like with like: the same duration and step, "
-        "every compared run run to its end, the same bound for each check; otherwise nothing "
-        "is judged and the difference is named (exit 2). Exit status 0 when every check that "
-        "held in A holds in B and none violated in A got worse, 1 when one did (each named: "
-        "a gate for a controller change), 2 on an error. SI units, radians.")
+        "difference B - A. Each check's verdict is recomputed from its worst value and bound, "
+        "and both from its values in the run's trace: a summary that disagrees is refused. "
+        "A and B must compare like with like: plants of the same joints, the same duration "
+        "and step, every compared run run to its end, the same bound for each check; "
+        "otherwise nothing is judged and the difference is named (exit 2). Exit status 0 when "
+        "every check that held in A holds in B and none violated in A got worse, 1 when one "
+        "did, or a check of one side only is gone from B or violated in B (each named: a "
+        "gate for a controller change), 2 on an error. SI units, radians.")
     p.add_argument("a", metavar="A", type=Path, help="the run folder to compare against")
     p.add_argument("b", metavar="B", type=Path, help="the run folder being checked")
     p.add_argument("--run", action="append", default=None, metavar="NAME", dest="runs",

@@ -23,10 +23,12 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         epilog="Every pipeline key can be set with --set: e.g. simulation.duration=2 (s), "
         "simulation.step=0.001 (s), cbf_filter.torque_limit=1000 (N·m); `cosim params "
         "PIPELINE` lists them with their values and units. Exit status: 0 when every run "
-        "finished, whatever its verdict (safe or UNSAFE: the table, summary.json); 2 for a "
-        "mistake in the input, refused before anything runs, or a run that did not finish "
-        "(a plant fault, a diverging state, Ctrl-C: what was computed is kept, and the "
-        "runs not run are named).")
+        "finished, whatever its verdict (limits kept or LEFT, tracking kept or left: the "
+        "table, summary.json); 2 for a mistake in the input, refused before anything runs "
+        "(the step is checked against the controllers' gains), or a run that did not "
+        "finish (a plant fault, a diverging state: the other runs still run, the table is "
+        "printed, then the failure named; Ctrl-C: what was computed is kept, and the runs "
+        "not run are named).")
     p.add_argument("pipeline", help="pipeline file, e.g. pipelines/paper_two_link.toml")
     p.add_argument("--out", type=Path, default=None,
                    help="run folder (default: a new runs/<pipeline name>/<YYYYmmdd-HHMMSS>, "
@@ -130,6 +132,9 @@ def _run(pipeline, out: Path, args: argparse.Namespace) -> None:
                           record=not args.no_recording, spawn=args.spawn,
                           connect=args.connect, figures=not args.no_figures, force=args.force)
     except Diverged as exc:
+        results = getattr(exc, "results", None)  # every run ran: the table, then the failure
+        if results:
+            print_summary(results)
         raise UserError(f"{exc}; {kept()}") from None
     except KeyboardInterrupt as exc:
         raise UserError(f"{str(exc) or 'interrupted (Ctrl-C)'}; {kept()}") from None
@@ -167,7 +172,9 @@ def _settle_named_folder(out: Path) -> None:
     from ..outputs.run_folder import point_latest
 
     if (out / "summary.json").is_file():
-        point_latest(out)
+        left = point_latest(out)
+        if left is not None:
+            print(f"cosim: warning: {left}", file=sys.stderr)
         return
     try:
         out.rmdir()  # only if empty: it is ours, made a moment ago

@@ -12,10 +12,8 @@ import sysconfig
 from pathlib import Path
 
 from ..environment import seconds_from_environment
-from ..run_note import NOTE, read_note
+from ..run_note import NOTE, NOTE_PREFIX, SUPERVISED, read_note
 from .common import print_error
-
-SUPERVISED = "COSIM_SUPERVISED"  # set in the run process's environment by its supervisor
 
 # Seconds the run process has to answer Ctrl-C or SIGTERM (its handler acknowledges at once
 # when Python runs it) before it is killed: only a plant binary that never returns control
@@ -53,9 +51,6 @@ def supervise(args: list[str]) -> int:
     finally:
         Path(note_file).unlink(missing_ok=True)
         fault_file(Path(note_file)).unlink(missing_ok=True)
-
-
-NOTE_PREFIX = "cosim-run-"  # the note files: cosim-run-<supervisor pid>-<random>.json
 
 
 def _remove_stale_notes(folder: Path) -> None:
@@ -118,7 +113,7 @@ def _supervise(args: list[str], grace: float, note_file: Path, threading) -> int
     path = os.pathsep.join(filter(None, [package_root, os.environ.get("PYTHONPATH")]))
     child = subprocess.Popen([sys.executable, "-P", "-m", "cosim.cli", *args],
                              env=dict(os.environ, PYTHONPATH=path,
-                                      **{SUPERVISED: "1", NOTE: str(note_file)}),
+                                      **{SUPERVISED: str(os.getpid()), NOTE: str(note_file)}),
                              process_group=0)
     stopping: dict = {"timer": None, "acknowledged": False, "killed": None}
 

@@ -6,6 +6,8 @@ from __future__ import annotations
 import tomllib
 from pathlib import Path
 
+from plant_fmu.named_file import not_a_file
+
 from ..schema import PipelineError
 from .overrides import merge_tables
 from .sections import PLANT_SOURCES
@@ -13,13 +15,14 @@ from .sections import PLANT_SOURCES
 MAX_EXTENDS = 32  # files in an `extends` chain: far more than any real layering needs
 
 
-def read_toml(path: Path, chain: tuple[Path, ...] = ()) -> dict:
+def read_toml(path: Path, chain: tuple[Path, ...] = (), read: list[Path] | None = None
+              ) -> dict:
     """A pipeline file's tables, with ``extends = "other.toml"`` (relative to it) resolved:
     the other file's tables first, this file's merged over them key by key (runs by name).
     Paths in a file (``plant.fmu``, ``plant.ssp``, a system's FMUs, the URDFs, a reference's
     CSV, plugins) are relative to the file that declares them; a file that names a plant
     (``plant.fmu``, ``plant.builtin``, ``plant.urdf``, ``plant.ssp`` or ``plant.system``)
-    replaces the one it extends."""
+    replaces the one it extends. ``read``: each file read is appended to it, this one first."""
     where = f" (extended by {chain[-1]})" if chain else ""
     if len(chain) >= MAX_EXTENDS:
         raise PipelineError(f"{path}: the 'extends' chain is more than {MAX_EXTENDS} files "
@@ -31,9 +34,10 @@ def read_toml(path: Path, chain: tuple[Path, ...] = ()) -> dict:
         raise PipelineError(f"{path}: cannot be read: a loop of symbolic links{where}") \
             from None
     if not exists:
-        if path.is_dir():
-            raise PipelineError(f"{path}: is a folder, not a pipeline file{where}")
-        raise PipelineError(f"{path}: no such pipeline file{where}")
+        why = not_a_file(path)
+        raise PipelineError(f"{path}: no such pipeline file{where}" if why == "does not exist"
+                            else f"{path}: {why.removesuffix(', not a file')}, not a pipeline "
+                            f"file{where}")
     try:
         # utf-8-sig: a byte-order mark (Windows editors add one) is not part of the TOML
         data = tomllib.loads(path.read_text(encoding="utf-8-sig"))
@@ -42,6 +46,10 @@ def read_toml(path: Path, chain: tuple[Path, ...] = ()) -> dict:
     except UnicodeDecodeError as exc:
         raise PipelineError(f"{path}: not a UTF-8 text file ({exc.reason} at byte "
                             f"{exc.start})") from None
+    except OSError as exc:
+        raise PipelineError(f"{path}: cannot be read ({exc.strerror or exc}){where}") from None
+    if read is not None:
+        read.append(path)
     plugins = data.get("plugins")
     if isinstance(plugins, list):  # a .py file relative to this file; a module name as is
         data["plugins"] = [plugin_path(p, path.parent) if isinstance(p, str) else p
@@ -55,10 +63,12 @@ def read_toml(path: Path, chain: tuple[Path, ...] = ()) -> dict:
         table[key] = str(absolute(table[key], path.parent))
     if isinstance(plant, dict) and "urdf" in plant:
         plant["urdf"] = urdf_relative_to(plant["urdf"], path.parent)
+    if "robot" in data:  # [robot] file: relative to this file, like plant.urdf
+        data["robot"] = urdf_relative_to(data["robot"], path.parent)
     parent = data.pop("extends", None)
     if parent is None:
         return data
-    if not isinstance(parent, str):
+    if not isinstance(parent, str) or not parent.strip():
         raise PipelineError(f"{path}: key 'extends' must be a file name (got {parent!r})")
     parent_path = path.parent / parent
     try:
@@ -67,7 +77,7 @@ def read_toml(path: Path, chain: tuple[Path, ...] = ()) -> dict:
         raise PipelineError(f"{path}: extends {parent!r}, a loop of symbolic links") from None
     if parent_resolved in chain or parent_resolved == resolved:
         raise PipelineError(f"{path}: 'extends' makes a cycle through {parent_path.name}")
-    inherited = read_toml(parent_resolved, (*chain, resolved))
+    inherited = read_toml(parent_resolved, (*chain, resolved), read)
     merged = merge_tables(inherited, data)
     if isinstance(inherited.get("plugins"), list) and isinstance(plugins, list):
         # both files' plugins, the parent's first
@@ -101,7 +111,8 @@ def reference_tables(data: dict) -> list[dict]:
     tables = [data.get("reference"),
               *(run.get("reference") for run in (runs.values() if isinstance(runs, dict)
                                                  else ()) if isinstance(run, dict))]
-    return [t for t in tables if isinstance(t, dict) and isinstance(t.get("csv"), str)]
+    return [t for t in tables if isinstance(t, dict) and isinstance(t.get("csv"), str)
+            and t["csv"]]  # (an empty name is left for the schema to refuse)
 
 
 def urdf_tables(data: dict) -> list[dict]:
@@ -112,7 +123,8 @@ def urdf_tables(data: dict) -> list[dict]:
     scopes = [data, *(run for run in (runs.values() if isinstance(runs, dict) else ())
                       if isinstance(run, dict))]
     tables = [scope.get(key) for scope in scopes for key in ("safety", "inertia_model")]
-    return [t for t in tables if isinstance(t, dict) and isinstance(t.get("urdf"), str)]
+    return [t for t in tables if isinstance(t, dict) and isinstance(t.get("urdf"), str)
+            and t["urdf"]]
 
 
 def absolute(name: str, folder: Path) -> Path:
@@ -126,7 +138,7 @@ def urdf_relative_to(urdf, folder: Path):
     from ``folder``; a package:// or file:// address as is; anything else as is (the schema
     says what is wrong with it)."""
     file = urdf.get("file") if isinstance(urdf, dict) else urdf
-    if not isinstance(file, str) or "://" in file:
+    if not isinstance(file, str) or "://" in file or not file:
         return urdf
     path = Path(file).expanduser()
     file = str(path if path.is_absolute() else (folder / path).resolve())

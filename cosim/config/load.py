@@ -30,7 +30,8 @@ def load_pipeline(path: str | Path | None, overrides: list[str] | None = None,
         source, base = "--set", Path.cwd()  # plant.fmu relative to where the user is
     else:
         path = Path(path)
-        data = read_toml(path)
+        read: list[Path] = []
+        data = read_toml(path, read=read)
         source, base = str(path), path.parent
     for assignment in overrides or []:
         data = apply_override(data, assignment)
@@ -39,6 +40,8 @@ def load_pipeline(path: str | Path | None, overrides: list[str] | None = None,
         if assignment.split("=", 1)[0].strip() == "plant.ssp" and \
                 isinstance(data["plant"].get("ssp"), str):  # from where the user is, as urdf
             data["plant"]["ssp"] = str(absolute(data["plant"]["ssp"], Path.cwd()))
+        if assignment.split("=", 1)[0].strip().startswith("robot"):
+            data["robot"] = urdf_relative_to(data["robot"], Path.cwd())
         for warning in shadowed(data, assignment) if warn else ():
             warn(warning)
     plugins = data.get("plugins")
@@ -50,6 +53,8 @@ def load_pipeline(path: str | Path | None, overrides: list[str] | None = None,
         pipeline = validate(data, source)
     except PipelineError as exc:
         raise _blamed_on_its_file(exc, path, source, overrides or []) from None
+    if path is not None:
+        pipeline._source_files = tuple(str(p.absolute()) for p in read)
     if pipeline.plant.fmu is not None:
         pipeline.plant.fmu = str(absolute(pipeline.plant.fmu, base))
     for component in (pipeline.plant.system.components.values()

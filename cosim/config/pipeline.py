@@ -8,14 +8,14 @@ from __future__ import annotations
 
 from typing import Any
 
-from pydantic import create_model, model_validator
+from pydantic import PrivateAttr, create_model, model_validator
 
 from ..blocks import BLOCKS
 from ..blocks.plugins import load_entry_points
 from ..declared import Safety, Uncertainty
 from ..schema import Section
 from .runs import Run, chain_entry
-from .sections import Plant, Simulation, check_name
+from .sections import Plant, Robot, Simulation, check_name, robot_defaults
 
 
 class Pipeline(Section):
@@ -31,11 +31,22 @@ class Pipeline(Section):
     # importable module names, paths or names
     plugins: list[str] = []
     simulation: Simulation = Simulation()
+    # the robot the pipeline is about, named once (its URDF, base, tip and held joints): the
+    # plant, the nominal model and the safe sets where they are not given (a path, or a
+    # table: file, base, tip, fixed)
+    robot: Robot | None = None
     plant: Plant = Plant()
     safety: Safety = Safety()
     uncertainty: Uncertainty = Uncertainty()
     # Then a table per registered block, and last ``runs: dict[str, Run]`` (added by
     # pipeline_model, so that a bad top-level key is reported before the runs inheriting it).
+    _source_files: tuple[str, ...] = PrivateAttr(default=())
+
+    @property
+    def source_files(self) -> tuple[str, ...]:
+        """The pipeline file and those it extends, as :func:`~cosim.config.load_pipeline`
+        read them (none: a pipeline of the defaults and ``--set``)."""
+        return self._source_files
 
     @model_validator(mode="after")
     def _bounded_plant_work(self) -> Pipeline:
@@ -58,6 +69,7 @@ class Pipeline(Section):
         """Each run inherits the top-level block tables, then overrides."""
         if not isinstance(data, dict):
             return data
+        data = robot_defaults(data)
         runs = data.get("runs")
         if runs is not None and not isinstance(runs, dict):
             raise ValueError(f"runs must be a table of runs ([runs.NAME] ...), got {runs!r}")

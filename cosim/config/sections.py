@@ -12,7 +12,7 @@ from pydantic import Field, create_model, model_validator
 from plant_fmu import ARMS, DEFAULT_MODEL, MODELS
 
 from ..plant.ports import PORTS
-from ..schema import FiniteFloat, PositiveFloat, Section
+from ..schema import FileName, FiniteFloat, PositiveFloat, Section
 
 
 class Simulation(Section):
@@ -71,7 +71,7 @@ class UrdfPlant(Section):
 
     # the URDF: a path relative to the pipeline file, or package://PKG/... (e.g.
     # package://example-robot-data/robots/panda_description/urdf/panda.urdf), a path
-    file: str
+    file: FileName
     base: str | None = None  # the link the chain is fixed to (default: the root link), a name
     # the chain's last link, where the payload sits (default: from the base, the one way on
     # to a moving joint, stopping where it forks), a name
@@ -84,6 +84,64 @@ class UrdfPlant(Section):
     @classmethod
     def _file_alone(cls, data):
         return {"file": data} if isinstance(data, str) else data
+
+
+class Robot(Section):
+    """The robot a pipeline is about, named once: its URDF, chain and held joints. Where the
+    pipeline does not set them itself, it is the plant (``plant.urdf``), the nominal model
+    of the blocks (``inertia_model.urdf``, ``base``, ``tip``, ``fixed``) and the source of
+    the safe sets (``safety.limits = "urdf"`` and ``safety.urdf``, ``urdf_base``,
+    ``urdf_tip``, ``urdf_fixed``). ``robot = "arm.urdf"`` is short for ``[robot] file =
+    "arm.urdf"``."""
+
+    # the robot's URDF: a path relative to the pipeline file, or package://PKG/..., a path
+    file: FileName
+    base: str | None = None  # the link the chain is fixed to (default: the root link), a name
+    # the chain's last link, where the payload sits (default: from the base, the one way on
+    # to a moving joint, stopping where it forks), a name
+    tip: str | None = None
+    # joints held at a value and folded into their parent body, rad (m for a prismatic joint)
+    fixed: dict[str, FiniteFloat] = {}
+
+    @model_validator(mode="before")
+    @classmethod
+    def _file_alone(cls, data):
+        return {"file": data} if isinstance(data, str) else data
+
+
+def robot_defaults(data: dict) -> dict:
+    """A pipeline's raw tables with what ``[robot]`` names filled in where the pipeline
+    leaves it unset (:class:`Robot`); the tables as they are without a robot, or with one
+    that is not a table or a path (the schema refuses it)."""
+    robot = data.get("robot")
+    if isinstance(robot, str):
+        robot = {"file": robot}
+    if not isinstance(robot, dict) or not isinstance(robot.get("file"), str):
+        return data
+    data = dict(data)
+    chain = {key: robot[key] for key in ("file", "base", "tip", "fixed") if key in robot}
+    plant = data.get("plant")
+    if plant is None or isinstance(plant, dict):
+        plant = dict(plant or {})
+        if not any(key in plant for key in PLANT_SOURCES):
+            plant["urdf"] = chain
+        data["plant"] = plant
+    model = data.get("inertia_model")
+    if model is None or isinstance(model, dict):
+        model = dict(model or {})
+        if "urdf" not in model:
+            model.update({"urdf": chain["file"], **{key: chain[key] for key in
+                                                     ("base", "tip", "fixed") if key in chain}})
+        data["inertia_model"] = model
+    safety = data.get("safety")
+    if safety is None or isinstance(safety, dict):
+        safety = dict(safety or {})
+        safety.setdefault("limits", "urdf")
+        if safety["limits"] == "urdf" and "urdf" not in safety:
+            safety.update({"urdf": chain["file"], **{f"urdf_{key}": chain[key] for key in
+                                                      ("base", "tip", "fixed") if key in chain}})
+        data["safety"] = safety
+    return data
 
 
 class _VariableMapping(Section):
@@ -153,7 +211,7 @@ class SystemTable(Section):
 
 class Plant(Section):
     builtin: BuiltinPlant | None = None
-    fmu: str | None = None  # the plant FMU's file, relative to the pipeline file, a path
+    fmu: FileName | None = None  # the plant FMU's file, relative to the pipeline file, a path
     # a robot's URDF built into the plant FMU at run time: its file, relative to the pipeline
     # file or package://..., a path (or a table: file, base, tip, fixed, fmi_version)
     urdf: UrdfPlant | None = None

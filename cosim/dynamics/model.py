@@ -65,6 +65,7 @@ class PlanarModel(NamedTuple):
     lc: np.ndarray
     inertia: np.ndarray
     gravity: float  # |g|, m/s²
+    friction: np.ndarray  # (FRICTION_ROWS, n) the joints' friction (module docstring)
     chain: np.ndarray  # scratch (CHAIN_ROWS, n)
     masses: np.ndarray  # scratch (n,): the masses of one call
     q: np.ndarray  # (n,) the position model_geometry was last given
@@ -77,21 +78,77 @@ RIGID_BODY_MODELS = (PlanarModel, SpatialChain)  # the same, for isinstance and 
 PLANAR_DIM, SPATIAL_DIM = 2, 3  # the payload point's coordinates: the plane's, space's
 
 
-def planar_model(m, l, lc, inertia, gravity: float) -> PlanarModel:  # noqa: E741
-    """The planar chain as a model (its payload at the last link's centre of mass)."""
+# Rows of a model's ``friction`` (n each): the nominal viscous friction b̂ (N·m·s/rad), the
+# nominal Coulomb friction f̂c (N·m), its smoothing velocity (rad/s), and the declared bounds
+# on the true friction's departure from them, |b − b̂| and |fc − f̂c|.
+DAMPING, COULOMB, COULOMB_VELOCITY, DAMPING_ERROR, COULOMB_ERROR = range(5)
+FRICTION_ROWS = 5
+NO_FRICTION_VELOCITY = 0.01  # rad/s: the plant FMUs' default fc_vel
+
+
+def friction_table(n: int, damping=0.0, coulomb=0.0, coulomb_velocity=NO_FRICTION_VELOCITY,
+                   damping_error=0.0, coulomb_error=0.0) -> np.ndarray:
+    """A model's ``friction`` rows, each given per joint or one value for all."""
+    rows = (damping, coulomb, coulomb_velocity, damping_error, coulomb_error)
+    return np.array([np.broadcast_to(np.asarray(row, float), (n,)) for row in rows])
+
+
+def planar_model(m, l, lc, inertia, gravity: float,  # noqa: E741
+                 friction: np.ndarray | None = None) -> PlanarModel:
+    """The planar chain as a model (its payload at the last link's centre of mass), without
+    friction unless ``friction`` (:func:`friction_table`) is given."""
     n = len(m)
     return PlanarModel(
         m=np.asarray(m, float).copy(), l=np.asarray(l, float).copy(),
         lc=np.asarray(lc, float).copy(), inertia=np.asarray(inertia, float).copy(),
-        gravity=float(gravity), chain=np.zeros((CHAIN_ROWS, n)), masses=np.zeros(n),
-        q=np.zeros(n))
+        gravity=float(gravity),
+        friction=friction_table(n) if friction is None else np.asarray(friction, float).copy(),
+        chain=np.zeros((CHAIN_ROWS, n)), masses=np.zeros(n), q=np.zeros(n))
 
 
-def chain_model(chain) -> SpatialChain:
+def chain_model(chain, friction: np.ndarray | None = None) -> SpatialChain:
     """The spatial chain of a URDF's table (plant_fmu.urdf.Chain, or anything with its
-    fields) as a model, its payload point the tip frame's origin."""
+    fields) as a model, its payload point the tip frame's origin; its friction ``friction``
+    (:func:`friction_table`), none if not given."""
     return spatial_chain(chain.parent, chain.kind, chain.placement, chain.axis, chain.mass,
-                         chain.com, chain.inertia, chain.tip, chain.gravity)
+                         chain.com, chain.inertia, chain.tip, chain.gravity,
+                         friction_table(len(chain.mass)) if friction is None else friction)
+
+
+@no_refcount_jit(cache=True, inline="always")
+def model_friction(model, v, out):
+    """Add the nominal joint friction at the velocity v to ``out`` (n): b̂ v + f̂c tanh(v/w),
+    per joint (a model of either kind)."""
+    f = model.friction
+    for i in range(v.shape[0]):  # a term without its coefficient is 0, even at v = ±inf
+        if f[DAMPING, i] != 0.0:
+            out[i] += f[DAMPING, i] * v[i]
+        if f[COULOMB, i] != 0.0:
+            out[i] += f[COULOMB, i] * np.tanh(v[i] / f[COULOMB_VELOCITY, i])
+
+
+@no_refcount_jit(cache=True, inline="always")
+def model_friction_spread(model, centre, radius, out):
+    """Add to ``out`` (n), per joint, the most the true friction at a velocity within
+    ``radius`` of ``centre`` can differ from the nominal friction at ``centre``: at the end
+    e = c ± r where it is largest (every part grows towards an end), the nominal law's change
+    there, b̂ r + f̂c |tanh(e/w) − tanh(c/w)|, plus the declared bounds on the true law's
+    departure from it, |b − b̂| |e| + |fc − f̂c| (|tanh| ≤ 1)."""
+    f = model.friction
+    for i in range(centre.shape[0]):  # a term without its coefficient is 0, even at r = inf
+        c, r, w = centre[i], radius[i], f[COULOMB_VELOCITY, i]
+        worst = 0.0
+        for side in (-1.0, 1.0):
+            end = c + side * r
+            total = 0.0
+            if f[DAMPING, i] != 0.0:
+                total += f[DAMPING, i] * r
+            if f[COULOMB, i] != 0.0:
+                total += f[COULOMB, i] * abs(np.tanh(end / w) - np.tanh(c / w))
+            if f[DAMPING_ERROR, i] != 0.0:
+                total += f[DAMPING_ERROR, i] * abs(end)
+            worst = max(worst, total)
+        out[i] += worst + f[COULOMB_ERROR, i]
 
 
 def own_scratch(model: RigidBodyModel) -> RigidBodyModel:

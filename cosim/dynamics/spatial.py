@@ -49,6 +49,7 @@ class SpatialChain(NamedTuple):
     inertia: np.ndarray  # (n, 3, 3) kg·m² about the centre of mass, body axes
     tip: np.ndarray  # (4, 4) the payload's frame in the last body's frame
     gravity: np.ndarray  # (3,) m/s² in the base frame
+    friction: np.ndarray  # (FRICTION_ROWS, n) the joints' friction (cosim.dynamics.model)
     # scratch
     frames: np.ndarray  # (n, 4, 4) each body's frame in the base frame
     kin: np.ndarray  # (KIN_ROWS, n, 3) Z …
@@ -65,11 +66,11 @@ class SpatialChain(NamedTuple):
 
 
 def spatial_chain(parent, kind, placement, axis, mass, com, inertia, tip,
-                  gravity) -> SpatialChain:
+                  gravity, friction) -> SpatialChain:
     """The kernels' chain from the table's arrays (copied, as float64 / int64), its scratch
-    allocated."""
+    allocated; ``friction`` (FRICTION_ROWS, n) as cosim.dynamics.model lays it out."""
     n = len(mass)
-    return SpatialChain(
+    return SpatialChain(friction=np.asarray(friction, float).copy(),
         parent=np.asarray(parent, np.int64).copy(), kind=np.asarray(kind, np.int64).copy(),
         placement=np.asarray(placement, float).copy(), axis=np.asarray(axis, float).copy(),
         mass=np.asarray(mass, float).copy(), com=np.asarray(com, float).copy(),

@@ -73,6 +73,8 @@ class Evaluator:
     bounds: dict[str, tuple[float, float]] = field(default_factory=dict)
     # check -> (its declaration, its joint or None for the norm)
     declared: dict[str, tuple[Declaration, int | None]] = field(default_factory=dict)
+    # check -> the set's centre where value + centre is what a limit bounds (Check.centre)
+    centres: dict[str, float | None] = field(default_factory=dict)
     barrier_values: dict[str, np.ndarray] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
@@ -104,6 +106,7 @@ class Evaluator:
                 self.values[name] = np.full(total, np.nan)
                 self.bounds[name] = (check.lower, check.upper)
                 self.declared[name] = (check.declared, check.joint)
+                self.centres[name] = check.centre
             self.values[name][start:upto] = check.value
         for name, value in series.items():
             if name not in self.barrier_values:
@@ -122,7 +125,7 @@ class Evaluator:
         for part in self.parts:
             references.update(part.references(done))
         checks = {name: Check(self.values[name][:k], upper, lower, references.get(name),
-                              *self.declared[name])
+                              *self.declared[name], self.centres[name])
                   for name, (lower, upper) in self.bounds.items()}
         h = {name: value[:k] for name, value in self.barrier_values.items()}
         metrics = {}

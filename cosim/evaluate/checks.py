@@ -64,13 +64,16 @@ class Declaration:
         return out
 
     def joints(self, signal: np.ndarray, bounds: np.ndarray,
-               reference: np.ndarray | None = None) -> dict[str, Check]:
+               reference: np.ndarray | None = None,
+               centres: np.ndarray | None = None) -> dict[str, Check]:
         """One check per joint j of ``signal`` (rows × joints, signed, within ±bounds[j]) and
         no norm: a box of per-joint bounds (a robot's own joint limits) has none that means
-        anything."""
+        anything. ``centres``: each set's centre, where signal + centre is what the robot's
+        limits bound (a joint's position between its lower and upper limit)."""
         return {self.name(j + 1): Check(signal[:, j], float(bounds[j]), -float(bounds[j]),
                                         None if reference is None else reference[:, j],
-                                        self, j + 1)
+                                        self, j + 1,
+                                        None if centres is None else float(centres[j]))
                 for j in range(signal.shape[1])}
 
     def norm(self, value: np.ndarray, bound: float,
@@ -104,6 +107,9 @@ class Check:
     reference: np.ndarray | None = None  # the same quantity for the reference trajectory
     declared: Declaration | None = None
     joint: int | None = None
+    # the set's centre where value + centre is the quantity a limit bounds (a URDF joint's
+    # position, shown against its lower and upper limit), None where the set is its own
+    centre: float | None = None
 
     @property
     def magnitude(self) -> np.ndarray:
@@ -165,6 +171,10 @@ def safety_entries(checks: Mapping[str, Check], dt: float) -> dict:
         worst = float(np.max(check.magnitude[known]))
         entry.update(worst=worst, satisfied=not bool(check.outside.any()),
                      **excursions(check, dt))
+        if check.centre is not None:  # the quantity itself, against the limits themselves
+            entry.update(limits=[check.lower + check.centre, check.upper + check.centre],
+                         range=[float(np.min(check.value[known])) + check.centre,
+                                float(np.max(check.value[known])) + check.centre])
         if not known.all():
             entry["rows_unknown"] = int(np.count_nonzero(~known))
         if check.reference is not None and len(check.reference):

@@ -100,9 +100,11 @@ class SafeSets(Part):
 
     def checks(self, rows: Signals) -> dict[str, Check]:
         out = {}
+        position_centre = self._centres(rows)[0]
         for declared, signal, bound, ref in self._sets(rows, True):
-            if np.ndim(bound):  # per-joint bounds: a box, no norm
-                out.update(declared.joints(signal, bound, ref))
+            if np.ndim(bound):  # per-joint bounds: a box of the robot's limits, no norm
+                centres = position_centre if declared is POSITION else None
+                out.update(declared.joints(signal, bound, ref, centres))
             else:
                 out.update(declared.joints_and_norm(signal, bound, ref))
         return out

@@ -43,7 +43,7 @@ def trace_runs(folder: Path) -> list[str]:
     if summary is None:
         raise ExportError(f"{folder}: not a cosim run folder (no summary.json of ours); give "
                           "the folder `cosim run --out` wrote")
-    runs = [r for r in summary.get("runs") or {} if (folder / f"trace_{r}.npz").is_file()]
+    runs = [r for r in summary_runs(folder, summary) if (folder / f"trace_{r}.npz").is_file()]
     if not runs:
         raise ExportError(f"{folder}: holds no trace_<run>.npz (a sweep folder's rows are "
                           "already in results.parquet and results.csv)")
@@ -53,7 +53,22 @@ def trace_runs(folder: Path) -> list[str]:
 def runs_without_trace(folder: Path) -> list[str]:
     """The runs summary.json names whose trace file is missing."""
     summary = _ours_summary(folder) or {}
-    return [r for r in summary.get("runs") or {} if not (folder / f"trace_{r}.npz").is_file()]
+    return [r for r in summary_runs(folder, summary)
+            if not (folder / f"trace_{r}.npz").is_file()]
+
+
+def summary_runs(folder: Path, summary: dict) -> list[str]:
+    """The runs a folder's summary.json names, each checked to be a run name: a summary
+    edited to name '../x' must not make a trace read, or an export written, outside it."""
+    from ..config.sections import check_name
+
+    runs = list(summary.get("runs") or {})
+    for run in runs:
+        try:
+            check_name(run, "run name")
+        except ValueError as exc:
+            raise ExportError(f"{folder}: its summary.json names the {exc}") from None
+    return runs
 
 
 def read_trace(folder: Path, run: str) -> tuple[dict[str, np.ndarray], dict[str, dict]]:

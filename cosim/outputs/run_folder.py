@@ -24,6 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
+from plant_fmu.named_file import read_text
+
 from .formats import EXPORT_FORMATS
 from .versions import package_versions
 
@@ -80,20 +82,24 @@ class RunFolder:
         self._lock = lock_file
         self.files: dict[str, dict] = {}
         self.started = datetime.now(UTC).isoformat(timespec="seconds")
+        # the files the pipeline names, with their digests (cosim.config.named_files)
+        self.named_files: list[dict] = []
 
     @classmethod
-    def create(cls, path: str | Path, force: bool = False, keep: bool = False) -> RunFolder:
+    def create(cls, path: str | Path, force: bool = False, keep: bool = False,
+               option: str = "--out") -> RunFolder:
         """The folder at ``path``, locked: emptied (refused if it holds files, unless
-        ``force`` and they are cosim's), or, ``keep``, as it is (a sweep resumed there)."""
+        ``force`` and they are cosim's), or, ``keep``, as it is (a sweep resumed there).
+        ``option``: what named the folder, for messages."""
         path = Path(path)
         try:
             if path.exists() and not path.is_dir():
-                raise RunFolderError(f"--out {path}: is a file, not a folder; choose another "
-                                     "--out")
+                raise RunFolderError(f"{option} {path}: is a file, not a folder; choose "
+                                     "another --out")
             path.mkdir(parents=True, exist_ok=True)
             lock_file = (path / LOCK).open("a+")
         except OSError as exc:
-            raise RunFolderError(f"--out {path}: cannot create the run folder there: "
+            raise RunFolderError(f"{option} {path}: cannot create the run folder there: "
                                  f"{exc.strerror or exc}") from None
         try:
             fcntl.flock(lock_file, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -101,7 +107,7 @@ class RunFolder:
             lock_file.seek(0)
             owner = lock_file.read().strip() or "unknown"
             lock_file.close()
-            raise RunFolderError(f"--out {path}: another cosim run is writing this folder "
+            raise RunFolderError(f"{option} {path}: another cosim run is writing this folder "
                                  f"(pid {owner}); wait for it, or choose another --out") from None
         folder = cls(path, lock_file)
         if keep:
@@ -255,7 +261,8 @@ class RunFolder:
     def _provenance(self) -> dict:
         return {"command": list(sys.argv), "started": self.started,
                 "written": datetime.now(UTC).isoformat(timespec="seconds"),
-                "host": socket.gethostname(), "versions": package_versions()}
+                "host": socket.gethostname(), "versions": package_versions(),
+                **({"files": self.named_files} if self.named_files else {})}
 
     def _rewrite_in_place(self, name: str, text: str) -> None:
         """Overwrite the reserved file's own blocks (no new space needed on a full disk)."""
@@ -304,7 +311,7 @@ def _our_entries(summary: dict) -> set[str]:
 def _ours_summary(path: Path) -> dict | None:
     """The folder's summary.json when cosim wrote it (else None)."""
     try:
-        data = json.loads((path / "summary.json").read_text(encoding="utf-8"))
+        data = json.loads(read_text(path / "summary.json"))
     except (OSError, ValueError):
         return None
     if isinstance(data, dict) and "complete" in data and ("provenance" in data
@@ -348,9 +355,11 @@ def _refusal(path: Path, existing: list[str], force: bool) -> str | None:
     """Why a folder holding ``existing`` cannot be the run folder (None: it can)."""
     if existing and not force:
         what = _describe_existing(path)
+        resume = (f", `cosim sweep … --resume {path}` to go on with it"
+                  if " sweep folder" in what else "")
         return (f"--out {path}: already holds {len(existing)} file"
-                f"{'s' * (len(existing) != 1)} ({what}); pass --force to replace them, or "
-                "choose another --out")
+                f"{'s' * (len(existing) != 1)} ({what}); pass --force to replace them"
+                f"{resume}, or choose another --out")
     foreign = _not_ours(path, existing)
     if existing and foreign:
         shown = ", ".join(foreign[:5]) + (", …" if len(foreign) > 5 else "")
@@ -387,13 +396,15 @@ def new_run_folder(base: str | Path, create: bool = True) -> Path:
 LATEST = "latest"
 
 
-def point_latest(out: Path) -> None:
+def point_latest(out: Path) -> str | None:
     """``out``'s parent/latest → ``out`` (a relative link, replaced atomically), unless it
     points to a run started later already. A ``latest`` that is not a link is the user's:
-    left alone."""
+    left alone, and what to tell the user of it returned (else None)."""
     link = out.parent / LATEST
     if link.exists() and not link.is_symlink():
-        return
+        what = "a folder" if link.is_dir() else "a file"
+        return (f"{link} is {what} cosim did not make, so it was left as it is and does not "
+                f"lead to this run: view this one with cosim view {out}")
     if link.is_symlink() and (link.parent / os.readlink(link)).is_dir() \
             and os.readlink(link) > out.name:
         return  # a run started later (the names are start times) is the latest already
@@ -420,11 +431,16 @@ def would_refuse(path: str | Path, force: bool = False) -> str | None:
 def _describe_existing(path: Path) -> str:
     summary = path / "summary.json"
     try:
-        data = json.loads(summary.read_text())
+        data = json.loads(read_text(summary))
         started = data.get("provenance", {}).get("started", "")
         state = "a complete" if data.get("complete") else "an incomplete"
+        when = f" started {started}" if started else ""
+        if data.get("kind") == "sweep":  # (its summary names no pipeline)
+            rows = data.get("rows")
+            return (f"{state} sweep folder{when}"
+                    + (f", {rows} row(s) in its journal" if isinstance(rows, int) else ""))
         name = data.get("pipeline", {}).get("name", "?")
-        return f"{state} run folder of {name}" + (f" started {started}" if started else "")
+        return f"{state} run folder of {name}{when}"
     except (OSError, ValueError, AttributeError):
         names = sorted(p.name for p in path.iterdir() if p.name != LOCK)
         return ", ".join(names[:3]) + (", …" if len(names) > 3 else "")

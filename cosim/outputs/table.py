@@ -22,21 +22,42 @@ def _mark(entry: dict) -> str:
 
 
 def verdict(summary: dict) -> str:
-    """One short line: safe, or which set it left first, when, for how long, and how many
-    more; unattainable sets and sufficient conditions are the table's to show."""
-    left = left_sets(summary.get("safety", {}))
+    """One short line, the robot's limits (the hard sets: position, velocity, effort) apart
+    from tracking (the soft sets): whether the run kept them, or which it left first, when,
+    for how long and how many more. Unattainable sets and sufficient conditions are the
+    table's to show."""
+    safety = summary.get("safety", {})
     tail = "" if summary.get("complete", True) else " (the run did not finish)"
-    if not left:
-        return f"safe: kept every attainable set{tail}"
+    hard = left_sets(safety, [Kind.HARD])
+    soft = left_sets(safety, [Kind.SOFT])
+    tracking = f"tracking: left {_first(soft)}" if soft else "tracking kept"
+    if hard:
+        return f"limits LEFT: {_first(hard)}; {tracking}{tail}"
+    families = list(dict.fromkeys(e["family"].removesuffix("_true").replace("_", " ")
+                                  for e in safety.values()
+                                  if kind(e) == Kind.HARD and "family" in e))
+    limits = (f"limits kept (every joint's {', '.join(families)})" if families
+              else "no limits (no hard set)")
+    return f"{limits}; {tracking}{tail}"
+
+
+def _first(left: list[tuple[str, dict]]) -> str:
+    """The first set a run left, when and for how long, and how many more."""
     name, entry = left[0]
     more = f", +{len(left) - 1} more" if len(left) > 1 else ""
-    return (f"UNSAFE: left {name} at {entry['first_violation_s']:.2f} s "
-            f"({entry['time_outside_s']:.2f} s out){more}{tail}")
+    return (f"{name} at {entry['first_violation_s']:.2f} s "
+            f"({entry['time_outside_s']:.2f} s out){more}")
 
 
 def _bounds(runs: dict[str, dict], check: str) -> list[float]:
     return sorted({e["bound"] for r in runs.values()
                    if (e := r.get("safety", {}).get(check)) is not None})
+
+
+def _limits(runs: dict[str, dict], check: str) -> list[tuple[float, float]]:
+    """The distinct [lower, upper] limits a check has in the runs (none: not a limit)."""
+    return sorted({tuple(e["limits"]) for r in runs.values()
+                   if (e := r.get("safety", {}).get(check)) is not None and "limits" in e})
 
 
 def _rows(runs: dict[str, dict]) -> tuple[list[str], list[list[str]]]:
@@ -47,7 +68,13 @@ def _rows(runs: dict[str, dict]) -> tuple[list[str], list[list[str]]]:
         bounds = _bounds(runs, check)
         shared = len(bounds) == 1
         first = next(r["safety"][check] for r in runs.values() if check in r.get("safety", {}))
-        label = f"{check} ≤ {bounds[0]:g} {unit(first)}".rstrip() if shared else check
+        limits = _limits(runs, check)
+        if limits:  # a robot's limits: the quantity itself between them
+            shared = len(limits) == 1
+            label = (f"{check} in [{limits[0][0]:g}, {limits[0][1]:g}] {unit(first)}".rstrip()
+                     if shared else check)
+        else:
+            label = f"{check} ≤ {bounds[0]:g} {unit(first)}".rstrip() if shared else check
         labels.append(f"{label} (*)" if kind(first) == Kind.SUFFICIENT else label)
         row = []
         for summary in runs.values():
@@ -56,6 +83,10 @@ def _rows(runs: dict[str, dict]) -> tuple[list[str], list[list[str]]]:
                 row.append("-")
             elif entry.get("worst") is None:
                 row.append("n/a")
+            elif "range" in entry:
+                low, high = entry["range"]
+                own = "" if shared else " (in [{:g}, {:g}])".format(*entry["limits"])
+                row.append(f"[{low:.3f}, {high:.3f}] {_mark(entry)}{own}")
             else:
                 own = "" if shared else f" (≤ {entry['bound']:g})"
                 row.append(f"{entry['worst']:.3f} {_mark(entry)}{own}")
@@ -89,8 +120,18 @@ def text_table(runs: dict[str, dict], width: int = 100) -> str:
                                     *(row[i].ljust(widths[i]) for i in group)]).rstrip())
     lines.append("verdict:")
     pad = max(map(len, names))
-    lines.extend(f"  {name.ljust(pad)}  {verdict(runs[name])}" for name in names)
+    for name in names:
+        lines.extend(_verdict_lines(f"  {name.ljust(pad)}  ", verdict(runs[name]), width))
     return "\n".join(lines)
+
+
+def _verdict_lines(head: str, text: str, width: int) -> list[str]:
+    """A verdict after ``head``, its tracking part on a line of its own, aligned, where the
+    whole would be wider than ``width``."""
+    if len(head) + len(text) <= width or "; " not in text:
+        return [head + text]
+    limits, tracking = text.split("; ", 1)
+    return [f"{head}{limits};", " " * len(head) + tracking]
 
 
 def markdown_table(runs: dict[str, dict], title: str, not_run: list[str] = ()) -> str:

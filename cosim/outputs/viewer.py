@@ -14,6 +14,8 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from plant_fmu.named_file import NotAFile, not_a_file, open_regular, read_text
+
 LAVAPIPE_ICD = Path("/usr/share/vulkan/icd.d/lvp_icd.x86_64.json")  # mesa-vulkan-drivers
 
 
@@ -32,6 +34,9 @@ def viewer_binary() -> Path:
     return path
 
 
+RRD_MAGIC = b"RRF"  # how every Rerun recording file begins (RRF2 in Rerun 0.41)
+
+
 def recording_path(run_dir: str | Path) -> Path:
     """``RUN_DIR/recording.rrd`` (or an .rrd path itself), checked to exist."""
     path = Path(run_dir)
@@ -40,8 +45,19 @@ def recording_path(run_dir: str | Path) -> Path:
             raise ViewerError(_sweep_help(path) or _runs_help(path) or
                               f"{path} has no recording.rrd (was it run with --no-recording?)")
         return path / "recording.rrd"
-    if not path.is_file():
-        raise ViewerError(f"{path} does not exist: give a run folder or an .rrd file")
+    why = not_a_file(path)
+    if why is not None:
+        raise ViewerError(f"{path} {why}: give a run folder or an .rrd file")
+    try:
+        with open_regular(path) as f:
+            head = f.read(len(RRD_MAGIC))
+    except NotAFile as exc:
+        raise ViewerError(f"{exc}: give a run folder or an .rrd file") from None
+    if not head.startswith(RRD_MAGIC) and path.suffix != ".rrd":  # (an .rrd: Rerun's verify
+        hint = (f" (a pipeline file: run it with cosim run {path}, then view its run folder)"
+                if path.suffix == ".toml" else "")                   # says what is wrong)
+        raise ViewerError(f"{path} is not a Rerun recording{hint}: give a run folder or an "
+                          ".rrd file")
     return path
 
 
@@ -51,7 +67,7 @@ def _sweep_help(path: Path) -> str | None:
     import json
 
     try:
-        kind = json.loads((path / "summary.json").read_text(encoding="utf-8")).get("kind")
+        kind = json.loads(read_text(path / "summary.json")).get("kind")
     except (OSError, ValueError, AttributeError):
         return None
     if kind != "sweep":

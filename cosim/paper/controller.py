@@ -26,6 +26,7 @@ from pydantic import Field
 from ..blocks.base import Block, BlockContext, Ports, kernel_args, register_block
 from ..schema import GainVector, NonNegativeFloat, PipelineError, PositiveFloat, Section, Seed
 from ..signals import Signal
+from .sampled_loop import LinearGains, check_step
 
 
 class ControllerParams(Section):
@@ -78,6 +79,12 @@ class ControllerParams(Section):
     init_scale: NonNegativeFloat = 0.1
     # seed of the random initial weights, dimensionless
     seed: Seed = 0
+    # the units of the gains and the NN's output (a name): "torque", as the paper gives
+    # them (kv in N·m·s/rad, the robust terms and f̂ in N·m); "inertia", accelerations
+    # scaled by the inertia model's M̂(q): τ = M̂(q)(f̂ + Kv r̂ − v), kv in 1/s, the robust
+    # terms and f̂ in rad/s², so that one set of gains gives every joint of any arm the same
+    # bandwidth (cosim.paper.sampled_loop checks the step either way)
+    scale: Literal["torque", "inertia"] = "torque"
 
 
 class NnGains(NamedTuple):
@@ -105,6 +112,8 @@ class ControllerArgs(NamedTuple):
     hidden: int
     lam: np.ndarray  # (n,)
     kv: np.ndarray  # (n,)
+    inertia_scaled: bool  # τ = M̂(q)(f̂ + Kv r̂ − v): scale = "inertia"
+    M_model: np.ndarray  # M̂ per row (steps, n, n); (1, n, n) zeros when not scaled
     state: np.ndarray  # Ŵ ((hidden+1) × n), V̂ ((1+5n) × hidden), flat
     position: np.ndarray  # q (baseline) or q_meas (proposed)
     velocity: np.ndarray  # q̇ (baseline) or x̂2 (proposed)
@@ -121,11 +130,29 @@ class ControllerArgs(NamedTuple):
     V_norm: np.ndarray
     feedback_gain: np.ndarray
     # scratch, so that a step allocates nothing: ξ (1 + 5n), V̂ᵀξ (hidden), σ̂ (hidden + 1),
-    # σ̂'ᵀŴr̂ (hidden)
+    # σ̂'ᵀŴr̂ (hidden), the feedback Kv r̂ − v (n), an acceleration's torque M̂a (n)
     xi: np.ndarray
     act: np.ndarray
     sig_hat: np.ndarray
     back: np.ndarray
+    feedback: np.ndarray
+    scaled: np.ndarray
+
+
+@njit(cache=True)
+def _torques(mass, vector, scratch):
+    """``vector`` (accelerations, n) replaced by M̂ times it (torques); returns the square of
+    its new norm."""
+    n = vector.shape[0]
+    for i in range(n):
+        scratch[i] = 0.0
+        for j in range(n):
+            scratch[i] += mass[i, j] * vector[j]
+    square = 0.0
+    for i in range(n):
+        vector[i] = scratch[i]
+        square += scratch[i] * scratch[i]
+    return square
 
 
 @njit(cache=True)
@@ -202,9 +229,15 @@ def controller_step(k, a):
         if a.proposed:
             v[i] = v[i] - sign_gain * r[i] - e[i] - psi_gain * r[i]
         feedback = a.kv[i] * r[i] - v[i]
+        a.feedback[i] = feedback
         feedback_sq += feedback * feedback
         a.tau[k, i] = f_hat[i] + feedback
         finite += a.tau[k, i]
+    if a.inertia_scaled:  # accelerations: τ, f̂, v and the feedback's gain as torques, M̂ a
+        feedback_sq = _torques(a.M_model[k], a.feedback, a.scaled)
+        for vector in (a.tau[k], f_hat, v):
+            _torques(a.M_model[k], vector, a.scaled)
+            finite += np.sum(vector)
     a.W_norm[k] = w_norm
     a.V_norm[k] = v_norm
     a.feedback_gain[k] = np.sqrt(feedback_sq) / r_norm if r_norm > 0.0 else 0.0
@@ -254,6 +287,7 @@ class NnController(Block):
                 f"{context.plant_file} has no qdot mapping (no outputs qdot[1]..qdot[{n}]); map "
                 "them with plant.variables.qdot = [...] or drop the run")
         self.velocity_source = velocity
+        self.chatter: str | None = None  # what the step check says of the robust terms
         self.publishes = {"nn_gains": kernel_args(
             NnGains, Lambda=np.broadcast_to(np.asarray(params.lam, float),
                                             (context.links,)).copy(),
@@ -265,6 +299,8 @@ class NnController(Block):
                                         "finite_difference": ("q_meas", "q_meas")}[velocity]
         self.inputs = tuple(dict.fromkeys((self.position, self.velocity, "q_d", "qdot_d",
                                            "qddot_d")))
+        if params.scale == "inertia":
+            self.inputs += ("M_model",)
         self.outputs = {
             "tau": Signal("n", "N·m", "joint torque τ", "controller/tau"),
             "e": Signal("n", "rad", "tracking error e = q_d − q", "controller/e"),
@@ -282,15 +318,52 @@ class NnController(Block):
                                     "‖Kv r̂ − v‖ / ‖r̂‖", kept=True),
         }
 
-    def reset(self, ports: Ports) -> None:
+    def initial_weights(self) -> np.ndarray:
+        """Ŵ(0) = 0 and V̂(0), flat as the kernel's state holds them."""
         p, n = self.params, self.context.links
         n_in = 1 + 5 * n
-        inp, out = ports.inputs, ports.outputs
         weights = np.zeros((p.hidden + 1) * n + n_in * p.hidden)
         if p.init == "random":  # Lewis: V̂(0) small and random, so hidden units differ
             rng = np.random.default_rng(p.seed)
             weights[(p.hidden + 1) * n:] = rng.uniform(-p.init_scale, p.init_scale,
                                                        n_in * p.hidden)
+        return weights
+
+    def linear_gains(self) -> LinearGains:
+        """The feedback near r̂ = 0: Kv plus the robust term's Kz(‖Ẑ(0)‖ + Z) at the initial
+        weights on r̂ = ė + Λe, and for the proposed controller (27)'s −e, which grow with
+        the error; and, bounded, (27)'s smooth-sign and ψ_B terms at their largest gain,
+        (κ(Z_Wc + C1/κ)²/4 + C0)/√δ and ψ_B²/δ (their torque is at most
+        κ(Z_Wc + C1/κ)²/4 + C0 and ψ_B²/(2√δ): they cannot make the loop diverge, only
+        chatter). The robust term's gain grows with ‖Ẑ‖ as the weights adapt, which a check
+        before the run cannot foresee."""
+        p, n = self.params, self.context.links
+        proposed = p.variant == "proposed"
+        z_w = p.z_wc if proposed else p.z_b
+        velocity = (np.broadcast_to(np.asarray(p.kv, float), (n,))
+                    + p.kz * (np.linalg.norm(self.initial_weights()) + z_w))
+        lam = np.broadcast_to(np.asarray(p.lam, float), (n,))
+        bounded = None
+        if proposed:
+            bounded = np.full(n, (p.kappa * (z_w + p.c1 / p.kappa) ** 2 / 4.0 + p.c0)
+                              / np.sqrt(p.delta) + p.psi_b ** 2 / p.delta)
+        return LinearGains(lam * velocity + (1.0 if proposed else 0.0), velocity,
+                           inertia_scaled=p.scale == "inertia",
+                           difference=self.velocity_source == "finite_difference",
+                           bounded=bounded, bounded_lambda=lam)
+
+    def check(self, published) -> None:
+        self.chatter = check_step(self, published, self.linear_gains(), "controller.kv or kz",
+                                  "controller.c0, psi_b, or raise delta")
+
+    def headline(self) -> str | None:
+        return f"the controller: {self.chatter}" if self.chatter else None
+
+    def reset(self, ports: Ports) -> None:
+        p, n = self.params, self.context.links
+        n_in = 1 + 5 * n
+        inp, out = ports.inputs, ports.outputs
+        weights = self.initial_weights()
         self.args = kernel_args(
             ControllerArgs, dt=self.context.dt, proposed=p.variant == "proposed",
             finite_difference=self.velocity_source == "finite_difference",
@@ -299,9 +372,11 @@ class NnController(Block):
             delta=p.delta, psi_b=p.psi_b, hidden=p.hidden,
             lam=np.broadcast_to(np.asarray(p.lam, float), (n,)).copy(),
             kv=np.broadcast_to(np.asarray(p.kv, float), (n,)).copy(),
+            inertia_scaled=p.scale == "inertia",
+            M_model=inp["M_model"] if p.scale == "inertia" else np.zeros((1, n, n)),
             state=weights, position=inp[self.position], velocity=inp[self.velocity],
             q_d=inp["q_d"], qdot_d=inp["qdot_d"], qddot_d=inp["qddot_d"],
             **{name: out[name] for name in ("tau", "e", "edot", "r_hat", "nn_output", "v_c",
                                             "W_norm", "V_norm", "feedback_gain")},
             xi=np.empty(n_in), act=np.empty(p.hidden), sig_hat=np.empty(p.hidden + 1),
-            back=np.empty(p.hidden))
+            back=np.empty(p.hidden), feedback=np.empty(n), scaled=np.empty(n))

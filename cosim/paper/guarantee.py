@@ -50,6 +50,14 @@ from plant_fmu.models.planar_arm import variables as rigid_arm_variables
 
 from .. import interface as io
 from ..declared import Uncertainty, joint_boxes
+from ..dynamics.model import (
+    COULOMB,
+    COULOMB_ERROR,
+    COULOMB_VELOCITY,
+    DAMPING,
+    DAMPING_ERROR,
+    friction_table,
+)
 from ..evaluate import Check, Kind, Part, register_evaluator
 from ..evaluate.safety import SafeSet, Signals
 from ..signals import Trace
@@ -76,11 +84,11 @@ ACTIVE = "cbf_active"  # the filter's flag: it changed the torque at this step
 OBSERVER_TAU_D = "tau_d_model"  # the observer's constant: the τ_d its model assumes, N·m
 
 # The rigid arm's parameters, by family, as the classifier treats them. Compared with the
-# nominal model: the links (plant_payload), gravity, friction (nominal: none) and the
-# disturbance (undeclared_differences). Not model differences: the initial state (what the
-# viable set judges), the integrator's step, the Coulomb smoothing velocity (no effect
-# while fc = 0, which is compared) and the disturbance's frequency (its amplitude bounds it
-# at any frequency).
+# nominal model: the links (plant_payload), gravity, friction (the nominal model's, within
+# the declared bounds) and the disturbance (undeclared_differences). Not model differences:
+# the initial state (what the viable set judges), the integrator's step, the Coulomb
+# smoothing velocity (compared on its own where there is Coulomb friction) and the
+# disturbance's frequency (its amplitude bounds it at any frequency).
 CHAIN = ("m", "l", "lc", "I")
 GRAVITY = "g"
 FRICTION = (("b", "viscous friction", "N·m·s/rad"), ("fc", "Coulomb friction", "N·m"))
@@ -175,10 +183,14 @@ def plant_model_difference(trace: Signals, model, payload: float | None) -> str 
 
 
 def undeclared_differences(parameters: Mapping[str, float], chain, uncertainty: Uncertainty,
-                           tau_d_model: np.ndarray | None, links: int) -> list[str]:
+                           tau_d_model: np.ndarray | None, links: int,
+                           friction: np.ndarray | None = None) -> list[str]:
     """What sets the plant's gravity, friction and disturbance apart from the nominal model
     beyond what is declared uncertain, each naming its parameter: gravity ``g`` against the
-    nominal chain's, friction ``b[i]``, ``fc[i]`` against none, and per joint the
+    nominal chain's, friction ``b[i]``, ``fc[i]`` against the nominal model's (``friction``,
+    its rows as cosim.dynamics.model lays them out; None: no friction) within the declared
+    bounds (``uncertainty.viscous_friction``, ``coulomb_friction``), the smoothing velocity
+    ``fc_vel[i]`` against its own where either has Coulomb friction, and per joint the
     disturbance error |τ_d[i] − τ_d,model[i]| + |tau_d_amp[i]| (the sinusoid's amplitude is
     its largest value; compared whatever tau_d_freq, even 0 Hz where the plant's
     sin(2π·f·t) is 0: conservative) against ``uncertainty.disturbance``. ``tau_d_model``:
@@ -190,12 +202,38 @@ def undeclared_differences(parameters: Mapping[str, float], chain, uncertainty: 
             and abs(float(parameters[GRAVITY]) - chain.gravity) > PARAMETER_TOLERANCE:
         out.append(f"g = {float(parameters[GRAVITY]):g} m/s² (the nominal chain's "
                    f"{chain.gravity:g} m/s²): gravity is not declared uncertain")
-    for name, what, unit in FRICTION:
+    table = friction_table(links) if friction is None else friction
+    for (name, what, unit), row, error, key in zip(
+            FRICTION, (DAMPING, COULOMB), (DAMPING_ERROR, COULOMB_ERROR),
+            ("viscous_friction", "coulomb_friction"), strict=True):
         for i in range(1, links + 1):
-            value = float(parameters.get(f"{name}[{i}]", 0.0))
-            if abs(value) > PARAMETER_TOLERANCE:
-                out.append(f"{name}[{i}] = {value:g} {unit} (nominal 0): {what} is not "
-                           "declared uncertain")
+            value = float(parameters.get(f"{name}[{i}]", table[row, i - 1]))
+            nominal, declared = table[row, i - 1], table[error, i - 1]
+            if abs(value - nominal) <= declared + PARAMETER_TOLERANCE:
+                continue
+            out.append(f"{name}[{i}] = {value:g} {unit} (nominal {nominal:g}"
+                       + (f" ± {declared:g}): {what} beyond uncertainty.{key}" if declared
+                          else f"): {what} is not declared uncertain (uncertainty.{key})"))
+    for i in range(1, links + 1):  # a URDF arm's fc_vel[i], the planar arm's one fc_vel
+        coulomb = float(parameters.get(f"fc[{i}]", 0.0))
+        key = f"fc_vel[{i}]" if f"fc_vel[{i}]" in parameters else "fc_vel"
+        nominal = table[COULOMB_VELOCITY, i - 1]
+        smoothing = float(parameters.get(key, nominal))
+        if (coulomb or table[COULOMB, i - 1]) and abs(smoothing - nominal) > PARAMETER_TOLERANCE:
+            named = f"{key} = {smoothing:g} rad/s (the nominal model's {nominal:g} rad/s, "
+            if named not in "".join(out):  # the planar arm's one value, named once
+                out.append(f"{named}inertia_model.fc_vel): another Coulomb friction law")
+    return out + disturbance_differences(parameters, uncertainty, tau_d_model, links)
+
+
+def disturbance_differences(parameters: Mapping[str, float], uncertainty: Uncertainty,
+                            tau_d_model: np.ndarray | None, links: int,
+                            key: str | None = None) -> list[str]:
+    """Per joint, the plant's disturbance error |τ_d − τ_d,model| + |tau_d_amp| beyond
+    ``uncertainty.disturbance``, named; ``key``: the block's key whose model it is, for a
+    model other than the filter's own (the observer's, whose bound ε(t) the margins rest
+    on)."""
+    out = []
     model = np.broadcast_to(np.asarray(0.0 if tau_d_model is None else tau_d_model, float),
                             (links,))
     for i in range(1, links + 1):
@@ -204,13 +242,18 @@ def undeclared_differences(parameters: Mapping[str, float], chain, uncertainty: 
         error = abs(constant) + abs(amplitude)
         if error <= uncertainty.disturbance + PARAMETER_TOLERANCE:
             continue
-        named = [*([f"tau_d[{i}] = {constant + model[i - 1]:g} N·m (model "
+        whose = "model" if key is None else key
+        named = [*([f"tau_d[{i}] = {constant + model[i - 1]:g} N·m ({whose} "
                     f"{model[i - 1]:g} N·m)"] if abs(constant) > PARAMETER_TOLERANCE else []),
                  *([f"tau_d_amp[{i}] = {amplitude:g} N·m at tau_d_freq[{i}] = "
                     f"{float(parameters.get(f'tau_d_freq[{i}]', math.nan)):g} Hz (nominal 0)"]
                    if abs(amplitude) > PARAMETER_TOLERANCE else [])]
+        consequence = ("" if key is None else
+                       f"; the bound ε(t) on the velocity's estimate, which the filter's "
+                       f"margins rest on, assumes {key}")
         out.append(f"{', '.join(named)}: a disturbance error up to {error:g} N·m on joint {i} "
-                   f"> the declared {uncertainty.disturbance:g} N·m (uncertainty.disturbance)")
+                   f"> the declared {uncertainty.disturbance:g} N·m (uncertainty.disturbance)"
+                   f"{consequence}")
     return out
 
 
@@ -607,7 +650,15 @@ class Guarantee(Part):
                                        urdf="nominal_urdf" in self.given)
         # the τ_d the filter's model assumes: its own, else the observer's (its default)
         tau_d = assumes.tau_d if assumes is not None else self.given.get(OBSERVER_TAU_D)
-        other += undeclared_differences(parameters, chain, uncertainty, tau_d, trace.links)
+        model = self.given.get("nominal_model")
+        other += undeclared_differences(parameters, chain, uncertainty, tau_d, trace.links,
+                                        getattr(model, "friction", None))
+        observer = self.given.get(OBSERVER_TAU_D)
+        if assumes is not None and observer is not None \
+                and not np.array_equal(np.asarray(observer), np.asarray(assumes.tau_d)):
+            # the filter has a disturbance model of its own: the observer's is compared too
+            other += disturbance_differences(parameters, uncertainty, observer, trace.links,
+                                             "observer.tau_d")
         system = self.given.get(io.PLANT_SYSTEM)
         if system:
             other += system_differences(trace, system, parameters, uncertainty, tau_d)

@@ -22,9 +22,11 @@ from plant_fmu.models.planar_arm import PAPER_MASSES
 
 from ..blocks.base import Block, BlockContext, Ports, kernel_args, register_block
 from ..dynamics.model import (
+    NO_FRICTION_VELOCITY,
     RIGID_BODY_MODELS,
     RigidBodyModel,
     chain_model,
+    friction_table,
     model_geometry,
     model_mass,
     own_scratch,
@@ -46,7 +48,7 @@ from ..dynamics.planar import (  # noqa: F401  (re-exported: the planar chain's 
     planar_bias,
     planar_mass_matrix,
 )
-from ..schema import FiniteFloat, NonNegativeFloat, PipelineError, PositiveFloat, Section
+from ..schema import FileName, FiniteFloat, NonNegativeFloat, PipelineError, PositiveFloat, Section
 from ..signals import Signal
 
 
@@ -73,11 +75,19 @@ class InertiaModelParams(Section):
     # ur5_robot.urdf): its spatial chain from ``base`` to ``tip`` (link names; defaults as
     # cosim build-fmu --urdf), ``fixed`` joints held at a value (rad or m); the payload's
     # point is the tip link's origin
-    urdf: str | None = None
+    urdf: FileName | None = None
     base: str | None = None  # the nominal URDF's base link (a name)
     tip: str | None = None  # the nominal URDF's tip link, where the payload is (a name)
     # joints of the nominal URDF held at a value, by name, rad or m
     fixed: dict[str, FiniteFloat] | None = None
+    # the nominal model's viscous friction b̂ per joint (or one for all), N·m·s/rad; unset:
+    # the nominal URDF's <dynamics damping>, 0 for the planar chain (the plant's b[i])
+    b: NonNegativeFloat | list[NonNegativeFloat] | None = None
+    # its Coulomb friction f̂c per joint (or one for all), smoothed as f̂c tanh(q̇/fc_vel),
+    # N·m; unset: the nominal URDF's <dynamics friction>, 0 for the planar chain (fc[i])
+    fc: NonNegativeFloat | list[NonNegativeFloat] | None = None
+    # the Coulomb friction's smoothing velocity, as the plant FMUs' fc_vel[i], rad/s
+    fc_vel: PositiveFloat = NO_FRICTION_VELOCITY
 
 
 class Chain(NamedTuple):
@@ -144,7 +154,7 @@ class InertiaModel(Block):
 
     kind = "inertia_model"
     Params = InertiaModelParams
-    per_joint = ("m", "l", "lc", "I")
+    per_joint = ("m", "l", "lc", "I", "b", "fc")
     # nominal_model: the rigid-body model (planar chain or a URDF's spatial chain) the
     # observer, the PD controller and the filter compute M̂, b̂ and the payload's point with;
     # nominal_chain: the planar chain's parameters (planar only), for the guarantee's
@@ -174,12 +184,13 @@ class InertiaModel(Block):
         self.publishes = {"inertia_is_plant": source == "fmu"}
         if params.urdf is not None:
             self.urdf_chain = read_nominal_urdf(params, context)
-            self.model = chain_model(self.urdf_chain)
+            self.model = chain_model(self.urdf_chain, self.friction())
             self.publishes["nominal_urdf"] = self.urdf_chain
         else:
             self.urdf_chain = None
             links = self.nominal_links()
-            self.model = planar_model(**self.chain_arrays(links), gravity=params.gravity)
+            self.model = planar_model(**self.chain_arrays(links), gravity=params.gravity,
+                                      friction=self.friction())
             self.publishes["nominal_chain"] = kernel_args(
                 Chain, **self.chain_arrays(links), gravity=params.gravity)
         self.publishes["nominal_model"] = self.model
@@ -206,6 +217,18 @@ class InertiaModel(Block):
                 f"uncertainty.payload = [{low:g}, {high:g}] (run '{self.context.run}'): the "
                 f"low end allows a plant with a negative mass: the payload is {where}; give "
                 f"low {'>' if strict else '≥'} {lightest:g} kg")
+
+    def friction(self) -> np.ndarray:
+        """The nominal model's friction rows (cosim.dynamics.model.friction_table): b̂ and
+        f̂c as given, else the nominal URDF's, else none; the declared bounds on the true
+        friction's departure from them (``uncertainty.viscous_friction``,
+        ``coulomb_friction``)."""
+        p, n, chain = self.params, self.context.links, self.urdf_chain
+        declared = self.context.uncertainty
+        return friction_table(
+            n, p.b if p.b is not None else (chain.damping if chain is not None else 0.0),
+            p.fc if p.fc is not None else (chain.friction if chain is not None else 0.0),
+            p.fc_vel, declared.viscous_friction, declared.coulomb_friction)
 
     def nominal_links(self) -> dict[str, list[float]]:
         """The nominal chain as used: given values, else the defaults."""

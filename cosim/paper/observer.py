@@ -88,6 +88,8 @@ from ..blocks.base import Block, BlockContext, Ports, kernel_args, register_bloc
 from ..dynamics.model import (
     RigidBodyModel,
     model_bias,
+    model_friction,
+    model_friction_spread,
     model_geometry,
     model_mass,
     model_payload,
@@ -102,6 +104,7 @@ from ..schema import FiniteFloat, NonNegativeFloat, PositiveFloat, Section
 from ..signals import Signal
 from .inertia import InertiaModel, default_links
 from .linalg import invert, linear_part, small_symmetric_eigen, solve
+from .sampled_loop import check_friction_step
 
 LAWS = {"paper": 0, "error_driven": 1}
 BASES = {"lagged": 0, "no_acceleration": 1}
@@ -346,6 +349,13 @@ def envelope_acceleration(env, slot, cell, tau, tau_d, centre, radius, lo, hi):
             for k in range(n):
                 bias += forms[0, l, j, k] * centre[j] * centre[k]
         work[l] = tau[l] - bias
+    friction, spread_of_friction = env.work[PLUS_], env.work[MINUS_]
+    friction[:] = 0.0
+    model_friction(env.model, centre, friction)
+    spread_of_friction[:] = 0.0
+    model_friction_spread(env.model, centre, radius, spread_of_friction)
+    for l in range(n):  # noqa: E741
+        work[l] -= friction[l]
         for j in range(n):
             bmat[0, l, j], bmat[1, l, j] = linear_part(forms[0], forms[1], centre, payload_low,
                                                        payload_high, l, j)
@@ -384,7 +394,7 @@ def envelope_acceleration(env, slot, cell, tau, tau_d, centre, radius, lo, hi):
                     total += abs(forms[0, l, j, k] + mass * forms[1, l, j, k]) \
                         * radius[j] * radius[k]
             worst = max(worst, total)
-        work[l] = worst + env.disturbance
+        work[l] = worst + env.disturbance + spread_of_friction[l]
     for i in range(n):
         low, high = u[i], u[i]
         for j in range(d):  # −s_j R_ij (v_jᵀ(J u + γ)), s_j over its range
@@ -427,6 +437,8 @@ def envelope_windows(k, dt, noise, window, y, acc, interval):
         lo, hi = interval[0, i], interval[1, i]
         for length in range(1, min(k, window) + 1):
             j = k - length
+            if not (np.isfinite(acc[j, 0, i]) and np.isfinite(acc[j, 1, i])):
+                break  # a step whose q̈ no bound held: no window over it says anything
             sum_lo += acc[j, 0, i]
             sum_hi += acc[j, 1, i]
             moment_lo += (j - k + 0.5) * acc[j, 0, i]
@@ -723,6 +735,9 @@ class FlnnObserver(Block):
         self.publishes = {"tau_d_model": np.broadcast_to(
             np.asarray(params.tau_d, float), (context.links,)).copy(),
             "observer_gain": float(params.fo)}
+
+    def check(self, published) -> None:
+        check_friction_step(self, published)
 
     def reset(self, ports: Ports) -> None:
         p, n = self.params, self.context.links

@@ -28,6 +28,7 @@ from ..dynamics.model import (
 )
 from ..schema import GainVector, NonNegativeFloat, Section
 from ..signals import Signal
+from .sampled_loop import LinearGains, check_step
 
 
 class PdControllerParams(Section):
@@ -44,6 +45,10 @@ class PdControllerParams(Section):
     velocity: Literal["plant", "finite_difference"] = "plant"
     # whether the nominal model's gravity torque Ĝ(q) is added to τ (a flag)
     gravity_compensation: bool = True
+    # the units of the gains (a name): "torque", Kp in N·m/rad and Kd in N·m·s/rad;
+    # "inertia", accelerations scaled by the inertia model's M̂(q): τ = M̂(q)(Kp e + Kd ė)
+    # + Ĝ(q), Kp in 1/s² and Kd in 1/s, the same bandwidth on every joint of any arm
+    scale: Literal["torque", "inertia"] = "torque"
 
 
 class PdArgs(NamedTuple):
@@ -52,6 +57,9 @@ class PdArgs(NamedTuple):
     gravity_compensation: bool
     kp: np.ndarray  # (n,)
     kd: np.ndarray  # (n,)
+    inertia_scaled: bool  # τ = M̂(q)(Kp e + Kd ė) + Ĝ: scale = "inertia"
+    M_model: np.ndarray  # M̂ per row (steps, n, n); (1, n, n) zeros when not scaled
+    acceleration: np.ndarray  # scratch (n,): Kp e + Kd ė when scaled
     model: RigidBodyModel  # the nominal model, for Ĝ(q)
     gravity_torque: np.ndarray  # scratch (n,)
     zero_velocity: np.ndarray  # (n,) zeros: Ĝ is the bias at q̇ = 0
@@ -75,7 +83,15 @@ def pd_step(k, a):
     edot = a.qdot_d[k] - velocity
     a.e[k] = e
     a.edot[k] = edot
-    a.tau[k] = a.kp * e + a.kd * edot
+    if a.inertia_scaled:
+        a.acceleration[:] = a.kp * e + a.kd * edot
+        mass = a.M_model[k]
+        for i in range(len(e)):
+            a.tau[k, i] = 0.0
+            for j in range(len(e)):
+                a.tau[k, i] += mass[i, j] * a.acceleration[j]
+    else:
+        a.tau[k] = a.kp * e + a.kd * edot
     if a.gravity_compensation:
         model_geometry(a.model, q)
         model_bias(a.model, a.zero_velocity, 1.0, 0.0, 1.0, a.gravity_torque)
@@ -96,6 +112,8 @@ class PdController(Block):
         self.position, self.velocity = (("q", "qdot") if params.velocity == "plant"
                                         else ("q_meas", "q_meas"))
         self.inputs = tuple(dict.fromkeys((self.position, self.velocity, "q_d", "qdot_d")))
+        if params.scale == "inertia":
+            self.inputs += ("M_model",)
         self.requires = ("nominal_model",) if params.gravity_compensation else ()
         self.outputs = {
             "tau": Signal("n", "N·m", "joint torque τ", "pd_controller/tau"),
@@ -104,6 +122,17 @@ class PdController(Block):
                            "estimate)", "pd_controller/edot"),
         }
         self.publishes = {"velocity_source": params.velocity}
+
+    def linear_gains(self) -> LinearGains:
+        """Kp and Kd: the whole feedback (Ĝ(q) is slow)."""
+        p, n = self.params, self.context.links
+        return LinearGains(np.broadcast_to(np.asarray(p.kp, float), (n,)),
+                           np.broadcast_to(np.asarray(p.kd, float), (n,)),
+                           inertia_scaled=p.scale == "inertia",
+                           difference=p.velocity == "finite_difference")
+
+    def check(self, published) -> None:
+        check_step(self, published, self.linear_gains(), "pd_controller.kp or kd")
 
     def reset(self, ports: Ports) -> None:
         p, n = self.params, self.context.links
@@ -117,6 +146,9 @@ class PdController(Block):
             gravity_compensation=p.gravity_compensation,
             kp=np.broadcast_to(np.asarray(p.kp, float), (n,)).copy(),
             kd=np.broadcast_to(np.asarray(p.kd, float), (n,)).copy(),
-            model=own_scratch(model), gravity_torque=np.zeros(n), zero_velocity=np.zeros(n),
+            inertia_scaled=p.scale == "inertia",
+            M_model=inp["M_model"] if p.scale == "inertia" else np.zeros((1, n, n)),
+            acceleration=np.zeros(n), model=own_scratch(model), gravity_torque=np.zeros(n),
+            zero_velocity=np.zeros(n),
             position=inp[self.position], velocity=inp[self.velocity], q_d=inp["q_d"],
             qdot_d=inp["qdot_d"], tau=out["tau"], e=out["e"], edot=out["edot"])

@@ -14,10 +14,10 @@ from pydantic import Field, model_validator
 
 from ..blocks.base import Block, BlockContext, Ports, register_block
 from ..declared import joint_boxes
-from ..schema import FiniteFloat, NonNegativeFloat, PipelineError, PositiveFloat, Section
+from ..schema import FileName, FiniteFloat, NonNegativeFloat, PipelineError, PositiveFloat, Section
 from ..signals import Signal
 from .reference_limits import JointLimits, breaches, refusal, safe_set_limits
-from .trajectory import Trajectory, minimum_jerk
+from .trajectory import SegmentOverflow, Trajectory, minimum_jerk
 from .trajectory_file import read_trajectory
 
 
@@ -80,7 +80,7 @@ class ReferenceParams(Section):
     # a CSV trajectory: rows of t, q_1…q_n, optionally q̇_1…q̇_n and q̈_1…q̈_n (s, rad,
     # rad/s, rad/s²), joined by quintic segments; relative to the pipeline file; given, it
     # replaces the sinusoids, a path
-    csv: str | None = None
+    csv: FileName | None = None
     # a reference that leaves a joint's limits (today the safe sets per joint, |q_d − q_s| ≤
     # safety.position_bound and |q̇_d − q̇_s| ≤ safety.velocity_bound), a name: "refuse" it
     # before the run, naming the joint, time and value; "report" it (summary.json lists it,
@@ -132,6 +132,10 @@ class Sinusoids:
 class Reference(Block):
     kind = "reference"
     Params = ReferenceParams
+    # reference_trajectory: q_d(t) as an object with ``evaluate(t) -> (q_d, q̇_d, q̈_d)``
+    # (rad, rad/s, rad/s²), for the checks blocks make before the run (the sampled loop's
+    # configurations, cosim.paper.sampled_loop)
+    PUBLISHES = {"reference_trajectory": object}
 
     def __init__(self, params: ReferenceParams, context: BlockContext):
         super().__init__(params, context)
@@ -144,6 +148,7 @@ class Reference(Block):
             "qdot_s": Signal("n", "rad/s", "safe-set centre q̇_s (Remark 1)"),
         }
         self.trajectory = trajectory(params, context)
+        self.publishes = {"reference_trajectory": self.trajectory}
         self._centres: tuple[np.ndarray, np.ndarray] | None = None  # centres(), once
         self.limits_left = self._check_limits()
 
@@ -219,7 +224,15 @@ class Reference(Block):
         boxes = joint_boxes(self.context.safety, self.context.links)
         if boxes is None:
             q_s, qdot_s = self.centres()
-            limits = safe_set_limits(self.context.safety, q_s, qdot_s)
+            p = self.params
+            computed = [name for name, given in (("safe_centre", p.safe_centre),
+                                                 ("safe_velocity_centre",
+                                                  p.safe_velocity_centre)) if given is None]
+            centred = (f"the midpoints of the reference over 0–{p.safe_horizon:g} s "
+                       "(reference.safe_horizon), beyond the run's end too; give "
+                       f"{' and '.join(f'reference.{n}' for n in computed)} to fix them"
+                       if computed else "")
+            limits = safe_set_limits(self.context.safety, q_s, qdot_s, centred)
         else:  # the robot's own limits (safety.limits = "urdf"), the margin kept
             limits = JointLimits(boxes.position_centre - boxes.position_half,
                                  boxes.position_centre + boxes.position_half,
@@ -247,11 +260,20 @@ def trajectory(params: ReferenceParams, context: BlockContext) -> Sinusoids | Tr
         if positions.shape[1] != n:
             raise PipelineError(f"reference.waypoints.positions has rows of "
                                 f"{positions.shape[1]} entries (one per joint, rad); {joints}")
-        return minimum_jerk(np.array(params.waypoints.times, float), positions,
-                            f"{len(positions)} waypoints")
+        times = np.array(params.waypoints.times, float)
+        try:
+            return minimum_jerk(times, positions, f"{len(positions)} waypoints")
+        except SegmentOverflow as exc:
+            k = exc.segment
+            raise PipelineError(
+                f"reference.waypoints: the segment from times[{k}] = {times[k]:g} s to "
+                f"times[{k + 1}] = {times[k + 1]:g} s (positions up to "
+                f"{np.max(np.abs(positions[k:k + 2])):g}) makes q_d, q̇_d or q̈_d too large for "
+                "double precision: give times and positions of a robot's scale") from None
     if params.source == "csv":
         path = params.csv
-        found = read_trajectory(path, n)
+        # the samples it uses: up to the run's end, or the safe sets' horizon (centres)
+        found = read_trajectory(path, n, max(context.duration, params.safe_horizon))
         if found.end < context.duration - 1e-9:
             raise PipelineError(f"reference.csv: {path} covers 0–{found.end:g} s, shorter "
                                 f"than the run (simulation.duration = {context.duration:g} "

@@ -14,6 +14,8 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from plant_fmu.named_file import read_text
+
 from ..config import PipelineError, load_pipeline
 from ..config.params import key_units
 from ..evaluate.reports import SWEEP_REPORTS
@@ -29,7 +31,7 @@ from .execution import (
     stranded_after,
 )
 from .files import write_results, write_spec
-from .journal import JOURNAL, Journal, Rows, points_done, read_table
+from .journal import JOURNAL, Journal, Rows, check_journal, read_table
 from .resume import check_same, identity, stored_identity
 from .spec import (
     SweepError,
@@ -160,7 +162,7 @@ def _main(args: argparse.Namespace) -> int:
     try:
         with phase("checking every point against the pipeline's schema", not args.quiet):
             all_points = points(spec)
-            validate(spec, all_points)
+            files = validate(spec, all_points)
     except KeyboardInterrupt as exc:
         raise SweepError(f"{str(exc) or 'interrupted (Ctrl-C)'} while checking the points; "
                          "nothing was run") from None
@@ -168,8 +170,8 @@ def _main(args: argparse.Namespace) -> int:
     runs = spec.runs or list(pipeline.runs)
     if args.dry_run:
         return _dry_run(spec, all_points, runs, out, args)
-    start = identity(spec, len(all_points))
-    folder, done = _open_folder(out, start, args)
+    start = identity(spec, len(all_points), files)
+    folder, done = _open_folder(out, start, args, all_points, runs)
     todo = [i for i in range(len(all_points)) if i not in done]
     if done:
         print(f"resuming {out}: {len(done)} of {len(all_points)} point(s) already there; "
@@ -190,25 +192,37 @@ def _main(args: argparse.Namespace) -> int:
               + (f" ({resume})" if len(rows) < len(all_points) * len(runs) else ""),
               file=sys.stderr)
         return 2
-    if record:
+    if record:  # (which says so itself when no row completed)
         _record(spec, rows, record, out, all_points, args)
+    if len(rows) and all(status != "ok" for status in rows.column("status")):
+        first = rows[0]
+        raise SweepError(f"every row failed ({len(rows)} of {len(rows)}; the first, point "
+                         f"{first['point']} run {first['run']}: {first.get('error') or '?'}); "
+                         f"each row's error is in {out / 'results.csv'}")
     return 0
 
 
-def _open_folder(out: Path, start: dict, args: argparse.Namespace
-                 ) -> tuple[RunFolder, set[int]]:
+def _open_folder(out: Path, start: dict, args: argparse.Namespace, all_points: list[dict],
+                 runs: list[str]) -> tuple[RunFolder, set[int]]:
     """The sweep folder, with sweep.json (what the sweep is) and the journal of rows listed
     in its summary from the start (so a killed sweep's folder is cosim's to --force or
-    --resume), and the points it already holds (resumed: only if it is the same sweep)."""
+    --resume), and the points it already holds (resumed: only if it is the same sweep and
+    its journal holds rows of this sweep only; nothing is written otherwise)."""
     from ..outputs.run_folder import RunFolder
 
     done: set[int] = set()
     if args.resume:
         check_same(out, stored_identity(out), start)
-        folder = RunFolder.create(out, keep=True)
+        folder = RunFolder.create(out, keep=True, option="--resume")
+        try:
+            done, repeats = check_journal(out / JOURNAL, all_points, runs)
+        except SweepError as exc:
+            folder.release()
+            raise SweepError(f"--resume {out}: {exc}") from None
+        for repeat in repeats:
+            print(f"cosim: warning: {out / JOURNAL}: {repeat}", file=sys.stderr)
         previous = _previous_files(out)
         folder.files.update({k: v for k, v in previous.items() if k == JOURNAL})
-        done = points_done(out / JOURNAL)
     else:
         folder = RunFolder.create(out, args.force)
     try:
@@ -226,7 +240,7 @@ def _open_folder(out: Path, start: dict, args: argparse.Namespace
 
 def _previous_files(out: Path) -> dict:
     try:
-        return json.loads((out / "summary.json").read_text()).get("files") or {}
+        return json.loads(read_text(out / "summary.json")).get("files") or {}
     except (OSError, ValueError, AttributeError):
         return {}
 

@@ -340,6 +340,10 @@ def _connect(scheduler: str) -> Client:
     if "error" in outcome:
         exc = outcome["error"]
         detail = f"{type(exc).__name__}: {exc}"[:200]
+        asked = re.search(r"allocate ([\d.]+ \w+)", str(exc))
+        if isinstance(exc, MemoryError) and asked:  # a length read from another protocol
+            detail = (f"something answered, but not in Dask's protocol: its first bytes, read "
+                      f"as a message's length, asked for {asked[1]}")
         raise SweepError(f"--scheduler {scheduler}: no Dask scheduler answered there "
                          f"({detail})")
     raise SweepError(f"--scheduler {scheduler}: something answers there but not as a Dask "

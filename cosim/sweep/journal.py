@@ -13,19 +13,26 @@ columns they read."""
 
 from __future__ import annotations
 
+import errno
 import json
 import os
+import stat
 from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from plant_fmu.named_file import not_a_file
+
+from .spec import SweepError
+
 if TYPE_CHECKING:
     import pyarrow as pa
 
 JOURNAL = "rows.jsonl"
 CHUNK = 256  # rows a chunk when reading back: as dicts, ~15 kB a row of 200 columns
+LONGEST_LINE = 64 * 2**20  # bytes: a row of thousands of columns is well below
 
 
 class Journal:
@@ -73,20 +80,110 @@ def _drop_cut_line(path: Path) -> None:
         f.truncate(0)
 
 
-def _lines(path: Path) -> Iterator[dict]:
-    """The journal's rows; a last line cut short (a killed client) is left out."""
-    if not path.exists():
+def _lines(path: Path) -> Iterator[tuple[int, bytes]]:
+    """The journal's whole lines, numbered from 1; a last line cut short (a killed client)
+    is left out. Nothing when there is no journal; :class:`SweepError` for a journal that
+    is not a regular file (opened without blocking: a named pipe would wait for a writer
+    forever; a symbolic link is not followed: a sweep appends to and cuts its journal)."""
+    try:
+        fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | os.O_NOFOLLOW)
+    except FileNotFoundError:
         return
-    with path.open(encoding="utf-8") as f:
-        for line in f:
-            if not line.endswith("\n"):
+    except OSError as exc:
+        raise _not_rows(path, "is a symbolic link" if exc.errno == errno.ELOOP
+                        else f"cannot be read ({exc.strerror})") from None
+    with os.fdopen(fd, "rb") as f:
+        if not stat.S_ISREG(os.fstat(fd).st_mode):
+            raise _not_rows(path, not_a_file(path) or "is not a regular file")
+        number = 0
+        while line := f.readline(LONGEST_LINE + 1):
+            number += 1
+            if len(line) > LONGEST_LINE:  # not a row: read no more of it into memory
+                raise SweepError(f"{path} holds a line longer than {LONGEST_LINE // 2**20} "
+                                 f"MiB (line {number}), which no row is; nothing was run: "
+                                 "remove it and resume (its point is then run again), or "
+                                 "start a new sweep in another --out")
+            if not line.endswith(b"\n"):
                 return
-            yield json.loads(line)
+            yield number, line
 
 
-def points_done(path: Path) -> set[int]:
-    """The points of which the journal holds rows (a task's rows are written together)."""
-    return {row["point"] for row in _lines(path)}
+def _not_rows(path: Path, what: str) -> SweepError:
+    return SweepError(f"{path} {what}: a sweep's rows are a file cosim writes; nothing was "
+                      "run: remove it (every point is then run again), or start a new sweep "
+                      "in another --out")
+
+
+def _parsed(line: bytes) -> dict | str:
+    """A journal line's row, or why it is not one."""
+    try:
+        text = line.decode("utf-8")
+    except UnicodeDecodeError as exc:
+        return f"not UTF-8 text (byte {exc.start})"
+    try:
+        row = json.loads(text)
+    except json.JSONDecodeError as exc:
+        where = ("at its end" if exc.pos >= len(text.rstrip())
+                 else f"at character {exc.pos + 1}")
+        return f"not a JSON row ({exc.msg} {where})"
+    return row if isinstance(row, dict) else "not a JSON object"
+
+
+def _rows(path: Path) -> Iterator[dict]:
+    """The journal's rows, each (point, run) once (the first: :func:`check_journal` said
+    which lines repeat one)."""
+    seen: set[tuple] = set()
+    for _, line in _lines(path):
+        row = _parsed(line)
+        if isinstance(row, dict) and (row.get("point"), row.get("run")) not in seen:
+            seen.add((row.get("point"), row.get("run")))
+            yield row
+
+
+def check_journal(path: Path, all_points: list[dict], runs: list[str]
+                  ) -> tuple[set[int], list[str]]:
+    """The points of which the journal holds a row for every run (a task's rows are written
+    together), and the repeated rows it holds (each (point, run) counts once: the first),
+    said line by line. :class:`SweepError` naming the lines that are not rows of this
+    sweep: damaged (cut mid-way, not UTF-8, not JSON), of a point or run it has not, or
+    with values that are not their point's."""
+    from .worker import point_row
+
+    first: dict[tuple[int, str], int] = {}
+    repeats, wrong = [], []
+    for number, line in _lines(path):
+        row = _parsed(line)
+        if isinstance(row, str):
+            wrong.append(f"line {number} is {row}")
+            continue
+        point, run = row.get("point"), row.get("run")
+        if not isinstance(point, int) or isinstance(point, bool) \
+                or not 0 <= point < len(all_points):
+            wrong.append(f"line {number} is a row of point {json.dumps(point)[:20]}, which "
+                         f"this sweep has not (points 0 to {len(all_points) - 1})")
+        elif run not in runs:
+            wrong.append(f"line {number} is a row of run {json.dumps(run)[:40]}, which this "
+                         f"sweep does not run ({', '.join(runs)})")
+        elif (expected := point_row(point, all_points[point], run)) != \
+                {key: row.get(key) for key in expected} or "status" not in row:
+            wrong.append(f"line {number} is a row of point {point} whose values are not "
+                         "that point's")
+        elif (point, run) in first:
+            repeats.append(f"line {number} repeats the row of point {point}, run {run} (line "
+                           f"{first[point, run]}): left out")
+        else:
+            first[point, run] = number
+    if wrong:
+        shown = "; ".join(wrong[:3]) + (f"; and {len(wrong) - 3} more" if len(wrong) > 3 else "")
+        raise SweepError(f"{path} holds {len(wrong)} line{'s' * (len(wrong) != 1)} that "
+                         f"{'is' if len(wrong) == 1 else 'are'} not a row of this sweep "
+                         f"({shown}); nothing was run: remove "
+                         + ("it and resume (its point is" if len(wrong) == 1
+                            else "them and resume (their points are")
+                         + " then run again), or start a new sweep in another --out")
+    done = {point for point in range(len(all_points))
+            if all((point, run) in first for run in runs)}
+    return done, repeats
 
 
 def read_table(path: Path) -> pa.Table:
@@ -95,7 +192,7 @@ def read_table(path: Path) -> pa.Table:
     import pyarrow as pa
 
     chunks, chunk = [], []
-    for row in _lines(path):
+    for row in _rows(path):
         chunk.append(row)
         if len(chunk) == CHUNK:
             chunks.append(_arrow(chunk))

@@ -1,34 +1,40 @@
 """``cosim sweep --resume DIR``: what makes two sweeps the same one (the resolved pipeline,
-grid, samples, seed, runs, --set and the number of points, kept in DIR/sweep.json from the
-start), and, when DIR's differs from the command's, what differs, by name."""
+grid, samples, seed, runs, --set, the number of points and the content of every file the
+points name, kept in DIR/sweep.json from the start), and, when DIR's differs from the
+command's, what differs, by name."""
 
 from __future__ import annotations
 
 import json
+import sys
 from pathlib import Path
 
+from plant_fmu.named_file import read_text
+
 from ..config import load_pipeline
+from ..config.named_files import changed_files
 from ..outputs.run_folder import jsonable
 from .spec import SweepError, SweepSpec
 
 SPEC_FILE = "sweep.json"
 
 
-def identity(spec: SweepSpec, total_points: int) -> dict:
-    """What a resumed sweep must share with the one it resumes (JSON-ready)."""
+def identity(spec: SweepSpec, total_points: int, files: list[dict]) -> dict:
+    """What a resumed sweep must share with the one it resumes (JSON-ready); ``files``:
+    the digests of the files its points name (:func:`.spec.validate`)."""
     resolved = load_pipeline(spec.pipeline, spec.base, warn=None).model_dump(by_alias=True)
     return jsonable({"pipeline_file": spec.pipeline, "base_sets": spec.base,
                      "grid": {a.key: a.values for a in spec.grid},
                      "samples": {a.key: list(a.distribution) for a in spec.samples},
                      "samples_per_grid_point": spec.count, "seed": spec.seed,
                      "runs": spec.runs, "points": total_points,
-                     "resolved_pipeline": resolved})
+                     "resolved_pipeline": resolved, "files": files})
 
 
 def stored_identity(folder: Path) -> dict:
     """The identity DIR/sweep.json holds, or :class:`SweepError` saying why there is none."""
     try:
-        document = json.loads((folder / SPEC_FILE).read_text(encoding="utf-8"))
+        document = json.loads(read_text(folder / SPEC_FILE))
     except FileNotFoundError:
         raise SweepError(f"--resume {folder}: no sweep was started there (no {SPEC_FILE}); "
                          "give the folder of an earlier cosim sweep") from None
@@ -52,10 +58,17 @@ def check_same(folder: Path, stored: dict, current: dict) -> None:
     if changed:
         shown = "; ".join(changed[:5]) + ("; …" if len(changed) > 5 else "")
         differ.append(f"the pipeline {current['pipeline_file']} ({shown})")
+    if isinstance(stored.get("files"), list):
+        differ += [f"the file {change}" for change in changed_files(
+            [e for e in stored["files"] if isinstance(e, dict)], current["files"])]
+    else:
+        print(f"cosim: warning: --resume {folder}: its {SPEC_FILE} (an older cosim's) holds "
+              "no digest of the files the sweep names (reference CSVs, URDFs, plugins, "
+              "FMUs): they are taken to be unchanged", file=sys.stderr)
     if differ:
         raise SweepError(f"--resume {folder}: not the same sweep as the one started there; "
-                         f"it differs in {', '.join(differ)}. Resume with the same command, "
-                         "or start a new sweep in another --out")
+                         f"it differs in {', '.join(differ)}. Resume with the same command and "
+                         "files, or start a new sweep in another --out")
 
 
 def _canonical(value: object) -> str:

@@ -169,15 +169,19 @@ def assignments(spec: SweepSpec, point: dict) -> list[str]:
     return [*spec.base, *(f"{key}={toml_value(value)}" for key, value in point.items())]
 
 
-def validate(spec: SweepSpec, all_points: list[dict]) -> None:
-    """Every point loads (keys, types, ranges), the runs exist, and the first point
-    assembles (plant FMU, wiring, sizes): :class:`SweepError` naming the point."""
+def validate(spec: SweepSpec, all_points: list[dict]) -> list[dict]:
+    """Every point loads (keys, types, ranges), the runs exist, every file a point names is
+    a regular file, and the first point assembles (plant FMU, wiring, sizes):
+    :class:`SweepError` naming the point. Returns the digests of the files the points name
+    (:func:`~cosim.config.named_files.file_digests`), each hashed once."""
     from ..assemble import assemble
+    from ..config.named_files import file_digests, named_files
 
     def once(text: str) -> None:  # the first point's warnings, for the swept runs only
         if not spec.runs or any(f"run '{r}'" in text for r in spec.runs):
             print(f"cosim: warning: {text}", file=sys.stderr)
 
+    digests: dict[str, dict] = {}
     try:  # the file itself (missing, not TOML, a bad extends): no point's fault
         read_toml(Path(spec.pipeline))
     except PipelineError as exc:
@@ -199,11 +203,18 @@ def validate(spec: SweepSpec, all_points: list[dict]) -> None:
         if missing:
             raise SweepError(f"--runs {' '.join(missing)}: not a run of {spec.pipeline} (its "
                              f"runs: {', '.join(pipeline.runs)})")
+        try:  # a file only a later point names, hashed here rather than failing there
+            new = {path: key for path, key in named_files(only_runs(pipeline, spec.runs))
+                   .items() if path not in digests}
+            digests.update({entry["path"]: entry for entry in file_digests(new)})
+        except PipelineError as exc:
+            raise SweepError(f"point {index} ({point_label(point)}): {exc}") from None
         if index == 0:
             try:
-                assemble(only_runs(pipeline, spec.runs)).close()
+                assemble(pipeline).close()
             except PipelineError as exc:
                 raise SweepError(f"point 0 ({point_label(point)}): {exc}") from None
+    return [digests[path] for path in sorted(digests)]
 
 
 def point_label(point: dict) -> str:

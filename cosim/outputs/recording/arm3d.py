@@ -13,7 +13,8 @@ Layout under ``/<run>/arm3d``:
                                             grey skeleton on the same base
 
 Frames are the URDF's link names under ``<run>/`` (one arm per run, moved by its own q), and
-under ``<run>/desired/`` for the desired pose.
+under ``<run>/desired/`` for the desired pose. A joint's or link's name is one part of an
+entity path, escaped (:func:`part`): a link 'a/b' is not the child 'b' of a link 'a'.
 """
 
 from __future__ import annotations
@@ -29,6 +30,14 @@ from plant_fmu.urdf import check_meshes, package_dirs
 from .layout import REFERENCE_COLOR, UrdfArm
 
 SKELETON_COLOR = (230, 150, 40)  # the arm's skeleton: orange, seen through grey meshes
+
+
+def part(name: str) -> str:
+    """A URDF name as one part of an entity path (its '/', spaces and the like escaped, as
+    Rerun's own URDF loader escapes the names of its entities)."""
+    import rerun as rr
+
+    return rr.escape_entity_path_part(name)
 
 
 def frame(run: str, link: str) -> str:
@@ -92,7 +101,7 @@ def _log_still_joints(rec, entity: str, tree, arm: UrdfArm) -> None:
     for joint in tree.joints():
         if joint.name not in arm.joints:
             value = arm.held.get(joint.name, 0.0)
-            rec.log(f"{entity}/{joint.name}", joint.compute_transform(value, clamp=False),
+            rec.log(f"{entity}/{part(joint.name)}", joint.compute_transform(value, clamp=False),
                     static=True)
 
 
@@ -106,7 +115,7 @@ def _log_skeleton(rec, entity: str, frames: str, tree, color) -> None:
     reach = max((float(np.linalg.norm(xyz)) for ends in children.values() for xyz in ends),
                 default=0.1)
     for link, ends in children.items():
-        rec.log(f"{entity}/{link}", rr.LineStrips3D([[(0.0, 0.0, 0.0), end] for end in ends],
+        rec.log(f"{entity}/{part(link)}", rr.LineStrips3D([[(0.0, 0.0, 0.0), end] for end in ends],
                                                     colors=[color], radii=[0.03 * reach]),
                 rr.CoordinateFrame(frame(frames, link)), static=True)
 
@@ -122,6 +131,6 @@ def log_pose(rec, run: str, arm: UrdfArm, trees: tuple, times: np.ndarray, q: np
                                  (f"/{run}/arm3d/desired", trees[1], q_d)):
         for j, name in enumerate(arm.joints):
             joint = tree.get_joint_by_name(name)
-            rec.send_columns(f"{prefix}/joints/{name}", indexes=index,
+            rec.send_columns(f"{prefix}/joints/{part(name)}", indexes=index,
                              columns=joint.compute_transform_columns(values[:, j].tolist(),
                                                                      clamp=False))

@@ -48,10 +48,17 @@ from __future__ import annotations
 
 import numpy as np
 
-from ...dynamics.model import model_bias, model_geometry, model_mass, model_payload
+from ...dynamics.model import (
+    model_bias,
+    model_friction,
+    model_geometry,
+    model_mass,
+    model_payload,
+)
 from ...numba_compat import no_refcount_jit
 from ..linalg import dot, invert, product
 from .model import (
+    friction_error_into,
     linear_error_bound_into,
     nominal_model,
     payload_structure,
@@ -76,6 +83,7 @@ from .scratch import (
     R_DEV,
     R_DQ,
     R_DV,
+    R_FRICTION,
     R_HALF,
     R_LIMIT_Q,
     R_LIMIT_V,
@@ -280,9 +288,10 @@ def _deviation(a, q_dot, spread, acceleration, deviation):
     (:func:`_payload_deviation`): the velocity's and the payload's departures add up (a
     payload's true q̈ also carries the velocity error's)."""
     w = a.work
+    friction_error_into(a.model, q_dot, spread, w.rollout[R_FRICTION])
     linear_error_bound_into(q_dot, spread, w.matrices[ROLL_MINV], a.payload_low,
                             a.payload_high, w.forms[0], w.forms[1], w.linear,
-                            w.rollout[R_QUADRATIC], deviation)
+                            w.rollout[R_QUADRATIC], w.rollout[R_FRICTION], deviation)
     _payload_deviation(a, q_dot, acceleration, deviation)
 
 
@@ -301,6 +310,7 @@ def _nominal_acceleration(k, a, first, backup, policy, limit):
     centre = rollout_payload(a)
     model_mass(a.model, 1.0, centre, mass)
     model_bias(a.model, vel, 1.0, centre, 1.0, bias)
+    model_friction(a.model, vel, bias)
     for i in range(n):
         bias[i] += a.tau_d[i]
     binds = True  # a held torque: no feedback over its step

@@ -10,6 +10,8 @@ from numba import njit
 
 from ...dynamics.model import (
     model_bias,
+    model_friction,
+    model_friction_spread,
     model_geometry,
     model_mass,
     model_payload,
@@ -22,6 +24,7 @@ from .scratch import (
     ALPHA,
     BETA,
     EIGEN,
+    FRICTION,
     GAMMA,
     JAC,
     JB,
@@ -61,12 +64,22 @@ def velocity_forms(model, q) -> np.ndarray:
 
 
 @no_refcount_jit(cache=True)
-def acceleration_error_bound_into(v, eps, minv, low, high, disturbance, nominal, payload,
-                                  linear, quadratic, out):
+def acceleration_error_bound_into(model, v, eps, minv, low, high, disturbance, nominal,
+                                  payload, linear, quadratic, friction, out):
     """acceleration_error_bound into ``out``, with Γ of a unit payload given (``payload``)
-    and ``linear`` (2, n, n), ``quadratic`` (n,) as scratch."""
+    and ``linear`` (2, n, n), ``quadratic`` and ``friction`` (n,) as scratch."""
     quadratic_error_into(eps, low, high, disturbance, nominal, payload, quadratic)
-    linear_error_bound_into(v, eps, minv, low, high, nominal, payload, linear, quadratic, out)
+    friction_error_into(model, v, eps, friction)
+    linear_error_bound_into(v, eps, minv, low, high, nominal, payload, linear, quadratic,
+                            friction, out)
+
+
+@no_refcount_jit(cache=True, inline="always")
+def friction_error_into(model, v, eps, out):
+    """Per joint, the most the true friction at a velocity within ``eps`` of v differs from
+    the nominal model's at v (cosim.dynamics.model.model_friction_spread), into ``out``."""
+    out[:] = 0.0
+    model_friction_spread(model, v, eps, out)
 
 
 @no_refcount_jit(cache=True)
@@ -86,9 +99,10 @@ def quadratic_error_into(eps, low, high, disturbance, nominal, payload, quadrati
 
 @no_refcount_jit(cache=True)
 def linear_error_bound_into(v, eps, minv, low, high, nominal, payload, linear, quadratic,
-                            out):
-    """acceleration_error_bound into ``out`` with the quadratic part given
-    (:func:`quadratic_error_into`), ``linear`` (2, n, n) as scratch."""
+                            friction, out):
+    """acceleration_error_bound into ``out`` with the quadratic part and the friction's
+    error given per row (:func:`quadratic_error_into`, :func:`friction_error_into`),
+    ``linear`` (2, n, n) as scratch."""
     n = v.shape[0]
     # B_lj = 2 Σ_k (Γ_l,jk + Δm Γ^p_l,jk) v_k at each end of the payload range, stored
     # transposed (linear[end, j, l]) so that (M̂⁻¹B)_ij runs along contiguous memory
@@ -104,7 +118,7 @@ def linear_error_bound_into(v, eps, minv, low, high, nominal, payload, linear, q
                 at_high += minv[i, l] * linear[1, j, l]
             total += max(abs(at_low), abs(at_high)) * eps[j]
         for l in range(n):  # noqa: E741
-            total += abs(minv[i, l]) * quadratic[l]
+            total += abs(minv[i, l]) * (quadratic[l] + friction[l])
         out[i] = total
 
 
@@ -114,24 +128,27 @@ def acceleration_error_bound(q, v, eps, minv, a, nominal):
     and a disturbance |d_l| ≤ d̄. b's velocity part is b_l(v) = vᵀΓ_l v (``nominal``, plus
     Δm times a unit payload's), so b(v + δ) − b(v) = B δ + (δᵀΓ_l δ)_l with
     B_lj = 2 Σ_k Γ_l,jk v_k: the linear part through M̂⁻¹B keeps its cancellations (in a
-    stretched arm most of the Coriolis force is radial: no torque), the quadratic part and
-    d̄ are bounded row by row. Affine in Δm, so the worst case is at an end of its range."""
+    stretched arm most of the Coriolis force is radial: no torque), the quadratic part, the
+    friction's error and d̄ are bounded row by row. Affine in Δm, so the worst case is at an
+    end of its range."""
     n = q.shape[0]
     payload = np.zeros((n, n, n))
     velocity_forms_into(a.model, q, 0.0, 1.0, np.zeros((POLAR_ROWS, n)), payload)
     out = np.zeros(n)
-    acceleration_error_bound_into(v, eps, minv, a.payload_low, a.payload_high, a.disturbance,
-                                  nominal, payload, np.zeros((2, n, n)), np.zeros(n), out)
+    acceleration_error_bound_into(a.model, v, eps, minv, a.payload_low, a.payload_high,
+                                  a.disturbance, nominal, payload, np.zeros((2, n, n)),
+                                  np.zeros(n), np.zeros(n), out)
     return out
 
 
 @no_refcount_jit(cache=True, inline="always")
 def nominal_model(a, y, v, nominal, bias):
-    """The nominal model at (y, v): its M(y) into ``nominal`` and b̂ = C(y, v) v + G(y) + τ_d
-    into ``bias``."""
+    """The nominal model at (y, v): its M(y) into ``nominal`` and b̂ = C(y, v) v + G(y) +
+    F̂(v) + τ_d (F̂ the nominal friction) into ``bias``."""
     model_geometry(a.model, y)
     model_mass(a.model, 1.0, 0.0, nominal)
     model_bias(a.model, v, 1.0, 0.0, 1.0, bias)
+    model_friction(a.model, v, bias)
     for i in range(y.shape[0]):
         bias[i] += a.tau_d[i]
 
@@ -205,9 +222,9 @@ def robust_model(a, y, v, eps, minv, base):
     velocity_forms_into(a.model, y, 1.0, 0.0, w.polar, forms[0])
     if robust:  # else the payload's forms stay zero, as its range is
         velocity_forms_into(a.model, y, 0.0, 1.0, w.polar, forms[1])
-    acceleration_error_bound_into(v, eps, minv, a.payload_low, a.payload_high, a.disturbance,
-                                  forms[0], forms[1], w.linear, vectors[QUADRATIC],
-                                  vectors[ROWS_ERROR])
+    acceleration_error_bound_into(a.model, v, eps, minv, a.payload_low, a.payload_high,
+                                  a.disturbance, forms[0], forms[1], w.linear,
+                                  vectors[QUADRATIC], vectors[FRICTION], vectors[ROWS_ERROR])
     # the payload's structure (see the package docstring)
     corners = 1
     jac, gamma = w.point_rows[JAC], w.point_vectors[GAMMA]

@@ -29,9 +29,10 @@ TAU, TRIAL, GRADIENT, DIRECTION, ROTATED = range(5)
 # predicted at the hold's end and midpoint; dv/dt − M̂⁻¹τ; a row before its scaling; the bias
 # error's quadratic part, and its bound on |M̂⁻¹(Δb + d)|; M̂⁻¹Jᵀγ when M̂ is the plant's;
 # per joint, the most a hard row's g·τ reaches within the torque limits and the most its
-# payload corners lower its limit (rows.py, _reach); from X, 4 rows: each set's x, SETS order.
+# payload corners lower its limit (rows.py, _reach); the friction's error per joint at
+# (y, v); from X, 4 rows: each set's x, SETS order.
 (BIAS, MOVED_BIAS, BASE, BASE_END, BASE_MID, ACCELERATION, Y_END, V_END, Y_MID, V_MID, DRIFT,
- ROW, QUADRATIC, ROWS_ERROR, PLANT_SHIFT, REACH, ROOM, X) = range(18)
+ ROW, QUADRATIC, ROWS_ERROR, PLANT_SHIFT, REACH, ROOM, FRICTION, X) = range(19)
 # Of CbfWork.matrices (n×n each): the nominal model's M at y and at a predicted position, M̂
 # moved there, M̂⁻¹ at y, at the hold's end and at its midpoint, elimination scratch, and R.
 NOMINAL_NOW, NOMINAL, SHIFTED, MINV, MINV_END, MINV_MID, LU, FACTOR = range(8)
@@ -42,10 +43,12 @@ ROLL_MASS, ROLL_MINV, ROLL_LU, BACKUP_FACTOR = range(8, 12)
 # velocities; scratch; a blend of the QP's torque and the backup's; the true velocity's
 # interval at this step (its centre and half-width) and the one predicted for the next step;
 # the backup's √weight per joint; D's part that is fixed over a rollout (the bias error's
-# quadratic part and the disturbance, per row of b).
+# quadratic part and the disturbance, per row of b); the friction's error per joint at the
+# rollout's state.
 (R_Q, R_V, R_DQ, R_DV, R_TAU, R_ACC, R_BIAS, R_DEV, R_LIMIT_Q, R_LIMIT_V, R_TARGET, R_SCRATCH,
- R_CANDIDATE, R_CENTRE, R_HALF, R_NEXT_LOW, R_NEXT_HIGH, R_WEIGHT, R_QUADRATIC) = range(19)
-ROLLOUT_ROWS = 19
+ R_CANDIDATE, R_CENTRE, R_HALF, R_NEXT_LOW, R_NEXT_HIGH, R_WEIGHT, R_QUADRATIC,
+ R_FRICTION) = range(20)
+ROLLOUT_ROWS = 20
 # CbfWork.flags: CONSISTENT, 1 where the velocity's intervals met at this step; PLAN, the
 # backup policy of the last torque verified (a row of their own: an arm of one joint has a
 # rollout row of one)
