@@ -102,7 +102,8 @@ def plant_files(plant) -> list[tuple[dict, str]]:
     components = system.get("components") if isinstance(system, dict) else None
     if isinstance(components, dict):
         tables += [(c, "fmu") for c in components.values() if isinstance(c, dict)]
-    return [(table, key) for table, key in tables if isinstance(table.get(key), str)]
+    return [(table, key) for table, key in tables if isinstance(table.get(key), str)
+            and table[key]]  # an empty name is the schema's to refuse, naming its key
 
 
 def reference_tables(data: dict) -> list[dict]:
