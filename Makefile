@@ -54,7 +54,7 @@ demo: venv
 test: test-venv render-deps
 	$(BIN)/ruff check .
 	$(BIN)/mkdocs build --strict --quiet
-	$(BIN)/python -m pytest -n auto --dist loadfile
+	$(BIN)/python -m pytest -n auto --dist loadfile --durations=20
 
 lint: test-venv
 	$(BIN)/ruff check .

@@ -8,6 +8,9 @@ run and limit with Wilson 95 % intervals.
     .venv/bin/python benchmarks/safety_monte_carlo.py --distribution near-boundary \\
         --samples 500 --torque-limits 1000 2000 --out runs/near
     .venv/bin/python benchmarks/safety_monte_carlo.py --results runs/near   # report only
+    .venv/bin/python benchmarks/safety_monte_carlo.py --distribution near-boundary \
+        --pipeline pipelines/near_boundary_drives.toml --torque-limits 1000 \
+        --saturated-runs --unfiltered-runs --out runs/near_drives  # the arm behind its drives
 
 Distributions (each pipeline's declared [uncertainty]):
 
@@ -770,6 +773,10 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         "declared uncertainty; starts with v² ≤ 2·d·a̲ must be viable")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="a pipeline value for every run, as `cosim run --set` (repeat)")
+    parser.add_argument("--pipeline", default=None,
+                        help="the pipeline the distribution's samples run on, one with its "
+                        "declared uncertainty (default: the distribution's own, above; "
+                        "pipelines/near_boundary_drives.toml: the arm behind its drives)")
     parser.add_argument("--out", type=Path, default=Path("runs/safety_mc"))
     parser.add_argument("--force", action="store_true", help="write into a non-empty --out")
     parser.add_argument("--results", type=Path, help="an existing output folder: report only")
@@ -788,7 +795,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.out.exists() and any(args.out.iterdir()) and not args.force:
             print(f"{args.out} holds files: give another --out, or --force", file=sys.stderr)
             return 2
-        pipeline = PIPELINES[args.distribution]
+        pipeline = args.pipeline or PIPELINES[args.distribution]
         bounds = read_bounds(pipeline)
         rng = np.random.default_rng(args.seed)
         samples = DISTRIBUTIONS[args.distribution](args.samples, rng, bounds, args)

@@ -29,8 +29,14 @@ from .evaluate.parts import select
 from .memory import check_memory
 from .plant import PLANT_INPUT, PLANT_INPUT_ENTITY, PLANT_OUTPUTS, Plant
 from .plant.fmu import Fmu, FmuError
+from .plant.mapping import check_plant_fmu
 from .plant.ports import traced_outputs
+from .plant.unpack import remove
 from .signals import Signal, Trace, trace_name_clash
+from .system.export import single_fmu_system
+from .system.plant import SystemPlant
+from .system.ssp import read_ssp
+from .system.structure import Component, System, parse_connection
 
 
 @dataclass
@@ -125,7 +131,7 @@ class Scenario:
     """The pipeline, its plant (opened and started once, to check it), and every run."""
 
     pipeline: Pipeline
-    plant: Fmu
+    plant: Fmu | SystemPlant
     runs: dict[str, RunPlan] = field(default_factory=dict)
     owns_plant: bool = True  # False: the caller's plant, re-used across scenarios
 
@@ -139,22 +145,63 @@ class Scenario:
 
 
 def plant_path(pipeline: Pipeline) -> Path:
-    """The plant FMU file: the pipeline's ``plant.fmu``, or the built-in plant or the
-    ``plant.urdf`` robot, built on demand and cached by its build options."""
+    """The plant's file: the pipeline's ``plant.fmu`` or ``plant.ssp``, or the built-in
+    plant or the ``plant.urdf`` robot, built on demand and cached by its build options (a
+    ``plant.system`` has none: :func:`plant_files`)."""
     if pipeline.plant.fmu is not None:
-        path = Path(pipeline.plant.fmu)
-        if path.is_dir():
-            raise PipelineError(f"plant.fmu: {path} is a folder, not an FMU file (an "
-                                "unpacked FMU cannot be used: give its .fmu archive)")
-        why = not_a_file(path)
-        if why is not None:
-            raise PipelineError(f"plant.fmu: {path} "
-                                f"{why.replace(', not a file', ', not an FMU file')}")
-        return path
+        return existing_file(pipeline.plant.fmu, "plant.fmu", "FMU")
+    if pipeline.plant.ssp is not None:
+        return existing_file(pipeline.plant.ssp, "plant.ssp", "SSP")
     if pipeline.plant.urdf is not None:
         return urdf_plant_path(pipeline.plant.urdf)
     b = pipeline.plant.builtin
     return build_fmu(links=b.links, fmi_version=b.fmi_version, model=b.model)
+
+
+def existing_file(name: str, key: str, kind: str) -> Path:
+    """``name``, a file the pipeline's ``key`` names (an ``kind`` archive), or a
+    :class:`PipelineError` saying why it is not one."""
+    path = Path(name)
+    if path.is_dir():
+        raise PipelineError(f"{key}: {path} is a folder, not an {kind} file (an unpacked "
+                            f"{kind} cannot be used: give its .{kind.lower()} archive)")
+    why = not_a_file(path)
+    if why is not None:
+        raise PipelineError(f"{key}: {path} {why.replace(', not a file', f', not an {kind} file')}")
+    return path
+
+
+def plant_files(pipeline: Pipeline) -> list[Path]:
+    """The files the plant is made of, built on demand: its FMU, its SSP archive, or each
+    FMU of its ``plant.system``."""
+    if pipeline.plant.system is None:
+        return [plant_path(pipeline)]
+    return [component.source for component in table_system(pipeline.plant.system).components]
+
+
+def table_system(table) -> System:
+    """The system a pipeline's ``[plant.system]`` (a :class:`~cosim.config.sections.
+    SystemTable`) writes: its built-in components built on demand (cached), its
+    connections read."""
+    components = []
+    for name, spec in table.components.items():
+        where = f"plant.system.components.{name}"
+        if spec.fmu is not None:
+            source = existing_file(spec.fmu, f"{where}.fmu", "FMU")
+        else:
+            b = spec.builtin
+            source = build_fmu(links=b.links, fmi_version=b.fmi_version, model=b.model)
+        components.append(Component(name, source, dict(spec.parameters), None,
+                                    spec.step_multiple, where))
+    names = set(table.components)
+    delayed = [parse_connection(text, names, True, f"plant.system.delayed[{i}]")
+               for i, text in enumerate(table.delayed, 1)]
+    held = {(c.start, c.end) for c in delayed}
+    connections = [parse_connection(text, names, False, f"plant.system.connections[{i}]")
+                   for i, text in enumerate(table.connections, 1)]
+    return System(table.name, components,
+                  [c for c in connections if (c.start, c.end) not in held] + delayed,
+                  origin="plant.system")
 
 
 def urdf_plant_path(urdf) -> Path:
@@ -171,17 +218,42 @@ def urdf_plant_path(urdf) -> Path:
         raise PipelineError(f"plant.urdf: {exc}") from None
 
 
-def open_plant(pipeline: Pipeline) -> Fmu:
-    """The pipeline's plant FMU, checked: file, Co-Simulation binary, ``plant.variables``
-    and ``plant.parameters`` (:class:`PipelineError` naming the file and the variable)."""
+def open_plant(pipeline: Pipeline) -> Fmu | SystemPlant:
+    """The pipeline's plant, checked: an FMU (its file, Co-Simulation binary,
+    ``plant.variables`` and ``plant.parameters``) or a system of FMUs (every component,
+    connector and connection too): :class:`PipelineError` naming the file and the
+    variable, component or connection."""
+    mapping, parameters = pipeline.plant.variables.model_dump(), dict(pipeline.plant.parameters)
     try:
-        return Fmu(plant_path(pipeline), pipeline.plant.variables.model_dump(),
-                   dict(pipeline.plant.parameters))
+        if pipeline.plant.system is None and pipeline.plant.ssp is None:
+            return Fmu(plant_path(pipeline), mapping, parameters)
+        system, folder = plant_system(pipeline)
+        try:
+            return SystemPlant(system, mapping, parameters, folder)
+        except BaseException:
+            if folder is not None:
+                remove(folder)
+            raise
     except FmuError as exc:
         raise PipelineError(str(exc)) from None
 
 
-def assemble(pipeline: Pipeline, plant: Fmu | None = None) -> Scenario:
+def plant_system(pipeline: Pipeline) -> tuple[System, str | None]:
+    """The pipeline's plant as a system of FMUs, and the folder an SSP archive was unpacked
+    into (the caller removes it; None for the others): ``plant.ssp``, ``plant.system``, or
+    one FMU as a system of one component (:func:`~cosim.system.export.single_fmu_system`).
+    :class:`FmuError` where the plant is not valid."""
+    if pipeline.plant.ssp is not None:
+        return read_ssp(plant_path(pipeline))
+    if pipeline.plant.system is not None:
+        return table_system(pipeline.plant.system), None
+    path = plant_path(pipeline)
+    _, variables = check_plant_fmu(path, pipeline.plant.variables.model_dump(),
+                                   dict(pipeline.plant.parameters))
+    return single_fmu_system(path, variables.names, dict(pipeline.plant.parameters)), None
+
+
+def assemble(pipeline: Pipeline, plant: Fmu | SystemPlant | None = None) -> Scenario:
     """Open and start the plant (refusing bad parameters), then assemble and check every
     run, and that their traces fit in memory. Nothing is written; the caller closes the
     scenario. ``plant``: an open plant of the same FMU and mapping to re-use (a sweep's
@@ -286,6 +358,7 @@ def wire(blocks: list[Block], context: BlockContext, run: str, plant,
     file = getattr(getattr(plant, "path", None), "name", "the plant")
     where = f"run '{run}'"
     signals: dict[str, Signal] = traced_outputs(context.plant_outputs)  # NaN where not mapped
+    signals.update(getattr(plant, "signals", {}))  # a system's components' own, recorded
     current = {s: s for s in context.plant_outputs}  # signal -> trace key of its latest value
     producer = {s: "plant" for s in context.plant_outputs}
     inputs: list[dict[str, str]] = []

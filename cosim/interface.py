@@ -31,6 +31,10 @@ PLANT_MODEL = "nominal_chain"
 
 # What the framework gives every evaluator besides the blocks' constants.
 PLANT_PARAMETERS = "plant_parameters"  # the plant FMU's parameters, name -> value (SI)
+# A system of FMUs as the plant (None for one FMU): the component the joint angles come from
+# ("arm"), the trace key of its torque input ("arm_torque"), and per component its model and
+# parameters ("components"); cosim.system.plant.SystemPlant.info's "system"
+PLANT_SYSTEM = "plant_system"
 UNCERTAINTY = "uncertainty"  # the pipeline's declared [uncertainty]
 
 # Series (per row, from an evaluator): the condition on its barrier functions, ≥ 0 where it

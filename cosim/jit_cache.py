@@ -406,7 +406,10 @@ def announce_compiles(stream: TextIO, indent: str = "  ",
                 return
             if header and not compiled and not frames:
                 print(f"{indent}compiling numba kernels (once per version of their "
-                      "sources; cached for later runs):", file=stream, flush=True)
+                      "sources and kind of arm, planar or from a URDF, not per robot: a "
+                      "first filtered run takes minutes on 2 cores, `cosim warm-up "
+                      "PIPELINE` does it ahead; cached for later runs):", file=stream,
+                      flush=True)
             frames.append([label, time.monotonic(), 0.0])
 
         def on_end(self, ev) -> None:

@@ -239,7 +239,8 @@ def _summary(pipeline: Pipeline, results: dict[str, RunResult], plant_info: dict
                   "guid": plant_info["instantiation_token"],
                   "variables": plant_info["variables"],
                   "parameters": plant_info["parameters"],
-                  "unit_differences": plant_info["unit_differences"]},
+                  "unit_differences": plant_info["unit_differences"],
+                  **({"system": plant_info["system"]} if "system" in plant_info else {})},
         "runs": {name: r.summary() for name, r in results.items()},
     }
 
@@ -266,6 +267,7 @@ def _run_one(plan: RunPlan, scenario: Scenario, plant_info: dict, recorder: Reco
         first = evaluator is None
         if first:  # after the blocks' reset: the reference, and so every bound, is known
             evaluator = plan.evaluator(trace, {io.PLANT_PARAMETERS: plant_info["parameters"],
+                                               io.PLANT_SYSTEM: plant_info.get("system"),
                                                io.UNCERTAINTY: plan.uncertainty})
         evaluator.update(trace.rows_done)
         if recorder is None:
@@ -366,8 +368,9 @@ def _properties(pipeline: Pipeline, plant_info: dict) -> dict[str, dict]:
     return {
         "pipeline": {"name": pipeline.name, "description": pipeline.description or "",
                      "resolved": resolved},
-        "plant": {**{k: v for k, v in plant_info.items() if k not in ("parameters", "variables")},
-                  "variables": json.dumps(plant_info["variables"]),
-                  "parameters": json.dumps(plant_info["parameters"])},
+        "plant": {**{k: v for k, v in plant_info.items()
+                     if k not in ("parameters", "variables", "system")},
+                  **{k: json.dumps(plant_info[k]) for k in ("variables", "parameters", "system")
+                     if k in plant_info}},
         "versions": package_versions(),
     }

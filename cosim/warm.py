@@ -188,14 +188,14 @@ def _kernel_jobs(pipelines: list[Path]) -> tuple[dict[str, list], list, list[Pat
     FMU files (built here, into their cache)."""
     from numba import typeof, types
 
-    from .assemble import assemble, plant_path
+    from .assemble import assemble, plant_files
 
     modules: dict[str, list] = {}
     loops: dict[tuple, tuple[str, str]] = {}
     fmus = []
     for path in pipelines:
         pipeline = _short(path)
-        fmus.append(plant_path(pipeline))
+        fmus.extend(plant_files(pipeline))
         scenario = assemble(pipeline)
         try:
             for name, plan in scenario.runs.items():

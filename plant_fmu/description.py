@@ -27,6 +27,10 @@ UNITS: dict[str, tuple[dict[str, int], tuple[str, float] | None]] = {
     "Hz": ({"s": -1}, None),
     "m/s2": ({"m": 1, "s": -2}, None),
     "N.m/rad": ({"kg": 1, "m": 2, "s": -2, "rad": -1}, None),
+    # The drives' motors (plant_fmu/models/drives).
+    "A": ({"A": 1}, None),
+    "A/s": ({"A": 1, "s": -1}, None),
+    "N.m/A": ({"kg": 1, "m": 2, "s": -2, "A": -1}, None),
     # A spatial chain's prismatic joints and their mixed entries of M.
     "m/s": ({"m": 1, "s": -1}, None),
     "N": ({"kg": 1, "m": 1, "s": -2}, None),
@@ -42,9 +46,11 @@ _CHECK = {None: "CHECK_NONE", "finite": "CHECK_FINITE", "positive": "CHECK_POSIT
 
 def _c_group(group: str) -> str:
     """The C macro stem of a variable group: its name, or for a derivative der(xdot) its
-    FMI-independent name xddot (der(qdot) -> qddot)."""
+    FMI-independent name xddot (der(qdot) -> qddot), for any other der(x) der_x."""
     if group.startswith("der(") and group.endswith("dot)"):
         return group[4:-4] + "ddot"
+    if group.startswith("der(") and group.endswith(")"):
+        return "der_" + group[4:-1]
     return group
 
 
@@ -67,6 +73,15 @@ def _range(v) -> str:
     """The min/max attributes of a variable with a declared range."""
     return "".join(f' {key}="{_fmt(value)}"' for key, value in (("min", v.min), ("max", v.max))
                    if value is not None)
+
+
+def _dependencies(v, reference) -> str:
+    """An output's ``dependencies`` attribute (the inputs and states it depends on directly,
+    each by ``reference(name)``: FMI 2's 1-based index, FMI 3's value reference); none
+    where the table does not declare them (then an importer assumes every input)."""
+    if v.depends is None:
+        return ""
+    return f' dependencies="{" ".join(str(reference(name)) for name in v.depends)}"'
 
 
 def _unit_definitions(fmi_version: int) -> str:
@@ -141,7 +156,8 @@ def _fmi2(identifier, table, by_name, head, token, experiment, logs, outputs, de
     out.append("  </ModelVariables>")
     out.append("  <ModelStructure>")
     out.append("    <Outputs>")
-    out += [f'      <Unknown index="{v.vr + 1}"/>' for v in outputs]
+    out += [f'      <Unknown index="{v.vr + 1}"'
+            f'{_dependencies(v, lambda name: by_name[name].vr + 1)}/>' for v in outputs]
     out.append("    </Outputs>")
     out.append("    <Derivatives>")
     out += [f'      <Unknown index="{v.vr + 1}"/>' for v in derivatives]
@@ -182,7 +198,8 @@ def _fmi3(identifier, table, by_name, head, token, experiment, logs, outputs, de
         out.append(f"    <Float64 {' '.join(attrs)}/>")
     out.append("  </ModelVariables>")
     out.append("  <ModelStructure>")
-    out += [f'    <Output valueReference="{v.vr}"/>' for v in outputs]
+    out += [f'    <Output valueReference="{v.vr}"'
+            f'{_dependencies(v, lambda name: by_name[name].vr)}/>' for v in outputs]
     out += [f'    <ContinuousStateDerivative valueReference="{v.vr}"/>' for v in derivatives]
     out += [f'    <InitialUnknown valueReference="{v.vr}"/>' for v in initial_unknowns]
     out.append("  </ModelStructure>")

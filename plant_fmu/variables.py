@@ -30,6 +30,9 @@ class Variable:
     group: str = ""  # base name: "m" for "m[1]"
     min: float | None = None  # declared range (modelDescription min/max), where there is one
     max: float | None = None
+    # An output's direct dependencies (ModelStructure): the names of the inputs and states
+    # its value at an instant depends on; None: not declared (an importer assumes all).
+    depends: tuple[str, ...] | None = None
 
 
 @dataclass(frozen=True)
@@ -52,6 +55,12 @@ class VariableFamily:
     description_of: Callable[[tuple[int, ...]], str] | None = None
     # link index -> (min, max) of the element; None or an infinite bound declares none.
     bounds: Callable[[int], tuple[float, float]] | None = None
+    # An output's direct dependencies: the families (inputs, states) its value depends on at
+    # the same instant, what a co-simulation master orders its components by (an output
+    # that depends on no input adds no algebraic loop). A family's name: every element of
+    # it; "name[i]": the same joint's element (of a per-joint output). None: undeclared,
+    # read by importers as "depends on every input".
+    depends: tuple[str, ...] | None = None
 
 
 def per_link(first_links: tuple[float, ...], rest: float) -> Callable[[int], float]:
@@ -76,14 +85,9 @@ def expand(families: Sequence[VariableFamily], links: int) -> list[Variable]:
     """Every scalar variable of the families for ``links`` links, ordered by value
     reference."""
     out: list[Variable] = []
+    by_base = {family.base: family for family in families}
     for family in families:
-        if family.shape == "":
-            indices: list[tuple[int, ...]] = [()]
-        elif family.shape == "n":
-            indices = [(i,) for i in range(links)]
-        else:
-            indices = [(i, j) for i in range(links) for j in range(links)]
-        for index in indices:
+        for index in _indices(family.shape, links):
             start = family.start(index[0] if index else 0) if family.start else None
             low, high = family.bounds(index[0]) if family.bounds else (None, None)
             derivative_of = (element_name(family.derivative_of, index)
@@ -97,8 +101,32 @@ def expand(families: Sequence[VariableFamily], links: int) -> list[Variable]:
                 start=start, check=family.check,
                 derivative_of=derivative_of, group=family.base,
                 min=_finite_or_none(low), max=_finite_or_none(high),
+                depends=_dependencies(family, index, by_base, links),
             ))
     return out
+
+
+def _dependencies(family: VariableFamily, index: tuple[int, ...],
+                  families: dict[str, VariableFamily], links: int) -> tuple[str, ...] | None:
+    """The element ``index`` of ``family``'s declared direct dependencies, as variable names
+    (see :attr:`VariableFamily.depends`)."""
+    if family.depends is None:
+        return None
+    names: list[str] = []
+    for base in family.depends:
+        if base.endswith("[i]"):
+            names.append(element_name(base[:-3], index))
+        else:
+            names += [element_name(base, i) for i in _indices(families[base].shape, links)]
+    return tuple(names)
+
+
+def _indices(shape: str, links: int) -> list[tuple[int, ...]]:
+    if shape == "":
+        return [()]
+    if shape == "n":
+        return [(i,) for i in range(links)]
+    return [(i, j) for i in range(links) for j in range(links)]
 
 
 def _finite_or_none(bound: float | None) -> float | None:

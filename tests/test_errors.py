@@ -810,7 +810,14 @@ def test_sigterm_mid_sweep_keeps_the_finished_rows_and_ends_every_worker(tmp_pat
         line = child.stderr.readline()
         while line and not line.startswith("sweeping"):
             line = child.stderr.readline()
-        time.sleep(8.0)  # some points finish (~0.2 s each once the kernels are loaded)
+        # some points finish (~0.2 s each once the kernels are loaded): the signal is sent
+        # once the journal holds a finished row, however loaded the machine (a fixed wait
+        # found none finished under load), and a little after, so that more may
+        journal, waited = out / "rows.jsonl", time.monotonic() + 300
+        while time.monotonic() < waited and child.poll() is None and not (
+                journal.is_file() and journal.read_text().count("\n") >= 1):
+            time.sleep(0.2)
+        time.sleep(1.0)
         child.send_signal(signal.SIGTERM)
         _, err = child.communicate(timeout=120)
     finally:

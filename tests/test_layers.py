@@ -14,7 +14,7 @@ LAYERS = (
     ("cosim.schema", "cosim.declared", "cosim.signals", "cosim.numba_compat", "cosim.jit_cache",
      "cosim.progress", "cosim.interface", "cosim.run_note", "cosim.environment",
      "cosim.interrupts", "plant_fmu"),
-    ("cosim.plant", "cosim.evaluate", "cosim.dynamics"),
+    ("cosim.plant", "cosim.system", "cosim.evaluate", "cosim.dynamics"),
     ("cosim.blocks", "cosim.paper"),
     ("cosim.config", "cosim.engine"),
     ("cosim.memory", "cosim.assemble"),

@@ -31,11 +31,15 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
         "$COSIM_CACHE (default ~/.cache/cosim/fmus), by everything they are built from: "
         "--output copies from there.")
     p.add_argument("--model", default=None, choices=list(MODELS),
-                   help=f"the plant model: the rigid n-link planar arm (planar_arm), or the "
-                   f"arm with elastic joints, motors driving the links through springs "
-                   f"(elastic_joints) (default {DEFAULT_MODEL})")
-    p.add_argument("--links", type=int, default=None, choices=range(1, max_links + 1),
-                   metavar="N", help=f"number of links, 1 to {max_links} (default 2)")
+                   help="the plant model: the rigid n-link planar arm (planar_arm), the "
+                   "arm with elastic joints, motors driving the links through springs "
+                   "(elastic_joints), or the joints' drives, DC motors under current control "
+                   "behind gears, a component of a system of FMUs (drives) "
+                   f"(default {DEFAULT_MODEL})")
+    p.add_argument("--links", "--joints", type=int, default=None,
+                   choices=range(1, max_links + 1), metavar="N",
+                   help=f"number of links (of joints, for the drives), 1 to {max_links} "
+                   "(default 2)")
     urdf = p.add_argument_group(
         "a robot's URDF", "The chain from --base to --tip: revolute, continuous and prismatic "
         "joints move, fixed joints (and joints off that path, held at 0 or their nearest "

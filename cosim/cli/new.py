@@ -68,7 +68,9 @@ def handle(args: argparse.Namespace) -> None:
                         f"{exc.strerror or exc}") from None
     print(chain_table(chain))
     print(f"wrote {out}: run it with\n  cosim run {out} --dry-run\n  cosim run {out} --out "
-          f"runs/{out.stem}")
+          f"runs/{out.stem}\n(the first run of an arm from a URDF on this machine compiles its "
+          "kernels once, minutes on 2 cores, for every robot alike; `cosim warm-up "
+          f"{out}` does it ahead)")
 
 
 def _relative(path: Path, folder: Path) -> str:

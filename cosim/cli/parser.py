@@ -5,11 +5,24 @@ from __future__ import annotations
 
 import argparse
 
-from . import build_fmu, compare, export, inspect, new, params, run, sweep, view, warm_up
+from . import (
+    build_fmu,
+    compare,
+    export,
+    export_ssp,
+    inspect,
+    new,
+    params,
+    run,
+    sweep,
+    view,
+    warm_up,
+)
 
 # In the order `cosim --help` lists them. A command is a module whose add_parser(commands)
 # adds its sub-parser, with its handler as ``func``.
-COMMANDS = (new, build_fmu, run, sweep, warm_up, view, export, compare, params, inspect)
+COMMANDS = (new, build_fmu, run, sweep, warm_up, view, export, export_ssp, compare, params,
+            inspect)
 
 
 def build_parser() -> argparse.ArgumentParser:

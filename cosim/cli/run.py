@@ -76,8 +76,10 @@ def handle(args: argparse.Namespace) -> None:
     _check_viewer(args.spawn, args.connect)
     _check_caches()
     out = args.out or _run_folder(pipeline.name)
-    plant = (Path(pipeline.plant.fmu).name if pipeline.plant.fmu else
-             Path(pipeline.plant.urdf.file).name if pipeline.plant.urdf else "the built-in plant")
+    source = pipeline.plant
+    plant = (Path(source.fmu).name if source.fmu else Path(source.ssp).name if source.ssp else
+             f"the system {source.system.name}" if source.system else
+             Path(source.urdf.file).name if source.urdf else "the built-in plant")
     tell_supervisor(out=str(out), plant=plant, named="1" if args.out is None else None)
     try:
         _run(pipeline, out, args)

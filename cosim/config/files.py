@@ -19,10 +19,10 @@ def read_toml(path: Path, chain: tuple[Path, ...] = (), read: list[Path] | None 
               ) -> dict:
     """A pipeline file's tables, with ``extends = "other.toml"`` (relative to it) resolved:
     the other file's tables first, this file's merged over them key by key (runs by name).
-    Paths in a file (``plant.fmu``, the URDFs, a reference's CSV, plugins) are relative to the
-    file that declares them; a file that
-    names a plant (``plant.fmu``, ``plant.builtin`` or ``plant.urdf``) replaces the one it
-    extends. ``read``: each file read is appended to it, this one first."""
+    Paths in a file (``plant.fmu``, ``plant.ssp``, a system's FMUs, the URDFs, a reference's
+    CSV, plugins) are relative to the file that declares them; a file that names a plant
+    (``plant.fmu``, ``plant.builtin``, ``plant.urdf``, ``plant.ssp`` or ``plant.system``)
+    replaces the one it extends. ``read``: each file read is appended to it, this one first."""
     where = f" (extended by {chain[-1]})" if chain else ""
     if len(chain) >= MAX_EXTENDS:
         raise PipelineError(f"{path}: the 'extends' chain is more than {MAX_EXTENDS} files "
@@ -59,9 +59,8 @@ def read_toml(path: Path, chain: tuple[Path, ...] = (), read: list[Path] | None 
     for table in urdf_tables(data):  # safety.urdf, inertia_model.urdf: relative to this file
         table["urdf"] = urdf_relative_to(table["urdf"], path.parent)
     plant = data.get("plant")
-    if isinstance(plant, dict) and isinstance(plant.get("fmu"), str) and plant["fmu"]:
-        fmu = Path(plant["fmu"]).expanduser()
-        plant["fmu"] = str(fmu if fmu.is_absolute() else (path.parent / fmu).resolve())
+    for table, key in plant_files(plant):
+        table[key] = str(absolute(table[key], path.parent))
     if isinstance(plant, dict) and "urdf" in plant:
         plant["urdf"] = urdf_relative_to(plant["urdf"], path.parent)
     if "robot" in data:  # [robot] file: relative to this file, like plant.urdf
@@ -90,6 +89,21 @@ def read_toml(path: Path, chain: tuple[Path, ...] = (), read: list[Path] | None 
                     if other not in plant:
                         merged["plant"].pop(other, None)
     return merged
+
+
+def plant_files(plant) -> list[tuple[dict, str]]:
+    """The (table, key) pairs of a ``[plant]`` table that name a file relative to the
+    pipeline file: ``plant.fmu``, ``plant.ssp``, and each ``plant.system`` component's
+    ``fmu``."""
+    if not isinstance(plant, dict):
+        return []
+    tables = [(plant, "fmu"), (plant, "ssp")]
+    system = plant.get("system")
+    components = system.get("components") if isinstance(system, dict) else None
+    if isinstance(components, dict):
+        tables += [(c, "fmu") for c in components.values() if isinstance(c, dict)]
+    return [(table, key) for table, key in tables if isinstance(table.get(key), str)
+            and table[key]]  # an empty name is the schema's to refuse, naming its key
 
 
 def reference_tables(data: dict) -> list[dict]:

@@ -37,6 +37,9 @@ def load_pipeline(path: str | Path | None, overrides: list[str] | None = None,
         data = apply_override(data, assignment)
         if assignment.split("=", 1)[0].strip().startswith("plant.urdf"):
             data["plant"]["urdf"] = urdf_relative_to(data["plant"]["urdf"], Path.cwd())
+        if assignment.split("=", 1)[0].strip() == "plant.ssp" and \
+                isinstance(data["plant"].get("ssp"), str):  # from where the user is, as urdf
+            data["plant"]["ssp"] = str(absolute(data["plant"]["ssp"], Path.cwd()))
         if assignment.split("=", 1)[0].strip().startswith("robot"):
             data["robot"] = urdf_relative_to(data["robot"], Path.cwd())
         for warning in shadowed(data, assignment) if warn else ():
@@ -53,8 +56,11 @@ def load_pipeline(path: str | Path | None, overrides: list[str] | None = None,
     if path is not None:
         pipeline._source_files = tuple(str(p.absolute()) for p in read)
     if pipeline.plant.fmu is not None:
-        fmu = Path(pipeline.plant.fmu).expanduser()
-        pipeline.plant.fmu = str(fmu if fmu.is_absolute() else (base / fmu).resolve())
+        pipeline.plant.fmu = str(absolute(pipeline.plant.fmu, base))
+    for component in (pipeline.plant.system.components.values()
+                      if pipeline.plant.system is not None else ()):
+        if component.fmu is not None:
+            component.fmu = str(absolute(component.fmu, base))
     for table in [pipeline, *pipeline.runs.values()]:  # a CSV given by --set: from ``base``
         reference = getattr(table, "reference", None)
         if reference is not None and reference.csv is not None:

@@ -156,6 +156,10 @@ def parameters(model: type[BaseModel], values: BaseModel | None = None,
                              "'default'), names"))
             continue
         table = _section(field.annotation)
+        if table is not None and typing.get_origin(field.annotation) is dict:
+            # tables by name (a system's components): each name's keys, at their defaults
+            out.extend(parameters(table, None, f"{key}.NAME."))
+            continue
         default = field.get_default(call_default_factory=True)
         if table is not None and issubclass(table, Section) and (default is not None
                                                                  or value is not None):

@@ -9,7 +9,7 @@ from typing import Annotated, Literal
 
 from pydantic import Field, create_model, model_validator
 
-from plant_fmu import DEFAULT_MODEL, MODELS
+from plant_fmu import ARMS, DEFAULT_MODEL, MODELS
 
 from ..plant.ports import PORTS
 from ..schema import FileName, FiniteFloat, PositiveFloat, Section
@@ -59,7 +59,7 @@ class BuiltinPlant(Section):
     # the built-in plant model (a name): "planar_arm", the rigid arm, or "elastic_joints",
     # the arm whose motors drive the links through springs (extra parameters k, d, J per
     # joint)
-    model: Literal[tuple(MODELS)] = DEFAULT_MODEL
+    model: Literal[ARMS] = DEFAULT_MODEL
     links: Annotated[int, Field(ge=1, le=7)] = 2  # number of joints, dimensionless (a count)
     fmi_version: Literal[2, 3] = 2  # the FMI version it is built for, 2 or 3 (a name)
 
@@ -158,13 +158,71 @@ VariableMapping = create_model(
         + ("" if port.required else " (optional)")))) for port in PORTS})
 
 
+class BuiltinComponent(Section):
+    # the built-in model (a name): "planar_arm" or "elastic_joints", an arm, or "drives",
+    # the joints' motors behind their gears (build-fmu --model)
+    model: Literal[tuple(MODELS)]
+    # its number of links, or of joints for the drives, dimensionless (a count)
+    links: Annotated[int, Field(ge=1, le=7)] = 2
+    fmi_version: Literal[2, 3] = 2  # the FMI version it is built for, 2 or 3 (a name)
+
+
+class SystemComponent(Section):
+    """One FMU of a system: a file (``fmu``) or a built-in model (``builtin``)."""
+
+    fmu: str | None = None  # the component's FMU file, relative to the pipeline file, a path
+    # a built-in model built into its FMU at run time (a table: model, links, fmi_version),
+    # names
+    builtin: BuiltinComponent | None = None
+    # its parameter and start values by its own variables' names, each in that variable's
+    # unit, mixed units
+    parameters: dict[str, FiniteFloat] = {}
+    # its communication step as a whole number of master steps (simulation.step), which it
+    # holds its inputs over, dimensionless (a count)
+    step_multiple: Annotated[int, Field(ge=1)] = 1
+
+    @model_validator(mode="after")
+    def _one_source(self) -> SystemComponent:
+        if (self.fmu is None) == (self.builtin is None):
+            raise ValueError("a system's component is a file (fmu = \"...\") or a built-in "
+                             "model (builtin = { model = \"...\", links = N }): give one")
+        return self
+
+
+class SystemTable(Section):
+    """A system of FMUs written in the pipeline (docs/systems.md): the same as an SSP
+    archive's. Its own connectors are the names in ``connections`` without a component:
+    inputs where a connection starts, outputs where one ends; the plant's ports are mapped
+    onto them by ``plant.variables`` (by default ``tau[i]`` in, ``q[i]``, ``qdot[i]``,
+    ``M[i,j]`` out)."""
+
+    name: str = "system"  # the system's name, in the summary and an exported SSP, a name
+    # its components by name (letters, digits, '_'), each a table: fmu or builtin,
+    # parameters, step_multiple, names
+    components: dict[str, SystemComponent]
+    # "START -> END", each COMPONENT.CONNECTOR or a connector of the system's own
+    # ("drives.tau[1] -> arm.tau[1]", "tau[1] -> drives.tau_cmd[1]"), names
+    connections: list[str] = []
+    # connections, written the same way, that carry the value their start had before the
+    # step's values passed on (a step's delay, declared where it breaks an algebraic loop),
+    # names
+    delayed: list[str] = []
+
+
 class Plant(Section):
     builtin: BuiltinPlant | None = None
     fmu: FileName | None = None  # the plant FMU's file, relative to the pipeline file, a path
     # a robot's URDF built into the plant FMU at run time: its file, relative to the pipeline
     # file or package://..., a path (or a table: file, base, tip, fixed, fmi_version)
     urdf: UrdfPlant | None = None
-    # FMU parameter and start values by the FMU's variable name, each in that variable's own
+    # a system of FMUs as an SSP 1.0 archive (SystemStructure.ssd, its .ssv parameter sets,
+    # its FMUs under resources/): its file, relative to the pipeline file, a path
+    ssp: str | None = None
+    # a system of FMUs written here (a table: name, components, connections, delayed;
+    # docs/systems.md), names
+    system: SystemTable | None = None
+    # FMU parameter and start values by the FMU's variable name (a system's: by
+    # COMPONENT.VARIABLE, or by the name alone for its arm's), each in that variable's own
     # unit (cosim inspect lists them), mixed units
     parameters: dict[str, FiniteFloat] = {}
     variables: VariableMapping = VariableMapping()
@@ -174,13 +232,14 @@ class Plant(Section):
         given = [key for key in PLANT_SOURCES if getattr(self, key) is not None]
         if len(given) > 1:
             raise ValueError(f"give one of plant.builtin, plant.fmu or plant.urdf, not "
-                             f"{' and '.join('plant.' + key for key in given)}")
+                             f"{' and '.join('plant.' + key for key in given)}; or in their "
+                             "place a system of FMUs, plant.ssp or plant.system")
         if not given:
             self.builtin = BuiltinPlant()
         return self
 
 
-# plant.builtin, plant.fmu and plant.urdf are alternatives: a file or --set naming one drops
-# the others.
-PLANT_SOURCES = {"builtin": ("fmu", "urdf"), "fmu": ("builtin", "urdf"),
-                 "urdf": ("builtin", "fmu")}
+# plant.builtin, plant.fmu, plant.urdf, plant.ssp and plant.system are alternatives: a file
+# or --set naming one drops the others.
+_SOURCES = ("builtin", "fmu", "urdf", "ssp", "system")
+PLANT_SOURCES = {key: tuple(other for other in _SOURCES if other != key) for key in _SOURCES}

@@ -94,6 +94,8 @@ def simulate(plant, plan, trace: Trace, progress: Callable[[int], None] | None =
     if engine not in ENGINES:
         raise ValueError(f"engine {engine!r}: one of {ENGINES}")
     plant.start(0.0)
+    if hasattr(plant, "bind_trace"):  # a plant that records its own signals (a system's)
+        plant.bind_trace(trace)
     try:
         plan.reset(trace)
     except (PipelineError, FmuError):

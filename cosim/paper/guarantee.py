@@ -12,7 +12,9 @@ run is classified on the true state:
   and ``not_viable``, why a start inside the box is not viable (else None); apart,
   ``starts_inside_observer_set``: |q̇(0) − x̂2(0)| ≤ ε_max of Theorem 2;
 - ``within_bounds`` / ``outside``: the payload, every other plant parameter against the
-  nominal model (gravity, friction, disturbance, links), and what the filter reads — the
+  nominal model (gravity, friction, disturbance, links), a system's components beside the
+  arm (a drive's rotor inertia, and the torque its lag or limit kept from the arm within
+  the declared disturbance: :func:`system_differences`), and what the filter reads — the
   noise if it reads the measured position, the initial observer error if it reads the
   observer's velocity — as declared (``outside`` names each one that is not);
 - ``feasible`` / ``infeasible_steps``: no step where the filter's hard part was infeasible
@@ -266,6 +268,82 @@ def disturbance_differences(parameters: Mapping[str, float], uncertainty: Uncert
         out.append(f"{', '.join(named)}: a disturbance error up to {error:g} N·m on joint {i} "
                    f"> the declared {uncertainty.disturbance:g} N·m (uncertainty.disturbance)"
                    f"{consequence}")
+    return out
+
+
+def _disturbance_errors(parameters: Mapping[str, float], tau_d_model: np.ndarray | None,
+                        links: int) -> np.ndarray:
+    """Per joint, the disturbance model's error bound |τ_d − τ_d,model| + |tau_d_amp|, N·m
+    (the plant's parameters; one it does not have counts as the model's value)."""
+    model = np.broadcast_to(np.asarray(0.0 if tau_d_model is None else tau_d_model, float),
+                            (links,))
+    return np.array([abs(float(parameters.get(f"tau_d[{i}]", model[i - 1])) - model[i - 1])
+                     + abs(float(parameters.get(f"tau_d_amp[{i}]", 0.0)))
+                     for i in range(1, links + 1)])
+
+
+# cosim's drives (plant_fmu/models/drives): the parameter families the guarantee reads
+DRIVE_PARAMETERS = ("N", "kt", "i_max", "T", "J")
+
+
+def system_differences(trace: Signals, system: Mapping[str, Any],
+                       parameters: Mapping[str, float], uncertainty: Uncertainty,
+                       tau_d_model: np.ndarray | None) -> list[str]:
+    """How a system of FMUs as the plant (``system``: :data:`cosim.interface.PLANT_SYSTEM`)
+    differs from the nominal model beyond what is declared, each naming the component and
+    its parameter: a component besides the arm that is not one of cosim's drives (what it
+    does is unknown); a drive's rotor inertia (J N² on its joint's M, which the nominal
+    model does not have); and per joint the torque the arm was given against the torque
+    the plant was asked for (a drive's lag or current limit), measured on the run's rows
+    that were stepped, which with the disturbance model's own error must stay within
+    ``uncertainty.disturbance`` (the filter's margins carry that bound: a drive's torque
+    error is a disturbance torque to them). ``parameters``: the arm's."""
+    n = trace.links
+    out = []
+    drives = {}
+    for name, info in system["components"].items():
+        if name == system["arm"]:
+            continue
+        values = info["parameters"]
+        if not all(f"{key}[{i}]" in values for key in DRIVE_PARAMETERS
+                   for i in range(1, n + 1)):
+            out.append(f"component {name!r} ({info['model_name']}) is part of the plant "
+                       "beside the arm, and not one of cosim's drives: what it does to the "
+                       "torque is not declared")
+            continue
+        drives[name] = values
+        for i in range(1, n + 1):
+            inertia = values[f"J[{i}]"] * values[f"N[{i}]"] ** 2
+            if inertia > PARAMETER_TOLERANCE:
+                out.append(f"drive {name!r}: J[{i}] = {values[f'J[{i}]']:g} kg·m² puts its "
+                           f"rotor's inertia, J N² = {inertia:g} kg·m², on joint {i}'s M: "
+                           "the nominal model does not have it")
+    key = system.get("arm_torque")
+    rows = trace.rows_done - 1  # the rows a step followed (the last row's torque was not given)
+    if not drives or rows < 1:
+        return out
+    if key is None or key not in trace or "tau" not in trace:
+        return out + [f"drive torque not in the trace: the torque error of "
+                      f"{', '.join(drives)} cannot be judged"]
+    given, asked = np.asarray(trace[key][:rows], float), np.asarray(trace["tau"][:rows], float)
+    error = np.abs(given - asked)
+    budget = np.maximum(uncertainty.disturbance
+                        - _disturbance_errors(parameters, tau_d_model, n), 0.0)
+    for j in np.flatnonzero(np.max(error, axis=0) > budget + PARAMETER_TOLERANCE):
+        i, at = j + 1, int(np.argmax(error[:, j]))
+        peak = float(np.max(np.abs(asked[:, j])))
+        causes = [f"{name}.T[{i}] = {values[f'T[{i}]']:g} s (its lag)"
+                  for name, values in drives.items() if values[f"T[{i}]"] > 0]
+        for name, values in drives.items():
+            limit = values[f"N[{i}]"] * values[f"kt[{i}]"] * values[f"i_max[{i}]"]
+            if limit < peak:
+                causes.append(f"{name}.i_max[{i}] = {values[f'i_max[{i}]']:g} A (a limit of "
+                              f"{limit:g} N·m at the joint, below the {peak:.4g} N·m "
+                              "commanded)")
+        out.append(f"drive torque up to {error[at, j]:.3g} N·m away from the command on "
+                   f"joint {i} (t = {at * trace.dt:.4g} s), more than the {budget[j]:g} N·m "
+                   "uncertainty.disturbance leaves for it: "
+                   + ("; ".join(causes) or f"component(s) {', '.join(drives)}"))
     return out
 
 
@@ -705,6 +783,9 @@ class Guarantee(Part):
             # the filter has a disturbance model of its own: the observer's is compared too
             other += disturbance_differences(parameters, uncertainty, observer, trace.links,
                                              "observer.tau_d")
+        system = self.given.get(io.PLANT_SYSTEM)
+        if system:
+            other += system_differences(trace, system, parameters, uncertainty, tau_d)
         if chain is None and "nominal_urdf" in self.given:  # no parameters to compare
             difference = plant_model_difference(trace, self.given.get("nominal_model"),
                                                 payload)

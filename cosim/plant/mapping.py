@@ -197,7 +197,7 @@ def _mapped_twice(mapping: dict[str, list[str] | None], wrong: set[str]) -> list
     return problems
 
 
-def _declared_unit(var) -> str | None:
+def declared_unit(var) -> str | None:
     """The unit a model variable declares, on itself or through its declared type."""
     return (getattr(var, "unit", None)
             or getattr(getattr(var, "declaredType", None), "unit", None))
@@ -220,7 +220,7 @@ def _unit_fits(md: ModelDescription, declared: str, allowed: list[str]) -> bool 
     by the FMU's own definition of it where it gives one (its SI base units, with no scale
     or offset), else by its spelling; None where neither tells (a spelling cosim does not
     know: accepted, and warned of by :func:`unit_differences`)."""
-    if _unit(declared) in map(_unit, allowed):
+    if unit_spelling(declared) in map(unit_spelling, allowed):
         return True
     defined = next((u for u in getattr(md, "unitDefinitions", None) or []
                     if u.name == declared and u.baseUnit is not None), None)
@@ -228,8 +228,8 @@ def _unit_fits(md: ModelDescription, declared: str, allowed: list[str]) -> bool 
         base = defined.baseUnit
         other = (base.A, base.K, base.mol, base.cd) != (0, 0, 0, 0)
         return (not other and base.factor == 1.0 and base.offset == 0.0
-                and (base.kg, base.m, base.s) in {BASE_UNITS[_unit(u)] for u in allowed})
-    return False if _unit(declared) in OTHER_UNITS else None
+                and (base.kg, base.m, base.s) in {BASE_UNITS[unit_spelling(u)] for u in allowed})
+    return False if unit_spelling(declared) in OTHER_UNITS else None
 
 
 def unit_differences(md: ModelDescription, variables: PlantVariables) -> str | None:
@@ -241,8 +241,8 @@ def unit_differences(md: ModelDescription, variables: PlantVariables) -> str | N
     for port in PORTS:
         for name in (variables.names.get(port.name) or []) if port.shape == "n" else []:
             var = by_name.get(name)
-            declared = _declared_unit(var)
-            if declared and _unit(declared) != _unit(port.signal.unit):
+            declared = declared_unit(var)
+            if declared and unit_spelling(declared) != unit_spelling(port.signal.unit):
                 found.append(f"{name} in {declared}")
                 expected[port.name] = port.signal.unit
     if not found:
@@ -253,7 +253,7 @@ def unit_differences(md: ModelDescription, variables: PlantVariables) -> str | N
             "(per-joint units, a prismatic joint's, are not carried through)")
 
 
-def _unit(text: str) -> str:
+def unit_spelling(text: str) -> str:
     """A unit's spelling compared: FMI's "N.m" is cosim's "N·m", and Simulink's "N*m"."""
     spelled = text.replace("·", ".").replace("*", ".").replace(" ", "").replace("/sec", "/s")
     return "N.m" if spelled == "Nm" else spelled
@@ -273,8 +273,9 @@ def _check(md: ModelDescription, by_name: dict, key: str, name: str) -> str | No
     if var.causality != causality:
         return (f"{where} names {name!r}, whose causality is {var.causality}; it must be "
                 f"an {causality}")
-    declared, unit = _declared_unit(var), PORT[key].signal.unit
-    allowed = [unit] + ([PRISMATIC[_unit(unit)]] if _unit(unit) in PRISMATIC else [])
+    declared, unit = declared_unit(var), PORT[key].signal.unit
+    spelled = unit_spelling(unit)
+    allowed = [unit] + ([PRISMATIC[spelled]] if spelled in PRISMATIC else [])
     # per joint ports only: M's entries mix units on a chain with a prismatic joint
     if PORT[key].shape == "n" and declared and _unit_fits(md, declared, allowed) is False:
         return (f"{where} names {name!r}, declared in {declared}; the port takes "
@@ -282,20 +283,20 @@ def _check(md: ModelDescription, by_name: dict, key: str, name: str) -> str | No
     return None
 
 
-def check_parameters(path: str | Path, md: ModelDescription, parameters: dict[str, float]
-                     ) -> None:
-    """``plant.parameters``: each name a Real variable whose value may be set before the
-    FMU initialises (a parameter, an input, or a start value)."""
+def check_parameters(path: str | Path, md: ModelDescription, parameters: dict[str, float],
+                     where: str = "plant.parameters") -> None:
+    """``plant.parameters`` (or what ``where`` names): each name a Real variable whose value
+    may be set before the FMU initialises (a parameter, an input, or a start value)."""
     by_name = {v.name: v for v in md.modelVariables}
     for name in parameters:
         var = by_name.get(name)
         if var is None:
-            raise FmuError(f"plant.parameters: {name!r} is not a variable of {Path(path).name} "
+            raise FmuError(f"{where}: {name!r} is not a variable of {Path(path).name} "
                            f"(its parameters: {_list(real_names(md, 'parameter'))})")
         settable = (var.causality in ("parameter", "input")
                     or (var.initial in ("exact", "approx") and var.variability != "constant"))
         if var.type not in REAL_TYPES or not settable:
-            raise FmuError(f"plant.parameters: {name!r} in {Path(path).name} is a "
+            raise FmuError(f"{where}: {name!r} in {Path(path).name} is a "
                            f"{var.variability} {var.type} {var.causality}; only Real "
                            "parameters, inputs and start values can be set")
 

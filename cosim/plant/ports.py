@@ -91,7 +91,10 @@ PLANT_INPUT_ENTITY = INPUT_PORT.signal.entity
 class Plant(Protocol):
     """What the master, the assembly and the tests' stand-in plants share: the joint count,
     the output ports the plant maps, their latest values (``values[name]``, NaN where not
-    mapped) and the input ``tau``, held over each :meth:`step`."""
+    mapped) and the input ``tau``, held over each :meth:`step`. A plant may also record
+    signals of its own (a system's components'): ``signals`` (trace key -> declaration),
+    which the assembly adds to every run's trace, and ``bind_trace(trace)``, which the
+    master calls after :meth:`start`."""
 
     links: int
     mapped: frozenset[str]

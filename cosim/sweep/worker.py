@@ -16,15 +16,15 @@ from .checks import check_columns, hard_sets_kept, row_is_safe
 if TYPE_CHECKING:
     from ..runner import RunResult
 
-_PLANTS: dict[tuple[str, str], object] = {}  # per worker process: one open FMU per file+mapping
+_PLANTS: dict[str, object] = {}  # per worker process: one open plant per plant and mapping
 
 
 def _plant_for(pipeline: Pipeline) -> object:
-    """This process's open plant for the pipeline's FMU and mapping (created once)."""
-    from ..assemble import open_plant, plant_path
+    """This process's open plant for the pipeline's plant (an FMU, a URDF's, a system) and
+    mapping (created once; each point sets its parameters)."""
+    from ..assemble import open_plant
 
-    mapping = pipeline.plant.variables.model_dump()
-    key = (str(plant_path(pipeline)), json.dumps(mapping, sort_keys=True))
+    key = json.dumps(pipeline.plant.model_dump(exclude={"parameters"}), sort_keys=True)
     if key not in _PLANTS:
         _PLANTS[key] = open_plant(pipeline)
     return _PLANTS[key]

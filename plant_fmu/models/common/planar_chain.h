@@ -15,20 +15,29 @@
 
 #ifndef PLANAR_CHAIN_PARAMS
 #define PLANAR_CHAIN_PARAMS
-/* The parameters the algorithms read, as views into the model's variables. */
+/* The parameters the algorithms read, as views into the model's variables. drive_inertia:
+ * what drives add to each joint's inertia (M's diagonal), or NULL for none. */
 typedef struct {
     const double *m, *l, *lc, *inertia, *b, *fc, *tau_d, *tau_d_amp, *tau_d_freq;
     double fc_vel, g;
+    const double *drive_inertia;
 } ChainParams;
 
 /* The chain's parameters of a model whose variable table has the rigid arm's link
- * parameters (m, l, lc, I, b, fc, tau_d, tau_d_amp, tau_d_freq, fc_vel, g). */
+ * parameters (m, l, lc, I, b, fc, tau_d, tau_d_amp, tau_d_freq, fc_vel, g), and the drives'
+ * inertia input Jm where it has one. */
 static ChainParams chain_params(const ModelState *s)
 {
     const double *v = s->v;
+#ifdef VR_Jm
+    const double *drive_inertia = &v[VR_Jm];
+#else
+    const double *drive_inertia = NULL;
+#endif
     ChainParams p = {
         &v[VR_m], &v[VR_l], &v[VR_lc], &v[VR_I], &v[VR_b], &v[VR_fc],
         &v[VR_tau_d], &v[VR_tau_d_amp], &v[VR_tau_d_freq], v[VR_fc_vel], v[VR_g],
+        drive_inertia,
     };
     return p;
 }
@@ -74,7 +83,8 @@ static void FN(inverse_dynamics)(const ChainParams *p, const SCALAR *q, const SC
 /* Composite-rigid-body algorithm: the joint-space inertia matrix M(q), row-major.
  * Sweeping from the tip, body j..n is lumped into a composite with mass mc, first
  * moment h about joint j and inertia J about joint j; then for i <= j
- * M[i][j] = J_j + (p_j - p_i) . h_j. */
+ * M[i][j] = J_j + (p_j - p_i) . h_j. A drive's reflected rotor inertia, which turns with
+ * its joint alone, adds to M[j][j] (with none, M is the links' own to the last bit). */
 static void FN(mass_matrix)(const ChainParams *p, const SCALAR *q, SCALAR *M)
 {
     SCALAR px[N_LINKS + 1], py[N_LINKS + 1], cx[N_LINKS], cy[N_LINKS];
@@ -106,6 +116,8 @@ static void FN(mass_matrix)(const ChainParams *p, const SCALAR *q, SCALAR *M)
             M[j * N_LINKS + i] = Mij;
         }
     }
+    if (p->drive_inertia)
+        for (int j = 0; j < N_LINKS; j++) M[j * N_LINKS + j] += p->drive_inertia[j];
 }
 
 /* Solve A x = b in place (b becomes x) by Cholesky, A symmetric positive definite.

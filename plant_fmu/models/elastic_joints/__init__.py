@@ -35,12 +35,13 @@ FAMILIES: tuple[VariableFamily, ...] = (
                    constant(0.0), "finite"),
     ANGLE, VELOCITY,
     VariableFamily("theta", "n", "output", "continuous", "rad",
-                   "Angle of motor i, referred to the link side"),
+                   "Angle of motor i, referred to the link side", depends=("theta[i]",)),
     VariableFamily("thetadot", "n", "local", "continuous", "rad/s", "Velocity of motor i",
                    derivative_of="theta"),
     INERTIA,
     VariableFamily("energy", "", "output", "continuous", "J",
-                   "Kinetic plus potential energy of links, motors and springs"),
+                   "Kinetic plus potential energy of links, motors and springs",
+                   depends=("q", "qdot", "theta", "thetadot")),
     VariableFamily("der(qdot)", "n", "local", "continuous", "rad/s2",
                    "Acceleration of link i", derivative_of="qdot"),
     VariableFamily("der(thetadot)", "n", "local", "continuous", "rad/s2",
@@ -62,4 +63,5 @@ def describe(links: int) -> str:
 
 
 SOURCES = (Path(__file__).parent / "model.c",)
-HEADERS = (COMMON / "planar_chain.h", COMMON / "rk4.h", COMMON / "joint_state.h")
+HEADERS = (COMMON / "planar_chain.h", COMMON / "rk4.h", COMMON / "joint_state.h",
+           COMMON / "value_references.h")

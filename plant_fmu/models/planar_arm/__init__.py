@@ -6,12 +6,14 @@ Everything else is generated from :func:`variables`: the FMI 2.0 and 3.0
 ``modelDescription.xml`` and the C header ``variables.h`` that the model and the FMI glue
 index by value reference. Adding a variable here adds it everywhere.
 
-Names: ``tau[i]``, ``q[i]``, ``qdot[i]``, ``M[i,j]``, ``energy`` and the parameters below.
+Names: ``tau[i]``, ``Jm[i]`` (inputs), ``q[i]``, ``qdot[i]``, ``M[i,j]``, ``energy``
+and the parameters below.
 All units are SI with angles in radians.
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 from ...variables import Variable, VariableFamily, constant, expand, per_link
@@ -66,17 +68,28 @@ LINK_PARAMETERS: tuple[VariableFamily, ...] = (
 
 TORQUE = VariableFamily("tau", "n", "input", "continuous", "N.m", "Applied torque at joint i",
                         constant(0.0), "finite")
+# What a drive adds to its joint's inertia: its rotor's, reflected through its gear (J N²).
+# An input, so that a drive component of a system supplies it (plant_fmu/models/drives)
+# rather than a second copy of its parameters; 0 when nothing is connected.
+DRIVE_INERTIA = VariableFamily("Jm", "n", "input", "continuous", "kg.m2",
+                               "Inertia a drive adds at joint i (its rotor's reflected through "
+                               "its gear, J N^2), on M's diagonal", constant(0.0), "nonnegative")
+# The outputs' direct dependencies: q and qdot are states (no input reaches them within an
+# instant), M depends on q (and on Jm where the model has it).
 ANGLE = VariableFamily("q", "n", "output", "continuous", "rad",
-                       "Angle of joint i (link 1 from the horizontal, others relative)")
+                       "Angle of joint i (link 1 from the horizontal, others relative)",
+                       depends=("q[i]",))
 VELOCITY = VariableFamily("qdot", "n", "output", "continuous", "rad/s", "Velocity of joint i",
-                          derivative_of="q")
+                          derivative_of="q", depends=("qdot[i]",))
 INERTIA = VariableFamily("M", "nn", "output", "continuous", "kg.m2",
-                         "Joint-space inertia matrix M(q)")
+                         "Joint-space inertia matrix M(q)", depends=("q",))
 
 FAMILIES: tuple[VariableFamily, ...] = (
-    TIME, *LINK_PARAMETERS, TORQUE, ANGLE, VELOCITY, INERTIA,
+    TIME, *LINK_PARAMETERS, TORQUE, DRIVE_INERTIA, ANGLE, VELOCITY,
+    replace(INERTIA, depends=("q", "Jm")),
     VariableFamily("energy", "", "output", "continuous", "J",
-                   "Kinetic plus potential energy (zero potential at y = 0)"),
+                   "Kinetic plus potential energy (zero potential at y = 0)",
+                   depends=("q", "qdot", "Jm")),
     VariableFamily("der(qdot)", "n", "local", "continuous", "rad/s2",
                    "Acceleration of joint i", derivative_of="qdot"),
 )
@@ -97,4 +110,5 @@ def describe(links: int) -> str:
 # The model's C sources: its equations (model.c) against the FMI glue's contract
 # (plant_fmu/fmi/model.h), and what it shares with the other built-in models.
 SOURCES = (Path(__file__).parent / "model.c",)
-HEADERS = (COMMON / "planar_chain.h", COMMON / "rk4.h", COMMON / "joint_state.h")
+HEADERS = (COMMON / "planar_chain.h", COMMON / "rk4.h", COMMON / "joint_state.h",
+           COMMON / "value_references.h")

@@ -36,7 +36,7 @@ SOURCES = (HERE / "model.c",)
 # same IEEE arithmetic.
 CFLAGS = ("-funroll-loops", "-ftree-vectorize")
 HEADERS = (HERE / "spatial_chain.h", HERE.parent / "common" / "rk4.h",
-           HERE.parent / "common" / "joint_state.h")
+           HERE.parent / "common" / "joint_state.h", HERE.parent / "common" / "value_references.h")
 
 # A joint's units: revolute, prismatic.
 POSITION = ("rad", "m")
@@ -140,19 +140,20 @@ class SpatialChainModel:
                            constant(0.0), "finite", unit_of=per_joint(FORCE),
                            description_of=named(("Torque applied to", "Force applied to"))),
             VariableFamily("q", "n", "output", "continuous", None, "Position of joint i",
-                           unit_of=per_joint(POSITION),
+                           unit_of=per_joint(POSITION), depends=("q[i]",),
                            description_of=named(("Angle of", "Position of"))),
             VariableFamily("qdot", "n", "output", "continuous", None, "Velocity of joint i",
-                           derivative_of="q", unit_of=per_joint(VELOCITY),
+                           derivative_of="q", unit_of=per_joint(VELOCITY), depends=("qdot[i]",),
                            description_of=named(("Angular velocity of", "Velocity of"))),
             VariableFamily("M", "nn", "output", "continuous", None,
-                           "Joint-space inertia matrix M(q) (CRBA)",
+                           "Joint-space inertia matrix M(q) (CRBA)", depends=("q",),
                            unit_of=lambda ij: INERTIA[(int(c.kind[ij[0]]), int(c.kind[ij[1]]))]),
             VariableFamily("h", "n", "output", "continuous", None,
                            "Bias force h(q, qdot) of joint i: Coriolis, centrifugal and gravity "
-                           "(RNEA)", unit_of=per_joint(FORCE)),
+                           "(RNEA)", unit_of=per_joint(FORCE), depends=("q", "qdot")),
             VariableFamily("energy", "", "output", "continuous", "J",
-                           "Kinetic plus potential energy (zero potential at the base's origin)"),
+                           "Kinetic plus potential energy (zero potential at the base's origin)",
+                           depends=("q", "qdot")),
             VariableFamily("der(qdot)", "n", "local", "continuous", None,
                            "Acceleration of joint i (ABA)", derivative_of="qdot",
                            unit_of=per_joint(ACCELERATION)),
