@@ -39,6 +39,14 @@ def _rows(mask: np.ndarray, dt: float) -> tuple[int, float | None]:
     return len(rows), (float(rows[0] * dt) if len(rows) else None)
 
 
+
+def _first_outside(outside: list[np.ndarray], dt: float) -> tuple[int, float | None, str, str]:
+    """(the rows where the position's or the velocity's mask holds, the first one's time,
+    which of the two is named — the position where it fails at all — and its unit)."""
+    count, first = _rows(outside[0] | outside[1], dt)
+    which = "position" if outside[0].any() else "velocity"
+    return count, first, which, ("rad" if which == "position" else "rad/s")
+
 def interval_exceedances(trace: Signals, start: int) -> tuple[int | None, str | None]:
     """(rows from ``start`` on where the true q̇ lies outside the filter's interval
     ``cbf_velocity_centre`` ± ``cbf_velocity_spread``, what failed); None counts without
@@ -81,12 +89,9 @@ def tube_exceedances(trace: Signals, start: int, allowance: np.ndarray
         judged = np.isfinite(room)
         slack[quantity] = float(np.min(room[judged])) if judged.any() else None
         outside.append(judged & (room < -TOLERANCE * (1.0 + np.abs(np.nan_to_num(centre)))))
-    either = outside[0] | outside[1]
-    count, first = _rows(either, trace.dt)
+    count, first, which, unit = _first_outside(outside, trace.dt)
     if not count:
         return 0, slack, None
-    which = "position" if outside[0].any() else "velocity"
-    unit = "rad" if which == "position" else "rad/s"
     return count, slack, (
         f"the true state outside the check's tube by more than the room it leaves to the "
         f"bounds at {count} steps (first t = {first + start * trace.dt:.4g} s; the "
@@ -153,12 +158,9 @@ def between_samples(trace: Signals, start: int, centres: tuple[np.ndarray, np.nd
         left = np.where(judged, bounds[row] - value, np.inf)
         room[quantity] = float(np.min(left)) if judged.any() else None
         outside.append(left < -TOLERANCE * (1.0 + bounds[row]))
-    either = outside[0] | outside[1]
-    count, first = _rows(either, dt)
+    count, first, which, unit = _first_outside(outside, dt)
     if not count:
         return 0, room, None
-    which = "position" if outside[0].any() else "velocity"
-    unit = "rad" if which == "position" else "rad/s"
     return count, room, (
         f"between samples the {which} may pass its bound by up to {-room[which]:.3g} {unit} "
         f"at {count} steps (first t = {first + start * dt:.4g} s), with q̈ within the "
