@@ -12,16 +12,20 @@ command is tested or explicitly skipped."""
 
 from __future__ import annotations
 
+import io
 import os
 import re
+import runpy
 import shlex
 import shutil
 import subprocess
 import sys
+from contextlib import chdir, redirect_stdout
 from pathlib import Path
 
 import pytest
 import yaml
+from cli_helpers import here
 
 from cosim.outputs.viewer import headless_renderer_available
 
@@ -110,8 +114,14 @@ def workspace(tmp_path_factory) -> Path:
 
 
 def cosim(folder: Path, args: list[str]) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "cosim.cli", *args], cwd=folder,
-                          capture_output=True, text=True, timeout=3600)
+    """The command in ``folder``: in this process where nothing is run for real (the
+    kernels, FMUs and modules loaded once for the ~50 commands rather than once each: most
+    of this test's time was each process starting), in a process of its own for `make
+    readme`'s real runs and sweeps."""
+    if FULL:
+        return subprocess.run([sys.executable, "-m", "cosim.cli", *args], cwd=folder,
+                              capture_output=True, text=True, timeout=3600)
+    return here(*args, cwd=folder)
 
 
 def test_every_readme_command_runs_in_order_as_written(workspace):
@@ -157,12 +167,20 @@ def _make(workspace: Path, args: list[str]) -> None:
 
 
 def _benchmark_help(args: list[str]) -> None:
+    """The script's --help, run in this process as its own `__main__` (it exits there),
+    lists every option the page gives it."""
     script, *options = args
-    done = subprocess.run([sys.executable, script, "--help"], cwd=ROOT, capture_output=True,
-                          text=True, timeout=300)
-    assert done.returncode == 0, (script, done.stderr[-2000:])
+    out, argv, path = io.StringIO(), sys.argv, list(sys.path)
+    sys.argv = [script, "--help"]
+    sys.path.insert(0, str((ROOT / script).parent))  # as `python script`: its folder first
+    try:
+        with redirect_stdout(out), chdir(ROOT), pytest.raises(SystemExit) as exited:
+            runpy.run_path(str(ROOT / script), run_name="__main__")
+    finally:
+        sys.argv, sys.path[:] = argv, path
+    assert exited.value.code in (0, None), (script, out.getvalue()[-2000:])
     for option in (o for o in options if o.startswith("--")):
-        assert option in done.stdout, (script, option)
+        assert option in out.getvalue(), (script, option)
 
 
 def _check_output(workspace: Path, args: list[str], done: subprocess.CompletedProcess) -> None:
