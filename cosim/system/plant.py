@@ -391,8 +391,8 @@ class SystemPlant:
                 raise FmuError(self._failure(call.component, call.what, status, t))
 
     def _copy_ports(self) -> None:
-        for values, index in self._copied:
-            values[:] = self._flat[index]
+        for values, index in self._copied:  # into the port, no temporary array per step
+            self._flat.take(index, out=values)
 
     # Per step -------------------------------------------------------------------------------
 
