@@ -35,6 +35,8 @@ RESULTS = ["tests/test_export.py"]
 BOUND = ["tests/test_observer_bound.py"]
 VIABILITY = FILTER + ["tests/test_viability.py", "tests/test_guarantee.py"]
 CUTS = ["tests/test_filter_speed.py", *FILTER]
+STEPS = ["tests/test_steps.py"]
+PREMISES = ["tests/test_premises.py"]
 
 # (id, file, text, replacement, tests): the text must occur exactly once in the file.
 MUTANTS = [
@@ -156,6 +158,31 @@ MUTANTS = [
      "        if reserve and a.braking_reserve:", "        if False:", FILTER),
     ("cbf-rows-left-out-always", "cosim/paper/cbf_filter/rows.py",
      "if scale * (reach[i] + room[i]) < limit + scale * side * base[i]:", "if True:", FILTER),
+    # the steps the filter supports (cbf_filter/steps.py): the backup's hold allowed to
+    # overshoot, the observer's bound asked only not to grow, its gain G without the
+    # velocity set's spread or without the payload range's upper end
+    ("steps-backup-overshoot", "cosim/paper/cbf_filter/steps.py",
+     'if p.backup == "verified" and p.backup_rate * dt >= 1.0:',
+     'if p.backup == "verified" and p.backup_rate * dt >= 2.0:', STEPS),
+    ("steps-envelope-share", "cosim/paper/cbf_filter/steps.py",
+     "ENVELOPE_SHARE = 0.5", "ENVELOPE_SHARE = 2.0 / 3.0", STEPS),
+    ("steps-velocity-box-dropped", "cosim/paper/cbf_filter/steps.py",
+     "+ np.abs(slopes) @ velocity_half", "", STEPS),
+    ("steps-payload-low-end-only", "cosim/paper/cbf_filter/steps.py",
+     "sorted({low, high})", "[low]", STEPS),
+    # the premises measured along a run (premises.py): the interval, the tube's room and
+    # the motion between samples, each taken more loosely than the check's
+    ("premises-interval-doubled", "cosim/paper/premises.py",
+     "excess = np.abs(truth - centre) - spread",
+     "excess = np.abs(truth - centre) - 2.0 * spread", PREMISES),
+    ("premises-tube-room-doubled", "cosim/paper/premises.py",
+     "room = allowance[row] - excess", "room = 2.0 * allowance[row] - excess", PREMISES),
+    ("premises-between-meet-dropped", "cosim/paper/premises.py",
+     "for tau in (meet, first_top, second_top):", "for tau in (first_top, second_top):",
+     PREMISES),
+    ("premises-rate-cross-dropped", "cosim/paper/premises.py",
+     "return np.maximum(ends, np.minimum(v0 + high * cross, v1 - low * (dt - cross)))",
+     "return ends", PREMISES),
     ("guarantee-every-hard-set", "cosim/paper/guarantee.py",
      "if c.declared.family in assumes.keeps or c.declared.family not in KEPT_SETS}",
      "if c.declared.family}", ["tests/test_guarantee.py"]),
