@@ -103,11 +103,11 @@ MUTANTS = [
      "a.infeasible[k] = 0.0 if viable else 1.0", "a.infeasible[k] = 0.0", FILTER),
     # the backup's check (issue 30): each margin it takes, dropped
     ("cbf-tube-deviation-dropped", "cosim/paper/cbf_filter/backup.py",
-     "dv[i] = max(dv[i] * (1.0 - feedback) + TUBE_SAFETY * deviation[i] * h, eps[i])",
+     "dv[i] = max(dv[i] * (1.0 - feedback) + widen[i] * h, eps[i])",
      "dv[i] = max(dv[i] * (1.0 - feedback), eps[i])", VIABILITY),
     ("cbf-tube-estimate-floor", "cosim/paper/cbf_filter/backup.py",
-     "dv[i] = max(dv[i] * (1.0 - feedback) + TUBE_SAFETY * deviation[i] * h, eps[i])",
-     "dv[i] = dv[i] * (1.0 - feedback) + TUBE_SAFETY * deviation[i] * h", VIABILITY),
+     "dv[i] = max(dv[i] * (1.0 - feedback) + widen[i] * h, eps[i])",
+     "dv[i] = dv[i] * (1.0 - feedback) + widen[i] * h", VIABILITY),
     # D taken once, not 1.5 times (the tube's empirical factor, docs/safety.md)
     ("cbf-tube-factor-one", "cosim/paper/cbf_filter/backup.py",
      "TUBE_SAFETY = 1.5", "TUBE_SAFETY = 1.0", VIABILITY),
@@ -155,7 +155,7 @@ MUTANTS = [
      "    if a.braking_reserve:  # braking within braking_torque first, the limits in reserve",
      "    if False:", FILTER),
     ("cbf-braking-held-not-tried", "cosim/paper/cbf_filter/block.py",
-     "        if reserve and a.braking_reserve:", "        if False:", FILTER),
+     "    if reserve and a.braking_reserve:", "    if False:", FILTER),
     ("cbf-rows-left-out-always", "cosim/paper/cbf_filter/rows.py",
      "if scale * (reach[i] + room[i]) < limit + scale * side * base[i]:", "if True:", FILTER),
     # the steps the filter supports (cbf_filter/steps.py): the backup's hold allowed to
@@ -205,7 +205,7 @@ MUTANTS = [
      'entry["attainable"] = not bool(((reference > check.upper)',
      'entry["attainable"] = True or bool(((reference > check.upper)', EVALUATION),
     ("eval-guarantee-covered", "cosim/paper/guarantee.py",
-     "covered = bool(filtered and starts_inside and starts_viable and not outside)",
+     "covered = bool(filtered and starts_inside and start is not None and not outside)",
      "covered = bool(filtered and starts_inside and not outside)", EVALUATION),
     # the run folder
     ("folder-complete-ignores-files", "cosim/outputs/run_folder.py",
