@@ -1,0 +1,146 @@
+"""The house's figures, read from the source (no run, no compile; < 2 s): how big the
+modules and functions are, how much of the kernels' plumbing is written by hand, how far the
+paper's package reaches past the documented API, and how often one parameter is written on
+its way from the pipeline to a kernel.
+
+    .venv/bin/python benchmarks/house.py [--parameter torque_limit]
+
+Figures (each printed with what it counts):
+- modules over 400 lines and functions over 80 (Python: cosim/, plant_fmu/; C: plant_fmu/);
+- fields of the kernels' argument and work records (NamedTuple classes), written by hand;
+- row-index constants written by hand (``A, B, C = range(3)`` and ``NAME = <int>`` in the
+  filter's scratch);
+- the lines of cosim/paper;
+- cosim/paper's imports of project modules that docs/api.md does not document;
+- the parameter's occurrences as a name in code (not in comments or strings), and in how
+  many files.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import io
+import re
+import sys
+import tokenize
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "tests"))
+
+from test_paper_api import undocumented_imports  # noqa: E402  (the test's own reading)
+
+MODULE_LINES, FUNCTION_LINES = 400, 80
+
+
+def python_files() -> list[Path]:
+    return sorted([*ROOT.glob("cosim/**/*.py"), *ROOT.glob("plant_fmu/**/*.py")])
+
+
+def long_functions(path: Path) -> list[tuple[str, int]]:
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    return [(node.name, node.end_lineno - node.lineno + 1) for node in ast.walk(tree)
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef))
+            and node.end_lineno - node.lineno + 1 > FUNCTION_LINES]
+
+
+def long_c_functions(path: Path) -> list[tuple[str, int]]:
+    """C functions over the bound: a definition's line at column 0 to its closing brace."""
+    out, name, start = [], None, 0
+    for number, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+        match = re.match(r"^[A-Za-z_][\w \*]*?\b(\w+)\s*\([^;]*$", line)
+        if name is None and match:
+            name, start = match.group(1), number
+        elif name is not None and line.startswith("}"):
+            if number - start + 1 > FUNCTION_LINES:
+                out.append((name, number - start + 1))
+            name = None
+    return out
+
+
+def record_fields() -> dict[str, int]:
+    """NamedTuple class -> its field count, over cosim/."""
+    out = {}
+    for path in ROOT.glob("cosim/**/*.py"):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ClassDef) and any(
+                    getattr(base, "id", None) == "NamedTuple" for base in node.bases):
+                out[f"{path.relative_to(ROOT)}:{node.name}"] = sum(
+                    isinstance(item, ast.AnnAssign) for item in node.body)
+    return out
+
+
+def index_constants(path: Path) -> int:
+    """Module-level names bound to ``range(...)`` unpacking or to an int literal."""
+    count = 0
+    for node in ast.parse(path.read_text(encoding="utf-8")).body:
+        if not isinstance(node, ast.Assign):
+            continue
+        target, value = node.targets[0], node.value
+        if isinstance(value, ast.Call) and getattr(value.func, "id", None) == "range":
+            count += len(target.elts) if isinstance(target, ast.Tuple) else 1
+        elif isinstance(value, ast.Constant) and type(value.value) is int:
+            count += 1
+        elif isinstance(value, ast.Tuple) and all(
+                isinstance(e, ast.Constant) and type(e.value) is int for e in value.elts):
+            count += len(value.elts)
+    return count
+
+
+def name_occurrences(name: str) -> tuple[int, int]:
+    """(occurrences of ``name`` as a code token or an attribute, files) over cosim/."""
+    total, files = 0, 0
+    for path in ROOT.glob("cosim/**/*.py"):
+        tokens = tokenize.generate_tokens(io.StringIO(path.read_text(encoding="utf-8")).readline)
+        here = sum(token.type == tokenize.NAME and token.string == name for token in tokens)
+        total += here
+        files += here > 0
+    return total, files
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0],
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--parameter", default="torque_limit",
+                        help="the parameter whose occurrences are counted (default: "
+                             "torque_limit)")
+    args = parser.parse_args()
+
+    sizes = {p: len(p.read_text(encoding="utf-8").splitlines()) for p in python_files()}
+    big = sorted(((n, p) for p, n in sizes.items() if n > MODULE_LINES), reverse=True)
+    print(f"Python modules over {MODULE_LINES} lines: {len(big)}")
+    for lines, path in big:
+        print(f"  {lines:5d}  {path.relative_to(ROOT)}")
+    functions = [(n, f"{p.relative_to(ROOT)}:{f}") for p in python_files()
+                 for f, n in long_functions(p)]
+    print(f"Python functions over {FUNCTION_LINES} lines: {len(functions)}")
+    for lines, where in sorted(functions, reverse=True):
+        print(f"  {lines:5d}  {where}")
+    c_functions = [(n, f"{p.relative_to(ROOT)}:{f}") for p in sorted(ROOT.glob("plant_fmu/**/*.c"))
+                   for f, n in long_c_functions(p)]
+    print(f"C functions over {FUNCTION_LINES} lines: {len(c_functions)}")
+    for lines, where in sorted(c_functions, reverse=True):
+        print(f"  {lines:5d}  {where}")
+
+    records = record_fields()
+    kernel = {k: v for k, v in records.items() if re.search(r"(Args|Work|Envelope)$", k)}
+    print(f"kernel argument/work record fields written by hand: {sum(kernel.values())} "
+          f"in {len(kernel)} records (all NamedTuple fields: {sum(records.values())})")
+    for where, count in sorted(kernel.items(), key=lambda item: -item[1]):
+        print(f"  {count:4d}  {where}")
+    scratch = ROOT / "cosim/paper/cbf_filter/scratch.py"
+    print(f"index constants by hand in {scratch.relative_to(ROOT)}: {index_constants(scratch)}")
+
+    paper = [p for p in python_files() if p.is_relative_to(ROOT / "cosim/paper")]
+    print(f"lines of cosim/paper: {sum(sizes[p] for p in paper)} in {len(paper)} modules")
+    reaches = undocumented_imports()
+    print(f"cosim/paper imports past the documented API (docs/api.md): {len(reaches)}")
+    for module, imported in reaches:
+        print(f"  {module} -> {imported}")
+    total, files = name_occurrences(args.parameter)
+    print(f"'{args.parameter}' as a name in code: {total} times in {files} files of cosim/")
+
+
+if __name__ == "__main__":
+    main()
