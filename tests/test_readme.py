@@ -61,10 +61,16 @@ def skipped(argv: list[str]) -> bool:
 
 
 def documents() -> list[Path]:
-    """README.md, then every page of the documentation in the order of mkdocs.yml's nav."""
+    """README.md, then every page of the documentation in the order of mkdocs.yml's nav (a
+    section's pages in their order where it nests)."""
     config = yaml.safe_load((ROOT / "mkdocs.yml").read_text(encoding="utf-8"))
-    pages = [page for entry in config["nav"] for page in entry.values()]
-    return [ROOT / "README.md", *(ROOT / config["docs_dir"] / page for page in pages)]
+
+    def pages(entries: list) -> list[str]:
+        return [page for entry in entries for value in entry.values()
+                for page in (pages(value) if isinstance(value, list) else [value])]
+
+    folder = ROOT / config["docs_dir"]
+    return [ROOT / "README.md", *(folder / page for page in pages(config["nav"]))]
 
 
 def readme_commands() -> list[list[str]]:
@@ -95,8 +101,10 @@ def readme_commands() -> list[list[str]]:
 
 def test_every_page_of_the_documentation_is_in_the_order_read():
     """A page left out of mkdocs.yml's nav would have its commands left out of this test."""
-    listed = {path.name for path in documents()[1:]}
-    assert listed == {path.name for path in (ROOT / "docs").glob("*.md")}
+    docs = ROOT / "docs"
+    listed = [path.relative_to(docs) for path in documents()[1:]]
+    assert len(listed) == len(set(listed))
+    assert set(listed) == {path.relative_to(docs) for path in docs.rglob("*.md")}
 
 
 def test_the_readme_has_the_commands_this_test_knows():
