@@ -108,7 +108,7 @@ MUTANTS = [
     ("cbf-tube-estimate-floor", "cosim/paper/cbf_filter/backup.py",
      "dv[i] = max(dv[i] * (1.0 - feedback) + widen[i] * h, eps[i])",
      "dv[i] = dv[i] * (1.0 - feedback) + widen[i] * h", VIABILITY),
-    # D taken once, not 1.5 times (the tube's empirical factor, docs/safety.md)
+    # D taken once, not 1.5 times (the tube's empirical factor, docs/safety/filter.md)
     ("cbf-tube-factor-one", "cosim/paper/cbf_filter/backup.py",
      "TUBE_SAFETY = 1.5", "TUBE_SAFETY = 1.0", VIABILITY),
     ("cbf-tube-start-estimate", "cosim/paper/cbf_filter/backup.py",

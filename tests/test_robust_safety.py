@@ -34,8 +34,8 @@ def closed_form(q, qdot, m2):
 def worst_condition(qddot, x, qdot, v, p, k_v, alpha_q, alpha_v) -> float:
     """The least of both hard sets' continuous-time conditions, both sides, per joint:
     position ḧ + 2p ḣ + p² h and velocity ḣ + k·max(h, 0) (past the bound, within the hold's
-    margin, "do not move further out": docs/safety.md, "How the margins follow"); x = q − q_s,
-    v = q̇ − q̇_s."""
+    margin, "do not move further out": docs/safety/filter.md, "How the margins follow");
+    x = q − q_s, v = q̇ − q̇_s."""
     worst = np.inf
     for side in (1.0, -1.0):
         velocity = -side * qddot + k_v * np.maximum(alpha_v - side * v, 0.0)
@@ -65,7 +65,8 @@ def test_the_hard_rows_hold_for_every_payload_in_the_declared_range():
     range, with the true acceleration from the closed-form arm (not the filter's model).
     (The filter's true state is exact here: baseline_cbf reads the plant's q̇, ε = 0.)"""
     # No sensor noise: M̂ is evaluated at the measured position, a first-order effect of the
-    # noise the filter does not cover (docs/safety.md); measured −0.003 rad/s² here at 1e-4 rad.
+    # noise the filter does not cover (docs/safety/filter.md); measured −0.003 rad/s² here at
+    # 1e-4 rad.
     pipeline, plan, trace = simulated(['plant.parameters."m[2]"=2.9', "sensor.noise_std=0",
                                        'plant.parameters."qdot0[1]"=13.3'], "baseline_cbf")
     f = pipeline.runs["baseline_cbf"].cbf_filter
@@ -92,7 +93,7 @@ def test_the_hard_rows_hold_for_every_state_the_estimate_allows():
     keeps both hard sets' continuous-time conditions for every true state the filter cannot
     rule out — position y ± n̄, velocity x̂2 ± ε(t) per joint (the corners), payload on a
     grid of the range — with the closed-form arm's acceleration. M and b are taken at y, the
-    one approximation docs/safety.md declares (first order in n̄); h and ḣ at the corner."""
+    one approximation docs/safety/filter.md declares (first order in n̄); h and ḣ at the corner."""
     pipeline, plan, trace = simulated(['plant.parameters."m[2]"=2.9',
                                        'plant.parameters."qdot0[1]"=13.0',
                                        'plant.parameters."qdot0[2]"=6.0'], "proposed_cbf", 4.0)

@@ -48,7 +48,7 @@ def test_the_safety_table_reads_at_a_glance(compared, capsys):
     """Five runs: the text fits 100 columns (runs paged into column groups), each check's
     bound is stated once, each cell's mark is its entry's verdict, and one verdict line per
     run names the first set left (Theorem 1's sufficient condition and the sets the
-    reference leaves are not counted). Expectations from docs/safety.md's comparison table."""
+    reference leaves are not counted). Expectations from docs/safety/comparison.md's table."""
     from cosim.outputs.table import markdown_table, text_table, verdict
 
     summaries = {name: r.summary() for name, r in compared.items()}
@@ -137,10 +137,11 @@ def test_the_barrier_condition_fails_for_the_baseline_and_is_a_finite_difference
 
 
 def test_the_gain_matched_baseline_does_what_the_readme_says(compared):
-    """docs/safety.md: the proposed controller's median effective gain on r̂ is ~260 N·m·s/rad
-    against the baseline's ~23; the full-state baseline at Kv = 260 keeps the velocity,
-    error and error-rate sets with more margin than the proposed controller, at comparable
-    peak torque, and leaves the position set just as the proposed controller does."""
+    """docs/safety/comparison.md: the proposed controller's median effective gain on r̂ is
+    ~260 N·m·s/rad against the baseline's ~23; the full-state baseline at Kv = 260 keeps the
+    velocity, error and error-rate sets with more margin than the proposed controller, at
+    comparable peak torque, and leaves the position set just as the proposed controller
+    does."""
     proposed, baseline = compared["proposed"], compared["baseline"]
     matched = compared["baseline_matched"]
     assert proposed.metrics["feedback_gain"]["median"] == pytest.approx(260, abs=10)

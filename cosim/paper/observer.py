@@ -64,7 +64,7 @@ which holds whatever x̂2 does. The interval:
 *Assumption* (the one approximation, beside rounding): over a step, q̈ is bounded by its
 bounds at the step's two measured positions y_k−1 and y_k (M and b taken at the measured
 position, not at the true q between them: first order in n̄ and in the ≤ 0.015 rad a joint
-moves in a step, the approximation the safety filter declares too, docs/safety.md). Every
+moves in a step, the approximation the safety filter declares too, docs/safety/filter.md). Every
 other quantity is declared (payload range, n̄, initial error, d̄) or known (τ, the nominal
 chain, τ_d's model). A plant outside these (an undeclared payload, friction, disturbance)
 may break ε(t): tests/test_observer_bound.py checks it on every step of near-boundary
@@ -205,7 +205,7 @@ def error_envelope(kp, kd, k0):
     response to w(0) (≥ 1), L1 norm of the impulse response from f̃' to w (s²)).
     Not what ε(t) rests on any more (module docstring): a frozen-time envelope is no proof
     while k0 moves, and its forcing's rate is the closed loop's; kept as the analysis
-    docs/safety.md describes."""
+    docs/safety/filter.md describes."""
     sigma = 0.5 * (kp + kd)
     if k0 > sigma * sigma:  # complex poles −σ ± jω: |w| ≤ w0·√k0/ω·e^{−σt}
         omega = np.sqrt(k0 - sigma * sigma)

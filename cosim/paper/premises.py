@@ -19,7 +19,7 @@ from. A covered run where one fails is a broken guarantee, whatever the sets did
   (``cbf_acceleration_low``, ``_high``), so that x(t) lies below both parabolas of
   curvature hi from either sample, and q̇(t) below v_k + hi τ and v_k+1 − lo (h − τ)
   (likewise from below): the largest of each, from the true state at the samples, must
-  stay within the set between them (Ā of docs/safety.md, taken per step).
+  stay within the set between them (Ā of docs/safety/filter.md, per step).
 
 SI units, radians. Ground truth, for evaluation only.
 """

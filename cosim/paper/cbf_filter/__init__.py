@@ -1,6 +1,6 @@
 """A robust output-feedback CBF-QP safety filter: after any nominal controller, the torque
 closest to the nominal one that keeps the *true* state in the physical sets, for every plant
-and state the declared uncertainty allows (docs/safety.md, "The robust safety filter").
+and state the declared uncertainty allows (docs/safety/filter.md).
 
 Sets, per joint i, each side of |x_i| ≤ β a barrier h = β − side·x_i:
 
@@ -57,7 +57,7 @@ braking backup can still keep every hard set after it, for every state and plant
 declared uncertainty allows; else the largest verified blend towards the backup; else the
 backup (``cbf_infeasible`` = 1, ``cbf_viable`` = 0: the state was not viable as seen). With
 ``braking_torque`` below the limits, the backup first brakes within it (the block's
-``choose``; docs/safety.md, "How hard the backup brakes").
+``choose``; docs/safety/filter.md, "How hard the backup brakes").
 ``cbf_rows_met`` says where the applied torque met the rows as given. Soft slack is reported
 apart (``cbf_slack``): it says how much tracking gave way, never whether safety did.
 

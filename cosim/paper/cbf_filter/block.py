@@ -297,7 +297,7 @@ def choose(k, a, tau):
     # No torque verified afresh: the plan, viable if planned (a check from a state on the
     # edge of the verified set may fail by the rollout's own discretisation); else not
     # viable as seen: the backup all the same, within the limits (within braking_torque
-    # instead, more starts not viable left a set: docs/safety.md). (The plan's check
+    # instead, more starts not viable left a set: docs/safety/measurements.md). (The plan's check
     # covered its tube, so the state need not be shown inside anew: the interval the
     # filter holds may be wider than the tube the plan was verified with, as it is what
     # the filter knows, not where the plan keeps the state.)

@@ -2,7 +2,7 @@
 before the run: a step where their discretisation breaks is refused by name, with the range
 that works.
 
-Two things set the range (docs/safety.md, "The steps it supports"):
+Two things set the range (docs/safety/filter.md, "The steps it supports"):
 
 - **The braking backup's hold.** Following its plan the filter applies the backup computed
   at each sample and held over the step h, and the check models the velocity's error under
