@@ -10,15 +10,15 @@ from pathlib import Path
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import Field, model_validator
+from pydantic import Field, create_model, model_validator
 
 from .schema import FileName, FiniteFloat, NonNegativeFloat, PipelineError, PositiveFloat, Section
 
 
 class Safety(Section):
-    """The safe sets every run is checked against, and the bounds of the paper's barriers.
-    The NN weight bounds (Z̃) are in the weights' own units, which mix those of their inputs.
-    """
+    """The safe sets every run is checked against. A package adds its own keys to this
+    table with :func:`extend_safety` (the paper's barrier bounds); the pipeline's
+    ``[safety]`` is then a :func:`safety_section`."""
 
     # radius α_max of the position set ‖x1 − q_s‖ ≤ α_max, per joint and as a norm, rad
     position_bound: PositiveFloat = 20.0
@@ -26,17 +26,6 @@ class Safety(Section):
     velocity_bound: PositiveFloat = 13.5
     error_bound: PositiveFloat = 1.0  # bound E1 of the tracking-error set ‖e‖ ≤ E1, rad
     error_rate_bound: PositiveFloat = 5.0  # bound E2 of the error-rate set ‖ė‖ ≤ E2, rad/s
-    # bound ε_max of the observer-error sets (16), ‖x̃1‖ ≤ ε_max in rad and ‖x̃2‖ ≤ ε_max in
-    # rad/s; in H1 of (28) and the observer_error_norm check, rad and rad/s
-    observer_error_bound: PositiveFloat = 1.0
-    # bound Z̃_Wo on the observer's weight error ‖W̃o‖, the set (17) that H1 uses, mixed units
-    z_wo_tilde: PositiveFloat = 20.0
-    # bound Z̃_Wc on the controller's output-weight error ‖W̃c‖ of (18), in H2, mixed units
-    z_wc_tilde: PositiveFloat = 50.0
-    # bound Z̃_Vc on the controller's hidden-weight error ‖Ṽc‖ of (18), in H2, mixed units
-    z_vc_tilde: PositiveFloat = 50.0
-    # rate α of the barrier condition Ḣ + α·H ≥ 0 (class-K, linear), 1/s
-    barrier_alpha: PositiveFloat = 1.0
     # where the per-joint position and velocity sets come from (a name): "radii", the
     # paper's |q_i − q_s,i| ≤ position_bound and |q̇_i − q̇_s,i| ≤ velocity_bound; "urdf",
     # the robot's own limits (``urdf``'s <limit>: lower + position_margin ≤ q_i ≤ upper −
@@ -73,6 +62,34 @@ class Safety(Section):
                              "a path or package://…), or position_lower, position_upper and "
                              "velocity_limit given per joint")
         return self
+
+
+# Sections a package adds to [safety], in the order registered (extend_safety), and the
+# [safety] built from them (one class per registry state).
+_SAFETY_KEYS: list[type[Section]] = []
+_SAFETY_SECTIONS: dict[tuple[type[Section], ...], type[Safety]] = {}
+
+
+def extend_safety(keys: type[Section]) -> None:
+    """Add the fields of ``keys`` (a :class:`~cosim.schema.Section`) to the pipeline's
+    ``[safety]`` table: a package's own bounds on the sets it evaluates, declared in the
+    package and read back with ``keys.model_validate`` of the run's safety (the paper's
+    barrier bounds, cosim.paper.barrier_bounds). Call it when the package is imported;
+    registering the same class twice adds it once."""
+    if keys not in _SAFETY_KEYS:
+        _SAFETY_KEYS.append(keys)
+
+
+def safety_section() -> type[Safety]:
+    """:class:`Safety` with the keys every package registered (:func:`extend_safety`)."""
+    key = tuple(_SAFETY_KEYS)
+    if not key:
+        return Safety
+    if key not in _SAFETY_SECTIONS:
+        # the sets' keys first, then each package's in the order registered
+        _SAFETY_SECTIONS[key] = create_model("Safety", __base__=(*reversed(key), Safety),
+                                             __module__=__name__)
+    return _SAFETY_SECTIONS[key]
 
 
 class Uncertainty(Section):
@@ -199,4 +216,5 @@ def joint_boxes(safety: Safety, n: int) -> JointBoxes | None:
                       values["velocity_limit"], values["effort_limit"], source)
 
 
-__all__ = ["JointBoxes", "PositiveFloat", "Safety", "Uncertainty", "joint_boxes"]
+__all__ = ["JointBoxes", "PositiveFloat", "Safety", "Uncertainty", "extend_safety", "joint_boxes",
+           "safety_section"]

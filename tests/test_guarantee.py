@@ -15,7 +15,7 @@ import pytest
 from cli_helpers import cosim_cli
 
 from cosim.config import load_pipeline
-from cosim.declared import Safety, Uncertainty
+from cosim.declared import Uncertainty, safety_section
 from cosim.evaluate import Evaluator
 from cosim.evaluate.reports import wilson
 from cosim.paper.cbf_filter.assumptions import BACKUP, FILTER_ASSUMES, VIABLE, FilterAssumptions
@@ -35,7 +35,7 @@ from plant_fmu.models.planar_arm import LINK_PARAMETERS
 from plant_fmu.models.planar_arm import variables as rigid_arm_variables
 
 DT, ROWS = 1e-3, 2001  # 2 s at 1 ms
-SAFE = Safety(position_bound=2.0, velocity_bound=3.0, observer_error_bound=0.5)
+SAFE = safety_section()(position_bound=2.0, velocity_bound=3.0, observer_error_bound=0.5)
 DECLARED = Uncertainty(payload=[0.0, 1.0], noise_bound=1e-3, initial_velocity_error=0.5,
                        disturbance=0.3)
 LIMIT = 100.0  # N·m, the filters' torque limit here

@@ -10,6 +10,8 @@ import importlib
 import re
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parent.parent
 PAPER = ROOT / "cosim" / "paper"
 
@@ -105,3 +107,29 @@ def test_the_reading_finds_a_reach_and_resolves_relative_imports() -> None:
     module = PAPER / "cbf_filter" / "block.py"
     names = framework_imports(module)
     assert "cosim.blocks.base.register_block" in names  # `from ...blocks.base import …`
+
+
+def test_the_paper_owns_its_barrier_bounds_and_adds_them_to_safety() -> None:
+    """The framework's [safety] holds the safe sets only; the paper's package declares the
+    bounds of its barriers and adds them (the pipeline key stays safety.z_wo_tilde); a key
+    no package declares is still refused, by name."""
+    from pydantic import ValidationError
+
+    from cosim.config import load_pipeline
+    from cosim.declared import Safety, safety_section
+    from cosim.paper.barrier_bounds import BarrierBounds, barrier_bounds
+    from cosim.schema import PipelineError
+
+    paper_keys = set(BarrierBounds.model_fields)
+    assert paper_keys == {"observer_error_bound", "z_wo_tilde", "z_wc_tilde", "z_vc_tilde",
+                          "barrier_alpha"}
+    assert not paper_keys & set(Safety.model_fields)
+    assert paper_keys <= set(safety_section().model_fields)
+    with pytest.raises(ValidationError, match="z_wo_tilde"):
+        Safety(z_wo_tilde=3.0)
+    path = ROOT / "pipelines" / "paper_two_link.toml"
+    changed = load_pipeline(path, ["safety.z_wo_tilde=7.5"], warn=None)
+    assert barrier_bounds(changed.safety).z_wo_tilde == 7.5
+    assert barrier_bounds(Safety()) == BarrierBounds()  # a section without them: the defaults
+    with pytest.raises(PipelineError, match="z_wo_tilda"):
+        load_pipeline(path, ["safety.z_wo_tilda=7.5"], warn=None)

@@ -37,7 +37,7 @@ import pytest
 from scipy import integrate, linalg, special, stats
 
 from cosim.blocks import BlockContext, Ports
-from cosim.declared import Uncertainty
+from cosim.declared import Uncertainty, safety_section
 from cosim.evaluate import Evaluator, SafeSet
 from cosim.paper.controller import ControllerParams, NnController, NnGains, controller_step
 from cosim.paper.guarantee import classify
@@ -553,9 +553,10 @@ SIGNALS = {name: Signal(shape, "SI", name) for name, shape in [
     ("qdot_s", "n"), ("q_hat", "n"), ("qdot_hat", "n"), ("k0", "1"), ("W_o_norm", "1"),
     ("M_model", "nn"), ("tau", "n"), ("e", "n"), ("edot", "n"), ("r_hat", "n"),
     ("W_norm", "1"), ("V_norm", "1")]}
-SAFE = SafeSet(position_bound=2.0, velocity_bound=3.0, error_bound=0.5, error_rate_bound=1.5,
-               observer_error_bound=0.4, z_wo_tilde=20.0, z_wc_tilde=50.0, z_vc_tilde=40.0,
-               barrier_alpha=0.7)
+SAFE = safety_section()(
+    position_bound=2.0, velocity_bound=3.0, error_bound=0.5, error_rate_bound=1.5,
+    observer_error_bound=0.4, z_wo_tilde=20.0, z_wc_tilde=50.0, z_vc_tilde=40.0,
+    barrier_alpha=0.7)
 LAMBDA = np.array([4.0, 7.0])
 CENTRE, VELOCITY_CENTRE = np.array([0.7, -1.3]), np.array([0.4, -0.9])  # q_s, q̇_s: not 0
 

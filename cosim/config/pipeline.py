@@ -12,7 +12,7 @@ from pydantic import PrivateAttr, create_model, model_validator
 
 from ..blocks import BLOCKS
 from ..blocks.plugins import load_entry_points
-from ..declared import Safety, Uncertainty
+from ..declared import Safety, Uncertainty, safety_section
 from ..schema import Section
 from .runs import Run, chain_entry
 from .sections import Plant, Robot, Simulation, check_name, robot_defaults
@@ -105,13 +105,15 @@ _MODELS: dict[tuple, tuple[type[Pipeline], type[Run]]] = {}
 
 def pipeline_model() -> tuple[type[Pipeline], type[Run]]:
     """The Pipeline and Run models for the blocks registered now (built once per registry
-    state): every block's ``Params`` as a table, with its defaults."""
+    state): every block's ``Params`` as a table, with its defaults, and ``[safety]`` with the
+    keys packages registered (:func:`~cosim.declared.extend_safety`)."""
     load_entry_points()  # installed packages' blocks, before the first model is built
-    key = tuple((kind, cls) for kind, cls in BLOCKS.items())
+    safety = safety_section()  # [safety] with the keys packages add (the paper's barriers)
+    key = (safety, *((kind, cls) for kind, cls in BLOCKS.items()))
     if key not in _MODELS:
         tables = {kind: (cls.Params, cls.Params()) for kind, cls in BLOCKS.items()}
         run = create_model("Run", __base__=Run, **tables)
-        pipeline = create_model("Pipeline", __base__=Pipeline, **tables,
-                                runs=(dict[str, run], {}))
+        pipeline = create_model("Pipeline", __base__=Pipeline, safety=(safety, safety()),
+                                **tables, runs=(dict[str, run], {}))
         _MODELS[key] = pipeline, run
     return _MODELS[key]

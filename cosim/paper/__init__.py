@@ -10,6 +10,7 @@ user's package. It sets the chain a pipeline that names none steps."""
 
 from ..blocks import set_default_chain
 from . import (  # noqa: F401  (they register on import)
+    barrier_bounds,
     cbf_filter,
     controller,
     evaluators,

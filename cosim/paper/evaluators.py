@@ -13,6 +13,7 @@ import numpy as np
 from .. import interface as io
 from ..evaluate import Check, Declaration, Kind, Part, SafeSet, register_evaluator
 from ..evaluate.safety import Signals
+from .barrier_bounds import barrier_bounds
 from .theorem import (
     BARRIER_MEANINGS,
     Gains,
@@ -88,7 +89,7 @@ class ObserverError(Part):
             return {}
         return {OBSERVER_ERROR.name(None): OBSERVER_ERROR.norm(
             np.linalg.norm(rows["qdot"] - rows["qdot_hat"], axis=1),
-            self.safe.observer_error_bound)}
+            barrier_bounds(self.safe).observer_error_bound)}
 
     def metrics(self, trace: Signals, series: Mapping[str, np.ndarray]) -> dict:
         after_1s = trace.time >= 1.0
@@ -133,13 +134,14 @@ class Barriers(Part):
         self.gains = Gains(nn.Lambda, nn.F, nn.G, constants["observer_gain"],
                            constants.get(io.VELOCITY_SOURCE) == OBSERVER)
         self.r_bound = theorem1(trace, safe, nn.Lambda)["R"]
+        self.alpha = barrier_bounds(safe).barrier_alpha
         self.dt = trace.dt
         self.last_h = np.nan  # H of the row before the next chunk (none before the first)
 
     def series(self, rows: Signals) -> dict[str, np.ndarray]:
         h = barriers(rows, self.safe, self.gains, self.r_bound)
         h["condition"] = barrier_condition(h["H"], self.last_h, self.dt,
-                                           self.safe.barrier_alpha)
+                                           self.alpha)
         if len(h["H"]):
             self.last_h = h["H"][-1]
         return h
@@ -151,7 +153,7 @@ class Barriers(Part):
         return {"min_barrier_H": lowest(series["H"]), "min_barrier_H1": lowest(series["H1"]),
                 "min_barrier_H2": lowest(series["H2"]),
                 "barrier_condition": condition_summary(series["condition"],
-                                                       self.safe.barrier_alpha),
+                                                       self.alpha),
                 "barrier_condition_terms": barrier_terms_failing(trace, series, self.safe)}
 
     def report(self, metrics: Mapping[str, Any]) -> tuple[str | None, list[str]]:

@@ -61,6 +61,7 @@ from ..dynamics.model import (
 from ..evaluate import Check, Kind, Part, register_evaluator
 from ..evaluate.safety import SafeSet, Signals
 from ..signals import Trace
+from .barrier_bounds import barrier_bounds
 from .cbf_filter.assumptions import (
     BACKUP,
     FILTER_ASSUMES,
@@ -544,7 +545,7 @@ def declared_inputs(trace: Signals, safe: SafeSet, uncertainty: Uncertainty,
         return outside, facts, violation
     error = np.abs(trace["qdot"] - trace["qdot_hat"])
     facts["starts_inside_observer_set"] = bool(
-        np.linalg.norm(error[0]) <= safe.observer_error_bound)
+        np.linalg.norm(error[0]) <= barrier_bounds(safe).observer_error_bound)
     if velocity != "qdot_hat":  # the filter reads the true velocity: the observer is moot
         return outside, facts, violation
     if np.max(error[0]) > uncertainty.initial_velocity_error:

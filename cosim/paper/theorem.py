@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..evaluate.safety import SafeSet, Signals
+from .barrier_bounds import barrier_bounds
 
 
 @dataclass
@@ -55,12 +56,13 @@ def barriers(trace: Signals, safe: SafeSet, gains: Gains,
              r_bound: float | None = None) -> dict[str, np.ndarray]:
     """H1 (28), H2 (29) and H = H1 + H2 per row (``r_bound``: R of Theorem 1, default: from
     these rows' reference)."""
-    eps = safe.observer_error_bound
+    bounds = barrier_bounds(safe)
+    eps = bounds.observer_error_bound
     x1_err = np.sum((trace["q"] - trace["q_hat"]) ** 2, axis=1)
     x2_err = np.sum((trace["qdot"] - trace["qdot_hat"]) ** 2, axis=1)
     k0 = trace["k0"]
     h1 = 0.5 * ((k0 * eps**2 - k0 * x1_err) + (eps**2 - x2_err)
-                + (safe.z_wo_tilde**2 - trace["W_o_norm"] ** 2) / gains.Fo)
+                + (bounds.z_wo_tilde**2 - trace["W_o_norm"] ** 2) / gains.Fo)
     r = trace["r_hat"]
     # The plant's own M(q) when its FMU outputs it, else the controller's model of it.
     mass = trace["M"] if np.isfinite(trace["M"]).all() else trace["M_model"]
@@ -70,8 +72,8 @@ def barriers(trace: Signals, safe: SafeSet, gains: Gains,
         r_bound = theorem1(trace, safe, gains.Lambda)["R"]
     h2 = 0.5 * ((safe.error_bound**2 - np.sum(trace["e"] ** 2, axis=1))
                 + (sigma_max * r_bound**2 - r_m_r)
-                + (safe.z_wc_tilde**2 - trace["W_norm"] ** 2) / gains.F
-                + (safe.z_vc_tilde**2 - trace["V_norm"] ** 2) / gains.G)
+                + (bounds.z_wc_tilde**2 - trace["W_norm"] ** 2) / gains.F
+                + (bounds.z_vc_tilde**2 - trace["V_norm"] ** 2) / gains.G)
     return {"H1": h1, "H2": h2, "H": h1 + h2}
 
 
@@ -93,7 +95,8 @@ def barrier_terms_failing(trace: Signals, h: Mapping[str, np.ndarray], safe: Saf
     """The barrier condition per term: Ḣ1 + αH1 and Ḣ2 + αH2 on their own, and H's without
     the rate of the observer gain k0 in H1's ½k0(ε² − ‖x̃1‖²), i.e. ½k̇0(ε² − ‖x̃1‖²): the
     term that makes H's condition fail when k0 moves (fractions of steps failing)."""
-    dt, alpha = trace.dt, safe.barrier_alpha
+    bounds = barrier_bounds(safe)
+    dt, alpha = trace.dt, bounds.barrier_alpha
     if len(h["H"]) < 2:
         return {}
 
@@ -105,7 +108,7 @@ def barrier_terms_failing(trace: Signals, h: Mapping[str, np.ndarray], safe: Saf
         return np.diff(series) / dt + alpha * series[1:]
 
     x1_err = np.sum((trace["q"] - trace["q_hat"]) ** 2, axis=1)
-    k0_rate = np.diff(trace["k0"]) / dt * 0.5 * (safe.observer_error_bound**2 - x1_err[1:])
+    k0_rate = np.diff(trace["k0"]) / dt * 0.5 * (bounds.observer_error_bound**2 - x1_err[1:])
     return {"H1": failing(condition(h["H1"])), "H2": failing(condition(h["H2"])),
             "H_without_k0_rate": failing(condition(h["H"]) - k0_rate),
             "k0_rate_term": "½·dk0/dt·(ε_max² − ‖x̃1‖²), of H1's ½k0(ε_max² − ‖x̃1‖²)"}
