@@ -1,6 +1,7 @@
-"""Round three of the hostile catalogue (issue 33): the seams between run, compare, export,
-view, plugins, caches and the environment. Each case asserts the whole message, the exit
-status, and that nothing outside the run folder changed."""
+"""The seams between run, compare, export, view, plugins, caches and the environment, as a
+hostile user meets them: data loss, plugins' code, compare as a CI gate, export's files,
+FMU archives and versions, caches, pipeline files. Each case asserts the whole message, the
+exit status, and that nothing outside the run folder changed."""
 
 from __future__ import annotations
 
@@ -90,7 +91,7 @@ def run_in(folder: Path, *args: str, env: dict | None = None,
 @pytest.fixture(scope="module")
 def finished(tmp_path_factory) -> Path:
     """A complete run folder: 0.5 s of the paper's two runs, no figures."""
-    out = tmp_path_factory.mktemp("round3") / "run"
+    out = tmp_path_factory.mktemp("seams") / "run"
     done = here("run", PAPER, "--out", str(out), "--no-recording", *SHORT)
     assert done.returncode == 0, done.stderr[-2000:]
     return out

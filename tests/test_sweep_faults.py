@@ -1,12 +1,12 @@
-"""`cosim sweep` tried as a hostile user would (issue 33's sweep cases) and at scale (issue
-34): rows on disk as they finish, a client killed with SIGKILL and resumed (every point once,
-none re-run), a resume of another sweep refused by name, a worker killed mid-point and one
-joining mid-sweep against separately started `dask scheduler` / `dask worker` processes, a
-worker of another cosim version refused, bad --sample bounds, a sweep stopped before its
-first row, Dask's scratch space and port warning, --record's values and a failing re-run, a
-plugin's sys.exit(0), units in results.parquet, and benchmarks/monte_carlo.py's command
-runnable by a shell. (A segfaulting point failing alone, its signal named, is in
-tests/test_sweep_tasks.py, beside the crashing FMU it builds.)"""
+"""`cosim sweep` under faults, as a hostile user would try it, and at scale: rows on disk as they
+finish, a client killed with SIGKILL and resumed (every point once, none re-run), a resume of
+another sweep refused by name, a worker killed mid-point and one joining mid-sweep against
+separately started `dask scheduler` / `dask worker` processes, a worker of another cosim version
+refused, bad --sample bounds, a sweep stopped before its first row, Dask's scratch space and
+port warning, --record's values and a failing re-run, a plugin's sys.exit(0), units in
+results.parquet, and benchmarks/monte_carlo.py's command runnable by a shell. (A segfaulting
+point failing alone, its signal named, is in tests/test_sweep_tasks.py, beside the crashing FMU
+it builds.)"""
 
 from __future__ import annotations
 
@@ -271,7 +271,7 @@ def test_a_worker_of_another_cosim_version_is_refused_naming_both(scheduler, das
         r"shared path\), or stop that worker"))
 
 
-# -- issue 33's sweep cases ----------------------------------------------------------------
+# -- a hostile user's sweeps ----------------------------------------------------------------
 
 @pytest.mark.parametrize(("sample", "why"), [
     ("uniform(nan,nan)", "'nan' and 'nan' must be finite numbers"),
