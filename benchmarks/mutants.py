@@ -41,10 +41,10 @@ PREMISES = ["tests/test_premises.py"]
 # (id, file, text, replacement, tests): the text must occur exactly once in the file.
 MUTANTS = [
     # the paper's laws
-    ("inertia-centripetal", "cosim/paper/inertia.py",
+    ("inertia-centripetal", "cosim/dynamics/planar.py",
      "chain[FX, i] = m[i] * (ax - w2 * chain[CX, i])",
      "chain[FX, i] = m[i] * (ax + w2 * chain[CX, i])", LAWS),
-    ("inertia-link-vs-com", "cosim/paper/inertia.py",
+    ("inertia-link-vs-com", "cosim/dynamics/planar.py",
      "        ax -= w2 * chain[LX, i]\n", "        ax -= w2 * chain[CX, i]\n", LAWS),
     ("obs-gain-sqrt", "cosim/paper/observer.py",
      "den_scale=2.0 * math.sqrt(p.kp * p.kd)", "den_scale=2.0 * (p.kp * p.kd)", LAWS),
@@ -61,14 +61,17 @@ MUTANTS = [
      "a, b = -s[0, j] * z, -s[1, j] * z", "a, b = 0.0, 0.0", BOUND),
     ("obs-envelope-disturbance-dropped", "cosim/paper/observer.py",
      "work[l] = worst + env.disturbance", "work[l] = worst", BOUND),
-    ("ctrl-robust-term-e", "cosim/paper/controller.py", "        v -= e\n", "", LAWS),
+    ("ctrl-robust-term-e", "cosim/paper/controller.py",
+     "v[i] = v[i] - sign_gain * r[i] - e[i] - psi_gain * r[i]",
+     "v[i] = v[i] - sign_gain * r[i] - psi_gain * r[i]", LAWS),
     ("ctrl-psi-square", "cosim/paper/controller.py",
-     "v -= a.psi_b**2 / (a.delta + r_sq) * r", "v -= a.psi_b / (a.delta + r_sq) * r", LAWS),
+     "psi_gain = a.psi_b**2 / (a.delta + r_sq)", "psi_gain = a.psi_b / (a.delta + r_sq)", LAWS),
     ("ctrl-c0", "cosim/paper/controller.py",
      "** 2 / 4.0 + a.c0)", "** 2 / 4.0)", LAWS),
     ("ctrl-w-update-sprime", "cosim/paper/controller.py",
-     "np.outer(sig_hat - s_prime_a, r)", "np.outer(sig_hat, r)", LAWS),
-    ("ctrl-lambda", "cosim/paper/controller.py", "r = edot + a.lam * e", "r = edot + e", LAWS),
+     "row = s - s * (1.0 - s) * act[m - 1]", "row = s", LAWS),
+    ("ctrl-lambda", "cosim/paper/controller.py",
+     "r[i] = edot[i] + a.lam[i] * e[i]", "r[i] = edot[i] + e[i]", LAWS),
     # the filter's margins
     ("cbf-noise-margin", "cosim/paper/cbf_filter/rows.py",
      "limit = a.k0 * (h - a.noise_bound) - a.k1 * (side * v0[i] + eps[i])",
@@ -86,8 +89,8 @@ MUTANTS = [
     ("cbf-payload-corners", "cosim/paper/cbf_filter/scratch.py",
      "for mask in range(2**d - 2, 0, -1):", "for mask in range(2**d - 3, 0, -1):", FILTER),
     ("cbf-hold-end-dropped", "cosim/paper/cbf_filter/rows.py",
-     "    hard_groups(a, k, y_end, v_end, eps, minv_end, base_end, True)\n", "",
-     FILTER),
+     "    if known:\n        hard_groups(a, k, y_end, v_end, eps, minv_end, base_end, True)\n",
+     "", FILTER),
     # the hard rows the solve leaves out (cutting planes): the payload corners' terms not
     # taken in a group's screen, rows within hard_tolerance of their lowered limit left out,
     # the QP not solved again with the rows added
@@ -188,7 +191,7 @@ MUTANTS = [
      "if c.declared.family}", ["tests/test_guarantee.py"]),
     # the evaluation
     ("eval-position-centre", "cosim/evaluate/sets.py",
-     '"position": rows["q"] - rows[io.SAFE_CENTRE],', '"position": rows["q"],', EVALUATION),
+     '"position": rows["q"] - position_centre,', '"position": rows["q"],', EVALUATION),
     ("eval-theorem1-r", "cosim/paper/theorem.py",
      "safe.error_rate_bound * lmin / (lmin + lmax))", "safe.error_rate_bound * lmin / lmax)",
      EVALUATION),
@@ -215,7 +218,7 @@ MUTANTS = [
      "            if problem:\n                raise OSError(f\"the written file is {problem}\")\n",
      "", FOLDER),
     # the sweep's statistics
-    ("sweep-wilson-variance", "cosim/sweep/tables.py",
+    ("sweep-wilson-variance", "cosim/evaluate/reports.py",
      "math.sqrt(p * (1 - p) / trials", "math.sqrt(p * (1 - p) / (trials + 1)", SWEEP),
     ("sweep-failed-counted", "cosim/sweep/tables.py",
      'low, high = wilson(kept, len(ok))', 'low, high = wilson(kept, len(mine))', SWEEP),
@@ -227,7 +230,8 @@ MUTANTS = [
     ("limit-substeps", "cosim/config/pipeline.py",
      "if substeps > self.simulation.max_plant_substeps:", "if False:", LIMITS),
     ("limit-unpack-size", "cosim/plant/unpack.py",
-     "if total > MAX_MEGABYTES * 1e6:", "if False:", LIMITS),
+     "if total > MAX_MEGABYTES * 1e6:\n        return (f\"it unpacks to {total",
+     "if False:\n        return (f\"it unpacks to {total", LIMITS),
     ("limit-seed", "cosim/schema.py",
      "Seed = Annotated[int, Field(ge=0)]", "Seed = int", LIMITS),
 ]
