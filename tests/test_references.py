@@ -611,9 +611,9 @@ def evaluation_case(rng: np.random.Generator, output_feedback: bool, plant_mass:
 
 
 def expected_checks(raw: dict, output_feedback: bool, r_bound: float) -> dict:
-    """Each set of docs/safety.md's list computed from the primary arrays: name -> (signed value per
-    row, lower, upper, the reference trajectory's own value or None). Joint checks are
-    signed (x − centre), every joint's, norms by hypot."""
+    """Each set of docs/safety/index.md's list ("The checks") computed from the primary
+    arrays: name -> (signed value per row, lower, upper, the reference trajectory's own
+    value or None). Joint checks are signed (x − centre), every joint's, norms by hypot."""
     def joint_and_norm(stem: str, x: np.ndarray, bound: float, ref: np.ndarray | None) -> dict:
         return {**{f"{stem}_joint{j + 1}": (x[:, j], -bound, bound,
                                             None if ref is None else ref[:, j])

@@ -3,9 +3,10 @@
 The guarantee: a filtered run that starts inside the filter's *viable* set (the states from
 which its torque limits can still keep every hard set under the declared uncertainty) and
 whose plant and signals stay within what is declared (``[uncertainty]``, and the nominal
-model for everything not declared uncertain) never leaves a hard set, is feasible at every
-step, keeps the observer bound ε(t) it rests on, and never exceeds its torque limit. Each
-run is classified on the true state:
+model for everything not declared uncertain) never leaves a hard set, finds the state
+viable (a verified torque) at every step, keeps the observer bound ε(t) it rests on and the
+premises of its check, and never exceeds its torque limit. Each run is classified on the
+true state:
 
 - ``starts_inside``: every joint's position and true velocity inside its set at t = 0 (the
   box); ``starts_viable``: the filter's ``cbf_viable`` flag at t = 0 (without one: the box),
@@ -17,14 +18,19 @@ run is classified on the true state:
   the declared disturbance: :func:`system_differences`), and what the filter reads — the
   noise if it reads the measured position, the initial observer error if it reads the
   observer's velocity — as declared (``outside`` names each one that is not);
-- ``feasible`` / ``infeasible_steps``: no step where the filter's hard part was infeasible
-  (None: no filter);
+- ``feasible`` / ``infeasible_steps``: no step where the filter found the state not viable
+  (``cbf_infeasible``: no torque verified, the backup acted) (None: no filter);
 - ``hard_kept`` / ``first_exit``: whether, and where first, a hard set was left, and the
   recovery: ``returned``, ``time_to_return_s``, ``back_within_1s``, ``excursions``;
-- ``covered``: a filtered run that starts inside and viable and is within bounds (a start
-  outside a set is one to recover from, reported, not kept); ``violations``: what
-  the guarantee promised a covered run that did not hold (a hard set left, an infeasible
-  step, ε(t) exceeded, |τ| above the limit); ``broken``: covered with a violation;
+- ``covered``: a filtered run that starts inside and is within bounds, and either starts
+  viable or, reading the observer's velocity, was not viable at t = 0 only because of the
+  velocity's declared initial error and became viable later with no hard set left before:
+  covered from then on (``covered_from_s``, :func:`covered_from`) (a start outside a set is
+  one to recover from, reported, not kept); ``violations``: what the guarantee promised a
+  covered run that did not hold (a hard set left, ε(t) exceeded, |τ| above the limit; from
+  the step it is covered from, a step not viable and a failed premise of the check — the
+  velocity's interval or the motion between samples; the tube is measured and reported,
+  not a violation: :func:`measured_premises`); ``broken``: covered with a violation;
 - ``torque``: where each joint's largest |τ| comes from (:func:`torque_peaks`): at
   start-up, before the filter first found the state viable, or later, and how much of it
   was the braking backup's.
@@ -81,7 +87,7 @@ MODEL_STATES = 20
 # only the last bits may differ.
 TORQUE_TOLERANCE = 1e-9
 RETURN_WITHIN = 1.0  # s: how soon a run that left a set should be back inside (issue 30)
-INFEASIBLE = "cbf_infeasible"  # the filter's flag: its hard QP was infeasible at this step
+INFEASIBLE = "cbf_infeasible"  # the filter's flag: no torque verified (not viable) this step
 ACTIVE = "cbf_active"  # the filter's flag: it changed the torque at this step
 OBSERVER_TAU_D = "tau_d_model"  # the observer's constant: the τ_d its model assumes, N·m
 
@@ -714,7 +720,8 @@ def measured_premises(trace: Signals, safe: SafeSet, start: int,
     guarantee: the check's held step takes q̈ ± 1.5 D at the step's start, and q̈'s drift
     over the step takes the true velocity past it by up to ~0.016 rad/s at start-up braking
     of ~10 kN·m (4 of 29 full-state runs of tests/test_robust_safety.py's Monte Carlo, 1 ms),
-    by 0.27 rad/s at 10 ms; docs/safety.md, "The premises, measured along every run"."""
+    by 0.27 rad/s at 10 ms; docs/safety/filter.md, "The premises, measured along every run",
+    and docs/safety/measurements.md, "The tube premise"."""
     out: dict[str, Any] = {"violations": []}
     out["interval_exceeded_steps"], text = interval_exceedances(trace, start)
     out["violations"] += [text] if text else []

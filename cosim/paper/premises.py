@@ -1,7 +1,12 @@
 """The premises of the filter's check, measured along a run on the true state (the
 classifier's, cosim/paper/guarantee.py): what the check takes as given and no declared bound
 makes true by itself, each compared at every step from the one the guarantee covers the run
-from. A covered run where one fails is a broken guarantee, whatever the sets did.
+from. A covered run where the velocity's interval or the motion between samples fails is a
+broken guarantee, whatever the sets did (cosim.paper.guarantee.measured_premises names it
+among the violations). The tube is measured and reported only (``tube_exceeded_steps``,
+``tube_slack``, ``tube_left``), not held against the guarantee: the check's held step takes
+q̈ ± 1.5 D at the step's start, and q̈'s drift over the step can take the true velocity past it
+(docs/safety/measurements.md, "The tube premise").
 
 - **The velocity's interval** (:func:`interval_exceedances`): the check rolls its backup out
   from every velocity in the interval the filter holds (the observer's certified one,
@@ -13,7 +18,7 @@ from. A covered run where one fails is a broken guarantee, whatever the sets did
   every step the box the plan in force at the step before puts the state in
   (``cbf_tube_*``); the true state may leave it by at most what the check leaves between
   its sets and the bounds (half of ``bound_margin``), or the rollout's proof of the sets
-  does not hold.
+  does not hold. Measured and reported, not a violation (above).
 - **Between samples** (:func:`between_samples`): the sets are judged at the samples; between
   two, under the torque held, q̈ lies within the check's bound [lo, hi] for that step
   (``cbf_acceleration_low``, ``_high``), so that x(t) lies below both parabolas of

@@ -18,18 +18,23 @@ too): the candidate torque held over one step, then the backup, in steps of
 ``backup_step``, until every joint is stopped (|v − q̇_s − w| ≤ ``STOPPED``) or
 ``backup_horizon`` has passed (unverified). Around the nominal rollout a tube of
 half-widths δq, δv holds the true state: δq(0) = n̄ (noise), δv(0) = the half-width of the
-velocity's interval (:func:`velocity_interval`, at most ε), and per step
+velocity's interval (:func:`velocity_interval`, at most ε), and per step, with D taken
+TUBE_SAFETY (1.5) times, an empirical factor for the first-order feedback model, and δq
+advanced with δv before δv's update,
 
-    δv_i ← max(δv_i (1 − k_b h) + D_i h, ε_i)   (joint i's torque free: the backup's
-                   feedback pulls its velocity towards its target, to within the estimate's
-                   error ε, as it acts on the estimate)
-    δv_i ← δv_i + D_i h               (its torque at the limit, or the held torque)
-    δq ← δq + δv h + ½ D h²
+    δq_i ← δq_i + δv_i h + ½ (1.5 D_i) h²
+    δv_i ← max(δv_i (1 − f_i) + 1.5 D_i h, ε_i)
 
-with D_i the bound on the true q̈_i's departure from the nominal model's: the bias error
-from the estimate's velocity error ε and the disturbance (|M̂⁻¹(Δb + d)|, the hard rows' bound,
-see :mod:`.model`, at the rollout's state), plus the payload's, the largest |q̈(Δm) − q̈(0)|
-over its range under the rollout's torque (:func:`_payload_deviation`). Every joint's
+where f_i = min(k_b h, 1) when joint i's torque is free (the backup's feedback pulls its
+velocity towards its target) and f_i = 0 when its torque is at the limit or held (the
+candidate's step); the floor ε_i holds in both cases, as the feedback acts on the
+estimate, whose error ε the true velocity keeps. D_i is the bound on the true q̈_i's
+departure from the nominal model's: the bias error from the estimate's velocity error ε,
+the friction and the disturbance (|M̂⁻¹(Δb + d)|, the hard rows' bound, see :mod:`.model`,
+at the rollout's state), plus the payload's (:func:`_payload_deviation`): with c the middle
+of the payload range, which the rollout's model carries, the largest |q̈(c + Δm) − q̈(c)|
+under the rollout's torque for Δm from low − c to high − c (where M̂ is the plant's, c = 0
+and Δm over the range itself). Every joint's
 |q − q_s| + δq and |v − q̇_s| + δv must stay within its bound at every rollout step: for a
 set already left, within the excess it started with, decaying at ``recovery_rate``
 (h < 0 must grow back at that rate).
