@@ -31,24 +31,33 @@ def module_name(path: Path) -> str:
     return ".".join(parts)
 
 
-def imports(path: Path) -> set[str]:
-    """The project modules ``path`` imports (relative imports resolved)."""
+def import_statements(path: Path) -> list[tuple[str | None, list[str]]]:
+    """Each import in ``path`` (at module level or inside a function) as (the module a
+    ``from`` import reads, None for ``import``; the dotted names it imports), relative
+    imports resolved: ``from .x import y`` in cosim/a.py is ("cosim.x", ["cosim.x.y"])."""
     package = module_name(path).split(".")
     if path.name != "__init__.py":
         package = package[:-1]
-    out = set()
+    out = []
     for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
         if isinstance(node, ast.Import):
-            names = [alias.name for alias in node.names]
+            out.append((None, [alias.name for alias in node.names]))
         elif isinstance(node, ast.ImportFrom):
             base = node.module or ""
             if node.level:
                 base = ".".join(package[:len(package) - node.level + 1] + ([base] if base else []))
-            names = [base] + [f"{base}.{alias.name}" for alias in node.names]
-        else:
-            continue
-        out.update(n for n in names if n.split(".")[0] in ("cosim", "plant_fmu"))
+            out.append((base, [f"{base}.{alias.name}" for alias in node.names]))
     return out
+
+
+def is_project(name: str) -> bool:
+    return name.split(".")[0] in ("cosim", "plant_fmu")
+
+
+def imports(path: Path) -> set[str]:
+    """The project modules ``path`` imports (relative imports resolved)."""
+    return {n for base, names in import_statements(path)
+            for n in ([base] if base is not None else []) + names if is_project(n)}
 
 
 def layer(module: str) -> int:

@@ -5,12 +5,12 @@ module level or inside a function."""
 
 from __future__ import annotations
 
-import ast
 import importlib
 import re
 from pathlib import Path
 
 import pytest
+from test_layers import import_statements, is_project
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER = ROOT / "cosim" / "paper"
@@ -30,22 +30,8 @@ def is_module(name: str) -> bool:
 def framework_imports(path: Path) -> list[str]:
     """The framework names ``path`` imports: ``module.name`` for ``from module import
     name``, ``module`` for ``import module`` (relative imports resolved)."""
-    parts = list(path.relative_to(ROOT).with_suffix("").parts)
-    package = parts[:-1]  # __init__.py's package is its folder too
-    out = []
-    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
-        if isinstance(node, ast.Import):
-            names = [alias.name for alias in node.names]
-        elif isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level:
-                base = ".".join(package[:len(package) - node.level + 1] + ([base] if base else []))
-            names = [f"{base}.{alias.name}" for alias in node.names]
-        else:
-            continue
-        out.extend(n for n in names if n.split(".")[0] in ("cosim", "plant_fmu")
-                   and not n.startswith("cosim.paper"))
-    return out
+    return [name for _, names in import_statements(path) for name in names
+            if is_project(name) and not name.startswith("cosim.paper")]
 
 
 def resolve(name: str) -> object:
