@@ -21,7 +21,7 @@ from .config.named_files import file_digests, named_files
 from .engine import Diverged, simulate
 from .evaluate import Evaluation
 from .evaluate.parts import LOOP_METRIC_UNITS
-from .outputs.figures import FIGURE_FILES, write_figures
+from .outputs.figures import figure_files, write_figures
 from .outputs.recording import Recorder, RunSpec, UrdfArm
 from .outputs.recording.layout import check_views, derived_entities
 from .outputs.run_folder import RunFolder, RunFolderError, jsonable
@@ -183,7 +183,7 @@ def _finish(folder: RunFolder, pipeline: Pipeline, results: dict, plant_info: di
     drawn = {n: r for n, r in results.items() if r.complete}  # a failed run has no figure
     if figures and drawn:
         try:
-            with phase(f"drawing the figures ({len(FIGURE_FILES)} PNG)", progress):
+            with phase(f"drawing the figures (up to {len(figure_files())} PNG)", progress):
                 write_figures(folder, {n: r.trace.time for n, r in drawn.items()},
                               {n: r.evaluation.checks for n, r in drawn.items()},
                               {n: r.trace["tau"] for n, r in drawn.items()},
@@ -191,7 +191,7 @@ def _finish(folder: RunFolder, pipeline: Pipeline, results: dict, plant_info: di
                               {n: (r.trace[r.torque_asked[0]], r.torque_asked[1])
                                for n, r in drawn.items() if r.torque_asked})
         except BaseException as exc:  # noqa: BLE001
-            for name in FIGURE_FILES:
+            for name in figure_files():
                 if name not in folder.files:
                     folder.incomplete(name, _describe(exc))
             failure = failure or exc

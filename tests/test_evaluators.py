@@ -136,3 +136,45 @@ def test_a_plant_output_the_fmu_does_not_map_is_absent_to_evaluation_and_the_gua
     assert ("true velocity unknown (the plant does not map qdot): the velocity set cannot be "
             "judged") in guarantee["outside"]
     assert guarantee["broken"] is False and "starts_inside_observer_set" not in guarantee
+
+
+def test_an_evaluators_series_figure_is_its_own_declaration(tmp_path):
+    """The framework names no evaluator's figure: the paper's barriers declare theirs
+    (fig5_barriers), and an evaluator of a plugin that names one gets its series drawn
+    there, its condition beside them, for the runs that have its series only; the run
+    folder counts the file as its own (what --force may replace)."""
+    from cosim.evaluate import Part, register_evaluator
+    from cosim.outputs.figures import figure_files, figure_jobs, write_figures
+
+    assert {"fig2_position_velocity.png", "fig3_errors.png", "fig4_torques.png",
+            "fig5_barriers.png"} <= set(figure_files())  # (loads the paper's evaluators)
+    assert EVALUATORS["barriers"].series_figure == "fig5_barriers"
+    assert "wear.png" not in figure_files()
+
+    @register_evaluator
+    class Wear(Part):
+        name = "wear_for_this_test"
+        meaning = "a plugin's series and its condition"
+        inputs = ("tau",)
+        series_meanings = {"wear": "accumulated wear (1)", "margin": "wear left (≥ 0, 1)"}
+        conditions = ("margin",)
+        series_figure = "wear"
+
+    try:
+        assert "wear.png" in figure_files()
+        time = {"a": np.linspace(0.0, 1.0, 11), "b": np.linspace(0.0, 1.0, 11)}
+        torques = {run: np.zeros((11, 2)) for run in time}
+        series = {"a": {"wear": np.linspace(0, 1, 11), "margin": np.linspace(1, -1, 11)},
+                  "b": {"H": np.ones(11)}}  # run b has no wear: not in its figure
+        jobs = {name: (kind, data) for name, kind, data in
+                figure_jobs(time, {}, torques, series)}
+        kind, (times, drawn, conditions) = jobs["wear.png"]
+        assert kind == "series" and list(drawn) == ["a"] and list(times) == ["a"]
+        assert set(drawn["a"]) == {"wear", "margin"} and conditions == ["margin"]
+        assert "fig5_barriers.png" not in jobs  # no run has the paper's barriers
+        written = write_figures(tmp_path, time, {}, torques, series)
+        assert set(written) == {"fig4_torques.png", "wear.png"}
+        assert (tmp_path / "wear.png").stat().st_size > 1000
+    finally:
+        del EVALUATORS["wear_for_this_test"]
+    assert "wear.png" not in figure_files()

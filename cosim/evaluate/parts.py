@@ -38,6 +38,10 @@ class Part:
     # stay ≥ 0 (drawn apart, their failing rows marked).
     series_meanings: ClassVar[Mapping[str, str]] = {}
     conditions: ClassVar[tuple[str, ...]] = ()
+    # The figure its series are drawn in, per run: a PNG of this name in the run folder ("",
+    # none), the series on the left and its conditions on the right (the paper's barriers:
+    # "fig5_barriers")
+    series_figure: ClassVar[str] = ""
     # The unit of each number its metrics give, by dotted name (a per-joint list's entries
     # share their list's; a name not listed takes its nearest listed parent's): what
     # summary.json's ``metric_units`` and `cosim compare` say. "1" for a fraction.

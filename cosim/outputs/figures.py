@@ -1,9 +1,10 @@
 """PNG figures for reports, in the manner of the paper's Figs. 2-4: the checks whose
 declarations name a figure (the paper's: position and velocity in Fig. 2, their errors in
 Fig. 3), every joint, every run on one set of axes, with the safe region shaded green and
-the unsafe region red, and a zoom on the worst moment below; each
-run's torques (Fig. 4), with the torque a filter was asked for beside what it applied; the
-barriers (Fig. 5).
+the unsafe region red, and a zoom on the worst moment below; each run's torques (Fig. 4),
+with the torque a filter was asked for beside what it applied; and the series of each
+evaluator that names a figure for them, beside their conditions (the paper's barriers,
+Fig. 5). The file names are the evaluators' declarations (:func:`figure_files`).
 """
 
 from __future__ import annotations
@@ -14,15 +15,28 @@ from pathlib import Path
 
 import numpy as np
 
-from .. import interface as io
-from ..evaluate import Check
+from ..evaluate import EVALUATORS, Check
 from . import painter
 from .recording.layout import JOINT_COLORS
 
 # Run colours: the paper draws the classical controller in orange, then ours.
 RUN_COLORS = ["tab:orange", "tab:blue", "tab:green", "tab:purple", "tab:brown", "tab:olive"]
-FIGURE_FILES = ("fig2_position_velocity.png", "fig3_errors.png", "fig4_torques.png",
-                "fig5_barriers.png")
+# Every run's torques, the framework's own figure (named as the paper's Fig. 4)
+TORQUE_FIGURE = "fig4_torques.png"
+
+
+def figure_files() -> tuple[str, ...]:
+    """Every figure a run folder may hold: the registered evaluators' (their checks'
+    declared figures and their series' figure) and the torques'."""
+    from ..blocks.plugins import load_entry_points
+    from ..evaluate import EVALUATORS
+
+    load_entry_points()  # the installed packages' evaluators (the paper's)
+    names = [f"{d.figure}.png" for part in EVALUATORS.values() for d in part.declarations
+             if d.figure]
+    names += [TORQUE_FIGURE]
+    names += [f"{part.series_figure}.png" for part in EVALUATORS.values() if part.series_figure]
+    return tuple(dict.fromkeys(names))
 
 
 def _shade(ax, lower: float, upper: float) -> None:
@@ -41,15 +55,16 @@ def _shade(ax, lower: float, upper: float) -> None:
 def write_figures(out, time: Mapping[str, np.ndarray],
                   checks: Mapping[str, Mapping[str, Check]],
                   torques: Mapping[str, np.ndarray],
-                  barriers: Mapping[str, Mapping[str, np.ndarray]] | None = None,
+                  series: Mapping[str, Mapping[str, np.ndarray]] | None = None,
                   asked: Mapping[str, tuple[np.ndarray, str]] | None = None) -> list[str]:
     """Write the figures into ``out``: a folder, or a :class:`~.run_folder.RunFolder`
     (which writes each to a temporary, verifies and renames it). ``time``, ``checks``,
-    ``torques`` and ``barriers`` (H1, H2, H, condition) are per run name; ``asked``, for the
+    ``torques`` and ``series`` (the evaluators' series by name: the paper's H1, H2, H and
+    condition) are per run name; ``asked``, for the
     runs whose torque a filter changed, the torque before it and the filter's kind. Returns
     the names written. With painters started (:func:`.painter.start_painters`) they draw the figures
     in parallel; otherwise, or for what a painter could not draw, this process does."""
-    jobs = figure_jobs(time, checks, torques, barriers, asked)
+    jobs = figure_jobs(time, checks, torques, series, asked)
     drawn = painter.paint(out, jobs, lambda into, name, drawn: save(into, name, None, drawn)) \
         if painter.started() else set()
     for name, kind, data in jobs:
@@ -60,7 +75,7 @@ def write_figures(out, time: Mapping[str, np.ndarray],
 
 def figure_jobs(time: Mapping[str, np.ndarray], checks: Mapping[str, Mapping[str, Check]],
                 torques: Mapping[str, np.ndarray],
-                barriers: Mapping[str, Mapping[str, np.ndarray]] | None = None,
+                series: Mapping[str, Mapping[str, np.ndarray]] | None = None,
                 asked: Mapping[str, tuple[np.ndarray, str]] | None = None
                 ) -> list[tuple[str, str, tuple]]:
     """(file name, kind, data) of each figure to draw (the arguments of
@@ -76,11 +91,17 @@ def figure_jobs(time: Mapping[str, np.ndarray], checks: Mapping[str, Mapping[str
             jobs.append((filename, "checks", (columns, {r: time[r] for r in runs},
                                               {r: {c: checks[r][c] for c in shown}
                                                for r in runs})))
-    jobs.append(("fig4_torques.png", "torques", (dict(time), dict(torques), dict(asked or {}))))
-    barriers = {run: h for run, h in (barriers or {}).items() if io.BARRIER_CONDITION in h}
-    if barriers:  # only the runs whose evaluators give barrier functions and their condition
-        jobs.append(("fig5_barriers.png", "series", ({r: time[r] for r in barriers},
-                                                     barriers)))
+    jobs.append((TORQUE_FIGURE, "torques", (dict(time), dict(torques), dict(asked or {}))))
+    for part in EVALUATORS.values():  # each evaluator's series, where it names a figure
+        shown = list(part.series_meanings)
+        if not part.series_figure or not shown:
+            continue
+        # only the runs this evaluator gave its series for
+        runs = {run: {name: h[name] for name in shown}
+                for run, h in (series or {}).items() if all(name in h for name in shown)}
+        if runs:
+            jobs.append((f"{part.series_figure}.png", "series",
+                         ({r: time[r] for r in runs}, runs, list(part.conditions))))
     return jobs
 
 
@@ -227,46 +248,51 @@ def save(out, name: str, fig, drawn: Path | None = None) -> None:
         out.write(name, produce)
 
 
-def _barrier_figure(plt, time, barriers):
-    """Fig. 5, per run: the evaluators' barrier functions (the paper's H1 (28), H2 (29) and
-    H), and their condition (Ḣ + αH, must stay ≥ 0), on symmetric-log axes (H1 is ~10⁴ where
-    H2 is ~10²)."""
-    runs = list(barriers)
+def _series_figure(plt, time, series, conditions):
+    """An evaluator's series per run (the paper's Fig. 5: its barrier functions H1 (28),
+    H2 (29) and H) on the left, and on the right its conditions (must stay ≥ 0: the paper's
+    Ḣ + αH), their failing rows shaded; symmetric-log axes (H1 is ~10⁴ where H2 is ~10²)."""
+    runs = list(series)
     fig, axes = plt.subplots(len(runs), 2, figsize=(12, 2.6 * len(runs)), sharex=True,
                              constrained_layout=True, squeeze=False)
     for (left, right), run in zip(axes, runs, strict=True):
-        h = barriers[run]
-        names = [name for name in h if name != io.BARRIER_CONDITION]
+        h = series[run]
+        names = [name for name in h if name not in conditions]
         for i, name in enumerate(names):
             left.plot(time[run], h[name], lw=0.8, label=name,
                       color=RUN_COLORS[(i + 1) % len(RUN_COLORS)])
         left.set_yscale("symlog", linthresh=10.0)
         left.axhline(0.0, color="darkred", lw=0.8, ls="--")
-        left.set_title(f"{run}: barrier functions (≥ 0 inside)")
-        left.set_ylabel(f"{', '.join(names)} (mixed units)")  # k0·ε², ‖Ŵ‖²/F, rᵀMr
+        left.set_title(f"{run}: {', '.join(names)}")
+        left.set_ylabel(", ".join(names))
         left.legend(loc="upper left", bbox_to_anchor=(1.0, 1.0), fontsize=8)
-        condition = h[io.BARRIER_CONDITION]
-        right.plot(time[run], condition, lw=0.6, color="tab:purple")
-        right.fill_between(time[run], np.minimum(condition, 0.0), 0.0, color="tab:red",
-                           alpha=0.3, lw=0)
+        failing = []
+        for i, name in enumerate(conditions):
+            condition = h[name]
+            right.plot(time[run], condition, lw=0.6, label=name,
+                       color=("tab:purple", "tab:brown", "tab:gray")[i % 3])
+            right.fill_between(time[run], np.minimum(condition, 0.0), 0.0, color="tab:red",
+                               alpha=0.3, lw=0)
+            finite = condition[np.isfinite(condition)]
+            failing.append(f"{name} (≥ 0 where it holds) fails in "
+                           f"{100 * np.mean(finite < 0):.1f} % of steps"
+                           if len(finite) else f"{name}: no rows")
         right.set_yscale("symlog", linthresh=10.0)
         right.axhline(0.0, color="darkred", lw=0.8, ls="--")
-        finite = condition[np.isfinite(condition)]
-        failing = f"{100 * np.mean(finite < 0):.1f} %" if len(finite) else "none (no rows)"
-        right.set_title(f"{run}: the barrier condition (≥ 0) fails in {failing} of steps")
-        right.set_ylabel("barrier condition (per second)")
+        right.set_title(f"{run}: " + "; ".join(failing))
+        right.set_ylabel(", ".join(conditions))
     for ax in axes[-1]:
         ax.set_xlabel("time (s)")
     return fig
 
 
-DRAW = {"checks": _checks_figure, "torques": _torque_figure, "series": _barrier_figure}
+DRAW = {"checks": _checks_figure, "torques": _torque_figure, "series": _series_figure}
 
 
 def start_painters(cores: int | None = None) -> None:
     """Start the painter that draws the next :func:`write_figures` of this process in
     parallel (:mod:`.painter`)."""
-    painter.start_painters(len(FIGURE_FILES), cores)
+    painter.start_painters(len(figure_files()), cores)
 
 
 def paint_in_this_process(raw: bytes | None = None, forks: int = 0) -> int:

@@ -293,7 +293,7 @@ def _our_entries(summary: dict) -> set[str]:
     lists as written, cosim's fixed names, each run's trace and export (of the runs the
     summary names), and the temporaries of all of these. Nothing matched by a pattern: a
     user's ``fig_final.png`` or ``export_my_data.csv`` is not ours."""
-    from .figures import FIGURE_FILES
+    from .figures import figure_files
 
     runs = summary.get("runs")
     names = list(runs) if isinstance(runs, dict | list) else []
@@ -301,7 +301,7 @@ def _our_entries(summary: dict) -> set[str]:
     if isinstance(pipeline, dict) and isinstance(pipeline.get("runs"), dict):
         names += list(pipeline["runs"])
     files = summary.get("files")
-    ours = {*(files if isinstance(files, dict) else ()), *OUR_NAMES, *FIGURE_FILES}
+    ours = {*(files if isinstance(files, dict) else ()), *OUR_NAMES, *figure_files()}
     for run in map(str, names):
         ours.add(f"trace_{run}.npz")
         ours.update(f"export_{run}{suffix}" for suffix in EXPORT_FORMATS.values())

@@ -121,6 +121,7 @@ class Barriers(Part):
     constants = ("nn_gains", "observer_gain")
     series_meanings = {**BARRIER_MEANINGS}
     conditions = ("condition",)
+    series_figure = "fig5_barriers"  # the paper's Fig. 5
     # the paper's barriers mix units (theorem.BARRIER_MEANINGS); the shares are fractions
     metric_units = {"min_barrier_H": "mixed", "min_barrier_H1": "mixed",
                     "min_barrier_H2": "mixed", "barrier_condition": "1",
