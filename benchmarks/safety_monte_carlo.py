@@ -620,6 +620,37 @@ def kind_lines(rows: list[dict]) -> list[str]:
     return lines
 
 
+def coverage_lines(ok: list[dict], rows: list[dict], limit: str) -> list[str]:
+    """An output-feedback filtered run (covered from its first viable step, not from t = 0
+    alone): how many are covered, from when; and, where baseline_cbf ran on the same
+    samples at this limit, the starts truly inside (its filter, which reads the true
+    state, finds the start viable at t = 0) and how many of those are covered."""
+    later = [r for r in ok if r.get("guarantee.covered") is True
+             and r.get("guarantee.starts_viable") is False]
+    if not later:
+        return []
+    covered = [r for r in ok if r.get("guarantee.covered") is True]
+    start = np.array([r["guarantee.covered_from_s"] for r in covered
+                      if isinstance(r.get("guarantee.covered_from_s"), float)]) * 1e3
+    lines = [f"  covered (from a later step)     {share(len(covered), len(ok))}, "
+             f"{len(later)} of them not viable at t = 0; covered from median "
+             f"{np.median(start):.1f} ms, max {np.max(start):.1f} ms"]
+    full = {r["point"]: r for r in rows if r["run"] == "baseline_cbf" and r["status"] == "ok"
+            and (r.get("sample.torque_limit") or "none") == limit}
+    inside = [r for r in ok if full.get(r["point"], {}).get("guarantee.starts_viable") is True]
+    if full and inside:
+        mine = [r for r in inside if r.get("guarantee.covered") is True]
+        start = np.array([r["guarantee.covered_from_s"] for r in mine
+                          if isinstance(r.get("guarantee.covered_from_s"), float)]) * 1e3
+        since = f"; covered from median {np.median(start):.1f} ms" if len(start) else ""
+        lines.append(f"  covered, truly inside starts    {share(len(mine), len(inside))} "
+                     "(truly inside: baseline_cbf's check, on the true state, viable at "
+                     f"t = 0){since}")
+        kept = sum(bool(r.get("hard_sets_kept")) for r in inside)
+        lines.append(f"  hard sets kept, truly inside    {share(kept, len(inside))}")
+    return lines
+
+
 def counterpart(run: str) -> str:
     """The unfiltered run a filtered one is compared with: proposed_cbf -> proposed."""
     return run.removesuffix("_cbf")
@@ -708,6 +739,7 @@ def report(rows: list[dict], a_min: float | None, meta: dict | None = None) -> s
                     if other != run else [])
         if is_filtered(ok):
             lines += guarantee_lines(ok, a_min)
+            lines += coverage_lines(ok, rows, limit)
             lines += kind_lines(ok)
         else:
             inside = [r for r in ok if r.get("guarantee.starts_inside") is True]

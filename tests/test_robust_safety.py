@@ -533,6 +533,29 @@ def test_the_backup_brakes_within_braking_torque_where_that_is_verified():
         assert np.all(np.abs(trace["qdot"]) <= 13.5) and np.all(trace["cbf_viable"] == 1.0)
 
 
+def test_start_up_brakes_within_startup_torque_until_the_first_viable_step():
+    """The start-up policy: from the same start (nothing verified at first, the backup
+    brakes with the whole 2000 N·m limit by default), cbf_filter.startup_torque = 1000
+    bounds every joint's torque by 1000 N·m until the first viable step; from then on the
+    limits are the filter's again. The start becomes viable all the same, and the hard
+    sets hold (true state)."""
+    sets = ["cbf_filter.torque_limit=2000", 'plant.parameters."q0[1]"=-0.221',
+            'plant.parameters."q0[2]"=0.240', 'plant.parameters."qdot0[1]"=9.673',
+            'plant.parameters."qdot0[2]"=8.705', 'plant.parameters."m[2]"=2.655',
+            "sensor.seed=831061", "cbf_filter.braking_torque=1000"]
+    default = simulated(sets, "proposed_cbf", duration=0.3)[2]
+    policy = simulated([*sets, "cbf_filter.startup_torque=1000"], "proposed_cbf",
+                       duration=0.3)[2]
+    for trace in (default, policy):
+        assert np.all(np.abs(trace["qdot"]) <= 13.5) and np.all(np.abs(trace["q"]) <= 20.0)
+    first = {name: int(np.argmax(trace["cbf_viable"] > 0))
+             for name, trace in (("default", default), ("policy", policy))}
+    assert 0 < first["default"] <= 10 and 0 < first["policy"] <= 30, first
+    assert np.max(np.abs(default["tau"][:first["default"]])) == 2000.0
+    assert np.max(np.abs(policy["tau"][:first["policy"]])) == 1000.0
+    assert np.all(policy["cbf_viable"][first["policy"]:] == 1.0)
+
+
 def test_the_rows_left_out_could_not_bind_within_the_torque_limits():
     """A hard row is left out of the QP only where no torque within the limits could
     violate it: at every step of a run near the velocity bound at 1000 N·m, each row of the

@@ -37,6 +37,7 @@ from .scratch import (
     SET_UNITS,
     SETS,
     TAU,
+    VIABLE_ONCE,
     CbfArgs,
     cbf_work,
 )
@@ -96,6 +97,13 @@ class CbfFilterParams(Section):
     # backup, not the torque verified (a torque the QP asks above it is applied where
     # verified)
     braking_torque: PositiveFloat | list[PositiveFloat] | None = None
+    # the start-up policy: the most the backup brakes with before the filter's first
+    # viable step (an output-feedback start whose velocity interval is still too wide for
+    # any torque to be verified), per joint or one for all, N·m (unset: the torque limits;
+    # a joint without a limit ignores it). Such a run is not covered before that step
+    # whatever this is (guarantee.covered_from_s); it trades start-up torque against how
+    # far an unverified start may drift
+    startup_torque: PositiveFloat | list[PositiveFloat] | None = None
     # weight ρ_s of a soft row's squared violation against τ's: high, so that tracking gives
     # way only where it conflicts with a hard row (ρ_hard is 1e4 times more), dimensionless
     tracking_weight: PositiveFloat = 1e6
@@ -301,7 +309,9 @@ def choose(k, a, tau):
     # covered its tube, so the state need not be shown inside anew: the interval the
     # filter holds may be wider than the tube the plan was verified with, as it is what
     # the filter knows, not where the plan keeps the state.)
-    backup_at(k, a, int(flags[PLAN]), plan if planned else a.torque_limit, tau)
+    # Before the first viable step (start-up), within the declared startup_torque.
+    unplanned = a.torque_limit if flags[VIABLE_ONCE] > 0.0 else a.startup_torque
+    backup_at(k, a, int(flags[PLAN]), plan if planned else unplanned, tau)
     return planned, 1.0
 
 
@@ -336,6 +346,8 @@ def record_inline(k, a, count, tau):
             r[R_BOX_Q, i] = r[R_BOX_Q_HALF, i] = r[R_BOX_V, i] = r[R_BOX_V_HALF, i] = np.nan
     chosen = a.tau[k]
     a.viable[k] = 1.0 if viable else 0.0
+    if viable:
+        a.work.flags[VIABLE_ONCE] = 1.0
     a.infeasible[k] = 0.0 if viable else 1.0
     a.backup_share[k] = share
     # the hard rows of the groups, every payload corner's (those among the QP's rows too)
@@ -439,7 +451,7 @@ class CbfFilter(Block):
     kind = "cbf_filter"
     Params = CbfFilterParams
     PUBLISHES = {FILTER_ASSUMES: FilterAssumptions}
-    per_joint = ("tau_d", "torque_limit", "braking_torque")
+    per_joint = ("tau_d", "torque_limit", "braking_torque", "startup_torque")
     views = (("h", "CBF barrier values β − |x| (≥ 0 inside)"),
              ("correction", "‖τ − τ_nom‖ (N·m)"))
 
@@ -579,9 +591,7 @@ class CbfFilter(Block):
             envelope_centre = inp[self.velocity]
         payload_low, payload_high = map(float, uncertainty.payload)
         limit = self.publishes[FILTER_ASSUMES].torque_limit
-        # only a finite limit leaves a reserve: without one the backup brakes as before
-        braking = limit if p.braking_torque is None else np.where(np.isfinite(limit), np.minimum(
-            limit, np.broadcast_to(np.asarray(p.braking_torque, float), (n,))), limit)
+        braking = within_limits(limit, p.braking_torque)
         return kernel_args(
             CbfArgs,
             **{name: np.array([float(s in getattr(p, name)) for s in SETS])
@@ -593,6 +603,7 @@ class CbfFilter(Block):
             k_velocity=p.velocity_rate, dt=self.context.dt,
             torque_limit=limit, braking_torque=braking,
             braking_reserve=bool(np.any(braking < limit)),
+            startup_torque=within_limits(limit, p.startup_torque),
             torque_limited=bool(np.any(np.isfinite(limit))),
             rho_soft=p.tracking_weight, rho_hard=p.hard_weight,
             hard_tolerance=p.hard_tolerance, verify=p.backup == "verified",
@@ -657,6 +668,16 @@ class CbfFilter(Block):
             if alone is not None:
                 within_authority(a, tau, alone)
         return cbf_record(k, a, count, tau)
+
+
+def within_limits(limit: np.ndarray, value: float | list[float] | None) -> np.ndarray:
+    """Per joint, ``value`` (one for all, or per joint; None: the limit) but at most the
+    joint's torque limit; a joint without a finite limit keeps it (a torque bounded below
+    no limit leaves no reserve), N·m."""
+    if value is None:
+        return limit
+    wanted = np.broadcast_to(np.asarray(value, float), limit.shape)
+    return np.where(np.isfinite(limit), np.minimum(limit, wanted), limit)
 
 
 def _per_set(trace, pattern: str, shape: tuple[int, ...]) -> np.ndarray:

@@ -63,7 +63,9 @@ PLAN_RESERVE, GROUPS = 2, 3
 # PLAN_TUBE, the one that holds the rollout of the last torque verified, PLAN_STEP, the step
 # it was verified at (TUBE_TRIAL, not TRIAL: that is the solver's row of CbfWork.solver)
 TUBE_TRIAL, PLAN_TUBE, PLAN_STEP = 4, 5, 6
-FLAGS = 7
+# … and VIABLE_ONCE, 1 from the run's first viable step on (before it: start-up)
+VIABLE_ONCE = 7
+FLAGS = 8
 # Of CbfWork.tube[buffer, segment] (n each): a rollout's segment, kept so that the plan it
 # verified can say where it puts the true state later (the tube measured along the run):
 # the nominal state at its start (q, q̇), the tube's half-widths there (δq, δv), its nominal
@@ -202,6 +204,9 @@ class CbfArgs(NamedTuple):
     # most the torque limits); braking_reserve: whether it is below them somewhere
     braking_torque: np.ndarray
     braking_reserve: bool
+    # (n,) the most the backup brakes with before the run's first viable step
+    # (startup_torque, at most the torque limits)
+    startup_torque: np.ndarray
     torque_limited: bool  # whether some joint's torque limit is finite
     backup_rate: float  # k_b, 1/s
     recovery_speed: float  # rad/s
