@@ -183,7 +183,7 @@ def _finish(folder: RunFolder, pipeline: Pipeline, results: dict, plant_info: di
     drawn = {n: r for n, r in results.items() if r.complete}  # a failed run has no figure
     if figures and drawn:
         try:
-            with phase(f"drawing the figures (up to {len(figure_files())} PNG)", progress):
+            with phase(f"drawing the figures ({len(figure_files())} PNG)", progress):
                 write_figures(folder, {n: r.trace.time for n, r in drawn.items()},
                               {n: r.evaluation.checks for n, r in drawn.items()},
                               {n: r.trace["tau"] for n, r in drawn.items()},
