@@ -70,7 +70,9 @@ def started(ssd, folder: Path) -> tuple[dict, dict]:
         path = str(folder / component.source)
         md = read_model_description(path)
         cls = FMU2Slave if md.fmiVersion.startswith("2") else FMU3Slave
-        fmu = cls(guid=md.guid, unzipDirectory=extract(path), instanceName=component.name,
+        # unpacked into ``folder`` (FMPy's default, a temporary folder, is never removed)
+        unpacked = extract(path, unzipdir=folder / f"{component.name}.unpacked")
+        fmu = cls(guid=md.guid, unzipDirectory=unpacked, instanceName=component.name,
                   modelIdentifier=md.coSimulation.modelIdentifier)
         fmu.instantiate()
         refs = {v.name: v.valueReference for v in md.modelVariables}

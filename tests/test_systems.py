@@ -83,7 +83,7 @@ def run_file(path: Path, sets: list[str] = ()):
 
 # The drives model ----------------------------------------------------------------------------
 
-def test_the_drives_follow_their_closed_form(fmu_cache):
+def test_the_drives_follow_their_closed_form(fmu_cache, tmp_path):
     """Stepped by FMPy alone: the current's lag is exp(-t/T) towards the clipped command,
     the joint torque N kt i, the reflected inertia J N²; an ideal drive passes the command
     through within the instant."""
@@ -91,7 +91,7 @@ def test_the_drives_follow_their_closed_form(fmu_cache):
         path = build_fmu(links=2, fmi_version=version, model="drives", cache_dir=fmu_cache)
         md = read_model_description(str(path))
         vr = {v.name: v.valueReference for v in md.modelVariables}
-        fmu = cls(guid=md.guid, unzipDirectory=extract(str(path)),
+        fmu = cls(guid=md.guid, unzipDirectory=extract(str(path), tmp_path / f"fmi{version}"),
                   modelIdentifier=md.coSimulation.modelIdentifier, instanceName="d")
         fmu.instantiate()
         setter = fmu.setReal if version == 2 else fmu.setFloat64
