@@ -29,7 +29,6 @@ def figure_files() -> tuple[str, ...]:
     """Every figure a run folder may hold: the registered evaluators' (their checks'
     declared figures and their series' figure) and the torques'."""
     from ..blocks.plugins import load_entry_points
-    from ..evaluate import EVALUATORS
 
     load_entry_points()  # the installed packages' evaluators (the paper's)
     names = [f"{d.figure}.png" for part in EVALUATORS.values() for d in part.declarations

@@ -77,6 +77,7 @@ class ObserverError(Part):
     def __init__(self, trace: Signals, safe: SafeSet, constants: Mapping[str, Any],
                  available: frozenset[str] = frozenset()):
         super().__init__(trace, safe, constants, available)
+        self.bound = barrier_bounds(safe).observer_error_bound  # ε_max, rad/s
         self.true_velocity = "qdot" in available
         if not self.true_velocity:
             self.note = "its check unavailable: the plant does not map qdot"
@@ -89,7 +90,7 @@ class ObserverError(Part):
             return {}
         return {OBSERVER_ERROR.name(None): OBSERVER_ERROR.norm(
             np.linalg.norm(rows["qdot"] - rows["qdot_hat"], axis=1),
-            barrier_bounds(self.safe).observer_error_bound)}
+            self.bound)}
 
     def metrics(self, trace: Signals, series: Mapping[str, np.ndarray]) -> dict:
         after_1s = trace.time >= 1.0
