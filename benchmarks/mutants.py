@@ -117,6 +117,9 @@ MUTANTS = [
     ("cbf-tube-start-estimate", "cosim/paper/cbf_filter/backup.py",
      "q[i], vel[i], dq[i], dv[i] = y[i], v[i], a.noise_bound, eps[i]",
      "q[i], vel[i], dq[i], dv[i] = y[i], v[i], a.noise_bound, 0.0", VIABILITY),
+    # the disturbance d̄ left out of D and of the rows' bias error
+    ("cbf-disturbance-dropped", "cosim/paper/cbf_filter/model.py",
+     "    quadratic[:] = disturbance\n", "    quadratic[:] = 0.0\n", ["tests/test_viability.py"]),
     ("cbf-payload-deviation-dropped", "cosim/paper/cbf_filter/backup.py",
      "    _payload_deviation(a, q_dot, acceleration, deviation)\n", "", VIABILITY),
     # the payload's departure at the range's ends only (the grid's first and last point)

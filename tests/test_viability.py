@@ -61,25 +61,28 @@ def carried(a) -> float:
 
 
 def brake_apart(a, q, v, seconds: float = 1.0, payload: float = 0.0,
-                estimate_error: np.ndarray | None = None) -> tuple[float, float]:
+                estimate_error: np.ndarray | None = None,
+                disturbance: np.ndarray | None = None) -> tuple[float, float]:
     """The true arm (carrying ``payload`` kg at its tip) braked by the backup's policy
     recomputed apart on the nominal arm carrying what the filter's rollout model carries
     (the middle of the declared payload range), from the velocity it is given (the true one
     plus ``estimate_error``, held the whole ``seconds``): the q̈ nearest k_b (w − v) that
     |M q̈ + b + τ_d| ≤ LIMIT allows (DAQP), w its inward pull within HOLD of a bound, its
-    torque held 1 ms, RK4 at 0.1 ms, until stopped (without an estimate error). Returns
+    torque held 1 ms, RK4 at 0.1 ms, until stopped (without an estimate error). The true
+    arm feels ``disturbance`` (N·m per joint, constant) beside the τ_d the model has. Returns
     (the largest |q_i| and |q̇_i| over the braking, rad and rad/s)."""
     import qpsolvers
 
     q, v = np.array(q, float), np.array(v, float)
     offset = np.zeros(2) if estimate_error is None else estimate_error
+    pushed = np.zeros(2) if disturbance is None else disturbance
     worst_q, worst_v = np.abs(q).max(), np.abs(v).max()
     plant = {**ARM, "m2": ARM["m2"] + payload}
     model = {**ARM, "m2": ARM["m2"] + carried(a)}
 
     def acceleration(q, v, tau):
         mass, bias = two_link_closed_form(q, v, **plant)
-        return np.linalg.solve(mass, tau - bias - TAU_D)
+        return np.linalg.solve(mass, tau - bias - TAU_D - pushed)
 
     bound = a.viable_bounds[0, 0]
     for _ in range(int(seconds / 1e-3)):
@@ -221,6 +224,35 @@ def test_the_payloads_departure_is_bounded_over_its_whole_range_not_at_its_ends(
         tau = rng.uniform(-LIMIT, LIMIT, 2)
         bound, true = payload_deviation_bound(a, q, v, tau), departure(q, v, tau)
         assert np.all(true <= bound + 1e-9), (q, v, tau, true, bound)
+
+
+def test_under_a_declared_disturbance_the_verified_start_stops_at_every_sign_corner():
+    """near_boundary_disturbance.toml declares 50 N·m on each joint (k_b = 200 1/s). From
+    the fastest start the check verifies (joint 1 0.3 rad inside, the arm nearly stretched,
+    where |M̂⁻¹| d̄ is largest), the true arm pushed by a constant ±50 N·m on each joint
+    (every sign corner) with either end of the payload range stops inside the bound. The
+    check without the disturbance's margin verifies a start 4 times faster, from which the
+    arm pushed at the worst corner passes the bound. Measured: 19.854 rad at the worst
+    corner from 1.28 rad/s; 20.081 rad from 5.30 rad/s."""
+    pytest.importorskip("qpsolvers")
+    a = args_of("pipelines/near_boundary_disturbance.toml")
+    assert a.disturbance == 50.0
+    distance, joint2 = STARTS[0]
+    q = [a.viable_bounds[0, 0] - distance, joint2[0]]
+    bound_q, bound_v = 20.0, 13.5  # the hard sets themselves (rad, rad/s)
+    corners = [np.array(signs) * a.disturbance for signs in ((1, 1), (1, -1), (-1, 1),
+                                                             (-1, -1))]
+    boundary = uncertain_boundary(a, distance, joint2, 0.0)
+    for payload in (0.0, 1.0):
+        for pushed in corners:
+            worst_q, worst_v = brake_apart(a, q, [boundary, joint2[1]], seconds=0.3,
+                                           payload=payload, disturbance=pushed)
+            assert worst_q <= bound_q and worst_v <= bound_v, (payload, pushed, worst_q)
+    careless = uncertain_boundary(a._replace(disturbance=0.0), distance, joint2, 0.0)
+    assert careless > 2.0 * boundary
+    worst_q, _ = brake_apart(a, q, [careless, joint2[1]], seconds=0.3, payload=1.0,
+                             disturbance=corners[2])
+    assert worst_q > bound_q
 
 
 def test_a_velocity_estimate_wrong_by_epsilon_throughout_with_the_payload_still_stops():
