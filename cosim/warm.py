@@ -184,8 +184,8 @@ def _short(path: Path):
 
 def _kernel_jobs(pipelines: list[Path]) -> tuple[dict[str, list], list, list[Path]]:
     """Per kernel module, the (kernel name, signature) its blocks step with; one (pipeline,
-    run) per distinct chain of kernels and FMI version (a fused loop each); and the plant
-    FMU files (built here, into their cache)."""
+    run) per distinct chain of kernels, their signatures and the FMI version (a fused loop
+    each); and the plant FMU files (built here, into their cache)."""
     from numba import typeof, types
 
     from .assemble import assemble, plant_files
@@ -211,7 +211,9 @@ def _kernel_jobs(pipelines: list[Path]) -> tuple[dict[str, list], list, list[Pat
                     jobs = modules.setdefault(function.__module__, [])
                     if (function.__name__, signature) not in jobs:
                         jobs.append((function.__name__, signature))
-                    kernels.append(f"{function.__module__}.{function.__name__}")
+                    kernels.append((f"{function.__module__}.{function.__name__}", signature))
+                # A fused loop per chain of kernels *and their argument types*: the same
+                # kernels on another arm's model (planar, spatial) are another loop.
                 chain = (tuple(kernels), getattr(scenario.plant, "fmi_version", None))
                 loops.setdefault(chain, (str(path), name))
         finally:

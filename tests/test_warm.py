@@ -45,6 +45,19 @@ def test_after_the_warm_up_a_first_run_compiles_nothing(tmp_path):
     assert "compiling" not in done.stderr, done.stderr  # neither the notice nor a module
 
 
+def test_the_same_kernels_on_another_arm_are_another_fused_loop():
+    """paper_safety.toml's and ur5.toml's proposed_cbf step the same kernels, on a planar and
+    a spatial model: two fused loops to warm (the warm-up once kept the first alone, and the
+    UR5's first filtered run compiled its loop after a warm-up that said it would not)."""
+    from cosim.warm import _kernel_jobs
+
+    modules, loops, _ = _kernel_jobs([ROOT / "pipelines/paper_safety.toml",
+                                      ROOT / "pipelines/ur5.toml"])
+    runs = {(Path(path).name, name) for path, name in loops}
+    assert {("paper_safety.toml", "proposed_cbf"), ("ur5.toml", "proposed_cbf")} <= runs, runs
+    assert len(modules["cosim.paper.cbf_filter.block"]) == 2  # cbf_step, planar and spatial
+
+
 def test_a_missing_pipeline_is_one_message(tmp_path):
     done = cosim(["warm-up", str(tmp_path / "nope.toml")], dict(os.environ))
     assert done.returncode == 2
