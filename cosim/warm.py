@@ -5,9 +5,10 @@ the first run on a new machine starts at once instead of compiling for half a mi
 
 Work is spread over the cores: first the blocks' kernels, module by module, in worker
 processes (a module's kernels compile independently of another's), then each distinct
-fused loop (one per chain of kernels and FMI version), which links kernels loaded from the
-cache. A warm-up that finds a stamp for these sources and pipelines, and every file it
-lists, says so and returns in a fraction of a second, without importing numba.
+fused loop (one per chain of kernels, their argument types and FMI version), which links
+kernels loaded from the cache. A warm-up that finds a stamp for these sources and
+pipelines, and every file it lists, says so and returns in a fraction of a second, without
+importing numba.
 
     cosim warm-up [PIPELINE ...] [--workers K]
     python -m cosim.warm [PIPELINE ...]
