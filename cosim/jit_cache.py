@@ -238,7 +238,9 @@ def _locator_class():
         def __init__(self, py_func, py_file: str):
             import numba
 
-            self._lineno = py_func.__code__.co_firstlineno
+            # numba reads both where a function cannot be cached (a large global array):
+            # its warning names the file and line
+            self._py_file, self._lineno = py_file, py_func.__code__.co_firstlineno
             module = py_func.__module__
             self._digest = module_digest(module, Path(py_file))
             base = numba.config.CACHE_DIR or str(default_base())

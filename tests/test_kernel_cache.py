@@ -150,3 +150,22 @@ def test_a_fused_loop_is_versioned_by_the_kernels_it_calls(tmp_path, monkeypatch
                         lambda name: copy if name == "cosim.dynamics.planar" else real(name))
     assert jit_cache.module_digest("cosim_fused_probe", loop) != digest
     assert jit_cache.module_digest("cosim.paper.sensor") == sensor
+
+
+def test_a_kernel_that_cannot_be_cached_is_numbas_warning_naming_its_file(tmp_path):
+    """A function of ours numba cannot cache (it reads a large global array: a dynamic
+    global) runs, with numba's warning naming its file and line; the cache's locator once
+    lacked the file numba reads there, and the run ended in an AttributeError."""
+    (tmp_path / "big_global.py").write_text(
+        "import numpy as np\nfrom numba import njit\n\nBIG = np.arange(3_000_000.0)\n\n\n"
+        "@njit(cache=True)\ndef second():\n    return BIG[1]\n")
+    script = ("import sys\nfrom cosim import jit_cache\njit_cache.use_versioned_cache()\n"
+              f"sys.path.insert(0, {str(tmp_path)!r})\nimport big_global\n"
+              "print(big_global.second())\n")
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True,
+                          env={**os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")},
+                          timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.strip() == "1.0"
+    assert f"{tmp_path / 'big_global.py'}:7" in done.stderr, done.stderr  # its decorator
+    assert 'Cannot cache compiled function "second"' in done.stderr, done.stderr
