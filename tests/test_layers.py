@@ -5,6 +5,8 @@ each other round a cycle. A new module is placed in :data:`LAYERS`."""
 from __future__ import annotations
 
 import ast
+import subprocess
+import sys
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -112,3 +114,23 @@ def test_the_import_graph_has_no_cycle():
         if node not in state:
             visit(node, [node])
     assert cycles == []
+
+
+# Libraries that take a second or more to import and that a command needs only for part of
+# its work: a figure, a sweep, a recording, a trajectory of waypoints. Each `cosim run` and
+# every bad input pays for what its start loads (the run process loads the pipeline before
+# anything else); SciPy's interpolate alone was ~1 s of a refused --set's 2.5 s.
+LOADED_ON_DEMAND = ("scipy.interpolate", "matplotlib", "dask", "distributed", "rerun",
+                    "pinocchio", "pyarrow")
+
+
+def test_loading_a_pipeline_loads_no_library_it_may_not_use():
+    probe = ("import sys\n"
+             "from cosim.config.load import load_pipeline\n"
+             "import cosim.cli.run, cosim.runner\n"
+             "load_pipeline('pipelines/paper_two_link.toml')\n"
+             f"print(','.join(m for m in {LOADED_ON_DEMAND!r} if m in sys.modules))\n")
+    done = subprocess.run([sys.executable, "-c", probe], cwd=ROOT, capture_output=True,
+                          text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == ""

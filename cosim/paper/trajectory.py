@@ -24,9 +24,13 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.interpolate import BPoly, CubicSpline, PPoly
+
+if TYPE_CHECKING:  # SciPy's interpolate takes ~1 s to import: only a run that has a
+    # trajectory of waypoints or samples loads it, not every command that starts
+    from scipy.interpolate import BPoly, PPoly
 
 
 @dataclass(frozen=True, eq=False)
@@ -65,6 +69,8 @@ class Trajectory:
         """Joint j's position (order 0) or one of its derivatives as a scalar piecewise
         polynomial in the power basis, whose ``roots`` SciPy finds exactly per segment;
         ``until``: only the segments that start before that time (s)."""
+        from scipy.interpolate import BPoly, PPoly
+
         segments = len(self.curve.x) - 1 if until is None else \
             max(1, int(np.searchsorted(self.curve.x, until, side="left")))
         scalar = BPoly(self.curve.c[:, :segments, j], self.curve.x[:segments + 1])
@@ -113,6 +119,8 @@ def quintic_through(times: np.ndarray, q: np.ndarray, qdot: np.ndarray, qddot: n
     The Bernstein coefficients of the quintic on [t0, t1] (h = t1 − t0) with q, q̇, q̈
     given at both ends: a degree-5 Bernstein polynomial's derivative at t0 is 5(c1 − c0)/h
     and its second 20(c2 − 2c1 + c0)/h², and symmetrically at t1."""
+    from scipy.interpolate import BPoly
+
     h = np.diff(times)[:, None]
     with np.errstate(all="ignore"):  # an overflow is found and named below
         c = np.stack([q[:-1], q[:-1] + h * qdot[:-1] / 5,
@@ -139,6 +147,8 @@ def through_samples(times: np.ndarray, q: np.ndarray, qdot: np.ndarray | None,
     lack taken from a cubic spline (SciPy's ``CubicSpline``, not-a-knot ends) through what
     they have: q̇ and q̈ from the spline through q when only q is given; q̈ from the spline
     through q̇ when q and q̇ are. Given derivatives are matched exactly at the samples."""
+    from scipy.interpolate import CubicSpline
+
     given = np.abs(np.concatenate([a for a in (q, qdot, qddot) if a is not None], axis=1))
     too_large = _first_too_large(times, np.maximum(given[:-1], given[1:]).max(axis=1))
     if too_large is not None:  # SciPy's spline would fail on it, naming nothing
