@@ -28,13 +28,18 @@ advanced with δv before δv's update,
 where f_i = min(k_b h, 1) when joint i's torque is free (the backup's feedback pulls its
 velocity towards its target) and f_i = 0 when its torque is at the limit or held (the
 candidate's step); the floor ε_i holds in both cases, as the feedback acts on the
-estimate, whose error ε the true velocity keeps. D_i is the bound on the true q̈_i's
-departure from the nominal model's: the bias error from the estimate's velocity error ε,
-the friction and the disturbance (|M̂⁻¹(Δb + d)|, the hard rows' bound, see :mod:`.model`,
-at the rollout's state), plus the payload's (:func:`_payload_deviation`): with c the middle
-of the payload range, which the rollout's model carries, the largest |q̈(c + Δm) − q̈(c)|
-under the rollout's torque for Δm from low − c to high − c (where M̂ is the plant's, c = 0
-and Δm over the range itself). Every joint's
+estimate, whose error ε the true velocity keeps. Over the held step (the candidate's torque,
+the whole step h = dt) q̈ drifts as the state moves: its 1.5 D_i is widened to
+max(1.5 D_i, |q̈_i(end) − q̈_i| + 1.5 D_i(end)) (:func:`_held_drift`), the hull of q̈ ± 1.5 D
+at the step's start and its predicted end, as the velocity's interval is predicted
+(:func:`predict_interval`); so is every backup step where the rollout's step is the control
+step (``backup_step`` ≥ dt), the backup held over it as the candidate is. D_i is the bound
+on the true q̈_i's departure from the nominal model's: the bias error from the estimate's
+velocity error ε, the friction and the disturbance (|M̂⁻¹(Δb + d)|, the hard rows' bound,
+see :mod:`.model`, at the rollout's state), plus the payload's (:func:`_payload_deviation`):
+with c the middle of the payload range, which the rollout's model carries, the largest
+|q̈(c + Δm) − q̈(c)| under the rollout's torque for Δm from low − c to high − c (where M̂ is
+the plant's, c = 0 and Δm over the range itself). Every joint's
 |q − q_s| + δq and |v − q̇_s| + δv must stay within its bound at every rollout step: for a
 set already left, within the excess it started with, decaying at ``recovery_rate``
 (h < 0 must grow back at that rate).
@@ -98,6 +103,9 @@ from .scratch import (
     R_DV,
     R_FRICTION,
     R_HALF,
+    R_HELD_ACC,
+    R_HELD_Q,
+    R_HELD_V,
     R_LIMIT_Q,
     R_LIMIT_V,
     R_NEXT_HIGH,
@@ -348,6 +356,28 @@ def _nominal_acceleration(k, a, first, backup, policy, limit):
     return binds
 
 
+@no_refcount_jit(cache=True, inline="always")
+def _held_drift(k, a, first, limit, eps, widen):
+    """Widen the held step's ``widen`` (1.5 D at its start, per joint) by q̈'s drift over
+    the hold: the true q̈ over the step lies in the hull of q̈ ± 1.5 D at the step's start
+    and at its predicted end (the premise :func:`predict_interval` takes too), so within
+    max(1.5 D, |q̈(end) − q̈| + 1.5 D(end)) of the start's q̈, which the tube's centre
+    follows. The rollout's row state (q, q̇, q̈) is the start's again on return."""
+    r = a.work.rollout
+    q, vel, acc, deviation = r[R_Q], r[R_V], r[R_ACC], r[R_DEV]
+    held_q, held_v, held_acc = r[R_HELD_Q], r[R_HELD_V], r[R_HELD_ACC]
+    n = q.shape[0]
+    for i in range(n):
+        held_q[i], held_v[i], held_acc[i] = q[i], vel[i], acc[i]
+        q[i] += a.dt * vel[i] + 0.5 * a.dt * a.dt * acc[i]
+        vel[i] += a.dt * acc[i]
+    _nominal_acceleration(k, a, first, False, 0, limit)
+    _deviation(a, vel, eps, acc, deviation)
+    for i in range(n):
+        widen[i] = max(widen[i], abs(acc[i] - held_acc[i]) + TUBE_SAFETY * deviation[i])
+        q[i], vel[i], acc[i] = held_q[i], held_v[i], held_acc[i]
+
+
 @no_refcount_jit(cache=True)
 def backup_at(k, a, policy, limit, out):
     """The backup's torque at row k (its position, the velocity interval's centre) with
@@ -511,6 +541,9 @@ def verified(k, a, y, v, eps, first, hold, policy, limit):
     _fixed_deviation(a, eps)
     t = 0.0
     step = 0
+    # a rollout step as long as the control step (backup_step is at least dt) is a backup
+    # the filter holds over the whole step, like the candidate: its q̈'s drift taken too
+    held = a.backup_step <= a.dt
     while t < a.backup_horizon and step < lengths.shape[0]:
         backup = not (hold and step == 0)
         h = a.backup_step if backup else a.dt
@@ -520,6 +553,8 @@ def verified(k, a, y, v, eps, first, hold, policy, limit):
         _deviation(a, vel, eps, acc, deviation)
         for i in range(n):
             widen[i] = TUBE_SAFETY * deviation[i]
+        if not backup or held:
+            _held_drift(k, a, r[R_TAU], limit, eps, widen)
         decay = np.exp(-a.recovery_rate * (t + h))
         stopped = backup and not clipped
         segment = tube[step]

@@ -46,12 +46,13 @@ ROLL_MASS, ROLL_MINV, ROLL_LU, BACKUP_FACTOR = range(8, 12)
 # quadratic part and the disturbance, per row of b); the friction's error per joint at the
 # rollout's state; the tube's widening per step (TUBE_SAFETY D); the box the plan predicts
 # for the true state at the next step (position centre and half-width, velocity centre and
-# half-width); the check's bound on the true q̈ over the held step (its low and high ends).
+# half-width); the check's bound on the true q̈ over the held step (its low and high ends);
+# the held step's start (q, q̇, q̈) while the check looks at its predicted end.
 (R_Q, R_V, R_DQ, R_DV, R_TAU, R_ACC, R_BIAS, R_DEV, R_LIMIT_Q, R_LIMIT_V, R_TARGET, R_SCRATCH,
  R_CANDIDATE, R_CENTRE, R_HALF, R_NEXT_LOW, R_NEXT_HIGH, R_WEIGHT, R_QUADRATIC,
  R_FRICTION, R_WIDEN, R_BOX_Q, R_BOX_Q_HALF, R_BOX_V, R_BOX_V_HALF, R_ACC_LOW,
- R_ACC_HIGH) = range(27)
-ROLLOUT_ROWS = 27
+ R_ACC_HIGH, R_HELD_Q, R_HELD_V, R_HELD_ACC) = range(30)
+ROLLOUT_ROWS = 30
 # CbfWork.flags: CONSISTENT, 1 where the velocity's intervals met at this step; PLAN, the
 # backup policy of the last torque verified (a row of their own: an arm of one joint has a
 # rollout row of one)
