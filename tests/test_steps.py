@@ -106,10 +106,9 @@ def test_a_backup_too_stiff_for_the_step_is_refused_naming_its_rate():
 def accepted_runs(tmp_path_factory):
     """The accepted steps run for real from near_boundary.toml's start: the output-feedback
     filter at 0.5 and 1 ms, the full-state one at 2 ms, 0.2 s each; the full-state one at
-    5 ms, 2 s (where the held step's tube failed from t = 0.28 s before it took q̈'s drift
-    over the hold), and at 10 ms, 0.3 s (where the tube failed at t = 0.1 s before the
-    backup's held steps took it too). (run, step) -> (its guarantee metrics, its
-    trace)."""
+    5 ms, 2 s, and at 10 ms, 0.3 s (where the tube failed from t = 0.28 s and 0.21 s
+    before the check took q̈'s drift over its held steps). (run, step) -> (its guarantee
+    metrics, its trace)."""
     out = {}
     for run, step, duration in (("proposed_cbf", 0.5e-3, 0.2), ("proposed_cbf", 1e-3, 0.2),
                                 ("baseline_cbf", 2e-3, 0.2), ("baseline_cbf", 5e-3, 2.0),
@@ -142,12 +141,12 @@ def test_an_accepted_step_runs_soundly_covered_with_every_premise_measured(
 
 def test_at_five_milliseconds_the_held_steps_drift_keeps_the_true_state_in_the_tube(
         accepted_runs):
-    """The check's held step takes q̈ ± 1.5 D over the whole hold as the hull at its start
-    and its predicted end (q̈ drifts as the state moves over the hold). Taken at the start
-    alone, the true velocity left the plan's tube past the room the check leaves from
-    t = 0.28 s, by up to 0.035 rad/s at 5 ms over 2 s (mutant cbf-held-drift-dropped); with
-    the drift it keeps 0.012 rad/s to spare (0.013 at 2 ms and at 1 ms, which had 0.0019 and
-    0.010)."""
+    """Where the rollout's step is the control step (backup_step is at least dt), the check
+    takes q̈ ± 1.5 D over each held step as the hull at its start and its predicted end (q̈
+    drifts as the state moves over the hold). Taken at each step's start, the true velocity
+    left the plan's tube past the room the check leaves from t = 0.28 s, by up to
+    0.035 rad/s at 5 ms over 2 s (mutant cbf-held-drift-dropped); with the drift it keeps
+    0.012 rad/s to spare (0.013 at 2 ms, which had 0.0019)."""
     g, trace = accepted_runs["baseline_cbf", 5e-3]
     assert all(np.isfinite(values).all() for values in trace.values())
     assert g["covered"] is True and g["broken"] is False, g["violations"]
@@ -157,12 +156,13 @@ def test_at_five_milliseconds_the_held_steps_drift_keeps_the_true_state_in_the_t
 
 def test_at_ten_milliseconds_the_backup_held_over_the_step_keeps_the_tube(accepted_runs):
     """At 10 ms the rollout's steps are the control step (backup_step is at least dt), and
-    the filter holds the backup over each, as it holds the candidate: the check takes q̈'s
-    drift over every such step. Rolled out with q̈ at each step's start, the true velocity
-    left the plan's tube past the room the check leaves at t = 0.1 s, by 0.64 rad/s
-    (mutant cbf-held-backup-drift-dropped; before the held step's drift, from t = 0.21 s by
-    0.27 rad/s); with it the tube keeps 0.013 rad/s to spare over 2 s. (A run that leaves
-    the tube says so, naming it: tests/test_premises.py.)"""
+    the filter holds the candidate and then the backup over each: the check takes q̈'s
+    drift over every step. Rolled out with q̈ at each step's start, the true velocity left
+    the plan's tube past the room the check leaves from t = 0.21 s, by up to 0.24 rad/s
+    over this 0.3 s (mutant cbf-held-drift-dropped; 0.27 rad/s over 2 s); taken over the
+    held step alone, at t = 0.1 s by 0.64 rad/s. With it the tube keeps 0.013 rad/s to
+    spare over 2 s. (A run that leaves the tube says so, naming it:
+    tests/test_premises.py.)"""
     g, trace = accepted_runs["baseline_cbf", 10e-3]
     assert all(np.isfinite(values).all() for values in trace.values())
     assert g["covered"] is True and g["hard_kept"] is True and g["broken"] is False

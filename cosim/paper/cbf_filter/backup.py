@@ -28,13 +28,16 @@ advanced with δv before δv's update,
 where f_i = min(k_b h, 1) when joint i's torque is free (the backup's feedback pulls its
 velocity towards its target) and f_i = 0 when its torque is at the limit or held (the
 candidate's step); the floor ε_i holds in both cases, as the feedback acts on the
-estimate, whose error ε the true velocity keeps. Over the held step (the candidate's torque,
-the whole step h = dt) q̈ drifts as the state moves: its 1.5 D_i is widened to
-max(1.5 D_i, |q̈_i(end) − q̈_i| + 1.5 D_i(end)) (:func:`_held_drift`), the hull of q̈ ± 1.5 D
-at the step's start and its predicted end, as the velocity's interval is predicted
-(:func:`predict_interval`); so is every backup step where the rollout's step is the control
-step (``backup_step`` ≥ dt), the backup held over it as the candidate is. D_i is the bound
-on the true q̈_i's departure from the nominal model's: the bias error from the estimate's
+estimate, whose error ε the true velocity keeps. Where the rollout's step is the control
+step (``backup_step`` ≥ dt: from 2 ms at the default), every rollout step is a torque held
+over the whole step, the candidate's and then the backup's, and q̈ drifts over it as the
+state moves: its 1.5 D_i is widened to max(1.5 D_i, |q̈_i(end) − q̈_i| + 1.5 D_i(end))
+(:func:`_held_drift`), the hull of q̈ ± 1.5 D at the step's start and its predicted end, as
+the velocity's interval is predicted (:func:`predict_interval`). At shorter steps the
+backup is re-evaluated within a rollout step (its feedback is what f models), and the
+candidate's step is taken at its start: its drift taken too made the check brake
+differently after start-up (docs/safety/measurements.md, "The tube premise"). D_i is the
+bound on the true q̈_i's departure from the nominal model's: the bias error from the estimate's
 velocity error ε, the friction and the disturbance (|M̂⁻¹(Δb + d)|, the hard rows' bound,
 see :mod:`.model`, at the rollout's state), plus the payload's (:func:`_payload_deviation`):
 with c the middle of the payload range, which the rollout's model carries, the largest
@@ -541,8 +544,8 @@ def verified(k, a, y, v, eps, first, hold, policy, limit):
     _fixed_deviation(a, eps)
     t = 0.0
     step = 0
-    # a rollout step as long as the control step (backup_step is at least dt) is a backup
-    # the filter holds over the whole step, like the candidate: its q̈'s drift taken too
+    # where the rollout's step is the control step (backup_step is at least dt), each of its
+    # steps is a torque the filter holds over the whole step: q̈'s drift over it is taken
     held = a.backup_step <= a.dt
     while t < a.backup_horizon and step < lengths.shape[0]:
         backup = not (hold and step == 0)
@@ -553,7 +556,7 @@ def verified(k, a, y, v, eps, first, hold, policy, limit):
         _deviation(a, vel, eps, acc, deviation)
         for i in range(n):
             widen[i] = TUBE_SAFETY * deviation[i]
-        if not backup or held:
+        if held:
             _held_drift(k, a, r[R_TAU], limit, eps, widen)
         decay = np.exp(-a.recovery_rate * (t + h))
         stopped = backup and not clipped
