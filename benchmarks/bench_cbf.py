@@ -6,10 +6,9 @@
    within 2.5× of the floor;
 2. the filter's parts per step, each in one compiled loop over every row of the finished
    run (no Python between steps): building the rows, the rows and the recording of the
-   outputs — the recording is the difference — (the step's own parts inlined, as in the
-   step: a call passing the filter's arguments costs ~0.1 µs of its own) and the whole step
-   as the fused loop calls it (``cbf_step``) — the QP solve is what it adds to those two
-   (with that one call);
+   outputs — the recording is the difference — (the step's own parts, called as the step
+   calls them) and the whole step as the fused loop calls it (``cbf_step``) — the QP
+   solve is what it adds to those two (with that one call);
 3. the QP alone at the steps where the filter acts, solved by the compiled semismooth Newton
    (called from Python) and by qpsolvers' backends: µs per QP and the largest difference of
    each from the compiled solution (relative to ‖τ_nom‖).
@@ -38,14 +37,14 @@ from cosim.config import load_pipeline
 from cosim.engine import simulate
 from cosim.numba_compat import no_refcount_jit
 from cosim.paper.cbf_filter import cbf_rows, cbf_step, solve_soft_qp
-from cosim.paper.cbf_filter.block import record_inline
-from cosim.paper.cbf_filter.rows import rows_inline
+from cosim.paper.cbf_filter.block import step_record
+from cosim.paper.cbf_filter.rows import step_rows
 
 PIPELINE = Path(__file__).resolve().parent.parent / "pipelines" / "paper_safety.toml"
 
 
-# Compiled as the step is (without reference counting), its inlined parts called as cbf_step
-# calls them.
+# Compiled as the step is (without reference counting), its parts called as cbf_step calls
+# them.
 
 
 @no_refcount_jit()
@@ -53,7 +52,7 @@ def rows_only(a, steps: int) -> float:
     """The rows at every row; returns a sum of the counts so that none is optimised away."""
     total = 0.0
     for k in range(steps + 1):
-        total += rows_inline(k, a, False)
+        total += step_rows(k, a, False)
     return total
 
 
@@ -63,8 +62,8 @@ def rows_and_record(a, steps: int) -> float:
     outputs are rewritten as they were)."""
     total = 0.0
     for k in range(steps + 1):
-        count = rows_inline(k, a, False)
-        total += record_inline(k, a, count, a.tau[k])
+        count = step_rows(k, a, False)
+        total += step_record(k, a, count, a.tau[k])
     return total
 
 

@@ -35,6 +35,7 @@ from typing import ClassVar, TypeVar
 import numpy as np
 
 from ..declared import Safety, Uncertainty
+from ..records import is_kernel_record, reference
 from ..schema import Section
 from ..signals import Signal, Trace
 
@@ -45,7 +46,9 @@ def kernel_args(record: type[Record], **fields: object) -> Record:
     """``record`` (a NamedTuple class: a kernel's arguments, a published model) built from
     its fields by name, every one given: built by position, two swapped fields of one type
     would run silently. A missing or an unknown field is refused, named, when the block is
-    reset."""
+    reset. A record marked :func:`~cosim.records.kernel_record` comes back as the
+    one pointer compiled code takes (:func:`~cosim.records.reference`), its fields
+    read as the record's."""
     missing = [name for name in record._fields if name not in fields]
     unknown = [name for name in fields if name not in record._fields]
     if missing or unknown:
@@ -53,7 +56,10 @@ def kernel_args(record: type[Record], **fields: object) -> Record:
                     (("missing", missing), ("unknown", unknown)) if names]
         raise TypeError(f"{record.__name__}: {'; '.join(problems)} (its fields: "
                         f"{', '.join(record._fields)})")
-    return record(**fields)
+    built = record(**fields)
+    if not is_kernel_record(record):
+        return built
+    return reference(built)
 
 
 @dataclass(frozen=True)

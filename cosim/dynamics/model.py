@@ -35,6 +35,7 @@ import numpy as np
 from numba.extending import overload
 
 from ..numba_compat import no_refcount_jit
+from ..records import kernel_record
 from .planar import (
     CHAIN_ROWS,
     CX,
@@ -56,6 +57,7 @@ from .spatial import (
 )
 
 
+@kernel_record
 class PlanarModel(NamedTuple):
     """The planar chain for the kernels: its parameters and the scratch its calls fill (each
     block holds its own, :func:`own_scratch`)."""

@@ -28,6 +28,7 @@ from typing import NamedTuple
 import numpy as np
 
 from ..numba_compat import no_refcount_jit
+from ..records import kernel_record
 
 REVOLUTE, PRISMATIC = 0, 1
 # Rows of SpatialWork.kin (n × 3 each): per body its world axis, origin, centre of mass,
@@ -37,6 +38,7 @@ Z, O, C, W, AL, A, F, N = range(8)  # noqa: E741
 KIN_ROWS = 8
 
 
+@kernel_record
 class SpatialChain(NamedTuple):
     """The chain's constants (from plant_fmu.urdf.Chain) and the scratch its kernels fill."""
 

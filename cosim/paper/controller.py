@@ -24,6 +24,7 @@ from numba import njit
 from pydantic import Field
 
 from ..blocks.base import Block, BlockContext, Ports, kernel_args, register_block
+from ..records import kernel_record
 from ..schema import GainVector, NonNegativeFloat, PipelineError, PositiveFloat, Section, Seed
 from ..signals import Signal
 from .sampled_loop import LinearGains, check_step
@@ -96,6 +97,7 @@ class NnGains(NamedTuple):
     G: float
 
 
+@kernel_record
 class ControllerArgs(NamedTuple):
     dt: float  # master step, s
     proposed: bool

@@ -48,6 +48,7 @@ from ..dynamics.planar import (  # noqa: F401  (re-exported: the planar chain's 
     planar_bias,
     planar_mass_matrix,
 )
+from ..records import kernel_record
 from ..schema import FileName, FiniteFloat, NonNegativeFloat, PipelineError, PositiveFloat, Section
 from ..signals import Signal
 
@@ -110,6 +111,7 @@ def default_links(links: int) -> dict[str, list[float]]:
             "l": [1.0] * links, "lc": [1.0] * links, "I": [0.0] * links}
 
 
+@kernel_record
 class NominalArgs(NamedTuple):
     q_meas: np.ndarray
     model: RigidBodyModel

@@ -100,6 +100,7 @@ from ..dynamics.model import (
     planar_model,
 )
 from ..numba_compat import no_refcount_jit
+from ..records import kernel_record
 from ..schema import FiniteFloat, NonNegativeFloat, PositiveFloat, Section
 from ..signals import Signal
 from .inertia import InertiaModel, default_links
@@ -154,6 +155,7 @@ def basis_size(links: int, basis: str) -> int:
     return (5 if basis == "lagged" else 4) * links
 
 
+@kernel_record
 class ObserverArgs(NamedTuple):
     dt: float  # master step, s
     substeps: int
@@ -221,6 +223,7 @@ def error_envelope(kp, kd, k0):
 # The certified velocity envelope: ε(t) = |x̂2 − c| + r with q̇ ∈ [c − r, c + r] proven
 # (see the module docstring).
 
+@kernel_record
 class Envelope(NamedTuple):
     """The certified envelope's constants, its state, its per-position cache (two slots: the
     step's two ends, slot k % 2 for y_k) and its scratch. d is the payload point's
@@ -266,7 +269,7 @@ class Envelope(NamedTuple):
 E_, PLUS_, MINUS_, U_, CENTRE_, RADIUS_, ALO_, AHI_ = range(8)
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def envelope_position(env, y, slot):
     """What the acceleration bound needs of the position y, into cache ``slot``: M̂⁻¹, the
     payload point's J and the quadratic form of J̇v, K = J M̂⁻¹ Jᵀ = VΛVᵀ, s_j at the ends of
@@ -325,7 +328,7 @@ def envelope_position(env, y, slot):
     model_bias(model, env.zeros, 1.0, 0.0, 1.0, env.grav[slot])
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def envelope_acceleration(env, slot, cell, tau, tau_d, centre, radius, lo, hi):
     """Widen [lo, hi] (per joint) to hold q̈ = M(Δm)⁻¹(τ − τ_d − d − b(y, q̇, Δm)) at the
     cached position ``slot`` for every q̇ with |q̇ − centre| ≤ radius, Δm in the payload
@@ -423,7 +426,7 @@ def envelope_acceleration(env, slot, cell, tau, tau_d, centre, radius, lo, hi):
         hi[i] = max(hi[i], high + size)
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def envelope_windows(k, dt, noise, window, y, acc, interval):
     """Intersect q̇(t_k) ∈ ``interval`` with the estimates from the position differences over
     the last N = 1 … ``window`` steps: q̇(t_k) = (q(t_k) − q(t_k−N))/T + (1/T)∫(s − t_k−N)q̈ ds,
@@ -455,7 +458,7 @@ def envelope_windows(k, dt, noise, window, y, acc, interval):
     return consistent
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def envelope_cell(k, dt, y, tau, tau_d, noise, env, cell):
     """One payload cell from t_k−1 to t_k: q̈'s bound over the step on an a-priori enclosure
     of q̇ that the bound itself must confirm (widened until it does), the interval
@@ -493,7 +496,7 @@ def envelope_cell(k, dt, y, tau, tau_d, noise, env, cell):
                             interval)
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def envelope_step(k, dt, y, tau, tau_d, noise, env):
     """The envelope from t_k−1 to t_k: each live payload cell (envelope_cell); a cell no
     q̇ fits is dropped (the payload is constant: it is not in that cell), unless every live
@@ -578,7 +581,7 @@ def _weights_times(W, sigma, out):
 def observer_step(k, a):
     """One step of the observer (5)–(10), (24): its sub-steps, gain and weight law in one
     body, which its speed needs (the sub-step loop shares its scratch and hoisted
-    constants; split, numba passes them through calls it does not inline)."""
+    constants; split, numba would pass them through the calls)."""
     n = a.q_meas.shape[1]
     n_basis = a.n_basis
     kp = a.kp

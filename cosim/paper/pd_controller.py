@@ -26,6 +26,7 @@ from ..dynamics.model import (
     own_scratch,
     planar_model,
 )
+from ..records import kernel_record
 from ..schema import GainVector, NonNegativeFloat, Section
 from ..signals import Signal
 from .sampled_loop import LinearGains, check_step
@@ -51,6 +52,7 @@ class PdControllerParams(Section):
     scale: Literal["torque", "inertia"] = "torque"
 
 
+@kernel_record
 class PdArgs(NamedTuple):
     dt: float  # master step, s
     finite_difference: bool

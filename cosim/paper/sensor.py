@@ -9,6 +9,7 @@ import numpy as np
 from numba import njit
 
 from ..blocks.base import Block, BlockContext, Ports, kernel_args, register_block
+from ..records import kernel_record
 from ..schema import NonNegativeFloat, Section, Seed
 from ..signals import Signal
 
@@ -21,6 +22,7 @@ class SensorParams(Section):
     seed: Seed = 0  # seed of the noise's random generator, dimensionless
 
 
+@kernel_record
 class SensorArgs(NamedTuple):
     q: np.ndarray  # true position, rows
     noise: np.ndarray  # rows × n, drawn in reset (zeros without noise)

@@ -77,9 +77,10 @@ is made at reset, and the compiler refuses an allocation in such a function), an
 the references to the arrays it passes around cost more than its arithmetic (numba counts
 one per array each time a tuple of them is bound, and the filter's arguments hold ~70:
 measured ~1000 counting call sites in the step, and a helper taking two of a's arrays 44 ns a
-call against 4 ns without). Functions that take the arguments ``a`` are inlined, so that
-those are not copied per call, and so are the small helpers called in loops; the larger
-ones, called a few times a step, are not (compiling everything inlined took minutes).
+call against 4 ns without). The arguments ``a`` are a kernel record
+(:mod:`cosim.records`), one pointer however many arrays it holds, so the functions that
+take it are compiled as functions of their own (inlining them into the step took minutes
+to compile); the small helpers called in loops, which take arrays, are inlined.
 """
 
 from .block import CbfFilter, CbfFilterParams, cbf_step

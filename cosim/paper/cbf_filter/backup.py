@@ -153,7 +153,7 @@ HOLD, HOLD_RATE = 0.2, 10.0
 TUBE_SAFETY = 1.5
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def backup_torque(k, a, q, v, mass, bias, out, policy, limit):
     """τ_b at (q, v) into ``out``: the q̈ closest to the backup's k_b (w − (v − q̇_s)) that
     the torques ``limit`` allow (the torque limits, or braking_torque:
@@ -231,7 +231,7 @@ def _limited_acceleration(n, limit, mass, bias, scale, desired, w):
         acceleration[i] /= scale[i]
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def rollout_payload(a):
     """The payload the rollout's model carries (kg): the middle of the declared range, so
     that the payload's departure in D spans half the range each way instead of all of it
@@ -243,7 +243,7 @@ def rollout_payload(a):
     return 0.5 * (a.payload_low + a.payload_high)
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def _payload_deviation(a, q_dot, acceleration, deviation):
     """D_i += the largest |q̈(Δm)_i − q̈(0)_i| over the payload range under the rollout's
     torque (the model's geometry at the rollout's state, its M̂⁻¹ in ROLL_MINV and its q̈
@@ -302,7 +302,7 @@ def _payload_deviation(a, q_dot, acceleration, deviation):
         deviation[i] += worst
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def _fixed_deviation(a, spread):
     """D's part that a rollout with the velocity error ``spread`` keeps at every step, into
     R_QUADRATIC (:func:`.model.quadratic_error_into`: Γ is the hard rows' for the whole
@@ -312,7 +312,7 @@ def _fixed_deviation(a, spread):
                          w.forms[1], w.rollout[R_QUADRATIC])
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def _deviation(a, q_dot, spread, acceleration, deviation):
     """D at the rollout's state into ``deviation``: the bound on |M̂⁻¹(Δb + d)| for a
     velocity error up to ``spread`` (its fixed part taken by :func:`_fixed_deviation`) at
@@ -328,7 +328,7 @@ def _deviation(a, q_dot, spread, acceleration, deviation):
     _payload_deviation(a, q_dot, acceleration, deviation)
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def _nominal_acceleration(k, a, first, backup, policy, limit):
     """The rollout's torque (``first``, or the backup's within ``limit`` if ``backup``) into
     R_TAU and the nominal model's q̈ under it into R_ACC; the model's geometry left at the
@@ -359,7 +359,7 @@ def _nominal_acceleration(k, a, first, backup, policy, limit):
     return binds
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def _held_drift(k, a, first, limit, eps, widen):
     """Widen the held step's ``widen`` (1.5 D at its start, per joint) by q̈'s drift over
     the hold: the true q̈ over the step lies in the hull of q̈ ± 1.5 D at the step's start
@@ -394,7 +394,7 @@ def backup_at(k, a, policy, limit, out):
         out[i] = r[R_TAU, i]
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def plan_box(k, a):
     """The box the plan in force (the rollout of the last torque verified, at step k0) puts
     the true state in at row k + 1, into R_BOX_Q … R_BOX_V_HALF: its tube (k + 1 − k0)·dt
@@ -430,7 +430,7 @@ def plan_box(k, a):
         start += h
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def velocity_interval(k, a):
     """The true velocity's interval at row k (centre into R_CENTRE, half-width into
     R_HALF): the estimate's (the certified interval its ε is taken from, inside v ± ε),
@@ -503,7 +503,7 @@ def predict_interval(k, a, tau):
         high[i] = r[R_CENTRE, i] + r[R_HALF, i] + a.dt * high[i]
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def inside(k, a):
     """Whether every state row k's bounds allow (|q − y| ≤ n̄, q̇ in its interval) is inside
     every hard set (as the check holds them): a state verified but not inside is one the

@@ -17,7 +17,7 @@ from ...signals import Signal
 from ..linalg import dot
 from .assumptions import BACKUP, FILTER_ASSUMES, KEPT_CHECKS, VIABLE, FilterAssumptions
 from .backup import backup_at, inside, plan_box, predict_interval, verified
-from .rows import add_cuts, cbf_rows, groups_record, groups_violated, rows_inline
+from .rows import add_cuts, cbf_rows, groups_record, groups_violated, step_rows
 from .scratch import (
     ANSWER,
     CONSISTENT,
@@ -171,7 +171,7 @@ def solve_with_cuts(k, a, count):
         count = more
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def verified_policy(k, a, tau, limit):
     """The first backup policy under which ``tau``, held for the step, is verified with the
     backup within the torques ``limit`` (:func:`.backup.verified`), else −1."""
@@ -182,7 +182,7 @@ def verified_policy(k, a, tau, limit):
     return -1
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def planned_with(a, policy, reserve):
     """Keeps the plan of the torque verified: its backup policy, and whether that backup
     brakes within the torque limits (1) or within braking_torque (0)."""
@@ -190,7 +190,7 @@ def planned_with(a, policy, reserve):
     a.work.flags[PLAN_RESERVE] = 1.0 if reserve else 0.0
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def blend_verified(k, a, tau, limit, reserve):
     """With the backup within the torques ``limit`` (the torque limits if ``reserve``, else
     braking_torque): 0 if ``tau`` is verified (kept as it is), else the backup's share
@@ -240,7 +240,7 @@ def blend_verified(k, a, tau, limit, reserve):
     return 1.0 - low
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def choose(k, a, tau):
     """The torque to apply, into ``tau``: the QP's answer clipped to the torque limits (the
     controller's, clipped, where the QP's hard rows are not met within the limits), itself
@@ -319,12 +319,12 @@ def choose(k, a, tau):
 def cbf_record(k, a, count, tau):
     """Row k's outputs for the torque τ the QP gave (:func:`choose`, then each
     constraint's activity, the largest soft slack)."""
-    return record_inline(k, a, count, tau)
+    return step_record(k, a, count, tau)
 
 
-@no_refcount_jit(cache=True, inline="always")
-def record_inline(k, a, count, tau):
-    """cbf_record, inlined into the step. ``tau`` is the solver's, changed in place. Also
+@no_refcount_jit(cache=True)
+def step_record(k, a, count, tau):
+    """cbf_record, as the step calls it. ``tau`` is the solver's, changed in place. Also
     what the run's classifier measures the check's premises with: the box the plan of the
     step before put this row's state in, and the check's bound on q̈ over this step."""
     r = a.work.rollout
@@ -409,7 +409,7 @@ def within_authority(a, tau, tau_hard):
 
 @no_refcount_jit(cache=True)
 def cbf_step(k, a):
-    count = rows_inline(k, a, False)
+    count = step_rows(k, a, False)
     w = a.work
     h, weights, tau = w.per_row[0], w.per_row[1], w.solver[TAU]
     for j in range(count):  # solve with the hard limits lowered: checked as given after
@@ -422,7 +422,7 @@ def cbf_step(k, a):
     count = solve_with_cuts(k, a, count)
     # A hard row may slip by ~ρ_soft·(soft excess)/ρ_hard where tracking pulls hard against
     # it: re-solve with tracking weighed less, down to the hard rows alone (what remains is
-    # the backup's check, in record_inline). The rows left out are met (solve_with_cuts).
+    # the backup's check, in step_record). The rows left out are met (solve_with_cuts).
     for _ in range(3):
         if not hard_violated(a.rows, a.limits, a.is_hard, count, tau):
             break
@@ -443,7 +443,7 @@ def cbf_step(k, a):
             answer[i], tau[i] = tau[i], answer[i]
         if np.isfinite(np.sum(answer)):  # else the answer with the tracking rows stands
             within_authority(a, tau, answer)
-    return record_inline(k, a, count, tau)
+    return step_record(k, a, count, tau)
 
 
 @register_block

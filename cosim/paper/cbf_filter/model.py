@@ -141,7 +141,7 @@ def acceleration_error_bound(q, v, eps, minv, a, nominal):
     return out
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def nominal_model(a, y, v, nominal, bias):
     """The nominal model at (y, v): its M(y) into ``nominal`` and b̂ = C(y, v) v + G(y) +
     F̂(v) + τ_d (F̂ the nominal friction) into ``bias``."""
@@ -153,7 +153,7 @@ def nominal_model(a, y, v, nominal, bias):
         bias[i] += a.tau_d[i]
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def moved_model(a, y, v, mass, minv, base):
     """At a predicted state (y, v): M̂⁻¹ into ``minv`` and M̂⁻¹b̂ into ``base`` (so that
     q̈ = M̂⁻¹τ − base), with M̂ moved from row k's by the nominal model's change."""
@@ -210,7 +210,7 @@ def payload_structure(low, high, minv, base, point_rows, point_vectors, squares,
             beta[j] += vec[r, j] * gamma[r]
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def robust_model(a, y, v, eps, minv, base):
     """What the hard rows at (y, v) need beyond M̂⁻¹ and M̂⁻¹b̂: the bound on |M̂⁻¹(Δb + d)|
     (ROWS_ERROR of the work vectors) and the payload's structure, or, when M̂ is the plant's,

@@ -145,7 +145,7 @@ def hard_groups(a, k, y, v, eps, minv, base, at_end):
                 w.group_added[g, :corners] = False
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def _group_terms(a, g, tau, terms):
     """Group g's g_0·τ − h_0 and u_j·τ − o_j at τ, into ``terms`` (1 + d); returns the number
     of u_j it has (0 without a payload range)."""
@@ -158,7 +158,7 @@ def _group_terms(a, g, tau, terms):
     return count
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def _corner_excess(a, g, c, terms, count):
     """Corner c's g_c·τ − h_c (unscaled), from group g's terms at τ (:func:`_group_terms`)."""
     w = a.work
@@ -169,7 +169,7 @@ def _corner_excess(a, g, c, terms, count):
     return excess
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def _most_excess(a, g, terms, count):
     """The most any corner of group g may exceed its limit at τ (unscaled): every corner's
     s_cj lies between the grid's ends, so a sum of each term's largest over them."""
@@ -181,7 +181,7 @@ def _most_excess(a, g, terms, count):
     return most
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def _corner_row(a, g, c, row):
     """Group g's corner c: g_c (unscaled) into ``row``; returns h_c."""
     w = a.work
@@ -199,7 +199,7 @@ def _corner_row(a, g, c, row):
     return limit
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def add_corner(a, count, g, c):
     """Row ``count`` of the QP: group g's corner c (scaled to unit norm by add_row); returns
     the next row's index."""
@@ -279,7 +279,7 @@ def groups_record(k, a, tau):
     return met, active
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def _corner_norm(a, g, c, row):
     """‖g_c‖ of group g's corner c (1 for a row without τ, as add_row takes it), ``row`` its
     scratch."""
@@ -288,7 +288,7 @@ def _corner_norm(a, g, c, row):
     return norm if norm > 0.0 else 1.0
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def _reach(a, minv, corners, reach, room):
     """Per joint i, what decides whether its hard rows can bind within the torque limits
     (hard_groups leaves out those that cannot): into ``reach`` the most any payload corner's
@@ -321,13 +321,12 @@ def cbf_rows(k, a):
     """Fill G (``a.rows``), h (``a.limits``), the weights and the hard flags of row k's whole
     QP, every hard row of the groups first (each payload corner's, in the groups' order),
     and the true velocity's interval; returns the number of rows."""
-    return rows_inline(k, a, True)
+    return step_rows(k, a, True)
 
 
-@no_refcount_jit(cache=True, inline="always")
-def rows_inline(k, a, every):
-    """Row k's QP (inlined into the step: a's many fields are not copied per call, and its
-    parts inlined into it): the hard rows in groups (:func:`hard_groups`), each of their
+@no_refcount_jit(cache=True)
+def step_rows(k, a, every):
+    """Row k's QP: the hard rows in groups (:func:`hard_groups`), each of their
     rows first if ``every`` (:func:`cbf_rows`), else none (the step's solve adds those it
     needs: :func:`add_cuts`); then the soft rows and the torque limits as rows; the barrier
     values and the true velocity's interval. Returns the number of rows."""
@@ -373,7 +372,7 @@ def rows_inline(k, a, every):
     return _torque_rows(a, count)
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def _predict_hold(k, a, y, v, minv, base):
     """The states at the hold's end and midpoint (Y_END … V_MID of the work vectors),
     predicted with the torque of the step before (the nominal model's q̈)."""
@@ -390,7 +389,7 @@ def _predict_hold(k, a, y, v, minv, base):
         v_mid[i] = v[i] + 0.5 * a.dt * acceleration[i]
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def _set_states(k, a, y, v, observed, base_mid):
     """Each set's x (rows X … of the work vectors, SETS order) and how v moves (DRIFT):
     the observer's drift, else the plant's q̈ less M̂⁻¹τ at the hold's midpoint."""
@@ -404,7 +403,7 @@ def _set_states(k, a, y, v, observed, base_mid):
         x[3, i] = a.qdot_d[k, i] - v[i]
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def _barrier_values(k, a, eps):
     """Row k's barrier values per set and joint (robust: the worst case of the true state
     within the declared bounds) and as norms, their activity cleared for the record."""
@@ -425,7 +424,7 @@ def _barrier_values(k, a, eps):
         a.active_norms[s, k] = 0.0
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def _soft_rows(k, a, count, s, rate_minv, minv_mid, base_mid):
     """The soft rows of set s: per joint and side (if ``a.soft[s]``), then as a norm,
     h = β² − ‖x‖² (if ``a.soft_norms[s]``); returns the next row's index."""
@@ -476,7 +475,7 @@ def _soft_rows(k, a, count, s, rate_minv, minv_mid, base_mid):
     return add_row(qp, count, row, bound, a.rho_soft, False, 4 + s, -1)
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def _torque_rows(a, count):
     """The finite torque limits |τ_i| ≤ τ_max,i as hard rows; returns the next row's
     index."""
