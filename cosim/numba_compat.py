@@ -4,7 +4,9 @@ here, and tests/test_numba_compat.py says so at once. (pyproject.toml pins numba
 releases this was tested with.)
 
 - :func:`no_refcount_jit`: ``njit`` without reference counting (its underscored ``_nrt``
-  option), for kernels that allocate nothing and pass many arrays around;
+  option), for kernels that allocate nothing and pass many arrays around, compiled for
+  its arguments' types, not the constants a caller passes (:func:`typed_by_kind`: numba's
+  dispatcher's call template);
 - :func:`cache_locator_base` and :func:`prepend_cache_locator`: numba's cache locator class
   and the list of locators it asks, for cosim's per-module cache folders
   (:mod:`cosim.jit_cache`);
@@ -24,10 +26,32 @@ from typing import Any
 def no_refcount_jit(**options: Any) -> Callable[[Callable], Any]:
     """``numba.njit(**options)`` compiled without numba's reference counting (NRT): the
     function may allocate nothing (the compiler refuses an allocation), and binding or
-    passing arrays costs nothing."""
+    passing arrays costs nothing. Called from compiled code, it is compiled for its
+    arguments' types, never their literal values (:func:`typed_by_kind`)."""
     from numba import njit
 
-    return njit(_nrt=False, **options)
+    def compile(function: Callable) -> Any:
+        return typed_by_kind(njit(_nrt=False, **options)(function))
+
+    return compile
+
+
+def typed_by_kind(dispatcher: Any) -> Any:
+    """``dispatcher`` (a numba dispatcher), called from compiled code, compiled for its
+    arguments' types rather than their literal values: numba compiles a callee once per
+    distinct constant a caller passes (``f(x, False, 0)`` and ``f(x, True, p)`` are two
+    compiles, both again where ``f(x, flag, p)`` is called), which multiplied the filter's
+    compile. numba's call template of the compiled signatures accepts the literals."""
+    from numba.core.types import unliteral
+
+    resolve = dispatcher.get_call_template
+
+    def get_call_template(args: tuple, kws: dict) -> Any:
+        return resolve(tuple(unliteral(a) for a in args),
+                       {key: unliteral(value) for key, value in kws.items()})
+
+    dispatcher.get_call_template = get_call_template
+    return dispatcher
 
 
 def cache_locator_base() -> type:

@@ -136,7 +136,7 @@ def _native(kind: types.Type, value: Any) -> Any:
         return value._address
     if isinstance(kind, types.BaseTuple):
         return _ctype(kind)(*(_native(m, v) for m, v in zip(kind.types, value, strict=True)))
-    return value
+    return bool(value) if kind == types.boolean else value  # numpy's bool is no int to ctypes
 
 
 class RecordReference:

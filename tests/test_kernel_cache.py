@@ -131,10 +131,11 @@ def test_a_fused_loop_is_versioned_by_the_kernels_it_calls(tmp_path, monkeypatch
     monkeypatch.setattr(jit_cache, "_digests", {})
     closure = jit_cache._closure("cosim_fused_probe", loop)
     # pd_controller calls the nominal model's kernels (cosim.dynamics, with what they import):
-    # they are part of the loop's code
+    # they are part of the loop's code; so is the layout its records reach kernels in
+    # (cosim.records)
     assert closure == ("cosim.dynamics.model", "cosim.dynamics.planar", "cosim.dynamics.spatial",
                        "cosim.numba_compat", "cosim.paper.pd_controller", "cosim.paper.sensor",
-                       "cosim_fused_probe")
+                       "cosim.records", "cosim_fused_probe")
     digest = jit_cache.module_digest("cosim_fused_probe", loop)
     assert jit_cache._ours("cosim_fused_probe", str(loop))
     import numpy

@@ -32,6 +32,21 @@ def test_a_function_compiles_without_reference_counting():
     assert not _total.targetoptions.get("_nrt", True)
 
 
+@no_refcount_jit()
+def _offset(x, flag, step):
+    return x + (1.0 if flag else 0.0) + step
+
+
+@no_refcount_jit()
+def _offsets(x, step):
+    return _offset(x, False, 0) + _offset(x, True, step) + _offset(x, x > 0.0, step)
+
+
+def test_a_callee_is_compiled_once_for_its_types_whatever_constants_its_callers_pass():
+    assert _offsets(1.0, 3) == 1.0 + 5.0 + 5.0
+    assert [tuple(map(str, s)) for s in _offset.signatures] == [("float64", "bool", "int64")]
+
+
 def test_the_entry_point_of_one_signature_is_callable_directly():
     entry = compiled_entry_point(_twice, (types.float64,))
     assert entry(1.5) == 3.0

@@ -63,7 +63,7 @@ def _outer() -> Outer:
     table = np.arange(12.0).reshape(3, 4)
     return Outer(vector=np.arange(3.0), matrix=table, cube=np.arange(8.0).reshape(2, 2, 2),
                  column=table[:, 1], counts=np.array([2, 5], np.int64),
-                 mask=np.array([True, False, True]), scale=0.25, steps=7, enabled=True,
+                 mask=np.array([True, False, True]), scale=0.25, steps=7, enabled=np.bool_(True),
                  inner=Inner(weights=np.array([1.0, 2.0, 3.0]), gain=-2.0),
                  plain=Plain(offsets=np.array([0.5, 1.5]), count=4), out=np.zeros(5))
 
