@@ -117,7 +117,7 @@ def chain_model(chain, friction: np.ndarray | None = None) -> SpatialChain:
                          friction_table(len(chain.mass)) if friction is None else friction)
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def model_friction(model, v, out):
     """Add the nominal joint friction at the velocity v to ``out`` (n): b̂ v + f̂c tanh(v/w),
     per joint (a model of either kind)."""
@@ -129,7 +129,7 @@ def model_friction(model, v, out):
             out[i] += f[COULOMB, i] * np.tanh(v[i] / f[COULOMB_VELOCITY, i])
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def model_friction_spread(model, centre, radius, out):
     """Add to ``out`` (n), per joint, the most the true friction at a velocity within
     ``radius`` of ``centre`` can differ from the nominal friction at ``centre``: at the end
@@ -172,9 +172,10 @@ def _by_kind(planar: Callable, spatial: Callable) -> Callable[[Callable], Callab
     """Make the decorated function (its name, signature and docstring; its body is never
     run) a model call that runs ``planar`` or ``spatial`` (numba functions of the model and
     the call's arguments) by the model's type: in a kernel chosen when it compiles, from
-    Python by ``isinstance``. The planar chain's functions are ``inline="always"`` so that
-    its own loops (:func:`_planar_velocity_forms`) hold them inlined; the spatial chain's are too
-    large for that to matter."""
+    Python by ``isinstance``. Each kind's functions are compiled functions of their own,
+    not inlined where they are called: the model is a kernel record (one pointer to pass),
+    and inlining the planar chain's at every call site made the filter's compile 18 % longer
+    for no speed (docs/performance.md)."""
 
     def register(declared: Callable) -> Callable:
         def call(model, *args):
@@ -202,7 +203,7 @@ def _overload_typing(kind: Callable, model_type: type) -> Callable:
     return typing
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def _planar_geometry(model, q):
     for i in range(q.shape[0]):
         model.q[i] = q[i]
@@ -219,20 +220,20 @@ def _planar_masses(model, bodies, payload):
     return masses
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def _planar_mass(model, bodies, payload, out):
     chain_mass(model.chain, _planar_masses(model, bodies, payload), model.inertia, out)
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def _planar_bias(model, v, bodies, payload, gravity, out):
     chain_bias(model.chain, v, _planar_masses(model, bodies, payload), gravity * model.gravity,
                out)
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def _planar_velocity_forms(model, bodies, payload, e, plus, out):
-    """By polarisation of the planar chain's b without gravity (inlined, as its b is)."""
+    """By polarisation of the planar chain's b without gravity."""
     n = out.shape[0]
     for i in range(n):
         e[:] = 0.0
@@ -256,12 +257,12 @@ def _spatial_velocity_forms(model, bodies, payload, e, plus, out):
     spatial_velocity_forms(model, bodies, payload, out)
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def _planar_payload(model, v, gravity, jac, gamma):
     com_kinematics(model.q, v, model.l, model.lc, gravity * model.gravity, jac, gamma)
 
 
-@no_refcount_jit(cache=True, inline="always")
+@no_refcount_jit(cache=True)
 def _planar_point_forms(model, e, jac, gamma, out, lift):
     """From the link vectors a_k (the last link's to its centre of mass), which the geometry
     holds: J̇v = −Σ_k ω_k² a_k with ω_k = v_1 + … + v_k, so P_r,ij = −Σ_{k ≥ max(i, j)} a_k,r
