@@ -10,13 +10,13 @@ load marked invariant (the struct never changes while a kernel runs), so the com
 it out of loops as it did the NamedTuple's members.
 
 The record's arrays stay owned by the NamedTuple the struct was built from, which the
-reference keeps alive; the struct's arrays carry no numba meminfo, so compiled code never
-counts references to them (the kernels are compiled without reference counting anyway,
-:func:`~cosim.numba_compat.no_refcount_jit`). Python reads the fields through the reference
-as from the NamedTuple.
+reference keeps alive; the struct's arrays carry no numba meminfo (their parent is the
+NumPy array itself), so compiled code never counts references to them (the kernels are
+compiled without reference counting anyway, :func:`~cosim.numba_compat.no_refcount_jit`).
+Python reads the fields through the reference as from the NamedTuple.
 
 This module uses numba's extension API (a type, its data model, its attributes, its unboxing)
-and its internal ``cgutils``; tests/test_numba_compat.py checks it against the numba
+and its internal ``cgutils``; tests/test_records.py checks it against the numba
 installed.
 """
 
@@ -60,6 +60,11 @@ class RecordType(types.Type):
         listed = ", ".join(f"{name}: {kind}" for name, kind in self.fields)
         super().__init__(name=f"{record.__module__}.{record.__qualname__}Ref({listed})")
 
+    @property
+    def key(self) -> tuple:
+        # the class itself, not its name: a class defined again (a reload) is another type
+        return self.instance_class, self.fields
+
 
 @register_model(RecordType)
 class _RecordModel(models.PrimitiveModel):
@@ -92,9 +97,13 @@ def _record_getattr(context, builder, typ: RecordType, value, attr: str):
 @unbox(RecordType)
 def _unbox_record(typ: RecordType, obj, c):
     address = c.pyapi.object_getattr_string(obj, "_address")
-    pointer = c.pyapi.long_as_voidptr(address)
-    c.pyapi.decref(address)
-    return NativeValue(c.builder.bitcast(pointer, c.context.get_value_type(typ)))
+    failed = cgutils.is_null(c.builder, address)  # not a reference: Python's error stands
+    pointer = cgutils.alloca_once_value(c.builder, cgutils.voidptr_t(None))
+    with c.builder.if_then(c.builder.not_(failed)):
+        c.builder.store(c.pyapi.long_as_voidptr(address), pointer)
+        c.pyapi.decref(address)
+    value = c.builder.bitcast(c.builder.load(pointer), c.context.get_value_type(typ))
+    return NativeValue(value, is_error=failed)
 
 
 @functools.cache
@@ -103,9 +112,9 @@ def _ctype(kind: types.Type) -> Any:
     if isinstance(kind, types.Array):  # numba's ArrayModel, member for member
         return type(f"Array{kind.ndim}", (ctypes.Structure,), {"_fields_": [
             ("meminfo", ctypes.c_void_p), ("parent", ctypes.c_void_p),
-            ("nitems", ctypes.c_int64), ("itemsize", ctypes.c_int64),
-            ("data", ctypes.c_void_p), ("shape", ctypes.c_int64 * kind.ndim),
-            ("strides", ctypes.c_int64 * kind.ndim)]})
+            ("nitems", ctypes.c_ssize_t), ("itemsize", ctypes.c_ssize_t),
+            ("data", ctypes.c_void_p), ("shape", ctypes.c_ssize_t * kind.ndim),
+            ("strides", ctypes.c_ssize_t * kind.ndim)]})
     if isinstance(kind, RecordType):
         return ctypes.c_void_p
     if isinstance(kind, types.BaseTuple):  # a NamedTuple field (a model): its members inline
@@ -128,7 +137,9 @@ def _struct(kind: RecordType) -> type:
 def _native(kind: types.Type, value: Any) -> Any:
     """``value`` as a ctypes value of :func:`_ctype` (kind)."""
     if isinstance(kind, types.Array):
-        array = _ctype(kind)(nitems=value.size, itemsize=value.itemsize,
+        # parent: the array itself (kept alive by the reference), which numba hands back
+        # should compiled code that counts references return the array to Python
+        array = _ctype(kind)(parent=id(value), nitems=value.size, itemsize=value.itemsize,
                              data=value.ctypes.data)
         array.shape[:], array.strides[:] = value.shape, value.strides
         return array
@@ -162,7 +173,11 @@ class RecordReference:
         self._address = ctypes.addressof(self._struct)
 
     def __getattr__(self, name: str) -> Any:
-        return getattr(self.__dict__["record"], name)
+        try:
+            record = self.__dict__["record"]
+        except KeyError:  # not built yet (a copy being made): no fields to read
+            raise AttributeError(name) from None
+        return getattr(record, name)
 
     def __repr__(self) -> str:
         return f"reference to {self.record!r}"

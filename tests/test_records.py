@@ -14,10 +14,10 @@ from typing import NamedTuple
 
 import numpy as np
 import pytest
-from numba import typeof
+from numba import njit, typeof
 
 from cosim.blocks.base import kernel_args
-from cosim.numba_compat import no_refcount_jit
+from cosim.numba_compat import compiled_entry_point, no_refcount_jit
 from cosim.records import RecordReference, RecordType, kernel_record, reference
 
 
@@ -133,3 +133,20 @@ def test_a_cached_kernel_taking_a_reference_loads_in_a_fresh_process(tmp_path):
         assert run.returncode == 0, run.stderr
     assert runs[0].stdout.split() == ["3.0", "0"]  # compiled, saved
     assert runs[1].stdout.split() == ["3.0", "1"]  # loaded from the cache
+
+
+@njit
+def _whole(a):
+    return a.vector
+
+
+def test_a_kernel_that_counts_references_hands_back_the_array_itself():
+    record = _outer()
+    assert _whole(reference(record)) is record.vector
+
+
+def test_a_kernel_given_what_is_no_reference_raises_and_does_not_crash():
+    kind = typeof(reference(_outer()))
+    entry = compiled_entry_point(_read, (kind,))
+    with pytest.raises(AttributeError, match="_address"):
+        entry(_outer())
