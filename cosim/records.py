@@ -50,7 +50,10 @@ def is_kernel_record(record: type) -> bool:
 
 class RecordType(types.Type):
     """numba's type of a record reference: the record's class (``instance_class``, as
-    numba's NamedTuple types name it) and its fields' types."""
+    numba's NamedTuple types name it) and its fields' types. Equal by name (numba's default
+    key: the class's module and qualified name, every field's type), not by the class
+    object, which numba's cache pickles by value where it cannot by reference (a script's
+    ``__main__``): a loaded index would never match again."""
 
     def __init__(self, record: type, fields: tuple[tuple[str, types.Type], ...]):
         self.instance_class = record
@@ -59,11 +62,6 @@ class RecordType(types.Type):
         self.field_types = dict(self.fields)
         listed = ", ".join(f"{name}: {kind}" for name, kind in self.fields)
         super().__init__(name=f"{record.__module__}.{record.__qualname__}Ref({listed})")
-
-    @property
-    def key(self) -> tuple:
-        # the class itself, not its name: a class defined again (a reload) is another type
-        return self.instance_class, self.fields
 
 
 @register_model(RecordType)
