@@ -13,7 +13,10 @@ Figures (each printed with what it counts):
 - the lines of cosim/paper;
 - cosim/paper's imports of project modules that docs/api.md does not document;
 - the parameter's occurrences as a name in code (not in comments or strings), and in how
-  many files.
+  many files; the places it is written (a field declared, a keyword argument, an
+  assignment, a ``per_joint`` entry), each listed;
+- of the kernel records' fields, how many declare their source (cosim.blocks.binding) and
+  how many ``reset`` still gives by hand; the blocks listing ``per_joint`` by hand.
 """
 
 from __future__ import annotations
@@ -68,6 +71,54 @@ def record_fields() -> dict[str, int]:
                     getattr(base, "id", None) == "NamedTuple" for base in node.bases):
                 out[f"{path.relative_to(ROOT)}:{node.name}"] = sum(
                     isinstance(item, ast.AnnAssign) for item in node.body)
+    return out
+
+
+SOURCES = ("parameter", "reads", "writes", "uncertainty", "master_step", "scratch")
+
+
+def declared_fields() -> dict[str, int]:
+    """Kernel record (Args, Work, Envelope) -> its fields whose annotation names a source."""
+    out = {}
+    for path in ROOT.glob("cosim/**/*.py"):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ClassDef) and re.search(r"(Args|Work|Envelope)$", node.name):
+                out[f"{path.relative_to(ROOT)}:{node.name}"] = sum(
+                    isinstance(item, ast.AnnAssign) and isinstance(item.annotation, ast.Call)
+                    and getattr(item.annotation.func, "id", None) in SOURCES
+                    for item in node.body)
+    return out
+
+
+def per_joint_lists() -> list[str]:
+    """Blocks whose class assigns ``per_joint`` by hand."""
+    return [f"{path.relative_to(ROOT)}:{node.name}" for path in ROOT.glob("cosim/**/*.py")
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8")))
+            if isinstance(node, ast.ClassDef) and any(
+                isinstance(item, ast.Assign) and getattr(item.targets[0], "id", "") == "per_joint"
+                for item in node.body)]
+
+
+def writes_of(name: str) -> list[str]:
+    """Where ``name`` is written over cosim/: a class field declared with it, a keyword
+    argument, an assignment to it (a name or an attribute), a ``per_joint`` entry."""
+    out = []
+    for path in sorted(ROOT.glob("cosim/**/*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            where = f"{path.relative_to(ROOT)}:{getattr(node, 'lineno', '')}"
+            if isinstance(node, ast.AnnAssign) and getattr(node.target, "id", None) == name:
+                out.append(f"{where} field")
+            elif isinstance(node, ast.keyword) and node.arg == name:
+                out.append(f"{path.relative_to(ROOT)}:{node.value.lineno} keyword")
+            elif isinstance(node, ast.Assign):
+                targets = [t for target in node.targets
+                           for t in (target.elts if isinstance(target, ast.Tuple) else [target])]
+                if any(getattr(t, "id", getattr(t, "attr", None)) == name for t in targets):
+                    out.append(f"{where} assignment")
+                if any(getattr(t, "id", None) == "per_joint" for t in targets) and any(
+                        isinstance(c, ast.Constant) and c.value == name
+                        for c in ast.walk(node.value)):
+                    out.append(f"{where} per_joint")
     return out
 
 
@@ -127,8 +178,14 @@ def main() -> None:
     kernel = {k: v for k, v in records.items() if re.search(r"(Args|Work|Envelope)$", k)}
     print(f"kernel argument/work record fields written by hand: {sum(kernel.values())} "
           f"in {len(kernel)} records (all NamedTuple fields: {sum(records.values())})")
+    declared = declared_fields()
+    print(f"  of which declare their source (bound by the framework): "
+          f"{sum(declared.values())}; given by reset: "
+          f"{sum(kernel.values()) - sum(declared.values())}")
     for where, count in sorted(kernel.items(), key=lambda item: -item[1]):
-        print(f"  {count:4d}  {where}")
+        print(f"  {count:4d}  {where} ({declared.get(where, 0)} declared)")
+    lists = per_joint_lists()
+    print(f"blocks listing per_joint by hand: {len(lists)}")
     scratch = ROOT / "cosim/paper/cbf_filter/scratch.py"
     print(f"index constants by hand in {scratch.relative_to(ROOT)}: {index_constants(scratch)}")
 
@@ -140,6 +197,10 @@ def main() -> None:
         print(f"  {module} -> {imported}")
     total, files = name_occurrences(args.parameter)
     print(f"'{args.parameter}' as a name in code: {total} times in {files} files of cosim/")
+    written = writes_of(args.parameter)
+    print(f"'{args.parameter}' written: {len(written)} places")
+    for where in written:
+        print(f"  {where}")
 
 
 if __name__ == "__main__":

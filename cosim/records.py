@@ -5,7 +5,7 @@ arrays (seven for a 2-d array): the filter's record of ~100 arrays gave each fun
 takes it 770 parameters, and compiling them took minutes (docs/performance.md). A record
 class marked with :func:`kernel_record` is handed to compiled code instead as one pointer to
 a C struct that holds its fields as numba lays them out, built once when the block is reset
-(:func:`~cosim.blocks.base.kernel_args`). A kernel still reads ``args.field``; the read is a
+(:func:`~cosim.blocks.binding.kernel_args`). A kernel still reads ``args.field``; the read is a
 load marked invariant (the struct never changes while a kernel runs), so the compiler hoists
 it out of loops as it did the NamedTuple's members.
 
@@ -38,7 +38,7 @@ Record = TypeVar("Record", bound=type)
 
 def kernel_record(record: Record) -> Record:
     """Mark ``record`` (a NamedTuple class) as a kernel's argument record:
-    :func:`~cosim.blocks.base.kernel_args` hands it to compiled code as one pointer
+    :func:`~cosim.blocks.binding.kernel_args` hands it to compiled code as one pointer
     (:func:`reference`)."""
     record.__kernel_record__ = True
     return record

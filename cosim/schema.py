@@ -3,6 +3,7 @@ number types every block's parameters use. SI units, radians."""
 
 from __future__ import annotations
 
+import typing
 from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field, Strict
@@ -15,7 +16,30 @@ FiniteFloat = Annotated[float, Strict(), Field(allow_inf_nan=False)]
 # A file's name: never empty (an empty path is the folder it is relative to, not a file)
 FileName = Annotated[str, Field(min_length=1)]
 Seed = Annotated[int, Field(ge=0)]  # numpy's generators take non-negative seeds only
-GainVector = PositiveFloat | list[PositiveFloat]  # one value for every joint, or one each
+
+
+class PerJoint:
+    """A parameter given per joint: ``PerJoint[PositiveFloat]`` takes one value for every
+    joint or a list of one each (its length checked against the plant's joints, the key
+    named), and a kernel record's :func:`~cosim.blocks.binding.parameter` reads it as an
+    (n,) array. ``PerJoint.marker`` inside an ``Annotated`` marks a type of another form
+    (a name or a list, say)."""
+
+    marker = "per joint"
+
+    def __class_getitem__(cls, item: object) -> object:
+        return Annotated[item | list[item], cls.marker]
+
+
+class JointList:
+    """A parameter given as a list of one value per joint (no one value for all):
+    ``JointList[PositiveFloat]``, its length checked as :class:`PerJoint`'s."""
+
+    def __class_getitem__(cls, item: object) -> object:
+        return Annotated[list[item], PerJoint.marker]
+
+
+GainVector = PerJoint[PositiveFloat]  # one value for every joint, or one each
 
 
 class PipelineError(ValueError):
@@ -27,3 +51,14 @@ class Section(BaseModel):
 
     model_config = ConfigDict(extra="forbid", populate_by_name=True)
 
+
+def per_joint_keys(section: type[BaseModel]) -> tuple[str, ...]:
+    """The keys (aliases where given) of ``section``'s fields declared :class:`PerJoint`."""
+
+    def marked(annotation: object) -> bool:
+        if PerJoint.marker in getattr(annotation, "__metadata__", ()):
+            return True
+        return any(marked(argument) for argument in typing.get_args(annotation))
+
+    return tuple(field.alias or name for name, field in section.model_fields.items()
+                 if PerJoint.marker in field.metadata or marked(field.annotation))

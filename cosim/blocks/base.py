@@ -22,7 +22,8 @@ work with the constants the blocks before publish (the step against a controller
 Stepping: ``reset(ports)`` binds the trace arrays and sets the initial state;
 ``step(k)`` computes row k and returns False if an output is not finite. A block whose
 work is a numba kernel ``kernel(k, args) -> bool`` (``args``: a NamedTuple set by reset,
-built with :func:`kernel_args`) gets ``step`` for free, and the master can fuse it with the
+built by :meth:`Block.bind` from what its fields declare, :mod:`cosim.blocks.binding`)
+gets ``step`` for free, and the master can fuse it with the
 others into one compiled loop.
 """
 
@@ -30,36 +31,17 @@ from __future__ import annotations
 
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import ClassVar, TypeVar
+from typing import ClassVar
 
 import numpy as np
 
 from ..declared import Safety, Uncertainty
-from ..records import is_kernel_record, reference
-from ..schema import Section
+from ..schema import Section, per_joint_keys
 from ..signals import Signal, Trace
+from .binding import Record, bind, kernel_args
 
-Record = TypeVar("Record", bound=tuple)
-
-
-def kernel_args(record: type[Record], **fields: object) -> Record:
-    """``record`` (a NamedTuple class: a kernel's arguments, a published model) built from
-    its fields by name, every one given: built by position, two swapped fields of one type
-    would run silently. A missing or an unknown field is refused, named, when the block is
-    reset. A record marked :func:`~cosim.records.kernel_record` comes back as the
-    one pointer compiled code takes (:func:`~cosim.records.reference`), its fields
-    read as the record's."""
-    missing = [name for name in record._fields if name not in fields]
-    unknown = [name for name in fields if name not in record._fields]
-    if missing or unknown:
-        problems = [f"{label} {', '.join(names)}" for label, names in
-                    (("missing", missing), ("unknown", unknown)) if names]
-        raise TypeError(f"{record.__name__}: {'; '.join(problems)} (its fields: "
-                        f"{', '.join(record._fields)})")
-    built = record(**fields)
-    if not is_kernel_record(record):
-        return built
-    return reference(built)
+__all__ = ["BLOCKS", "Block", "BlockContext", "Ports", "default_chain", "kernel_args",
+           "register_block", "set_default_chain"]
 
 
 @dataclass(frozen=True)
@@ -96,7 +78,8 @@ class Block:
     kind: ClassVar[str]
     Params: ClassVar[type[Section]]
     kernel: ClassVar[Callable[..., bool] | None] = None
-    # Parameters given per joint (a list must have one entry per joint; a scalar serves all).
+    # Parameters given per joint (a list must have one entry per joint; a scalar serves all):
+    # those Params declares cosim.schema.PerJoint, by key, set as the class is made.
     per_joint: ClassVar[tuple[str, ...]] = ()
     # The constants its instances publish, each with its type: the wiring checks every
     # published value against it, and names the publishers in its messages.
@@ -123,9 +106,20 @@ class Block:
         kernel = cls.__dict__.get("kernel")
         if kernel is not None and not isinstance(kernel, staticmethod):
             cls.kernel = staticmethod(kernel)
+        params = cls.__dict__.get("Params")
+        if isinstance(params, type) and issubclass(params, Section):
+            cls.per_joint = tuple(dict.fromkeys((*per_joint_keys(params),
+                                                 *cls.__dict__.get("per_joint", ()))))
 
     def reset(self, ports: Ports) -> None:
         raise NotImplementedError
+
+    def bind(self, record: type[Record], ports: Ports, sizes: dict[str, int] | None = None,
+             **computed: object) -> Record:
+        """The kernel's record, its declared fields bound from this block's parameters,
+        context and ports (:mod:`cosim.blocks.binding`), the others from ``computed``;
+        ``sizes`` names the sizes its scratch's shapes use beyond ``n``."""
+        return bind(record, self, ports, sizes, **computed)
 
     def step(self, k: int) -> bool:
         return True if self.kernel is None else self.kernel(k, self.args)

@@ -24,6 +24,7 @@ from numba import njit
 from pydantic import Field
 
 from ..blocks.base import Block, BlockContext, Ports, kernel_args, register_block
+from ..blocks.binding import master_step, parameter, reads, scratch, writes
 from ..records import kernel_record
 from ..schema import GainVector, NonNegativeFloat, PipelineError, PositiveFloat, Section, Seed
 from ..signals import Signal
@@ -99,46 +100,45 @@ class NnGains(NamedTuple):
 
 @kernel_record
 class ControllerArgs(NamedTuple):
-    dt: float  # master step, s
+    dt: master_step()  # s
     proposed: bool
     finite_difference: bool  # velocity = backward difference of position
-    f: float
-    g: float
-    kappa: float
-    kz: float
+    f: parameter()
+    g: parameter()
+    kappa: parameter()
+    kz: parameter()
     z_w: float  # Z_B (baseline) or Z_Wc (proposed)
-    c0: float
-    c1: float
-    delta: float
-    psi_b: float
-    hidden: int
-    lam: np.ndarray  # (n,)
-    kv: np.ndarray  # (n,)
+    c0: parameter()
+    c1: parameter()
+    delta: parameter()
+    psi_b: parameter()
+    hidden: parameter()
+    lam: parameter()  # (n,)
+    kv: parameter()  # (n,)
     inertia_scaled: bool  # τ = M̂(q)(f̂ + Kv r̂ − v): scale = "inertia"
     M_model: np.ndarray  # M̂ per row (steps, n, n); (1, n, n) zeros when not scaled
     state: np.ndarray  # Ŵ ((hidden+1) × n), V̂ ((1+5n) × hidden), flat
     position: np.ndarray  # q (baseline) or q_meas (proposed)
     velocity: np.ndarray  # q̇ (baseline) or x̂2 (proposed)
-    q_d: np.ndarray
-    qdot_d: np.ndarray
-    qddot_d: np.ndarray
-    tau: np.ndarray
-    e: np.ndarray
-    edot: np.ndarray
-    r_hat: np.ndarray
-    nn_output: np.ndarray
-    v_c: np.ndarray
-    W_norm: np.ndarray
-    V_norm: np.ndarray
-    feedback_gain: np.ndarray
-    # scratch, so that a step allocates nothing: ξ (1 + 5n), V̂ᵀξ (hidden), σ̂ (hidden + 1),
-    # σ̂'ᵀŴr̂ (hidden), the feedback Kv r̂ − v (n), an acceleration's torque M̂a (n)
-    xi: np.ndarray
-    act: np.ndarray
-    sig_hat: np.ndarray
-    back: np.ndarray
-    feedback: np.ndarray
-    scaled: np.ndarray
+    q_d: reads()
+    qdot_d: reads()
+    qddot_d: reads()
+    tau: writes()
+    e: writes()
+    edot: writes()
+    r_hat: writes()
+    nn_output: writes()
+    v_c: writes()
+    W_norm: writes()
+    V_norm: writes()
+    feedback_gain: writes()
+    # scratch, so that a step allocates nothing
+    xi: scratch("1 + 5 * n")  # ξ
+    act: scratch("hidden")  # V̂ᵀξ
+    sig_hat: scratch("hidden + 1")  # σ̂
+    back: scratch("hidden")  # σ̂'ᵀŴr̂
+    feedback: scratch("n")  # the feedback Kv r̂ − v
+    scaled: scratch("n")  # an acceleration's torque M̂a
 
 
 @njit(cache=True)
@@ -269,7 +269,6 @@ def controller_step(k, a):
 class NnController(Block):
     kind = "controller"
     Params = ControllerParams
-    per_joint = ("kv", "lambda")
     kernel = controller_step
     # nn_gains: NnGains (Λ, F, G), for Theorem 1's R and barriers; velocity_source: where ė
     # comes from ("plant", "observer" or "finite_difference").
@@ -363,22 +362,12 @@ class NnController(Block):
 
     def reset(self, ports: Ports) -> None:
         p, n = self.params, self.context.links
-        n_in = 1 + 5 * n
-        inp, out = ports.inputs, ports.outputs
-        weights = self.initial_weights()
-        self.args = kernel_args(
-            ControllerArgs, dt=self.context.dt, proposed=p.variant == "proposed",
+        inp = ports.inputs
+        self.args = self.bind(
+            ControllerArgs, ports, proposed=p.variant == "proposed",
             finite_difference=self.velocity_source == "finite_difference",
-            f=p.f, g=p.g, kappa=p.kappa, kz=p.kz,
-            z_w=p.z_b if p.variant == "baseline" else p.z_wc, c0=p.c0, c1=p.c1,
-            delta=p.delta, psi_b=p.psi_b, hidden=p.hidden,
-            lam=np.broadcast_to(np.asarray(p.lam, float), (n,)).copy(),
-            kv=np.broadcast_to(np.asarray(p.kv, float), (n,)).copy(),
+            z_w=p.z_b if p.variant == "baseline" else p.z_wc,
             inertia_scaled=p.scale == "inertia",
             M_model=inp["M_model"] if p.scale == "inertia" else np.zeros((1, n, n)),
-            state=weights, position=inp[self.position], velocity=inp[self.velocity],
-            q_d=inp["q_d"], qdot_d=inp["qdot_d"], qddot_d=inp["qddot_d"],
-            **{name: out[name] for name in ("tau", "e", "edot", "r_hat", "nn_output", "v_c",
-                                            "W_norm", "V_norm", "feedback_gain")},
-            xi=np.empty(n_in), act=np.empty(p.hidden), sig_hat=np.empty(p.hidden + 1),
-            back=np.empty(p.hidden), feedback=np.empty(n), scaled=np.empty(n))
+            state=self.initial_weights(), position=inp[self.position],
+            velocity=inp[self.velocity])

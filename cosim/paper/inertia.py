@@ -21,6 +21,7 @@ from numba import njit
 from plant_fmu.models.planar_arm import PAPER_MASSES
 
 from ..blocks.base import Block, BlockContext, Ports, kernel_args, register_block
+from ..blocks.binding import reads, writes
 from ..dynamics.model import (
     NO_FRICTION_VELOCITY,
     RIGID_BODY_MODELS,
@@ -49,7 +50,16 @@ from ..dynamics.planar import (  # noqa: F401  (re-exported: the planar chain's 
     planar_mass_matrix,
 )
 from ..records import kernel_record
-from ..schema import FileName, FiniteFloat, NonNegativeFloat, PipelineError, PositiveFloat, Section
+from ..schema import (
+    FileName,
+    FiniteFloat,
+    JointList,
+    NonNegativeFloat,
+    PerJoint,
+    PipelineError,
+    PositiveFloat,
+    Section,
+)
 from ..signals import Signal
 
 
@@ -62,13 +72,13 @@ class InertiaModelParams(Section):
     # where the inertia model M̂(q) comes from (a name): "fmu", the FMU's M outputs;
     # "nominal", the nominal chain (m, l, lc, I); "auto", the FMU's when mapped, else nominal
     source: Literal["auto", "fmu", "nominal"] = "auto"
-    m: list[PositiveFloat] | None = None  # the nominal chain's mass of each link, kg
+    m: JointList[PositiveFloat] | None = None  # the nominal chain's mass of each link, kg
     # the nominal chain's length of each link, joint i to joint i+1, m
-    l: list[PositiveFloat] | None = None  # noqa: E741
+    l: JointList[PositiveFloat] | None = None  # noqa: E741
     # the nominal chain's distance from joint i to link i's centre of mass, m
-    lc: list[FiniteFloat] | None = None
+    lc: JointList[FiniteFloat] | None = None
     # the nominal chain's rotational inertia of each link about its centre of mass, kg·m²
-    I: list[NonNegativeFloat] | None = None  # noqa: E741
+    I: JointList[NonNegativeFloat] | None = None  # noqa: E741
     # gravitational acceleration of the nominal chain's bias b̂ = C q̇ + G, m/s²
     gravity: FiniteFloat = 9.8
     # a nominal URDF instead of the planar chain (a path relative to the pipeline file, to
@@ -83,10 +93,10 @@ class InertiaModelParams(Section):
     fixed: dict[str, FiniteFloat] | None = None
     # the nominal model's viscous friction b̂ per joint (or one for all), N·m·s/rad; unset:
     # the nominal URDF's <dynamics damping>, 0 for the planar chain (the plant's b[i])
-    b: NonNegativeFloat | list[NonNegativeFloat] | None = None
+    b: PerJoint[NonNegativeFloat] | None = None
     # its Coulomb friction f̂c per joint (or one for all), smoothed as f̂c tanh(q̇/fc_vel),
     # N·m; unset: the nominal URDF's <dynamics friction>, 0 for the planar chain (fc[i])
-    fc: NonNegativeFloat | list[NonNegativeFloat] | None = None
+    fc: PerJoint[NonNegativeFloat] | None = None
     # the Coulomb friction's smoothing velocity, as the plant FMUs' fc_vel[i], rad/s
     fc_vel: PositiveFloat = NO_FRICTION_VELOCITY
 
@@ -113,9 +123,9 @@ def default_links(links: int) -> dict[str, list[float]]:
 
 @kernel_record
 class NominalArgs(NamedTuple):
-    q_meas: np.ndarray
+    q_meas: reads()
     model: RigidBodyModel
-    M_model: np.ndarray
+    M_model: writes()
 
 
 @njit(cache=True)
@@ -156,7 +166,6 @@ class InertiaModel(Block):
 
     kind = "inertia_model"
     Params = InertiaModelParams
-    per_joint = ("m", "l", "lc", "I", "b", "fc")
     # nominal_model: the rigid-body model (planar chain or a URDF's spatial chain) the
     # observer, the PD controller and the filter compute M̂, b̂ and the payload's point with;
     # nominal_chain: the planar chain's parameters (planar only), for the guarantee's
@@ -249,8 +258,7 @@ class InertiaModel(Block):
             # has nothing to copy.
             ports.trace.arrays["M_model"] = ports.inputs["M"]
             return
-        self.args = kernel_args(NominalArgs, q_meas=ports.inputs["q_meas"],
-                                model=own_scratch(self.model), M_model=ports.outputs["M_model"])
+        self.args = self.bind(NominalArgs, ports, model=own_scratch(self.model))
 
     def describe(self) -> dict:
         if self.source == "fmu":

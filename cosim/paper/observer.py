@@ -84,7 +84,8 @@ import numpy as np
 from numba import njit
 from pydantic import Field
 
-from ..blocks.base import Block, BlockContext, Ports, kernel_args, register_block
+from ..blocks.base import Block, BlockContext, Ports, register_block
+from ..blocks.binding import master_step, parameter, reads, scratch, uncertainty, writes
 from ..dynamics.model import (
     RigidBodyModel,
     model_bias,
@@ -101,7 +102,7 @@ from ..dynamics.model import (
 )
 from ..numba_compat import no_refcount_jit
 from ..records import kernel_record
-from ..schema import FiniteFloat, NonNegativeFloat, PositiveFloat, Section
+from ..schema import FiniteFloat, NonNegativeFloat, PerJoint, PositiveFloat, Section
 from ..signals import Signal
 from .inertia import InertiaModel, default_links
 from .linalg import invert, linear_part, small_symmetric_eigen, solve
@@ -139,10 +140,11 @@ class ObserverParams(Section):
     # sub-steps of the observer's integration per master step, dimensionless (a count)
     substeps: Annotated[int, Field(ge=1, le=1000)] = 10
     # the disturbance torque τ_d that (7) assumes known, per joint or one for all, N·m
-    tau_d: FiniteFloat | list[FiniteFloat] = 0.01
+    tau_d: PerJoint[FiniteFloat] = 0.01
     # the initial velocity estimate x̂2(0): "desired", the reference's q̇_d(0), "zero", or
     # one value per joint, rad/s
-    initial_velocity: Literal["desired", "zero"] | list[FiniteFloat] = "desired"
+    initial_velocity: Annotated[Literal["desired", "zero"] | list[FiniteFloat],
+                                PerJoint.marker] = "desired"
     # longest window of the certified envelope's position-difference estimates of q̇ (ε(t),
     # module docstring), dimensionless (a count of steps)
     window: Annotated[int, Field(ge=1, le=10000)] = 16
@@ -157,46 +159,45 @@ def basis_size(links: int, basis: str) -> int:
 
 @kernel_record
 class ObserverArgs(NamedTuple):
-    dt: float  # master step, s
-    substeps: int
+    dt: master_step()  # s
+    substeps: parameter()
     law: int  # LAWS
     basis: int  # BASES
-    kp: float
-    kd: float
-    nu: float
-    z_wo: float
+    kp: parameter()
+    kd: parameter()
+    nu: parameter()
+    z_wo: parameter()
     eps_sum: float  # ε_oM + ζ_oM
     kp_kd: float  # kp kD, √No and 2√(kp kD): (8)'s constant factors, once
     sqrt_basis: float
     den_scale: float
-    fo: float
-    kappa_o: float
+    fo: parameter()
+    kappa_o: parameter()
     n_basis: int
-    tau_d: np.ndarray  # (n,) N·m
+    tau_d: parameter()  # (n,) N·m
     initial_velocity: np.ndarray  # (n,) x̂2(0)
-    noise_bound: float  # declared |q_meas − q|, rad
-    initial_error: float  # declared |q̇(0) − x̂2(0)|, rad/s
-    state: np.ndarray  # x̂1, ẑ2, q̂̈, Ŵo (n_basis × n), flat
-    q_meas: np.ndarray
-    tau: np.ndarray
-    M_model: np.ndarray
-    q_d: np.ndarray
-    q_hat: np.ndarray
-    qdot_hat: np.ndarray
-    k0: np.ndarray
-    W_o_norm: np.ndarray
-    error_bound: np.ndarray  # ε(t) per joint
-    envelope_centre: np.ndarray  # the certified interval's centre c per joint
-    drift: np.ndarray  # dx̂2/dt − M̂⁻¹τ
-    # scratch, so that a step allocates nothing: σo (n_basis), y, x̃1, x̂2, Ŵoᵀσo (+ M̂⁻¹τ)
-    # (n each), M̂⁻¹(τ − τ_d) (n × 1, the solve's right-hand side), M̂'s elimination (n × n)
-    sigma: np.ndarray
-    y: np.ndarray
-    x1_err: np.ndarray
-    x2: np.ndarray
-    g: np.ndarray
-    torque_term: np.ndarray
-    lu: np.ndarray
+    noise_bound: uncertainty()  # declared |q_meas − q|, rad
+    initial_error: uncertainty("initial_velocity_error")  # declared |q̇(0) − x̂2(0)|, rad/s
+    state: scratch("3 * n + n_basis * n")  # x̂1, ẑ2, q̂̈, Ŵo (n_basis × n), flat; Ŵo from 0
+    q_meas: reads()
+    tau: reads()
+    M_model: reads()
+    q_d: reads()
+    q_hat: writes()
+    qdot_hat: writes()
+    k0: writes()
+    W_o_norm: writes()
+    error_bound: writes("qdot_hat_bound")  # ε(t) per joint
+    envelope_centre: writes("qdot_envelope_centre")  # the certified interval's centre c
+    drift: writes("qdot_hat_drift")  # dx̂2/dt − M̂⁻¹τ
+    # scratch, so that a step allocates nothing
+    sigma: scratch("n_basis")  # σo
+    y: scratch("n")
+    x1_err: scratch("n")  # x̃1
+    x2: scratch("n")  # x̂2
+    g: scratch("n")  # Ŵoᵀσo (+ M̂⁻¹τ)
+    torque_term: scratch("n, 1")  # M̂⁻¹(τ − τ_d), the solve's right-hand side
+    lu: scratch("n, n")  # M̂'s elimination
     env: Envelope  # the certified velocity envelope behind ε(t)
 
 
@@ -230,40 +231,40 @@ class Envelope(NamedTuple):
     dimension (the model's: 2 for the planar chain, 3 for a spatial one)."""
 
     model: RigidBodyModel  # the nominal model (inertia_model's nominal_model)
-    zeros: np.ndarray  # (n,)
+    zeros: scratch("n")  # stays 0
     payload_low: float  # declared payload range, kg
     payload_high: float
     cells: np.ndarray  # (P + 1,) the payload cells' edges, low … high, kg
-    disturbance: float  # declared d̄, N·m
-    window: int  # longest window of the position-difference estimates, steps
-    interval: np.ndarray  # (P, 2, n): per payload cell, q̇(t_k) ∈ [lo, hi], the state
+    disturbance: uncertainty()  # declared d̄, N·m
+    window: parameter()  # longest window of the position-difference estimates, steps
+    interval: scratch("P, 2, n")  # per payload cell, q̇(t_k) ∈ [lo, hi], the state
     alive: np.ndarray  # (P,) 1 while the cell is consistent with the measurements, else 0
-    since: np.ndarray  # (P,) int: the first step whose acc row the cell has (revived cells)
-    hull: np.ndarray  # (2, n) the hull of the live cells' intervals: what ε(t) uses
-    rho: np.ndarray  # (P, n) the a-priori enclosure's widening of the last step, rad/s
-    acc: np.ndarray  # (P, steps, 2, n): q̈ ∈ [lo, hi] over [t_j, t_j+1], rad/s²
-    minv: np.ndarray  # (2, n, n) M̂⁻¹ at the slot's position
-    pabs: np.ndarray  # (2, P, n, n) max over the corners of |M(Δm)⁻¹|, entrywise
-    rmat: np.ndarray  # (2, n, d) M̂⁻¹JᵀV
-    vec: np.ndarray  # (2, d, d) V, K = J M̂⁻¹ Jᵀ = V Λ Vᵀ
-    s: np.ndarray  # (2, P, 2, d) s_j(Δm) = Δm/(1 + Δm λ_j) at [slot, cell, end, j]
-    forms: np.ndarray  # (2, 2, n, n, n) Γ of the nominal model [0] and of a unit payload [1]
-    grav: np.ndarray  # (2, n) the nominal model's gravity torque G(y)
-    jac: np.ndarray  # (2, d, n) the payload point's Jacobian J
-    point_forms: np.ndarray  # (2, d, n, n) J̇v = (vᵀP_r v)_r, the point's velocity part
-    lift: np.ndarray  # (2, d) −g at the point: γ = J̇v − g
+    since: scratch("P", int)  # the first step whose acc row the cell has (revived cells)
+    hull: scratch("2, n")  # the hull of the live cells' intervals: what ε(t) uses
+    rho: scratch("P, n")  # the a-priori enclosure's widening of the last step, rad/s
+    acc: scratch("P, steps, 2, n")  # q̈ ∈ [lo, hi] over [t_j, t_j+1], rad/s²
+    minv: scratch("2, n, n")  # M̂⁻¹ at the slot's position
+    pabs: scratch("2, P, n, n")  # max over the corners of |M(Δm)⁻¹|, entrywise
+    rmat: scratch("2, n, d")  # M̂⁻¹JᵀV
+    vec: scratch("2, d, d")  # V, K = J M̂⁻¹ Jᵀ = V Λ Vᵀ
+    s: scratch("2, P, 2, d")  # s_j(Δm) = Δm/(1 + Δm λ_j) at [slot, cell, end, j]
+    forms: scratch("2, 2, n, n, n")  # Γ of the nominal model [0] and of a unit payload [1]
+    grav: scratch("2, n")  # the nominal model's gravity torque G(y)
+    jac: scratch("2, d, n")  # the payload point's Jacobian J
+    point_forms: scratch("2, d, n, n")  # J̇v = (vᵀP_r v)_r, the point's velocity part
+    lift: scratch("2, d")  # −g at the point: γ = J̇v − g
     # scratch
-    mass: np.ndarray  # (n, n)
-    lu: np.ndarray  # (n, n)
-    kmat: np.ndarray  # (d, d)
-    lam: np.ndarray  # (d,)
-    eigen_work: np.ndarray  # (d, d)
-    work: np.ndarray  # (8, n): e, plus, minus, u, centre, radius, acc lo, acc hi
-    bmat: np.ndarray  # (2, n, n): B(Δm) at the payload cell's ends
-    linear: np.ndarray  # (2, n, n): M̂⁻¹B(Δm) at the cell's ends
-    projected: np.ndarray  # (2, d, n): RᵀB(Δm) at the cell's ends
-    point: np.ndarray  # (d,): J u + γ
-    jac_work: np.ndarray  # (d, n)
+    mass: scratch("n, n")
+    lu: scratch("n, n")
+    kmat: scratch("d, d")
+    lam: scratch("d")
+    eigen_work: scratch("d, d")
+    work: scratch("8, n")  # e, plus, minus, u, centre, radius, acc lo, acc hi
+    bmat: scratch("2, n, n")  # B(Δm) at the payload cell's ends
+    linear: scratch("2, n, n")  # M̂⁻¹B(Δm) at the cell's ends
+    projected: scratch("2, d, n")  # RᵀB(Δm) at the cell's ends
+    point: scratch("d")  # J u + γ
+    jac_work: scratch("d, n")
 
 
 E_, PLUS_, MINUS_, U_, CENTRE_, RADIUS_, ALO_, AHI_ = range(8)
@@ -709,7 +710,6 @@ def observer_step(k, a):
 class FlnnObserver(Block):
     kind = "observer"
     Params = ObserverParams
-    per_joint = ("tau_d", "initial_velocity")
     kernel = observer_step
     # tau_d_model: the disturbance bound τ_d (N·m per joint); observer_gain: Fo of (10),
     # for H1 (28).
@@ -749,31 +749,18 @@ class FlnnObserver(Block):
 
     def reset(self, ports: Ports) -> None:
         p, n = self.params, self.context.links
-        u = self.context.uncertainty
         n_basis = basis_size(n, p.basis)
         if isinstance(p.initial_velocity, str):
             v0 = (ports.inputs["qdot_d"][0] if p.initial_velocity == "desired"
                   else np.zeros(n))
         else:
             v0 = np.asarray(p.initial_velocity, float)
-        inp, out = ports.inputs, ports.outputs
-        self.args = kernel_args(
-            ObserverArgs, dt=self.context.dt, substeps=p.substeps, law=LAWS[p.law],
-            basis=BASES[p.basis], kp=p.kp, kd=p.kd, nu=p.nu, z_wo=p.z_wo,
-            eps_sum=p.eps_om + p.zeta_om, kp_kd=p.kp * p.kd, sqrt_basis=math.sqrt(n_basis),
-            den_scale=2.0 * math.sqrt(p.kp * p.kd), fo=p.fo, kappa_o=p.kappa_o,
-            n_basis=n_basis, tau_d=np.broadcast_to(np.asarray(p.tau_d, float), (n,)).copy(),
-            initial_velocity=np.array(v0, float), noise_bound=u.noise_bound,
-            initial_error=u.initial_velocity_error,
-            state=np.zeros(3 * n + n_basis * n),  # weights start at 0
-            q_meas=inp["q_meas"], tau=inp["tau"], M_model=inp["M_model"], q_d=inp["q_d"],
-            q_hat=out["q_hat"], qdot_hat=out["qdot_hat"], k0=out["k0"],
-            W_o_norm=out["W_o_norm"], error_bound=out["qdot_hat_bound"],
-            envelope_centre=out["qdot_envelope_centre"],
-            drift=out["qdot_hat_drift"], sigma=np.empty(n_basis),
-            **{name: np.empty(n) for name in ("y", "x1_err", "x2", "g")},
-            torque_term=np.empty((n, 1)), lu=np.empty((n, n)),
-            env=self._envelope(ports, len(inp["q_meas"])))
+        self.args = self.bind(
+            ObserverArgs, ports, sizes={"n_basis": n_basis}, law=LAWS[p.law],
+            basis=BASES[p.basis], eps_sum=p.eps_om + p.zeta_om, kp_kd=p.kp * p.kd,
+            sqrt_basis=math.sqrt(n_basis), den_scale=2.0 * math.sqrt(p.kp * p.kd),
+            n_basis=n_basis, initial_velocity=np.array(v0, float),
+            env=self._envelope(ports, len(ports.inputs["q_meas"])))
 
     def _envelope(self, ports: Ports, steps: int) -> Envelope:
         """The envelope's constants (the nominal model the inertia model publishes, or the
@@ -786,18 +773,7 @@ class FlnnObserver(Block):
         d = payload_dim(model)
         low, high = map(float, u.payload)
         cells = self.params.payload_cells if high > low else 1
-        return kernel_args(
-            Envelope, model=own_scratch(model), zeros=np.zeros(n), payload_low=low,
-            payload_high=high, cells=np.linspace(low, high, cells + 1),
-            disturbance=u.disturbance, window=self.params.window,
-            interval=np.zeros((cells, 2, n)), alive=np.ones(cells),
-            since=np.zeros(cells, np.int64), hull=np.zeros((2, n)),
-            rho=np.zeros((cells, n)), acc=np.zeros((cells, max(steps, 1), 2, n)),
-            minv=np.zeros((2, n, n)), pabs=np.zeros((2, cells, n, n)), rmat=np.zeros((2, n, d)),
-            vec=np.zeros((2, d, d)),
-            s=np.zeros((2, cells, 2, d)), forms=np.zeros((2, 2, n, n, n)), grav=np.zeros((2, n)),
-            jac=np.zeros((2, d, n)), point_forms=np.zeros((2, d, n, n)), lift=np.zeros((2, d)),
-            mass=np.zeros((n, n)), lu=np.zeros((n, n)), kmat=np.zeros((d, d)), lam=np.zeros(d),
-            eigen_work=np.zeros((d, d)), work=np.zeros((8, n)), bmat=np.zeros((2, n, n)),
-            linear=np.zeros((2, n, n)), projected=np.zeros((2, d, n)),
-            point=np.zeros(d), jac_work=np.zeros((d, n)))
+        return self.bind(
+            Envelope, ports, sizes={"P": cells, "steps": max(steps, 1), "d": d},
+            model=own_scratch(model), payload_low=low, payload_high=high,
+            cells=np.linspace(low, high, cells + 1), alive=np.ones(cells))

@@ -18,7 +18,8 @@ from typing import Literal, NamedTuple
 import numpy as np
 from numba import njit
 
-from ..blocks.base import Block, BlockContext, Ports, kernel_args, register_block
+from ..blocks.base import Block, BlockContext, Ports, register_block
+from ..blocks.binding import master_step, parameter, reads, scratch, writes
 from ..dynamics.model import (
     RigidBodyModel,
     model_bias,
@@ -27,7 +28,7 @@ from ..dynamics.model import (
     planar_model,
 )
 from ..records import kernel_record
-from ..schema import GainVector, NonNegativeFloat, Section
+from ..schema import GainVector, NonNegativeFloat, PerJoint, Section
 from ..signals import Signal
 from .sampled_loop import LinearGains, check_step
 
@@ -40,7 +41,7 @@ class PdControllerParams(Section):
     # proportional gain Kp on the position error e, per joint or one for all, N·m/rad
     kp: GainVector = 200.0
     # derivative gain Kd on the error rate ė, per joint or one for all, N·m·s/rad
-    kd: NonNegativeFloat | list[NonNegativeFloat] = 40.0
+    kd: PerJoint[NonNegativeFloat] = 40.0
     # where ė comes from (a name): "plant", the true q̇, or "finite_difference", the
     # measured position's backward difference
     velocity: Literal["plant", "finite_difference"] = "plant"
@@ -54,24 +55,24 @@ class PdControllerParams(Section):
 
 @kernel_record
 class PdArgs(NamedTuple):
-    dt: float  # master step, s
+    dt: master_step()  # s
     finite_difference: bool
-    gravity_compensation: bool
-    kp: np.ndarray  # (n,)
-    kd: np.ndarray  # (n,)
+    gravity_compensation: parameter()
+    kp: parameter()  # (n,)
+    kd: parameter()  # (n,)
     inertia_scaled: bool  # τ = M̂(q)(Kp e + Kd ė) + Ĝ: scale = "inertia"
     M_model: np.ndarray  # M̂ per row (steps, n, n); (1, n, n) zeros when not scaled
-    acceleration: np.ndarray  # scratch (n,): Kp e + Kd ė when scaled
+    acceleration: scratch("n")  # Kp e + Kd ė when scaled
     model: RigidBodyModel  # the nominal model, for Ĝ(q)
-    gravity_torque: np.ndarray  # scratch (n,)
-    zero_velocity: np.ndarray  # (n,) zeros: Ĝ is the bias at q̇ = 0
+    gravity_torque: scratch("n")
+    zero_velocity: scratch("n")  # Ĝ is the bias at q̇ = 0
     position: np.ndarray  # q (plant) or q_meas (finite difference)
     velocity: np.ndarray  # q̇ (plant); unused for the finite difference
-    q_d: np.ndarray
-    qdot_d: np.ndarray
-    tau: np.ndarray
-    e: np.ndarray
-    edot: np.ndarray
+    q_d: reads()
+    qdot_d: reads()
+    tau: writes()
+    e: writes()
+    edot: writes()
 
 
 @njit(cache=True)
@@ -105,7 +106,6 @@ def pd_step(k, a):
 class PdController(Block):
     kind = "pd_controller"
     Params = PdControllerParams
-    per_joint = ("kp", "kd")
     kernel = pd_step
     PUBLISHES = {"velocity_source": str}  # "plant" or "finite_difference"
 
@@ -142,15 +142,10 @@ class PdController(Block):
         if model is None:  # no gravity compensation: the model is never read
             zeros = np.zeros(n)
             model = planar_model(zeros, zeros, zeros, zeros, 0.0)
-        inp, out = ports.inputs, ports.outputs
-        self.args = kernel_args(
-            PdArgs, dt=self.context.dt, finite_difference=p.velocity == "finite_difference",
-            gravity_compensation=p.gravity_compensation,
-            kp=np.broadcast_to(np.asarray(p.kp, float), (n,)).copy(),
-            kd=np.broadcast_to(np.asarray(p.kd, float), (n,)).copy(),
+        inp = ports.inputs
+        self.args = self.bind(
+            PdArgs, ports, finite_difference=p.velocity == "finite_difference",
             inertia_scaled=p.scale == "inertia",
             M_model=inp["M_model"] if p.scale == "inertia" else np.zeros((1, n, n)),
-            acceleration=np.zeros(n), model=own_scratch(model), gravity_torque=np.zeros(n),
-            zero_velocity=np.zeros(n),
-            position=inp[self.position], velocity=inp[self.velocity], q_d=inp["q_d"],
-            qdot_d=inp["qdot_d"], tau=out["tau"], e=out["e"], edot=out["edot"])
+            model=own_scratch(model), position=inp[self.position],
+            velocity=inp[self.velocity])

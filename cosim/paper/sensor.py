@@ -8,7 +8,8 @@ from typing import NamedTuple
 import numpy as np
 from numba import njit
 
-from ..blocks.base import Block, BlockContext, Ports, kernel_args, register_block
+from ..blocks.base import Block, BlockContext, Ports, register_block
+from ..blocks.binding import parameter, reads, writes
 from ..records import kernel_record
 from ..schema import NonNegativeFloat, Section, Seed
 from ..signals import Signal
@@ -24,10 +25,10 @@ class SensorParams(Section):
 
 @kernel_record
 class SensorArgs(NamedTuple):
-    q: np.ndarray  # true position, rows
+    q: reads()  # true position, rows
     noise: np.ndarray  # rows × n, drawn in reset (zeros without noise)
-    resolution: float
-    q_meas: np.ndarray
+    resolution: parameter()  # rad
+    q_meas: writes()
 
 
 @njit(cache=True)
@@ -56,5 +57,4 @@ class PositionSensor(Block):
         p = self.params
         rng = np.random.default_rng(p.seed)
         noise = rng.normal(0.0, p.noise_std, q.shape) if p.noise_std else np.zeros(q.shape)
-        self.args = kernel_args(SensorArgs, q=q, noise=noise, resolution=float(p.resolution),
-                                q_meas=ports.outputs["q_meas"])
+        self.args = self.bind(SensorArgs, ports, noise=noise)

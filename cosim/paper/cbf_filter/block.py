@@ -8,11 +8,11 @@ from typing import Annotated, Literal
 import numpy as np
 from pydantic import Field
 
-from ...blocks.base import Block, BlockContext, Ports, kernel_args, register_block
+from ...blocks.base import Block, BlockContext, Ports, register_block
 from ...declared import joint_boxes
 from ...dynamics.model import own_scratch, payload_dim
 from ...numba_compat import no_refcount_jit
-from ...schema import FiniteFloat, PipelineError, PositiveFloat, Section
+from ...schema import FiniteFloat, PerJoint, PipelineError, PositiveFloat, Section
 from ...signals import Signal
 from ..linalg import dot
 from .assumptions import BACKUP, FILTER_ASSUMES, KEPT_CHECKS, VIABLE, FilterAssumptions
@@ -39,7 +39,8 @@ from .scratch import (
     TAU,
     VIABLE_ONCE,
     CbfArgs,
-    cbf_work,
+    CbfWork,
+    payload_corners,
 )
 from .solver import newton
 from .steps import check_step_range
@@ -83,7 +84,7 @@ class CbfFilterParams(Section):
     bound_margin: Annotated[float, Field(ge=0, lt=1)] = 0.002
     # the actuators' limits |τ_i| ≤ τ_max,i, per joint or one for all (unset: none), N·m:
     # never exceeded, the backup's torque included
-    torque_limit: PositiveFloat | list[PositiveFloat] | None = None
+    torque_limit: PerJoint[PositiveFloat] | None = None
     # what the tracking (soft) rows may ask of a joint's torque (a name): "limit", up to
     # the torque limit; or "controller", no more than the controller itself has asked of
     # that joint so far in the run (its largest |τ_nom,i|): a joint's torque goes past the
@@ -96,14 +97,14 @@ class CbfFilterParams(Section):
     # within it is not verified, or where nothing is (not viable as seen). It bounds the
     # backup, not the torque verified (a torque the QP asks above it is applied where
     # verified)
-    braking_torque: PositiveFloat | list[PositiveFloat] | None = None
+    braking_torque: PerJoint[PositiveFloat] | None = None
     # the start-up policy: the most the backup brakes with before the filter's first
     # viable step (an output-feedback start whose velocity interval is still too wide for
     # any torque to be verified), per joint or one for all, N·m (unset: the torque limits;
     # a joint without a limit ignores it). Such a run is not covered before that step
     # whatever this is (guarantee.covered_from_s); it trades start-up torque against how
     # far an unverified start may drift
-    startup_torque: PositiveFloat | list[PositiveFloat] | None = None
+    startup_torque: PerJoint[PositiveFloat] | None = None
     # weight ρ_s of a soft row's squared violation against τ's: high, so that tracking gives
     # way only where it conflicts with a hard row (ρ_hard is 1e4 times more), dimensionless
     tracking_weight: PositiveFloat = 1e6
@@ -134,7 +135,7 @@ class CbfFilterParams(Section):
     payload_grid: Annotated[int, Field(ge=1, le=32)] = 4
     # the disturbance torque τ_d of the filter's model, per joint or one for all (unset:
     # the observer's), N·m
-    tau_d: FiniteFloat | list[FiniteFloat] | None = None
+    tau_d: PerJoint[FiniteFloat] | None = None
     # the QP solver (a name): "newton", the compiled semismooth Newton, or a qpsolvers
     # solver: daqp, osqp, clarabel, proxqp, quadprog
     solver: str = "newton"
@@ -451,7 +452,6 @@ class CbfFilter(Block):
     kind = "cbf_filter"
     Params = CbfFilterParams
     PUBLISHES = {FILTER_ASSUMES: FilterAssumptions}
-    per_joint = ("tau_d", "torque_limit", "braking_torque", "startup_torque")
     views = (("h", "CBF barrier values β − |x| (≥ 0 inside)"),
              ("correction", "‖τ − τ_nom‖ (N·m)"))
 
@@ -566,7 +566,7 @@ class CbfFilter(Block):
         reads and writes, and its scratch."""
         p, n = self.params, self.context.links
         safety, uncertainty = self.context.safety, self.context.uncertainty
-        inp, out, const = ports.inputs, ports.outputs, ports.constants
+        inp, const = ports.inputs, ports.constants
         model = const["nominal_model"]
         tau_d = const["tau_d_model"] if p.tau_d is None else p.tau_d
         bounds = np.array([safety.position_bound, safety.velocity_bound, safety.error_bound,
@@ -592,56 +592,36 @@ class CbfFilter(Block):
         payload_low, payload_high = map(float, uncertainty.payload)
         limit = self.publishes[FILTER_ASSUMES].torque_limit
         braking = within_limits(limit, p.braking_torque)
-        return kernel_args(
-            CbfArgs,
+        return self.bind(
+            CbfArgs, ports, sizes={"rows": rows},
             **{name: np.array([float(s in getattr(p, name)) for s in SETS])
                for name in ("hard", "soft", "soft_norms")},
             bounds=bounds, joint_bounds=joint_bounds,
             viable_bounds=joint_bounds * (1.0 - 0.5 * p.bound_margin) / (1.0 - p.bound_margin),
             centres=centres, k1=2.0 * p.position_rate, k0=p.position_rate**2,
             tracking_k1=2.0 * p.tracking_rate, tracking_k0=p.tracking_rate**2,
-            k_velocity=p.velocity_rate, dt=self.context.dt,
             torque_limit=limit, braking_torque=braking,
             braking_reserve=bool(np.any(braking < limit)),
             startup_torque=within_limits(limit, p.startup_torque),
             torque_limited=bool(np.any(np.isfinite(limit))),
-            rho_soft=p.tracking_weight, rho_hard=p.hard_weight,
-            hard_tolerance=p.hard_tolerance, verify=p.backup == "verified",
+            verify=p.backup == "verified",
             tracking_authority=p.tracking_torque == "controller" and any(
                 getattr(p, name) for name in ("soft", "soft_norms")),
-            backup_rate=p.backup_rate, recovery_speed=p.recovery_speed,
-            recovery_rate=p.recovery_rate, backup_step=self.backup_step,
-            backup_horizon=p.backup_horizon,
-            payload_grid=p.payload_grid, iterations=p.iterations, tolerance=p.tolerance,
-            noise_bound=uncertainty.noise_bound, payload_low=payload_low,
-            payload_high=payload_high, disturbance=uncertainty.disturbance,
+            backup_step=self.backup_step, payload_low=payload_low, payload_high=payload_high,
             inertia_is_plant=bool(const["inertia_is_plant"]),
             model=own_scratch(model),
             tau_d=np.broadcast_to(np.asarray(tau_d, float), (n,)).copy(),
-            rows=np.zeros((rows, n)), limits=np.zeros(rows), weights=np.zeros(rows),
-            is_hard=np.zeros(rows), kinds=np.zeros(rows, np.int64),
-            joints=np.zeros(rows, np.int64), backup=np.zeros(n),
             position=inp[self.position], velocity=inp[self.velocity],
             velocity_bound=velocity_bound, drift=drift, envelope_centre=envelope_centre,
-            **{name: inp[name] for name in ("q_s", "qdot_s", "q_d", "qdot_d", "qddot_d",
-                                            "M_model")},
-            tau_nominal=inp["tau"], tau=out["tau"],
             **{field: _per_set(ports.trace, f"cbf_{{}}{suffix}", shape)
                for field, suffix, shape in (("h_sets", "", (steps, n)),
                                             ("active_sets", "_active", (steps, n)),
                                             ("h_norms", "_norm", (steps,)),
                                             ("active_norms", "_norm_active", (steps,)))},
-            slack=out["cbf_slack"], active=out["cbf_active"],
-            correction=out["cbf_correction"], infeasible=out["cbf_infeasible"],
-            viable=out[VIABLE], backup_share=out[BACKUP], rows_met=out["cbf_rows_met"],
-            velocity_centre=out["cbf_velocity_centre"],
-            velocity_spread=out["cbf_velocity_spread"],
-            **{f"tube_{quantity}{part}": out[f"cbf_tube_{quantity}{part}"]
-               for quantity in ("position", "velocity") for part in ("", "_spread")},
-            acceleration_low=out["cbf_acceleration_low"],
-            acceleration_high=out["cbf_acceleration_high"],
-            work=cbf_work(n, rows, p.payload_grid, dim,
-                          int(np.ceil(p.backup_horizon / self.backup_step)) + 2))
+            work=self.bind(CbfWork, ports, sizes={
+                "rows": rows, "d": dim, "corners": (2**dim - 1) * p.payload_grid + 1,
+                "segments": int(np.ceil(p.backup_horizon / self.backup_step)) + 2},
+                corner_index=payload_corners(p.payload_grid, dim)))
 
     def step(self, k: int) -> bool:
         """With a qpsolvers solver (no kernel): the same rows, the hard ones as hard

@@ -7,9 +7,17 @@ from typing import NamedTuple
 
 import numpy as np
 
-from ...blocks.base import kernel_args
+from ...blocks.binding import (
+    master_step,
+    parameter,
+    reads,
+    scratch,
+    uncertainty,
+    writes,
+)
 from ...dynamics.model import RigidBodyModel
 from ...records import kernel_record
+from .assumptions import BACKUP, VIABLE
 
 SETS = ("position", "velocity", "error", "error_rate")
 SET_UNITS = {"position": "rad", "velocity": "rad/s", "error": "rad", "error_rate": "rad/s"}
@@ -96,47 +104,48 @@ KMAT, VEC, EIGEN = range(3)
 
 @kernel_record
 class CbfWork(NamedTuple):
-    polar: np.ndarray  # (POLAR_ROWS, n) E, PLUS
-    solver: np.ndarray  # (5, n) TAU …
-    vectors: np.ndarray  # (X + 4, n) BIAS …
-    matrices: np.ndarray  # (12, n, n) NOMINAL_NOW …, ROLL_MASS …
-    forms: np.ndarray  # (2, n, n, n) Γ of the nominal model, of a unit payload (zero
-    # without a payload range)
-    linear: np.ndarray  # (2, n, n) B at each end of the payload range
-    point_rows: np.ndarray  # (3, d, n) JAC …
-    point_vectors: np.ndarray  # (4, d) GAMMA …
-    squares: np.ndarray  # (3, d, d) KMAT, VEC, EIGEN
-    s_grid: np.ndarray  # (grid + 1, d) s_j(Δm) at Δm = low … high
-    corner_index: np.ndarray  # ((2^d − 1) grid + 1, d) the grid points of each box corner
-    per_row: np.ndarray  # (2, rows) the limits and the weights the QP is solved with
-    binding: np.ndarray  # (rows,) the rows violated at the solver's iterate
-    rollout: np.ndarray  # (ROLLOUT_ROWS, n) R_Q …
-    flags: np.ndarray  # (FLAGS,) CONSISTENT, PLAN, PLAN_RESERVE, GROUPS, TUBE_TRIAL …
+    """The filter's scratch: n joints, at most ``rows`` rows, the payload's point of d
+    coordinates, ``corners`` = (2^d − 1) payload_grid + 1 box corners, rollouts of at most
+    ``segments`` segments."""
+
+    polar: scratch("POLAR_ROWS, n")  # E, PLUS
+    solver: scratch("5, n")  # TAU …
+    vectors: scratch("X + 4, n")  # BIAS …
+    matrices: scratch("12, n, n")  # NOMINAL_NOW …, ROLL_MASS …
+    # Γ of the nominal model, of a unit payload (zero without a payload range)
+    forms: scratch("2, n, n, n")
+    linear: scratch("2, n, n")  # B at each end of the payload range
+    point_rows: scratch("3, d, n")  # JAC …
+    point_vectors: scratch("4, d")  # GAMMA …
+    squares: scratch("3, d, d")  # KMAT, VEC, EIGEN
+    s_grid: scratch("payload_grid + 1, d")  # s_j(Δm) at Δm = low … high
+    corner_index: np.ndarray  # (corners, d) the grid points of each box corner
+    per_row: scratch("2, rows")  # the limits and the weights the QP is solved with
+    binding: scratch("rows", bool)  # the rows violated at the solver's iterate
+    rollout: scratch("ROLLOUT_ROWS, n")  # R_Q …
+    flags: scratch("FLAGS")  # CONSISTENT, PLAN, PLAN_RESERVE, GROUPS, TUBE_TRIAL …
     # tracking_torque = "controller": the largest |τ_nom,i| so far and the QP's answer
-    # with the tracking rows while the hard rows' alone is solved, (2, n) PEAK, ANSWER
-    authority: np.ndarray
-    # the backup's torque as a small QP in q̈ (cosim.paper.cbf_filter.backup): its rows
-    # (2n, n), their limits and weights (2, 2n), its solver's vectors (5, n) and the rows
-    # bound at its iterate (2n,)
-    backup_rows: np.ndarray
-    backup_limits: np.ndarray
-    backup_solver: np.ndarray
-    backup_binding: np.ndarray
-    # the hard rows' groups, at most 8n (2 phases, 2 sets, n joints, 2 sides): (8n, 1 + d, n)
-    # g_0, u_1 … u_d; (8n + 1, 2 + d) H_ZERO … (the last row: scratch); (8n, 4) G_SET …;
-    # (8n, corners) the corners among the QP's rows; (2, grid + 1, d) s_j(Δm) on the grid
-    # now and at the hold's end
-    group_rows: np.ndarray
-    group_values: np.ndarray
-    group_labels: np.ndarray
-    group_added: np.ndarray
-    s_phase: np.ndarray
+    # with the tracking rows while the hard rows' alone is solved, PEAK, ANSWER
+    authority: scratch("2, n")
+    # the backup's torque as a small QP in q̈ (cosim.paper.cbf_filter.backup): its rows,
+    # their limits and weights, its solver's vectors and the rows bound at its iterate
+    backup_rows: scratch("2 * n, n")
+    backup_limits: scratch("2, 2 * n")
+    backup_solver: scratch("5, n")
+    backup_binding: scratch("2 * n", bool)
+    # the hard rows' groups, at most 8n (2 phases, 2 sets, n joints, 2 sides): g_0, u_1 …
+    # u_d; H_ZERO … (the last row: scratch); G_SET …; the corners among the QP's rows;
+    # s_j(Δm) on the grid now and at the hold's end
+    group_rows: scratch("8 * n, 1 + d, n")
+    group_values: scratch("8 * n + 1, 2 + d")
+    group_labels: scratch("8 * n, 4", int)
+    group_added: scratch("8 * n, corners", bool)
+    s_phase: scratch("2, payload_grid + 1, d")
     # two rollouts (the trial a check writes, the plan last verified), segment by segment:
-    # (2, segments, TUBE_ROWS, n) T_Q …, their lengths (2, segments) and the velocity error
-    # ε each was checked with (2, n)
-    tube: np.ndarray
-    tube_steps: np.ndarray
-    tube_eps: np.ndarray
+    # T_Q …, their lengths and the velocity error ε each was checked with
+    tube: scratch("2, segments, TUBE_ROWS, n")
+    tube_steps: scratch("2, segments")
+    tube_eps: scratch("2, n")
 
 
 def payload_corners(grid: int, d: int) -> np.ndarray:
@@ -157,26 +166,6 @@ def payload_corners(grid: int, d: int) -> np.ndarray:
     return corner_index
 
 
-def cbf_work(n: int, rows: int, grid: int, d: int, segments: int) -> CbfWork:
-    """The scratch of a filter on n joints with at most ``rows`` rows, the payload's point
-    of d coordinates, and rollouts of at most ``segments`` segments."""
-    return kernel_args(
-        CbfWork, polar=np.zeros((POLAR_ROWS, n)), solver=np.zeros((5, n)),
-        vectors=np.zeros((X + 4, n)), matrices=np.zeros((12, n, n)),
-        forms=np.zeros((2, n, n, n)), linear=np.zeros((2, n, n)), point_rows=np.zeros((3, d, n)),
-        point_vectors=np.zeros((4, d)), squares=np.zeros((3, d, d)), s_grid=np.zeros((grid + 1, d)),
-        corner_index=payload_corners(grid, d),
-        per_row=np.zeros((2, rows)), binding=np.zeros(rows, np.bool_),
-        rollout=np.zeros((ROLLOUT_ROWS, n)), flags=np.zeros(FLAGS), authority=np.zeros((2, n)),
-        backup_rows=np.zeros((2 * n, n)),
-        backup_limits=np.zeros((2, 2 * n)), backup_solver=np.zeros((5, n)),
-        backup_binding=np.zeros(2 * n, np.bool_), group_rows=np.zeros((8 * n, 1 + d, n)),
-        group_values=np.zeros((8 * n + 1, 2 + d)), group_labels=np.zeros((8 * n, 4), np.int64),
-        group_added=np.zeros((8 * n, (2**d - 1) * grid + 1), np.bool_),
-        s_phase=np.zeros((2, grid + 1, d)), tube=np.zeros((2, segments, TUBE_ROWS, n)),
-        tube_steps=np.zeros((2, segments)), tube_eps=np.zeros((2, n)))
-
-
 @kernel_record
 class CbfArgs(NamedTuple):
     hard: np.ndarray  # (4,) 1 where the set is a hard per-joint set, SETS order
@@ -193,12 +182,12 @@ class CbfArgs(NamedTuple):
     k0: float  # p²
     tracking_k1: float  # 2p of the soft error rows
     tracking_k0: float  # p²
-    k_velocity: float
-    dt: float  # the hold, s
+    k_velocity: parameter("velocity_rate")
+    dt: master_step()  # the hold, s
     torque_limit: np.ndarray  # (n,) |τ_i| ≤ this, N·m (inf: none)
-    rho_soft: float
-    rho_hard: float
-    hard_tolerance: float
+    rho_soft: parameter("tracking_weight")
+    rho_hard: parameter("hard_weight")
+    hard_tolerance: parameter()
     verify: bool  # check every torque against the braking backup (else: the QP's answer)
     # the tracking rows may ask no joint for more torque than the controller has (its
     # largest |τ_nom,i| so far): tracking_torque = "controller"
@@ -211,28 +200,28 @@ class CbfArgs(NamedTuple):
     # (startup_torque, at most the torque limits)
     startup_torque: np.ndarray
     torque_limited: bool  # whether some joint's torque limit is finite
-    backup_rate: float  # k_b, 1/s
-    recovery_speed: float  # rad/s
-    recovery_rate: float  # 1/s
+    backup_rate: parameter()  # k_b, 1/s
+    recovery_speed: parameter()  # rad/s
+    recovery_rate: parameter()  # 1/s
     backup_step: float  # s
-    backup_horizon: float  # s
-    payload_grid: int
-    iterations: int
-    tolerance: float
-    noise_bound: float  # n̄, rad
+    backup_horizon: parameter()  # s
+    payload_grid: parameter()
+    iterations: parameter()
+    tolerance: parameter()
+    noise_bound: uncertainty()  # n̄, rad
     payload_low: float  # kg
     payload_high: float
-    disturbance: float  # d̄, N·m
+    disturbance: uncertainty()  # d̄, N·m
     inertia_is_plant: bool
     model: RigidBodyModel  # the nominal model (inertia_model's nominal_model)
     tau_d: np.ndarray
-    rows: np.ndarray  # scratch: (rows, n) G, unit rows
-    limits: np.ndarray  # scratch: (rows,) h
-    weights: np.ndarray  # scratch: (rows,) ρ of each row
-    is_hard: np.ndarray  # scratch: (rows,) 1 for hard rows
-    kinds: np.ndarray  # (rows,) set index of each row (4 + set for norms, -1 torque)
-    joints: np.ndarray  # (rows,) joint of each row (-1: a norm)
-    backup: np.ndarray  # (n,) the backup's torque at this step
+    rows: scratch("rows, n")  # G, unit rows
+    limits: scratch("rows")  # h
+    weights: scratch("rows")  # ρ of each row
+    is_hard: scratch("rows")  # 1 for hard rows
+    kinds: scratch("rows", int)  # set index of each row (4 + set for norms, -1 torque)
+    joints: scratch("rows", int)  # joint of each row (-1: a norm)
+    backup: scratch("n")  # the backup's torque at this step
     position: np.ndarray
     velocity: np.ndarray
     velocity_bound: np.ndarray  # ε per row and joint (zeros for the plant's q̇)
@@ -240,36 +229,36 @@ class CbfArgs(NamedTuple):
     # (the plant's q̇ itself where the filter reads it)
     envelope_centre: np.ndarray
     drift: np.ndarray  # dv/dt − M̂⁻¹τ per row and joint (NaN: use the nominal model)
-    q_s: np.ndarray
-    qdot_s: np.ndarray
-    q_d: np.ndarray
-    qdot_d: np.ndarray
-    qddot_d: np.ndarray
-    M_model: np.ndarray
-    tau_nominal: np.ndarray
-    tau: np.ndarray
+    q_s: reads()
+    qdot_s: reads()
+    q_d: reads()
+    qdot_d: reads()
+    qddot_d: reads()
+    M_model: reads()
+    tau_nominal: reads("tau")
+    tau: writes()
     h_sets: np.ndarray  # (4, rows, n) robust h per set and joint
     active_sets: np.ndarray  # (4, rows, n)
     h_norms: np.ndarray  # (4, rows) β − ‖x‖
     active_norms: np.ndarray  # (4, rows)
-    slack: np.ndarray
-    active: np.ndarray
-    correction: np.ndarray
-    infeasible: np.ndarray
-    viable: np.ndarray  # 1 where a verified torque existed
-    backup_share: np.ndarray  # the share of the backup in the torque, 0 … 1
-    rows_met: np.ndarray  # 1 where the torque applied met every hard row as given
-    velocity_centre: np.ndarray  # (rows, n) the true velocity's interval: centre
-    velocity_spread: np.ndarray  # and half-width
+    slack: writes("cbf_slack")
+    active: writes("cbf_active")
+    correction: writes("cbf_correction")
+    infeasible: writes("cbf_infeasible")
+    viable: writes(VIABLE)  # 1 where a verified torque existed
+    backup_share: writes(BACKUP)  # the share of the backup in the torque, 0 … 1
+    rows_met: writes("cbf_rows_met")  # 1 where the torque applied met every hard row as given
+    velocity_centre: writes("cbf_velocity_centre")  # the true velocity's interval: centre
+    velocity_spread: writes("cbf_velocity_spread")  # and half-width
     # (rows, n) the box the plan in force at the step before puts the true state in at this
     # row (its position's centre and half-width, its velocity's; NaN: no plan, the step
     # before was not viable), and the check's bound on the true q̈ over the step held from
     # this row (its low and high ends)
-    tube_position: np.ndarray
-    tube_position_spread: np.ndarray
-    tube_velocity: np.ndarray
-    tube_velocity_spread: np.ndarray
-    acceleration_low: np.ndarray
-    acceleration_high: np.ndarray
+    tube_position: writes("cbf_tube_position")
+    tube_position_spread: writes("cbf_tube_position_spread")
+    tube_velocity: writes("cbf_tube_velocity")
+    tube_velocity_spread: writes("cbf_tube_velocity_spread")
+    acceleration_low: writes("cbf_acceleration_low")
+    acceleration_high: writes("cbf_acceleration_high")
     work: CbfWork
 
