@@ -481,8 +481,16 @@ def cluster_client(workers: int | None, scheduler: str | None, kind: str = "loca
             raise SweepError(f"--scheduler {scheduler}: no worker joined within 60 s "
                              "(start one: dask worker ADDRESS --nthreads 1)") from None
         return client, None
+    import dask
+
+    # A local worker runs one point at a time, so a worker that dies was killed by its own
+    # point (or by the memory of the machine): one more try, not Dask's three more, before
+    # the point is failed and its task's other points are run again alone (a crashing plant
+    # is reported in half the time). A lower setting of the user's is kept.
+    retries = min(dask.config.get("distributed.scheduler.allowed-failures"), LOCAL_RETRIES)
     # Quiet workers: a cancelled point (Ctrl-C) is not a warning the user needs to read.
-    with scratch_space(WORKER_CONFIG) as scratch:
+    with scratch_space({**WORKER_CONFIG,
+                        "distributed.scheduler.allowed-failures": retries}) as scratch:
         # The scheduler serves HTTP even without a dashboard, on 8787 unless told: port 0,
         # so a taken 8787 (another cluster) is no warning.
         cluster = LocalCluster(n_workers=workers or os.cpu_count() or 1, threads_per_worker=1,
@@ -510,6 +518,8 @@ def _quiet_heartbeats_plugin():
 
     return QuietHeartbeats()
 
+
+LOCAL_RETRIES = 1  # a local cluster's tries of a task after its worker died (Dask's: 3)
 
 # What a local worker runs with, against Dask's defaults, so that a point costs on a worker
 # what it costs in-process (1.01 times it, against 1.18: the paper's proposed run, 5 s):
