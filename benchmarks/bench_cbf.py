@@ -37,8 +37,8 @@ from cosim.config import load_pipeline
 from cosim.engine import simulate
 from cosim.numba_compat import no_refcount_jit
 from cosim.paper.cbf_filter import cbf_rows, cbf_step, solve_soft_qp
-from cosim.paper.cbf_filter.block import step_record
 from cosim.paper.cbf_filter.rows import step_rows
+from cosim.paper.cbf_filter.step import step_record
 
 PIPELINE = Path(__file__).resolve().parent.parent / "pipelines" / "paper_safety.toml"
 

@@ -4,7 +4,7 @@ after) unless --warm, and print each kernel's time with numba's own timers (the 
 and the whole) and the functions that took longest to compile, callees included.
 
     .venv/bin/python benchmarks/compile_profile.py pipelines/paper_safety.toml \\
-        cosim.paper.cbf_filter.block       # the planar filter's step: ~4 min on one core
+        cosim.paper.cbf_filter.step        # the planar filter's step: ~4 min on one core
 
 Times are wall seconds in this one process; a function's time includes its callees'.
 """
@@ -24,7 +24,7 @@ from pathlib import Path
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("pipeline", type=Path, help="a pipeline file")
-    parser.add_argument("module", help="a kernel module, e.g. cosim.paper.cbf_filter.block")
+    parser.add_argument("module", help="a kernel module, e.g. cosim.paper.cbf_filter.step")
     parser.add_argument("--warm", action="store_true",
                         help="use the usual cache ($NUMBA_CACHE_DIR, else ~/.cache/cosim/numba)")
     parser.add_argument("--top", type=int, default=20, help="functions listed")

@@ -177,14 +177,14 @@ def test_under_the_declared_payload_the_verified_starts_stop_for_every_plant(
 def payload_deviation_bound(a, q, v, tau) -> np.ndarray:
     """D of the check at (q, v) under τ with the velocity known exactly: the payload's
     departure bound plus the disturbance's (|M̂⁻¹| d̄, tiny here)."""
-    from cosim.paper.cbf_filter.backup import _deviation, _nominal_acceleration
+    from cosim.paper.cbf_filter.backup import deviation_bound, nominal_acceleration
     from cosim.paper.cbf_filter.scratch import R_ACC, R_Q, R_V
 
     r = a.work.rollout
     r[R_Q], r[R_V] = q, v
-    _nominal_acceleration(0, a, np.asarray(tau, float), False, 0, a.torque_limit)
+    nominal_acceleration(0, a, np.asarray(tau, float), False, 0, a.torque_limit)
     out = np.zeros(2)
-    _deviation(a, r[R_V], np.zeros(2), r[R_ACC], out)
+    deviation_bound(a, r[R_V], np.zeros(2), r[R_ACC], out)
     return out
 
 

@@ -55,7 +55,7 @@ def test_the_same_kernels_on_another_arm_are_another_fused_loop():
                                       ROOT / "pipelines/ur5.toml"])
     runs = {(Path(path).name, name) for path, name in loops}
     assert {("paper_safety.toml", "proposed_cbf"), ("ur5.toml", "proposed_cbf")} <= runs, runs
-    assert len(modules["cosim.paper.cbf_filter.block"]) == 2  # cbf_step, planar and spatial
+    assert len(modules["cosim.paper.cbf_filter.step"]) == 2  # cbf_step, planar and spatial
 
 
 def test_a_missing_pipeline_is_one_message(tmp_path):

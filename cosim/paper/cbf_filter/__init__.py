@@ -57,7 +57,7 @@ braking backup can still keep every hard set after it, for every state and plant
 declared uncertainty allows; else the largest verified blend towards the backup; else the
 backup (``cbf_infeasible`` = 1, ``cbf_viable`` = 0: the state was not viable as seen). With
 ``braking_torque`` below the limits, the backup first brakes within it (the block's
-``choose``; docs/safety/filter.md, "How hard the backup brakes").
+``choose`` in ``policy``; docs/safety/filter.md, "How hard the backup brakes").
 ``cbf_rows_met`` says where the applied torque met the rows as given. Soft slack is reported
 apart (``cbf_slack``): it says how much tracking gave way, never whether safety did.
 
@@ -65,11 +65,14 @@ Remaining assumptions (not covered by the margins): those of the backup's check 
 module docstring), and M̂, b̂ evaluated at y rather than q (first order in n̄). The safe
 centres q_s, q̇_s must be constant (Remark 1, case ii): a moving centre is refused.
 
-The package: ``scratch`` (the work arrays and the step's arguments), ``model`` (M̂, b̂, the
-bias error, the payload), ``rows`` (the QP's rows), ``solver`` (the semismooth Newton),
-``backup`` (the braking backup, its check and the velocity's interval), ``assumptions``
-(what the filter publishes it assumes), ``block`` (the block, its step and record); the
-small linear algebra is :mod:`cosim.paper.linalg`, shared with the observer.
+The package, in the order a step runs it: ``scratch`` (the work arrays and the step's
+arguments), ``model`` (M̂, b̂, the bias error, the payload), ``rows`` (the QP's rows),
+``solver`` (the semismooth Newton), ``step`` (the kernel: rows, solve, record),
+``interval`` (the true velocity's interval), ``backup`` (the braking backup and its check),
+``policy`` (the torque applied: verified, blended or the backup's), ``steps`` (the steps
+it supports), ``assumptions`` (what the filter publishes it assumes), ``block`` (the block:
+parameters, signals, arguments); the small linear algebra is :mod:`cosim.paper.linalg`,
+shared with the observer.
 
 What a step runs is compiled without numba's reference counting
 (:func:`cosim.numba_compat.no_refcount_jit`): it allocates nothing (every array it works in
@@ -83,11 +86,12 @@ take it are compiled as functions of their own (inlining them into the step took
 to compile); the small helpers called in loops, which take arrays, are inlined.
 """
 
-from .block import CbfFilter, CbfFilterParams, cbf_step
+from .block import CbfFilter, CbfFilterParams
 from .model import acceleration_error_bound, velocity_forms
 from .rows import cbf_rows
 from .scratch import CbfArgs
 from .solver import solve_soft_qp
+from .step import cbf_step
 
 __all__ = ["CbfArgs", "CbfFilter", "CbfFilterParams", "acceleration_error_bound", "cbf_rows",
            "cbf_step", "solve_soft_qp", "velocity_forms"]

@@ -18,7 +18,7 @@ too): the candidate torque held over one step, then the backup, in steps of
 ``backup_step``, until every joint is stopped (|v − q̇_s − w| ≤ ``STOPPED``) or
 ``backup_horizon`` has passed (unverified). Around the nominal rollout a tube of
 half-widths δq, δv holds the true state: δq(0) = n̄ (noise), δv(0) = the half-width of the
-velocity's interval (:func:`velocity_interval`, at most ε), and per step, with D taken
+velocity's interval (:func:`.interval.velocity_interval`, at most ε), and per step, with D taken
 TUBE_SAFETY (1.5) times, an empirical factor for the first-order feedback model, and δq
 advanced with δv before δv's update,
 
@@ -33,7 +33,7 @@ step (``backup_step`` ≥ dt: from 2 ms at the default), every rollout step is a
 over the whole step, the candidate's and then the backup's, and q̈ drifts over it as the
 state moves: its 1.5 D_i is widened to max(1.5 D_i, |q̈_i(end) − q̈_i| + 1.5 D_i(end))
 (:func:`_held_drift`), the hull of q̈ ± 1.5 D at the step's start and its predicted end, as
-the velocity's interval is predicted (:func:`predict_interval`). At shorter steps the
+the velocity's interval is predicted (:func:`.interval.predict_interval`). At shorter steps the
 backup is re-evaluated within a rollout step (its feedback is what f models), and the
 candidate's step is taken at its start: its drift taken too made the check brake
 differently after start-up (docs/safety/measurements.md, "The tube premise"). D_i is the
@@ -84,7 +84,6 @@ from .scratch import (
     BASE,
     BETA,
     BIAS,
-    CONSISTENT,
     GAMMA,
     JAC,
     LU,
@@ -93,8 +92,6 @@ from .scratch import (
     PLAN_STEP,
     PLAN_TUBE,
     R_ACC,
-    R_ACC_HIGH,
-    R_ACC_LOW,
     R_BIAS,
     R_BOX_Q,
     R_BOX_Q_HALF,
@@ -105,14 +102,11 @@ from .scratch import (
     R_DQ,
     R_DV,
     R_FRICTION,
-    R_HALF,
     R_HELD_ACC,
     R_HELD_Q,
     R_HELD_V,
     R_LIMIT_Q,
     R_LIMIT_V,
-    R_NEXT_HIGH,
-    R_NEXT_LOW,
     R_Q,
     R_QUADRATIC,
     R_SCRATCH,
@@ -157,7 +151,7 @@ TUBE_SAFETY = 1.5
 def backup_torque(k, a, q, v, mass, bias, out, policy, limit):
     """τ_b at (q, v) into ``out``: the q̈ closest to the backup's k_b (w − (v − q̇_s)) that
     the torques ``limit`` allow (the torque limits, or braking_torque:
-    :func:`.block.choose`), τ_b = M̂ q̈ + b̂ (a small QP in q̈: clipping each τ_i alone
+    :func:`.policy.choose`), τ_b = M̂ q̈ + b̂ (a small QP in q̈: clipping each τ_i alone
     would turn the coupled arm's braking of one joint into accelerating another), w the
     recovery velocity of a joint outside its position set (into the rollout's R_TARGET row,
     relative to q̇_s). ``policy`` 1 weighs the q̈ of joints near their position bound first
@@ -303,19 +297,19 @@ def _payload_deviation(a, q_dot, acceleration, deviation):
 
 
 @no_refcount_jit(cache=True)
-def _fixed_deviation(a, spread):
+def fixed_deviation(a, spread):
     """D's part that a rollout with the velocity error ``spread`` keeps at every step, into
     R_QUADRATIC (:func:`.model.quadratic_error_into`: Γ is the hard rows' for the whole
-    rollout), so that :func:`_deviation` need not take it again."""
+    rollout), so that :func:`deviation_bound` need not take it again."""
     w = a.work
     quadratic_error_into(spread, a.payload_low, a.payload_high, a.disturbance, w.forms[0],
                          w.forms[1], w.rollout[R_QUADRATIC])
 
 
 @no_refcount_jit(cache=True)
-def _deviation(a, q_dot, spread, acceleration, deviation):
+def deviation_bound(a, q_dot, spread, acceleration, deviation):
     """D at the rollout's state into ``deviation``: the bound on |M̂⁻¹(Δb + d)| for a
-    velocity error up to ``spread`` (its fixed part taken by :func:`_fixed_deviation`) at
+    velocity error up to ``spread`` (its fixed part taken by :func:`fixed_deviation`) at
     the velocity ``q_dot`` (b's velocity forms Γ as the hard rows took them at row k: the
     configuration's drift over the rollout is left out), plus the payload's
     (:func:`_payload_deviation`): the velocity's and the payload's departures add up (a
@@ -329,7 +323,7 @@ def _deviation(a, q_dot, spread, acceleration, deviation):
 
 
 @no_refcount_jit(cache=True)
-def _nominal_acceleration(k, a, first, backup, policy, limit):
+def nominal_acceleration(k, a, first, backup, policy, limit):
     """The rollout's torque (``first``, or the backup's within ``limit`` if ``backup``) into
     R_TAU and the nominal model's q̈ under it into R_ACC; the model's geometry left at the
     rollout's q.
@@ -363,7 +357,7 @@ def _nominal_acceleration(k, a, first, backup, policy, limit):
 def _held_drift(k, a, first, limit, eps, widen):
     """Widen the held step's ``widen`` (1.5 D at its start, per joint) by q̈'s drift over
     the hold: the true q̈ over the step lies in the hull of q̈ ± 1.5 D at the step's start
-    and at its predicted end (the premise :func:`predict_interval` takes too), so within
+    and at its predicted end (the premise :func:`.interval.predict_interval` takes too), so within
     max(1.5 D, |q̈(end) − q̈| + 1.5 D(end)) of the start's q̈, which the tube's centre
     follows. The rollout's row state (q, q̇, q̈) is the start's again on return."""
     r = a.work.rollout
@@ -374,8 +368,8 @@ def _held_drift(k, a, first, limit, eps, widen):
         held_q[i], held_v[i], held_acc[i] = q[i], vel[i], acc[i]
         q[i] += a.dt * vel[i] + 0.5 * a.dt * a.dt * acc[i]
         vel[i] += a.dt * acc[i]
-    _nominal_acceleration(k, a, first, False, 0, limit)
-    _deviation(a, vel, eps, acc, deviation)
+    nominal_acceleration(k, a, first, False, 0, limit)
+    deviation_bound(a, vel, eps, acc, deviation)
     for i in range(n):
         widen[i] = max(widen[i], abs(acc[i] - held_acc[i]) + TUBE_SAFETY * deviation[i])
         q[i], vel[i], acc[i] = held_q[i], held_v[i], held_acc[i]
@@ -389,7 +383,7 @@ def backup_at(k, a, policy, limit, out):
     y = a.position[k]
     for i in range(y.shape[0]):
         r[R_Q, i], r[R_V, i] = y[i], r[R_CENTRE, i]
-    _nominal_acceleration(k, a, out, True, policy, limit)
+    nominal_acceleration(k, a, out, True, policy, limit)
     for i in range(y.shape[0]):
         out[i] = r[R_TAU, i]
 
@@ -431,95 +425,6 @@ def plan_box(k, a):
 
 
 @no_refcount_jit(cache=True)
-def velocity_interval(k, a):
-    """The true velocity's interval at row k (centre into R_CENTRE, half-width into
-    R_HALF): the estimate's (the certified interval its ε is taken from, inside v ± ε),
-    intersected with the one predicted at the step before
-    (:func:`predict_interval`). Both hold the true q̇ under the declared bounds; the
-    intersection keeps what the backup was verified from at the step before (the estimate
-    alone may move by more than the model allows in one step, and a state verified a step
-    ago would then look unverifiable). Where they do not meet, the declared bounds did not
-    hold: the estimate's alone."""
-    r = a.work.rollout
-    v, eps, centre = a.velocity[k], a.velocity_bound[k], a.envelope_centre[k]
-    consistent = k > 0
-    for i in range(v.shape[0]):
-        # the certified interval ε is taken from, c ± (ε − |v − c|): v ± ε's narrowest
-        # part holding q̇ (ε bounds |q̇ − v| for every q̇ in it)
-        half = max(eps[i] - abs(v[i] - centre[i]), 0.0)
-        low, high = centre[i] - half, centre[i] + half
-        if not (np.isfinite(low) and np.isfinite(high)):
-            low, high = -np.inf, np.inf  # the observer confirmed no enclosure of q̇
-        # a little room for rounding: a true velocity (ε = 0) may sit on the prediction's edge
-        meets = r[R_NEXT_LOW, i] <= high + 1e-9 and r[R_NEXT_HIGH, i] >= low - 1e-9
-        consistent = consistent and meets
-        if k > 0 and meets:
-            low, high = max(low, r[R_NEXT_LOW, i]), min(high, r[R_NEXT_HIGH, i])
-            high = max(high, low)
-        if np.isfinite(low) and np.isfinite(high):
-            r[R_CENTRE, i], r[R_HALF, i] = 0.5 * (low + high), 0.5 * (high - low)
-        else:  # nothing holds q̇: the estimate as the centre, the half-width infinite
-            r[R_CENTRE, i], r[R_HALF, i] = v[i], np.inf
-            consistent = False
-        a.velocity_centre[k, i], a.velocity_spread[k, i] = r[R_CENTRE, i], r[R_HALF, i]
-    a.work.flags[CONSISTENT] = 1.0 if consistent else 0.0
-
-
-@no_refcount_jit(cache=True)
-def predict_interval(k, a, tau):
-    """The interval of the true velocity at row k + 1 under τ held over the step (into
-    R_NEXT_LOW, R_NEXT_HIGH): row k's moved by dt times the hull of q̈ ± D at the step's
-    start and at its predicted end (q̈ drifts over the hold as q and q̇ move), D taken
-    TUBE_SAFETY times as the check's tube takes it: a velocity outside a narrower prediction
-    may still be in the tube the check verified."""
-    r = a.work.rollout
-    y = a.position[k]
-    n = y.shape[0]
-    low, high = r[R_NEXT_LOW], r[R_NEXT_HIGH]
-    for i in range(n):
-        r[R_Q, i], r[R_V, i] = y[i], r[R_CENTRE, i]
-        low[i], high[i] = np.inf, -np.inf
-        r[R_ACC_LOW, i] = r[R_ACC_HIGH, i] = np.nan
-    for i in range(n):
-        if not r[R_HALF, i] < np.inf:  # q̇ unknown now: nothing predicted
-            for j in range(n):
-                low[j], high[j] = -np.inf, np.inf
-            return
-    deviation, acceleration = r[R_DEV], r[R_ACC]
-    _fixed_deviation(a, r[R_HALF])
-    for end in range(2):
-        _nominal_acceleration(k, a, tau, False, 0, a.torque_limit)
-        _deviation(a, r[R_V], r[R_HALF], acceleration, deviation)
-        for i in range(n):
-            low[i] = min(low[i], acceleration[i] - TUBE_SAFETY * deviation[i])
-            high[i] = max(high[i], acceleration[i] + TUBE_SAFETY * deviation[i])
-        if end == 0:  # to the predicted end of the step
-            for i in range(n):
-                r[R_Q, i] += a.dt * r[R_V, i] + 0.5 * a.dt * a.dt * acceleration[i]
-                r[R_V, i] += a.dt * acceleration[i]
-    for i in range(n):
-        r[R_ACC_LOW, i], r[R_ACC_HIGH, i] = low[i], high[i]  # the check's bound on q̈
-        low[i] = r[R_CENTRE, i] - r[R_HALF, i] + a.dt * low[i]
-        high[i] = r[R_CENTRE, i] + r[R_HALF, i] + a.dt * high[i]
-
-
-@no_refcount_jit(cache=True)
-def inside(k, a):
-    """Whether every state row k's bounds allow (|q − y| ≤ n̄, q̇ in its interval) is inside
-    every hard set (as the check holds them): a state verified but not inside is one the
-    backup brings back, not one it keeps."""
-    r = a.work.rollout
-    y = a.position[k]
-    for i in range(y.shape[0]):
-        if a.hard[0] and abs(y[i] - a.centres[0, i]) + a.noise_bound > a.viable_bounds[0, i]:
-            return False
-        if a.hard[1] and abs(r[R_CENTRE, i] - a.centres[1, i]) + r[R_HALF, i] \
-                > a.viable_bounds[1, i]:
-            return False
-    return True
-
-
-@no_refcount_jit(cache=True)
 def verified(k, a, y, v, eps, first, hold, policy, limit):
     """Whether the backup keeps every hard set from the estimate (y, v) (|q − y| ≤ n̄,
     |q̇ − v| ≤ ε), after ``first`` is held for one step if ``hold`` (module docstring), with
@@ -541,7 +446,7 @@ def verified(k, a, y, v, eps, first, hold, policy, limit):
         limit_v[i] = max(a.viable_bounds[1, i], abs(v[i] - a.centres[1, i]) + eps[i])
         r[R_TARGET, i] = 0.0
         w.tube_eps[trial, i] = eps[i]
-    _fixed_deviation(a, eps)
+    fixed_deviation(a, eps)
     t = 0.0
     step = 0
     # where the rollout's step is the control step (backup_step is at least dt), each of its
@@ -550,10 +455,10 @@ def verified(k, a, y, v, eps, first, hold, policy, limit):
     while t < a.backup_horizon and step < lengths.shape[0]:
         backup = not (hold and step == 0)
         h = a.backup_step if backup else a.dt
-        clipped = _nominal_acceleration(k, a, first, backup, policy, limit)
+        clipped = nominal_acceleration(k, a, first, backup, policy, limit)
         # the bias error's velocity error is the estimate's, ε: the backup acts on the
         # state as measured, whatever the tube (the true state's spread about the rollout)
-        _deviation(a, vel, eps, acc, deviation)
+        deviation_bound(a, vel, eps, acc, deviation)
         for i in range(n):
             widen[i] = TUBE_SAFETY * deviation[i]
         if held:

@@ -10,7 +10,7 @@ import numpy as np
 
 from ...numba_compat import no_refcount_jit
 from ..linalg import dot, invert, product
-from .backup import velocity_interval
+from .interval import velocity_interval
 from .model import moved_model, nominal_model, robust_model
 from .scratch import (
     ACCELERATION,

@@ -1,0 +1,115 @@
+"""The true velocity's interval the filter holds at each row: the observer's certified
+interval, intersected with the one the step before predicted under the torque it applied
+(the nominal model's q̈ ± TUBE_SAFETY D over the step, :mod:`.backup`), and whether every
+state it and the measured position allow lies inside the hard sets. The check
+(:func:`.backup.verified`) starts its tube from it; the run's classifier measures that the
+true q̇ stays in it (docs/safety/filter.md, "The premises")."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...numba_compat import no_refcount_jit
+from .backup import TUBE_SAFETY, deviation_bound, fixed_deviation, nominal_acceleration
+from .scratch import (
+    CONSISTENT,
+    R_ACC,
+    R_ACC_HIGH,
+    R_ACC_LOW,
+    R_CENTRE,
+    R_DEV,
+    R_HALF,
+    R_NEXT_HIGH,
+    R_NEXT_LOW,
+    R_Q,
+    R_V,
+)
+
+
+@no_refcount_jit(cache=True)
+def velocity_interval(k, a):
+    """The true velocity's interval at row k (centre into R_CENTRE, half-width into
+    R_HALF): the estimate's (the certified interval its ε is taken from, inside v ± ε),
+    intersected with the one predicted at the step before
+    (:func:`predict_interval`). Both hold the true q̇ under the declared bounds; the
+    intersection keeps what the backup was verified from at the step before (the estimate
+    alone may move by more than the model allows in one step, and a state verified a step
+    ago would then look unverifiable). Where they do not meet, the declared bounds did not
+    hold: the estimate's alone."""
+    r = a.work.rollout
+    v, eps, centre = a.velocity[k], a.velocity_bound[k], a.envelope_centre[k]
+    consistent = k > 0
+    for i in range(v.shape[0]):
+        # the certified interval ε is taken from, c ± (ε − |v − c|): v ± ε's narrowest
+        # part holding q̇ (ε bounds |q̇ − v| for every q̇ in it)
+        half = max(eps[i] - abs(v[i] - centre[i]), 0.0)
+        low, high = centre[i] - half, centre[i] + half
+        if not (np.isfinite(low) and np.isfinite(high)):
+            low, high = -np.inf, np.inf  # the observer confirmed no enclosure of q̇
+        # a little room for rounding: a true velocity (ε = 0) may sit on the prediction's edge
+        meets = r[R_NEXT_LOW, i] <= high + 1e-9 and r[R_NEXT_HIGH, i] >= low - 1e-9
+        consistent = consistent and meets
+        if k > 0 and meets:
+            low, high = max(low, r[R_NEXT_LOW, i]), min(high, r[R_NEXT_HIGH, i])
+            high = max(high, low)
+        if np.isfinite(low) and np.isfinite(high):
+            r[R_CENTRE, i], r[R_HALF, i] = 0.5 * (low + high), 0.5 * (high - low)
+        else:  # nothing holds q̇: the estimate as the centre, the half-width infinite
+            r[R_CENTRE, i], r[R_HALF, i] = v[i], np.inf
+            consistent = False
+        a.velocity_centre[k, i], a.velocity_spread[k, i] = r[R_CENTRE, i], r[R_HALF, i]
+    a.work.flags[CONSISTENT] = 1.0 if consistent else 0.0
+
+
+@no_refcount_jit(cache=True)
+def predict_interval(k, a, tau):
+    """The interval of the true velocity at row k + 1 under τ held over the step (into
+    R_NEXT_LOW, R_NEXT_HIGH): row k's moved by dt times the hull of q̈ ± D at the step's
+    start and at its predicted end (q̈ drifts over the hold as q and q̇ move), D taken
+    TUBE_SAFETY times as the check's tube takes it: a velocity outside a narrower prediction
+    may still be in the tube the check verified."""
+    r = a.work.rollout
+    y = a.position[k]
+    n = y.shape[0]
+    low, high = r[R_NEXT_LOW], r[R_NEXT_HIGH]
+    for i in range(n):
+        r[R_Q, i], r[R_V, i] = y[i], r[R_CENTRE, i]
+        low[i], high[i] = np.inf, -np.inf
+        r[R_ACC_LOW, i] = r[R_ACC_HIGH, i] = np.nan
+    for i in range(n):
+        if not r[R_HALF, i] < np.inf:  # q̇ unknown now: nothing predicted
+            for j in range(n):
+                low[j], high[j] = -np.inf, np.inf
+            return
+    deviation, acceleration = r[R_DEV], r[R_ACC]
+    fixed_deviation(a, r[R_HALF])
+    for end in range(2):
+        nominal_acceleration(k, a, tau, False, 0, a.torque_limit)
+        deviation_bound(a, r[R_V], r[R_HALF], acceleration, deviation)
+        for i in range(n):
+            low[i] = min(low[i], acceleration[i] - TUBE_SAFETY * deviation[i])
+            high[i] = max(high[i], acceleration[i] + TUBE_SAFETY * deviation[i])
+        if end == 0:  # to the predicted end of the step
+            for i in range(n):
+                r[R_Q, i] += a.dt * r[R_V, i] + 0.5 * a.dt * a.dt * acceleration[i]
+                r[R_V, i] += a.dt * acceleration[i]
+    for i in range(n):
+        r[R_ACC_LOW, i], r[R_ACC_HIGH, i] = low[i], high[i]  # the check's bound on q̈
+        low[i] = r[R_CENTRE, i] - r[R_HALF, i] + a.dt * low[i]
+        high[i] = r[R_CENTRE, i] + r[R_HALF, i] + a.dt * high[i]
+
+
+@no_refcount_jit(cache=True)
+def inside(k, a):
+    """Whether every state row k's bounds allow (|q − y| ≤ n̄, q̇ in its interval) is inside
+    every hard set (as the check holds them): a state verified but not inside is one the
+    backup brings back, not one it keeps."""
+    r = a.work.rollout
+    y = a.position[k]
+    for i in range(y.shape[0]):
+        if a.hard[0] and abs(y[i] - a.centres[0, i]) + a.noise_bound > a.viable_bounds[0, i]:
+            return False
+        if a.hard[1] and abs(r[R_CENTRE, i] - a.centres[1, i]) + r[R_HALF, i] \
+                > a.viable_bounds[1, i]:
+            return False
+    return True
