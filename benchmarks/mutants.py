@@ -106,11 +106,12 @@ MUTANTS = [
      "a.infeasible[k] = 0.0 if viable else 1.0", "a.infeasible[k] = 0.0", FILTER),
     # the backup's check (issue 30): each margin it takes, dropped
     ("cbf-tube-deviation-dropped", "cosim/paper/cbf_filter/backup.py",
-     "dv[i] = max(dv[i] * (1.0 - feedback) + widen[i] * h, eps[i])",
-     "dv[i] = max(dv[i] * (1.0 - feedback), eps[i])", VIABILITY),
-    ("cbf-tube-estimate-floor", "cosim/paper/cbf_filter/backup.py",
-     "dv[i] = max(dv[i] * (1.0 - feedback) + widen[i] * h, eps[i])",
-     "dv[i] = dv[i] * (1.0 - feedback) + widen[i] * h", VIABILITY),
+     "dv[i] = max(dv[i] * (1.0 - feedback) + feedback * eps[i] + widen[i] * h, eps[i])",
+     "dv[i] = max(dv[i] * (1.0 - feedback) + feedback * eps[i], eps[i])", VIABILITY),
+    # the estimate's error ε under the backup's feedback (the check once kept it as a floor)
+    ("cbf-tube-feedback-estimate", "cosim/paper/cbf_filter/backup.py",
+     "dv[i] = max(dv[i] * (1.0 - feedback) + feedback * eps[i] + widen[i] * h, eps[i])",
+     "dv[i] = max(dv[i] * (1.0 - feedback) + widen[i] * h, eps[i])", VIABILITY),
     # D taken once, not 1.5 times (the tube's empirical factor, docs/safety/filter.md)
     ("cbf-tube-factor-one", "cosim/paper/cbf_filter/backup.py",
      "TUBE_SAFETY = 1.5", "TUBE_SAFETY = 1.0", VIABILITY),

@@ -62,7 +62,8 @@ def carried(a) -> float:
 
 def brake_apart(a, q, v, seconds: float = 1.0, payload: float = 0.0,
                 estimate_error: np.ndarray | None = None,
-                disturbance: np.ndarray | None = None) -> tuple[float, float]:
+                disturbance: np.ndarray | None = None,
+                velocities: list | None = None) -> tuple[float, float]:
     """The true arm (carrying ``payload`` kg at its tip) braked by the backup's policy
     recomputed apart on the nominal arm carrying what the filter's rollout model carries
     (the middle of the declared payload range), from the velocity it is given (the true one
@@ -70,7 +71,8 @@ def brake_apart(a, q, v, seconds: float = 1.0, payload: float = 0.0,
     |M q̈ + b + τ_d| ≤ LIMIT allows (DAQP), w its inward pull within HOLD of a bound, its
     torque held 1 ms, RK4 at 0.1 ms, until stopped (without an estimate error). The true
     arm feels ``disturbance`` (N·m per joint, constant) beside the τ_d the model has. Returns
-    (the largest |q_i| and |q̇_i| over the braking, rad and rad/s)."""
+    (the largest |q_i| and |q̇_i| over the braking, rad and rad/s); ``velocities``, if given,
+    gets the true q̇ at the start of every 1 ms step."""
     import qpsolvers
 
     q, v = np.array(q, float), np.array(v, float)
@@ -86,6 +88,8 @@ def brake_apart(a, q, v, seconds: float = 1.0, payload: float = 0.0,
 
     bound = a.viable_bounds[0, 0]
     for _ in range(int(seconds / 1e-3)):
+        if velocities is not None:
+            velocities.append(v.copy())
         seen = v + offset
         # inward within HOLD of the bound (the backup's position hold), HOLD_RATE per rad
         depth = np.abs(q) + a.noise_bound - (bound - HOLD)
@@ -260,8 +264,8 @@ def test_a_velocity_estimate_wrong_by_epsilon_throughout_with_the_payload_still_
     wrong velocity), with 1 kg at the tip, from joint 1 0.3 rad inside at the fastest speed
     the check verifies: stops inside. (Once a known gap: with the payload's departure taken
     at its range's ends only, and the larger of it and the velocity error's rather than
-    their sum, the check verified 5.7 rad/s and joint 1 reached 20.014 rad; now 4.7 rad/s,
-    19.972 rad.)"""
+    their sum, the check verified 5.7 rad/s and joint 1 reached 20.014 rad; then 4.7 rad/s,
+    19.972 rad; with the tube's f ε, 4.46 rad/s.)"""
     pytest.importorskip("qpsolvers")
     a = args_of("pipelines/near_boundary.toml")
     spread, (distance, joint2) = 0.5, STARTS[0]
@@ -271,6 +275,44 @@ def test_a_velocity_estimate_wrong_by_epsilon_throughout_with_the_payload_still_
                                    [boundary + spread, joint2[1]], payload=1.0,
                                    estimate_error=np.array([-spread, spread]))
     assert worst_q <= bound_q and worst_v <= bound_v, (boundary, worst_q, worst_v)
+
+
+def test_the_true_arm_braked_with_its_estimate_off_by_epsilon_stays_in_the_checks_tube():
+    """The tube's velocity half-width is derived (backup.py): the backup acts on an
+    estimate within ε of the true velocity, so the true velocity's departure u from the
+    rollout's obeys u̇ = −k_b (u + e) + Δ, |e| ≤ ε, |Δ| ≤ D, and grows by at most f ε + D h
+    a step while the feedback f = k_b h contracts it. The check once kept ε only as a floor:
+    an estimate off by ε for the whole braking then took the true q̇ out of the tube. Here:
+    at the fastest outward speed the check verifies 0.3 rad inside, with 1 kg at the tip,
+    the true arm braked apart with its estimate off by ε = 0.5 rad/s throughout; at each of
+    the check's rollout steps, the true q̇ is within the tube's half-width of the rollout's."""
+    pytest.importorskip("qpsolvers")
+    from cosim.paper.cbf_filter.scratch import PLAN_TUBE, T_DV, T_V
+
+    a = args_of("pipelines/near_boundary.toml")
+    spread, (distance, joint2) = 0.5, STARTS[0]
+    q = [a.viable_bounds[0, 0] - distance, joint2[0]]
+    estimate = np.array([uncertain_boundary(a, distance, joint2, spread), joint2[1]])
+    assert is_verified(a, q, estimate, spread)
+    buffer = int(a.work.flags[PLAN_TUBE])  # the rollout just verified, segment by segment
+    tube, lengths = a.work.tube[buffer], a.work.tube_steps[buffer]
+    offset = np.array([-spread, spread])  # the estimate off by ε, joint 1 slower than true
+    true_velocities: list = []
+    brake_apart(a, q, estimate - offset, payload=1.0, estimate_error=offset,
+                velocities=true_velocities)
+    start, checked, worst = 0.0, 0, -np.inf
+    for segment, h in zip(tube, lengths, strict=True):
+        if h <= 0.0:
+            break
+        row = int(round(start / 1e-3))
+        if abs(row * 1e-3 - start) < 1e-9 and row < len(true_velocities):
+            worst = max(worst, float(np.max(np.abs(true_velocities[row] - segment[T_V])
+                                            - segment[T_DV])))
+            checked += 1
+        start += h
+    assert checked > 40, checked  # the whole rollout, every 2 ms until it stops
+    # (at the start exactly on its edge: the true q̇ ε from the estimate, δv(0) = ε)
+    assert worst <= 1e-9, f"the true q̇ past the tube by {worst:.4f} rad/s"
 
 
 def test_a_check_apart_from_a_run_takes_the_model_at_its_own_state(uncertain_args):

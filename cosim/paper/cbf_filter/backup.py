@@ -19,16 +19,18 @@ too): the candidate torque held over one step, then the backup, in steps of
 ``backup_horizon`` has passed (unverified). Around the nominal rollout a tube of
 half-widths δq, δv holds the true state: δq(0) = n̄ (noise), δv(0) = the half-width of the
 velocity's interval (:func:`.interval.velocity_interval`, at most ε), and per step, with D taken
-TUBE_SAFETY (1.5) times, an empirical factor for the first-order feedback model, and δq
-advanced with δv before δv's update,
+TUBE_SAFETY (1.5) times, and δq advanced with δv before δv's update,
 
     δq_i ← δq_i + δv_i h + ½ (1.5 D_i) h²
-    δv_i ← max(δv_i (1 − f_i) + 1.5 D_i h, ε_i)
+    δv_i ← max(δv_i (1 − f_i) + f_i ε_i + 1.5 D_i h, ε_i)
 
 where f_i = min(k_b h, 1) when joint i's torque is free (the backup's feedback pulls its
 velocity towards its target) and f_i = 0 when its torque is at the limit or held (the
-candidate's step); the floor ε_i holds in both cases, as the feedback acts on the
-estimate, whose error ε the true velocity keeps. Where the rollout's step is the control
+candidate's step). The f_i ε_i is derived: the feedback acts on an estimate within ε of the
+true velocity, so the true velocity's departure u from the rollout's obeys
+u̇ = −k_b (u + e) + Δ, |e| ≤ ε, |Δ| ≤ D. The factor 1.5 is empirical: D is taken at the
+rollout's state with the spread ε, while over a held step the true state departs from it
+by δv (docs/safety/filter.md, "The check"). Where the rollout's step is the control
 step (``backup_step`` ≥ dt: from 2 ms at the default), every rollout step is a torque held
 over the whole step, the candidate's and then the backup's, and q̈ drifts over it as the
 state moves: its 1.5 D_i is widened to max(1.5 D_i, |q̈_i(end) − q̈_i| + 1.5 D_i(end))
@@ -417,9 +419,9 @@ def plan_box(k, a):
                 r[R_BOX_Q_HALF, i] = (segment[T_DQ, i] + s * segment[T_DV, i]
                                       + 0.5 * s * s * segment[T_WIDEN, i])
                 r[R_BOX_V, i] = segment[T_V, i] + s * segment[T_ACC, i]
-                r[R_BOX_V_HALF, i] = max(
-                    segment[T_DV, i] * (1.0 - segment[T_FEEDBACK, i] * s / h)
-                    + segment[T_WIDEN, i] * s, eps[i])
+                share = segment[T_FEEDBACK, i] * s / h
+                r[R_BOX_V_HALF, i] = max(segment[T_DV, i] * (1.0 - share) + share * eps[i]
+                                         + segment[T_WIDEN, i] * s, eps[i])
             return
         start += h
 
@@ -482,8 +484,10 @@ def verified(k, a, y, v, eps, first, hold, policy, limit):
             q[i] += h * vel[i] + 0.5 * h * h * acc[i]
             vel[i] += h * acc[i]
             dq[i] += h * dv[i] + 0.5 * h * h * widen[i]
-            # the feedback acts on the estimate: the true velocity keeps its error, ε
-            dv[i] = max(dv[i] * (1.0 - feedback) + widen[i] * h, eps[i])
+            # the feedback acts on the estimate e within ε of the true velocity: the true
+            # velocity's departure u from the rollout's obeys u̇ = −k_b (u + e) + Δ, |Δ| ≤ D,
+            # so |u| grows by at most f ε + D h a step as the feedback f contracts it
+            dv[i] = max(dv[i] * (1.0 - feedback) + feedback * eps[i] + widen[i] * h, eps[i])
             allowed_q = a.viable_bounds[0, i] + (limit_q[i] - a.viable_bounds[0, i]) * decay
             allowed_v = a.viable_bounds[1, i] + (limit_v[i] - a.viable_bounds[1, i]) * decay
             if a.hard[0] and max(abs(q[i] - a.centres[0, i]), abs(turn - a.centres[0, i])) + dq[i] \
