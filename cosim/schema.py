@@ -6,6 +6,7 @@ from __future__ import annotations
 import typing
 from typing import Annotated
 
+import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, Strict
 
 # Strict: a number is a TOML integer or float, never true/false or a string ("0.1" in
@@ -50,6 +51,12 @@ class Section(BaseModel):
     """A pipeline table: unknown keys are refused, aliases (``lambda``) accepted."""
 
     model_config = ConfigDict(extra="forbid", populate_by_name=True)
+
+
+def per_joint_array(value: object, n: int) -> np.ndarray:
+    """A :class:`PerJoint` value (one for all joints, or a list of one each) as an (n,) float
+    array of its own."""
+    return np.broadcast_to(np.asarray(value, float), (n,)).copy()
 
 
 def per_joint_keys(section: type[BaseModel]) -> tuple[str, ...]:

@@ -124,8 +124,13 @@ def test_a_parameter_the_block_lacks_or_a_kernel_cannot_read_is_refused_by_name(
     class Text(NamedTuple):
         mode: parameter()
 
+    class Unset(NamedTuple):  # per joint, but None by default
+        rate: parameter()
+
     with pytest.raises(TypeError, match="Missing.gains: toy has no parameter 'gains'"):
         _bound(record=Missing)
+    with pytest.raises(TypeError, match="Unset.rate: parameter 'rate' may be unset"):
+        _bound(record=Unset)
     with pytest.raises(TypeError, match="Text.mode: parameter 'mode' is str, which a kernel "
                                         "cannot read"):
         _bound(record=Text)

@@ -32,6 +32,7 @@ from typing import Annotated, TypeVar
 import numpy as np
 
 from ..records import is_kernel_record, reference
+from ..schema import per_joint_array
 
 Record = TypeVar("Record", bound=tuple)
 
@@ -158,8 +159,11 @@ def _parameter(block, key: str, where: str):
     if key not in fields:
         raise TypeError(f"{where}: {block.kind} has no parameter {key!r}")
     value = getattr(block.params, key)
+    if value is None:
+        raise TypeError(f"{where}: parameter {key!r} may be unset (None), which a kernel "
+                        "cannot read; compute the field in reset")
     if (fields[key].alias or key) in block.per_joint:
-        return np.broadcast_to(np.asarray(value, float), (block.context.links,)).copy()
+        return per_joint_array(value, block.context.links)
     if isinstance(value, (bool, int, float)):
         return value
     raise TypeError(f"{where}: parameter {key!r} is {type(value).__name__}, which a kernel "

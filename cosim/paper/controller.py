@@ -26,7 +26,15 @@ from pydantic import Field
 from ..blocks.base import Block, BlockContext, Ports, kernel_args, register_block
 from ..blocks.binding import master_step, parameter, reads, scratch, writes
 from ..records import kernel_record
-from ..schema import GainVector, NonNegativeFloat, PipelineError, PositiveFloat, Section, Seed
+from ..schema import (
+    GainVector,
+    NonNegativeFloat,
+    PipelineError,
+    PositiveFloat,
+    Section,
+    Seed,
+    per_joint_array,
+)
 from ..signals import Signal
 from .sampled_loop import LinearGains, check_step
 
@@ -290,8 +298,7 @@ class NnController(Block):
         self.velocity_source = velocity
         self.chatter: str | None = None  # what the step check says of the robust terms
         self.publishes = {"nn_gains": kernel_args(
-            NnGains, Lambda=np.broadcast_to(np.asarray(params.lam, float),
-                                            (context.links,)).copy(),
+            NnGains, Lambda=per_joint_array(params.lam, context.links),
             F=params.f, G=params.g), "velocity_source": velocity}
         # Full state reads the plant's true q, q̇; output feedback only the sensor (and the
         # observer, or its own difference quotient).
@@ -341,9 +348,9 @@ class NnController(Block):
         p, n = self.params, self.context.links
         proposed = p.variant == "proposed"
         z_w = p.z_wc if proposed else p.z_b
-        velocity = (np.broadcast_to(np.asarray(p.kv, float), (n,))
+        velocity = (per_joint_array(p.kv, n)
                     + p.kz * (np.linalg.norm(self.initial_weights()) + z_w))
-        lam = np.broadcast_to(np.asarray(p.lam, float), (n,))
+        lam = per_joint_array(p.lam, n)
         bounded = None
         if proposed:
             bounded = np.full(n, (p.kappa * (z_w + p.c1 / p.kappa) ** 2 / 4.0 + p.c0)

@@ -102,7 +102,14 @@ from ..dynamics.model import (
 )
 from ..numba_compat import no_refcount_jit
 from ..records import kernel_record
-from ..schema import FiniteFloat, NonNegativeFloat, PerJoint, PositiveFloat, Section
+from ..schema import (
+    FiniteFloat,
+    NonNegativeFloat,
+    PerJoint,
+    PositiveFloat,
+    Section,
+    per_joint_array,
+)
 from ..signals import Signal
 from .inertia import InertiaModel, default_links
 from .linalg import invert, linear_part, small_symmetric_eigen, solve
@@ -740,9 +747,8 @@ class FlnnObserver(Block):
                                            "envelope (q̇ within ε − |x̂2 − c| of it)",
                                            kept=True),
         }
-        self.publishes = {"tau_d_model": np.broadcast_to(
-            np.asarray(params.tau_d, float), (context.links,)).copy(),
-            "observer_gain": float(params.fo)}
+        self.publishes = {"tau_d_model": per_joint_array(params.tau_d, context.links),
+                          "observer_gain": float(params.fo)}
 
     def check(self, published) -> None:
         check_friction_step(self, published)

@@ -28,7 +28,7 @@ from ..dynamics.model import (
     planar_model,
 )
 from ..records import kernel_record
-from ..schema import GainVector, NonNegativeFloat, PerJoint, Section
+from ..schema import GainVector, NonNegativeFloat, PerJoint, Section, per_joint_array
 from ..signals import Signal
 from .sampled_loop import LinearGains, check_step
 
@@ -128,8 +128,7 @@ class PdController(Block):
     def linear_gains(self) -> LinearGains:
         """Kp and Kd: the whole feedback (Ĝ(q) is slow)."""
         p, n = self.params, self.context.links
-        return LinearGains(np.broadcast_to(np.asarray(p.kp, float), (n,)),
-                           np.broadcast_to(np.asarray(p.kd, float), (n,)),
+        return LinearGains(per_joint_array(p.kp, n), per_joint_array(p.kd, n),
                            inertia_scaled=p.scale == "inertia",
                            difference=p.velocity == "finite_difference")
 

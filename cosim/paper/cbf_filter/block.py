@@ -12,7 +12,7 @@ from pydantic import Field
 from ...blocks.base import Block, BlockContext, Ports, register_block
 from ...declared import joint_boxes
 from ...dynamics.model import own_scratch, payload_dim
-from ...schema import FiniteFloat, PerJoint, PipelineError, PositiveFloat, Section
+from ...schema import FiniteFloat, PerJoint, PipelineError, PositiveFloat, Section, per_joint_array
 from ...signals import Signal
 from .assumptions import BACKUP, FILTER_ASSUMES, KEPT_CHECKS, VIABLE, FilterAssumptions
 from .rows import cbf_rows
@@ -188,7 +188,7 @@ class CbfFilter(Block):
             limit = params.torque_limit
         else:  # the robot's effort limits where the safe sets are its own limits, else none
             limit = np.inf if boxes is None else boxes.effort
-        limit = np.broadcast_to(np.asarray(limit, float), (context.links,)).copy()
+        limit = per_joint_array(limit, context.links)
         if boxes is not None and {"position", "velocity"} & set(params.soft_norms):
             raise PipelineError(
                 f"run '{context.run}': cbf_filter.soft_norms names the position or velocity "
@@ -282,7 +282,7 @@ class CbfFilter(Block):
             backup_step=self.backup_step, payload_low=payload_low, payload_high=payload_high,
             inertia_is_plant=bool(const["inertia_is_plant"]),
             model=own_scratch(model),
-            tau_d=np.broadcast_to(np.asarray(tau_d, float), (n,)).copy(),
+            tau_d=per_joint_array(tau_d, n),
             position=inp[self.position], velocity=inp[self.velocity],
             velocity_bound=velocity_bound, drift=drift, envelope_centre=envelope_centre,
             **{field: _per_set(ports.trace, f"cbf_{{}}{suffix}", shape)
