@@ -112,6 +112,9 @@ MUTANTS = [
     ("cbf-tube-feedback-estimate", "cosim/paper/cbf_filter/backup.py",
      "dv[i] = max(dv[i] * (1.0 - feedback) + feedback * eps[i] + widen[i] * h, eps[i])",
      "dv[i] = max(dv[i] * (1.0 - feedback) + widen[i] * h, eps[i])", VIABILITY),
+    # the tube's contraction first order, k_b h, not the holds' 1 − (1 − k_b dt)^(h/dt)
+    ("cbf-tube-contraction-first-order", "cosim/paper/cbf_filter/backup.py",
+     "    return 1.0 - (1.0 - held) ** holds\n", "    return min(rate * h, 1.0)\n", VIABILITY),
     # D taken once, not 1.5 times (the tube's empirical factor, docs/safety/filter.md)
     ("cbf-tube-factor-one", "cosim/paper/cbf_filter/backup.py",
      "TUBE_SAFETY = 1.5", "TUBE_SAFETY = 1.0", VIABILITY),

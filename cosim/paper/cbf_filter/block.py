@@ -98,7 +98,8 @@ class CbfFilterParams(Section):
     # rate at which a set already left must be regained in the backup's check: the excess
     # allowed decays as e^{−rate·t}, 1/s
     recovery_rate: PositiveFloat = 1.0
-    # step of the backup's rollout (its first step is the control step), s
+    # step of the backup's rollout (its first step is the control step), s: rounded to a
+    # whole number of control steps, at least one
     backup_step: PositiveFloat = 0.002
     # longest the backup may take to stop every joint, s
     backup_horizon: PositiveFloat = 1.0
@@ -197,9 +198,11 @@ class CbfFilter(Block):
         keeps = tuple(KEPT_CHECKS[name] for name in params.hard)
         self.publishes = {FILTER_ASSUMES: FilterAssumptions(
             self.position, self.velocity, limit, np.zeros(context.links), keeps)}
-        # the check's rollout steps no finer than the hold it models (the backup is applied
-        # at the control step)
-        self.backup_step = max(params.backup_step, context.dt)
+        # the check's rollout steps a whole number of the holds it models (the backup is
+        # applied and held at the control step; backup.feedback_contraction counts them)
+        holds = max(1, round(params.backup_step / context.dt))
+        whole = abs(params.backup_step - holds * context.dt) <= 1e-9 * context.dt
+        self.backup_step = params.backup_step if whole else holds * context.dt
         if params.solver == "newton":
             self.kernel = cbf_step
         else:
