@@ -2,7 +2,7 @@
 uncertainty (issue 30's figure "every start with v² ≤ 2·d·a̲ is viable"): over a grid of
 starts — each joint in turn d rad inside either position bound, moving outward; the other
 joints' angles and velocities on a grid within their sets — the fastest outward speed v*
-the filter's own check verifies (cosim/paper/cbf_filter/backup.py's verified_from: the
+the filter's own check verifies (cosim/paper/cbf_filter/check.py's verified_from: the
 model's forms at that start, as a step takes them; bisection), and
 a = v*²/(2d). a̲ is the least over the grid; the payload, noise and disturbance as
 declared, and the velocity known to within ε: 0 (a full-state filter) and the declared
@@ -21,7 +21,7 @@ import numpy as np
 from cosim.assemble import assemble
 from cosim.config import load_pipeline
 from cosim.engine import simulate
-from cosim.paper.cbf_filter.backup import verified_from
+from cosim.paper.cbf_filter.check import verified_from
 
 
 def filter_args(pipeline_path: str, limit: float, duration: float = 0.01):

@@ -2,7 +2,7 @@
 
 The filter calls a state viable when its braking backup, rolled out in its nominal model
 with a tube for the declared uncertainty, stops every joint inside its sets
-(cosim/paper/cbf_filter/backup.py). Here the true arm (the paper's closed-form two-link arm,
+(cosim/paper/cbf_filter/check.py). Here the true arm (the paper's closed-form two-link arm,
 tests/test_references.py, not the filter's recursive model) is braked apart by the same
 policy recomputed with DAQP, held over each 1 ms control step and integrated by RK4 at
 0.1 ms: from states the filter verifies it must stop inside the bound the check holds; from
@@ -17,7 +17,8 @@ import numpy as np
 import pytest
 from test_references import two_link_closed_form
 
-from cosim.paper.cbf_filter.backup import HOLD, HOLD_RATE, verified_from
+from cosim.paper.cbf_filter.backup import HOLD, HOLD_RATE
+from cosim.paper.cbf_filter.check import verified_from
 
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
 from deceleration import filter_args as filter_args_of  # noqa: E402
@@ -181,7 +182,8 @@ def test_under_the_declared_payload_the_verified_starts_stop_for_every_plant(
 def payload_deviation_bound(a, q, v, tau) -> np.ndarray:
     """D of the check at (q, v) under τ with the velocity known exactly: the payload's
     departure bound plus the disturbance's (|M̂⁻¹| d̄, tiny here)."""
-    from cosim.paper.cbf_filter.backup import deviation_bound, nominal_acceleration
+    from cosim.paper.cbf_filter.backup import nominal_acceleration
+    from cosim.paper.cbf_filter.deviation import deviation_bound
     from cosim.paper.cbf_filter.scratch import R_ACC, R_Q, R_V
 
     r = a.work.rollout
@@ -323,12 +325,12 @@ def test_the_tubes_feedback_contracts_no_more_than_the_backup_held_at_the_contro
     velocity's departure u from the rollout's moves per hold as u ← (1 − c) u − c e + Δ dt,
     c = min(k_b dt, 1), |e| ≤ ε, |Δ| ≤ D. Over a rollout step of ``holds`` control steps,
     for every sign of e and Δ at every hold, |u| stays within the tube's
-    δv (1 − f) + f ε + D h (backup.feedback_contraction), and after j of the holds within
+    δv (1 − f) + f ε + D h (check.feedback_contraction), and after j of the holds within
     what plan_box says of the step's inside, f j/holds in place of f. The first-order
     f = k_b h claimed more: at 200 1/s and h = 2 ms, 0.4 where the holds give 0.36."""
     import itertools
 
-    from cosim.paper.cbf_filter.backup import feedback_contraction
+    from cosim.paper.cbf_filter.check import feedback_contraction
 
     dt, spread, deviation, start = 1e-3, 0.3, 40.0, 1.0  # s, rad/s, rad/s², rad/s
     h = holds * dt

@@ -14,7 +14,7 @@ q̈ ± 1.5 D at the step's start, and q̈'s drift over the step can take the tru
   in it.
 - **The tube** (:func:`tube_exceedances`): the check's rollout puts the true state within a
   tube about its nominal trajectory, widened by TUBE_SAFETY = 1.5 times D, a first-order
-  model of the backup's feedback (cosim/paper/cbf_filter/backup.py). The filter records at
+  model of the backup's feedback (cosim/paper/cbf_filter/check.py). The filter records at
   every step the box the plan in force at the step before puts the state in
   (``cbf_tube_*``); the true state may leave it by at most what the check leaves between
   its sets and the bounds (half of ``bound_margin``), or the rollout's proof of the sets

@@ -51,7 +51,7 @@ is then met with the tolerance to spare, so the answer is the whole QP's minimis
 Panda's ~1000 hard rows a step are a handful in the solve). Where a hard row still slips
 (tracking pulling hard against it), it re-solves with the soft weights 1e-3 and 1e-6 times,
 then without the soft rows. The rows' answer is a proposal: the torque applied is decided by
-the **backup's check** (:mod:`.backup`): the answer (clipped to the torque limits; the
+the **backup's check** (:mod:`.check`): the answer (clipped to the torque limits; the
 controller's torque where the answer does not meet the hard rows within the limits) if the
 braking backup can still keep every hard set after it, for every state and plant the
 declared uncertainty allows; else the largest verified blend towards the backup; else the

@@ -199,7 +199,7 @@ class CbfFilter(Block):
         self.publishes = {FILTER_ASSUMES: FilterAssumptions(
             self.position, self.velocity, limit, np.zeros(context.links), keeps)}
         # the check's rollout steps a whole number of the holds it models (the backup is
-        # applied and held at the control step; backup.feedback_contraction counts them)
+        # applied and held at the control step; check.feedback_contraction counts them)
         holds = max(1, round(params.backup_step / context.dt))
         whole = abs(params.backup_step - holds * context.dt) <= 1e-9 * context.dt
         self.backup_step = params.backup_step if whole else holds * context.dt

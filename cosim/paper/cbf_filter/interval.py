@@ -1,8 +1,8 @@
 """The true velocity's interval the filter holds at each row: the observer's certified
 interval, intersected with the one the step before predicted under the torque it applied
-(the nominal model's q̈ ± TUBE_SAFETY D over the step, :mod:`.backup`), and whether every
+(the nominal model's q̈ ± TUBE_SAFETY D over the step, :mod:`.check`), and whether every
 state it and the measured position allow lies inside the hard sets. The check
-(:func:`.backup.verified`) starts its tube from it; the run's classifier measures that the
+(:func:`.check.verified`) starts its tube from it; the run's classifier measures that the
 true q̇ stays in it (docs/safety/filter.md, "The premises")."""
 
 from __future__ import annotations
@@ -10,7 +10,9 @@ from __future__ import annotations
 import numpy as np
 
 from ...numba_compat import no_refcount_jit
-from .backup import TUBE_SAFETY, deviation_bound, fixed_deviation, nominal_acceleration
+from .backup import nominal_acceleration
+from .check import TUBE_SAFETY
+from .deviation import deviation_bound, fixed_deviation
 from .scratch import (
     CONSISTENT,
     R_ACC,

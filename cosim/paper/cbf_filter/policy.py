@@ -1,6 +1,6 @@
 """The decision: which torque the filter applies. The QP's answer (clipped to the torque
 limits, or the controller's where the QP's hard rows are not met within them) if the
-braking backup can still keep every hard set after it (:func:`.backup.verified`), else the
+braking backup can still keep every hard set after it (:func:`.check.verified`), else the
 largest verified blend towards the backup, else the plan in force or the backup itself;
 with ``braking_torque`` below the limits, all that first with the backup within it
 (docs/safety/filter.md, "How hard the backup brakes")."""
@@ -8,7 +8,8 @@ with ``braking_torque`` below the limits, all that first with the backup within 
 from __future__ import annotations
 
 from ...numba_compat import no_refcount_jit
-from .backup import backup_at, verified
+from .backup import backup_at
+from .check import verified
 from .interval import inside
 from .rows import groups_violated
 from .scratch import (
@@ -34,7 +35,7 @@ POLICIES = 2
 @no_refcount_jit(cache=True)
 def verified_policy(k, a, tau, limit):
     """The first backup policy under which ``tau``, held for the step, is verified with the
-    backup within the torques ``limit`` (:func:`.backup.verified`), else −1."""
+    backup within the torques ``limit`` (:func:`.check.verified`), else −1."""
     y, v, eps = a.position[k], a.work.rollout[R_CENTRE], a.work.rollout[R_HALF]
     for policy in range(POLICIES):
         if verified(k, a, y, v, eps, tau, True, policy, limit):
@@ -104,7 +105,7 @@ def blend_verified(k, a, tau, limit, reserve):
 def choose(k, a, tau):
     """The torque to apply, into ``tau``: the QP's answer clipped to the torque limits (the
     controller's, clipped, where the QP's hard rows are not met within the limits), itself
-    if the backup can still keep every hard set after it (:func:`.backup.verified`), else
+    if the backup can still keep every hard set after it (:func:`.check.verified`), else
     the verified blend τ_b + λ(τ − τ_b) with the largest λ found by bisection, each backup
     policy tried in turn; where braking_torque is below the limits, all that first with the
     backup within it (the plan followed if it needs no more), then with the limits (the

@@ -44,7 +44,7 @@ TAU, TRIAL, GRADIENT, DIRECTION, ROTATED = range(5)
 # Of CbfWork.matrices (n×n each): the nominal model's M at y and at a predicted position, M̂
 # moved there, M̂⁻¹ at y, at the hold's end and at its midpoint, elimination scratch, and R.
 NOMINAL_NOW, NOMINAL, SHIFTED, MINV, MINV_END, MINV_MID, LU, FACTOR = range(8)
-# … then the backup's rollout (cosim.paper.cbf_filter.backup): M at its state, M⁻¹, scratch.
+# … then the backup's rollout (cosim.paper.cbf_filter.check): M at its state, M⁻¹, scratch.
 ROLL_MASS, ROLL_MINV, ROLL_LU, BACKUP_FACTOR = range(8, 12)
 # Of CbfWork.rollout (n each): the rollout's state, the tube's half-widths δq, δv, its torque,
 # nominal q̈ and b̂; the bound D on q̈'s departure; what each set allows; the backup's target

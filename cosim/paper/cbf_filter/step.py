@@ -10,7 +10,7 @@ import numpy as np
 
 from ...numba_compat import no_refcount_jit
 from ..linalg import dot
-from .backup import plan_box
+from .check import plan_box
 from .interval import predict_interval
 from .policy import choose
 from .rows import add_cuts, groups_record, step_rows

@@ -1,0 +1,284 @@
+"""The check that makes the filter's hard sets hold with bounded
+torque: a torque is applied only if, after it, the backup can still stop every joint inside
+its position set and keep its velocity set, for every state and plant the declared
+uncertainty allows (a backup-controller safety filter in the manner of Chen, Jankovic,
+Santillo and Ames, "Backup control barrier functions", 2021, checked by rolling the backup
+out rather than by its sensitivities).
+
+The check (:func:`verified`) rolls the nominal model out from the estimate (y, v), carrying
+the middle of the declared payload range (:func:`.backup.rollout_payload`; the backup's torque
+too): the candidate torque held over one step, then the backup, in steps of
+``backup_step``, until every joint is stopped (|v − q̇_s − w| ≤ ``STOPPED``) or
+``backup_horizon`` has passed (unverified). Around the nominal rollout a tube of
+half-widths δq, δv holds the true state: δq(0) = n̄ (noise), δv(0) = the half-width of the
+velocity's interval (:func:`.interval.velocity_interval`, at most ε), and per step, with D taken
+TUBE_SAFETY (1.5) times, and δq advanced with δv before δv's update,
+
+    δq_i ← δq_i + δv_i h + ½ (1.5 D_i) h²
+    δv_i ← max(δv_i (1 − f_i) + f_i ε_i + 1.5 D_i h, ε_i)
+
+where f_i = 1 − (1 − min(k_b dt, 1))^(h/dt) when joint i's torque is free (the backup's
+feedback, applied and held at the control step dt, pulls its velocity towards its target:
+:func:`feedback_contraction`) and f_i = 0 when its torque is at the limit or held (the
+candidate's step). The f_i ε_i is derived: the feedback acts on an estimate within ε of the
+true velocity, so the true velocity's departure u from the rollout's obeys
+u̇ = −k_b (u + e) + Δ, |e| ≤ ε, |Δ| ≤ D. The factor 1.5 is empirical: D is taken at the
+rollout's state with the spread ε, while over a held step the true state departs from it
+by δv (docs/safety/filter.md, "The check"). Where the rollout's step is the control
+step (``backup_step`` ≥ dt: from 2 ms at the default), every rollout step is a torque held
+over the whole step, the candidate's and then the backup's, and q̈ drifts over it as the
+state moves: its 1.5 D_i is widened to max(1.5 D_i, |q̈_i(end) − q̈_i| + 1.5 D_i(end))
+(:func:`_held_drift`), the hull of q̈ ± 1.5 D at the step's start and its predicted end, as
+the velocity's interval is predicted (:func:`.interval.predict_interval`). At shorter steps the
+backup is re-evaluated within a rollout step (its feedback is what f models), and the
+candidate's step is taken at its start: its drift taken too made the check brake
+differently after start-up (docs/safety/measurements.md, "The tube premise"). D_i is the
+bound on the true q̈_i's departure from the nominal model's (:mod:`.deviation`): the bias
+error from the estimate's velocity error ε, the friction and the disturbance (|M̂⁻¹(Δb + d)|,
+the hard rows' bound, see :mod:`.model`, at the rollout's state), plus the payload's: with
+c the middle of the payload range, which the rollout's model carries, the largest
+|q̈(c + Δm) − q̈(c)| under the rollout's torque for Δm from low − c to high − c (where M̂ is
+the plant's, c = 0 and Δm over the range itself). Every joint's
+|q − q_s| + δq and |v − q̇_s| + δv must stay within its bound at every rollout step: for a
+set already left, within the excess it started with, decaying at ``recovery_rate``
+(h < 0 must grow back at that rate).
+
+What it assumes, besides the declared bounds: the tube's linear feedback model of the
+backup (exact for a joint the backup does not clip), b's velocity forms Γ taken at the
+step's configuration for the whole rollout, and the
+excursion between two rollout steps within half of ``bound_margin``: the check holds the
+sets shrunk by half the margin the QP's rows keep (``viable_bounds``), so that the QP's
+states leave the check that slack, and the check leaves the rest for what happens between
+its points (with |q̈| ≤ Ā at most Ā h²/8: 5e-4 rad at Ā = 1000 rad/s², h = 2 ms, against
+0.02 rad of a 20 rad bound).
+
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ...numba_compat import no_refcount_jit
+from ..linalg import invert, product
+from .backup import nominal_acceleration
+from .deviation import deviation_bound, fixed_deviation
+from .model import nominal_model, robust_model
+from .scratch import (
+    BASE,
+    BIAS,
+    LU,
+    MINV,
+    NOMINAL_NOW,
+    PLAN_STEP,
+    PLAN_TUBE,
+    R_ACC,
+    R_BOX_Q,
+    R_BOX_Q_HALF,
+    R_BOX_V,
+    R_BOX_V_HALF,
+    R_DEV,
+    R_DQ,
+    R_DV,
+    R_HELD_ACC,
+    R_HELD_Q,
+    R_HELD_V,
+    R_LIMIT_Q,
+    R_LIMIT_V,
+    R_Q,
+    R_TARGET,
+    R_TAU,
+    R_V,
+    R_WIDEN,
+    T_ACC,
+    T_DQ,
+    T_DV,
+    T_FEEDBACK,
+    T_Q,
+    T_V,
+    T_WIDEN,
+    TUBE_TRIAL,
+)
+
+STOPPED = 0.05  # rad/s: a joint within this of its backup's target velocity has stopped
+# The tube's D is taken this many times: its linear model of the backup's feedback (each
+# free joint pulled to its target at k_b, the torque recomputed from the true state) is first
+# order; braked apart on the closed-form arm with 1 kg at the tip from the edge of the
+# velocity's interval, D alone let joint 1 pass its bound by 0.015 rad
+# (tests/test_viability.py), 1.5 D keeps it inside. An empirical factor, stated as such.
+TUBE_SAFETY = 1.5
+
+
+@no_refcount_jit(cache=True)
+def feedback_contraction(rate, h, dt):
+    """f: the share of the true velocity's departure u from the rollout's that the backup's
+    feedback removes over a rollout step of h. The filter applies the backup at the control
+    step dt and holds it, so per hold u ← (1 − c) u − c e + ∫Δ with c = min(k_b dt, 1), and
+    over the h/dt holds of a rollout step (``backup_step`` is a whole number of control
+    steps) (1 − c)^(h/dt) of u remains. Within a step, the share after s is at least
+    f s/h (1 − (1 − c)^j is concave in j), as :func:`plan_box` takes it. The first-order
+    k_b h claimed more than the holds give: 0.4 against 0.36 at k_b = 200 1/s, h = 2 dt =
+    2 ms (docs/safety/filter.md, "The check")."""
+    holds = max(1, round(h / dt))
+    held = min(rate * dt, 1.0)
+    if holds == 1:
+        return held
+    return 1.0 - (1.0 - held) ** holds
+
+
+@no_refcount_jit(cache=True)
+def _held_drift(k, a, first, limit, eps, widen):
+    """Widen the held step's ``widen`` (1.5 D at its start, per joint) by q̈'s drift over
+    the hold: the true q̈ over the step lies in the hull of q̈ ± 1.5 D at the step's start
+    and at its predicted end (the premise :func:`.interval.predict_interval` takes too), so within
+    max(1.5 D, |q̈(end) − q̈| + 1.5 D(end)) of the start's q̈, which the tube's centre
+    follows. The rollout's row state (q, q̇, q̈) is the start's again on return."""
+    r = a.work.rollout
+    q, vel, acc, deviation = r[R_Q], r[R_V], r[R_ACC], r[R_DEV]
+    held_q, held_v, held_acc = r[R_HELD_Q], r[R_HELD_V], r[R_HELD_ACC]
+    n = q.shape[0]
+    for i in range(n):
+        held_q[i], held_v[i], held_acc[i] = q[i], vel[i], acc[i]
+        q[i] += a.dt * vel[i] + 0.5 * a.dt * a.dt * acc[i]
+        vel[i] += a.dt * acc[i]
+    nominal_acceleration(k, a, first, False, 0, limit)
+    deviation_bound(a, vel, eps, acc, deviation)
+    for i in range(n):
+        widen[i] = max(widen[i], abs(acc[i] - held_acc[i]) + TUBE_SAFETY * deviation[i])
+        q[i], vel[i], acc[i] = held_q[i], held_v[i], held_acc[i]
+
+
+@no_refcount_jit(cache=True)
+def plan_box(k, a):
+    """The box the plan in force (the rollout of the last torque verified, at step k0) puts
+    the true state in at row k + 1, into R_BOX_Q … R_BOX_V_HALF: its tube (k + 1 − k0)·dt
+    after its start, within the segment holding that time (the nominal state exactly, q̈
+    constant over a segment; δq, δv as the check grows them). NaN past the rollout's end.
+    The classifier holds the true state to it (the tube measured along the run)."""
+    w = a.work
+    r = w.rollout
+    n = r.shape[1]
+    for i in range(n):
+        r[R_BOX_Q, i] = r[R_BOX_Q_HALF, i] = r[R_BOX_V, i] = r[R_BOX_V_HALF, i] = np.nan
+    plan = int(w.flags[PLAN_TUBE])
+    tube, lengths, eps = w.tube[plan], w.tube_steps[plan], w.tube_eps[plan]
+    offset = (k + 1 - w.flags[PLAN_STEP]) * a.dt
+    start = 0.0
+    for j in range(lengths.shape[0]):
+        h = lengths[j]
+        if h <= 0.0:
+            return
+        if offset <= start + h * (1.0 + 1e-9):
+            s = offset - start
+            segment = tube[j]
+            for i in range(n):
+                r[R_BOX_Q, i] = (segment[T_Q, i] + s * segment[T_V, i]
+                                 + 0.5 * s * s * segment[T_ACC, i])
+                r[R_BOX_Q_HALF, i] = (segment[T_DQ, i] + s * segment[T_DV, i]
+                                      + 0.5 * s * s * segment[T_WIDEN, i])
+                r[R_BOX_V, i] = segment[T_V, i] + s * segment[T_ACC, i]
+                share = segment[T_FEEDBACK, i] * s / h
+                r[R_BOX_V_HALF, i] = max(segment[T_DV, i] * (1.0 - share) + share * eps[i]
+                                         + segment[T_WIDEN, i] * s, eps[i])
+            return
+        start += h
+
+
+@no_refcount_jit(cache=True)
+def verified(k, a, y, v, eps, first, hold, policy, limit):
+    """Whether the backup keeps every hard set from the estimate (y, v) (|q − y| ≤ n̄,
+    |q̇ − v| ≤ ε), after ``first`` is held for one step if ``hold`` (module docstring), with
+    the backup's ``policy`` within the torques ``limit`` (the torque limits or less)."""
+    w = a.work
+    r = w.rollout
+    q, vel, dq, dv, acc = r[R_Q], r[R_V], r[R_DQ], r[R_DV], r[R_ACC]
+    limit_q, limit_v, deviation, widen = r[R_LIMIT_Q], r[R_LIMIT_V], r[R_DEV], r[R_WIDEN]
+    n = y.shape[0]
+    for i in range(n):
+        if not eps[i] < np.inf:  # nothing known of the velocity: nothing is verified
+            return False
+    trial = int(w.flags[TUBE_TRIAL])  # the rollout is kept here; the plan, if verified
+    tube, lengths = w.tube[trial], w.tube_steps[trial]
+    for i in range(n):
+        q[i], vel[i], dq[i], dv[i] = y[i], v[i], a.noise_bound, eps[i]
+        # what each set allows: its bound, or the excess it starts with (recovery)
+        limit_q[i] = max(a.viable_bounds[0, i], abs(y[i] - a.centres[0, i]) + a.noise_bound)
+        limit_v[i] = max(a.viable_bounds[1, i], abs(v[i] - a.centres[1, i]) + eps[i])
+        r[R_TARGET, i] = 0.0
+        w.tube_eps[trial, i] = eps[i]
+    fixed_deviation(a, eps)
+    t = 0.0
+    step = 0
+    # where the rollout's step is the control step (backup_step is at least dt), each of its
+    # steps is a torque the filter holds over the whole step: q̈'s drift over it is taken
+    held = a.backup_step <= a.dt
+    while t < a.backup_horizon and step < lengths.shape[0]:
+        backup = not (hold and step == 0)
+        h = a.backup_step if backup else a.dt
+        clipped = nominal_acceleration(k, a, first, backup, policy, limit)
+        # the bias error's velocity error is the estimate's, ε: the backup acts on the
+        # state as measured, whatever the tube (the true state's spread about the rollout)
+        deviation_bound(a, vel, eps, acc, deviation)
+        for i in range(n):
+            widen[i] = TUBE_SAFETY * deviation[i]
+        if held:
+            _held_drift(k, a, r[R_TAU], limit, eps, widen)
+        decay = np.exp(-a.recovery_rate * (t + h))
+        stopped = backup and not clipped
+        segment = tube[step]
+        for i in range(n):
+            # the backup's feedback acts on a joint whose torque is free (the held torque:
+            # on none): a limited joint brakes as hard as it can, the others still steer
+            free = backup and abs(r[R_TAU, i]) < limit[i] * (1.0 - 1e-9)
+            feedback = feedback_contraction(a.backup_rate, h, a.dt) if free else 0.0
+            segment[T_Q, i], segment[T_V, i], segment[T_ACC, i] = q[i], vel[i], acc[i]
+            segment[T_DQ, i], segment[T_DV, i] = dq[i], dv[i]
+            segment[T_WIDEN, i], segment[T_FEEDBACK, i] = widen[i], feedback
+            # exact for q̈ constant over the step (the position's error would be ~v·h/2),
+            # with its turning point inside the step checked too
+            turn = q[i]
+            if vel[i] * acc[i] < 0.0 and abs(vel[i]) < abs(acc[i]) * h:
+                turn = q[i] - 0.5 * vel[i] * vel[i] / acc[i]
+            q[i] += h * vel[i] + 0.5 * h * h * acc[i]
+            vel[i] += h * acc[i]
+            dq[i] += h * dv[i] + 0.5 * h * h * widen[i]
+            # the feedback acts on the estimate e within ε of the true velocity: the true
+            # velocity's departure u from the rollout's obeys u̇ = −k_b (u + e) + Δ, |Δ| ≤ D,
+            # so |u| grows by at most f ε + D h a step as the feedback f contracts it
+            dv[i] = max(dv[i] * (1.0 - feedback) + feedback * eps[i] + widen[i] * h, eps[i])
+            allowed_q = a.viable_bounds[0, i] + (limit_q[i] - a.viable_bounds[0, i]) * decay
+            allowed_v = a.viable_bounds[1, i] + (limit_v[i] - a.viable_bounds[1, i]) * decay
+            if a.hard[0] and max(abs(q[i] - a.centres[0, i]), abs(turn - a.centres[0, i])) + dq[i] \
+                    > allowed_q:
+                return False
+            if a.hard[1] and abs(vel[i] - a.centres[1, i]) + dv[i] > allowed_v:
+                return False
+            stopped = stopped and abs(vel[i] - a.centres[1, i] - r[R_TARGET, i]) <= STOPPED
+        lengths[step] = h
+        t += h
+        step += 1
+        if stopped:
+            if step < lengths.shape[0]:
+                lengths[step] = 0.0  # the rollout's end
+            # verified: this rollout is the plan (the next check writes the other buffer)
+            w.flags[PLAN_TUBE], w.flags[TUBE_TRIAL] = trial, 1 - trial
+            w.flags[PLAN_STEP] = k
+            return True
+    return False
+
+
+@no_refcount_jit(cache=True)
+def verified_from(a, y, v, eps, policy):
+    """Whether the backup with ``policy`` keeps every hard set from the estimate (y, v),
+    |q̇ − v| ≤ ε, with nothing held first: :func:`verified` for a check made apart from a
+    run (benchmarks/deceleration.py, the viability tests). The bias error's velocity forms
+    Γ and the payload's structure are taken at (y, v) with the nominal M̂(y), as the hard
+    rows take them in a step; :func:`verified` alone would use whatever state the filter's
+    work space last held. Overwrites that work space (not for use inside a step)."""
+    matrices, vectors = a.work.matrices, a.work.vectors
+    minv, bias, base = matrices[MINV], vectors[BIAS], vectors[BASE]
+    nominal_model(a, y, v, matrices[NOMINAL_NOW], bias)
+    invert(matrices[NOMINAL_NOW], minv, matrices[LU])
+    product(minv, bias, base)
+    robust_model(a, y, v, eps, minv, base)
+    # nothing held: bias unread
+    return verified(0, a, y, v, eps, bias, False, policy, a.torque_limit)
