@@ -688,10 +688,11 @@ def summary_cells(ok: list[dict], compared: list[dict]) -> list[str]:
 
 
 def tube_cell(ok: list[dict]) -> str:
-    """How many runs left the check's tube by more than the room it leaves to the bounds
-    (the guarantee's ``tube_exceeded_steps``, measured from the step a run is covered
-    from), and the largest velocity excess past that room, rad/s."""
-    judged = [r for r in ok if isinstance(r.get("guarantee.tube_exceeded_steps"), int | float)
+    """How many covered runs left the check's tube by more than the room it leaves to the
+    bounds (the guarantee's ``tube_exceeded_steps``, measured from the step a run is
+    covered from), and the largest velocity excess past that room, rad/s."""
+    judged = [r for r in ok if r.get("guarantee.covered") is True
+              and isinstance(r.get("guarantee.tube_exceeded_steps"), int | float)
               and not math.isnan(r["guarantee.tube_exceeded_steps"])]
     if not judged:
         return "-"
@@ -711,8 +712,8 @@ def summary(groups: dict[tuple[str, str], list[dict]], rows: list[dict]) -> list
     lines = ["", "summary of the filtered runs: kept = every joint's hard sets (true state);",
              "≥ = Wilson 95 % lower bound; ε steps = within the declared ranges; τ1 ratio =",
              "median peak τ1 against the unfiltered run's; back≤1s = of the runs that left",
-             "a set, back within 1 s; tube left = runs past the check's tube by more than",
-             "its room (of those judged), and the largest velocity excess, rad/s",
+             "a set, back within 1 s; tube left = covered runs past the check's tube by",
+             "more than its room (of those covered), and the largest velocity excess, rad/s",
              "".join(f"{name:<{width}}" for name, width in SUMMARY_COLUMNS)]
     for (run, limit), group in groups.items():
         ok = [r for r in group if r["status"] == "ok"]

@@ -167,7 +167,7 @@ def test_the_observer_bound_holds_with_friction_within_what_is_declared(with_fri
 def test_the_classifier_covers_friction_within_the_declared_bounds_and_names_it_beyond():
     """The run with its friction inside what is declared is covered; 0.2 N·m·s/rad more on
     joint 1 than declared, or another smoothing velocity, is named as outside."""
-    from cosim.paper.guarantee import undeclared_differences
+    from cosim.paper.within_bounds import undeclared_differences
 
     params = {"b[1]": 2.4, "b[2]": 1.0, "fc[1]": 3.3, "fc[2]": 0.8, "fc_vel[1]": 0.01,
               "fc_vel[2]": 0.01}

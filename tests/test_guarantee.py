@@ -19,15 +19,10 @@ from cosim.declared import Uncertainty, safety_section
 from cosim.evaluate import Evaluator
 from cosim.evaluate.reports import wilson
 from cosim.paper.cbf_filter.assumptions import BACKUP, FILTER_ASSUMES, VIABLE, FilterAssumptions
-from cosim.paper.guarantee import (
-    COMPARED,
-    NOT_MODEL,
-    RETURN_WITHIN,
-    Guarantee,
-    classify,
-)
+from cosim.paper.guarantee import RETURN_WITHIN, Guarantee, classify
 from cosim.paper.inertia import Chain
 from cosim.paper.sweep_report import format_guarantee_table, guarantee_table
+from cosim.paper.within_bounds import COMPARED, NOT_MODEL
 from cosim.runner import run
 from cosim.signals import Signal, Trace
 from cosim.sweep.worker import flat

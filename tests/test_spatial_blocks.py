@@ -232,7 +232,7 @@ def test_a_plant_that_is_not_the_nominal_arm_is_outside_the_guarantee(ur5_runs, 
     the arm: M(q) the same) departs in h(q, q̇), and the guarantee files the run outside,
     naming it (it was once "covered", then "BROKEN", blamed on the filter)."""
     from cosim.dynamics.model import chain_model
-    from cosim.paper.guarantee import plant_model_difference
+    from cosim.paper.within_bounds import plant_model_difference
     from cosim.signals import Signal, Trace
 
     for name in ("proposed", "pd"):
