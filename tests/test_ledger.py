@@ -15,7 +15,8 @@ LEDGER = ROOT / "docs" / "safety" / "ledger.md"
 COLUMNS = ["term", "formula", "place", "test", "mutant"]
 # the files whose every curated mutant must have a row
 LEDGERED = ("cosim/paper/cbf_filter/", "cosim/paper/observer.py", "cosim/paper/premises.py",
-            "cosim/paper/guarantee.py", "cosim/paper/within_bounds.py", "cosim/paper/theorem.py")
+            "cosim/paper/guarantee.py", "cosim/paper/within_bounds.py",
+            "cosim/paper/viable_start.py", "cosim/paper/theorem.py")
 
 
 def mutants() -> list[tuple]:
