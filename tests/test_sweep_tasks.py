@@ -151,7 +151,7 @@ def test_the_traceback_dask_logs_for_a_cancel_before_its_call_began_is_dropped()
     record, and only it."""
     import logging
 
-    from cosim.sweep.execution import CancelledBeforeStart
+    from cosim.sweep.cluster import CancelledBeforeStart
 
     def record(error: BaseException) -> logging.LogRecord:
         try:

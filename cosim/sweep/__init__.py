@@ -13,20 +13,15 @@ fails is a row marked failed with its message; the sweep goes on. Ctrl-C keeps e
 finished row. SI units, radians.
 
 Modules: :mod:`.spec` (what a sweep is, its points), :mod:`.worker` (a point's rows, on a Dask
-worker), :mod:`.execution` (the cluster, the tasks), :mod:`.checks` (which checks make a row
-safe), :mod:`.tables` (rates, Wilson intervals, their text), :mod:`.files` (results files,
-the plot), :mod:`.command` (``cosim sweep`` itself).
+worker), :mod:`.execution` (the tasks), :mod:`.cluster` (the Dask cluster), :mod:`.checks`
+(which checks make a row safe), :mod:`.tables` (rates, Wilson intervals, their text),
+:mod:`.files` (results files, the plot), :mod:`.command` (``cosim sweep`` itself).
 """
 
 from ..evaluate.reports import wilson
+from .cluster import cluster_client
 from .command import main
-from .execution import (
-    MAX_POINTS_PER_TASK,
-    STEPS_PER_TASK,
-    cluster_client,
-    execute,
-    points_per_task,
-)
+from .execution import MAX_POINTS_PER_TASK, STEPS_PER_TASK, execute, points_per_task
 from .files import kept_share, write_safety_plot
 from .spec import SweepError, SweepSpec, assignments, parse_grid, parse_sample, points
 from .tables import safety_table

@@ -21,15 +21,8 @@ from ..config.params import key_units
 from ..evaluate.reports import SWEEP_REPORTS
 from ..progress import phase
 from .checks import margin
-from .execution import (
-    check_versions,
-    close_cluster,
-    cluster_client,
-    execute,
-    quiet_dask,
-    slurm_cluster,
-    stranded_after,
-)
+from .cluster import check_versions, close_cluster, cluster_client, quiet_dask, slurm_cluster
+from .execution import execute, stranded_after
 from .files import write_results, write_spec
 from .journal import JOURNAL, Journal, Rows, check_journal, read_table
 from .resume import check_same, identity, stored_identity
