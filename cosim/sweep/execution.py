@@ -81,71 +81,19 @@ def execute(spec: SweepSpec, all_points: list[dict], client: Client,
     back): a sweep left with no worker for ``revive_after`` s has its cluster's workers
     replaced, and left with none that long ends with :class:`SweepError`, the rows of the
     finished tasks kept."""
-    import uuid
-
-    from dask.distributed import as_completed
-
     pipeline = load_pipeline(spec.pipeline, spec.base, warn=None)
     runs = spec.runs or list(pipeline.runs)
     todo = list(range(len(all_points))) if indices is None else list(indices)
     slots = sum(client.nthreads().values()) or 1  # the tasks that run at once
     if per_task is None:
         per_task = points_per_task(len(todo), slots, pipeline.simulation.steps * len(runs))
-    # Keys unique to this call: a scheduler still holding another sweep's (or an earlier
-    # call's) "point 3" would hand back its result for this one.
-    sweep_id = uuid.uuid4().hex[:12]
-    # Workers need not run where this process does: the pipeline by its absolute path (the
-    # same files on every machine: a shared folder).
-    pipeline_path = str(Path(spec.pipeline).resolve())
-
-    def submit(indices: list[int], again: bool = False) -> Future:
-        jobs = [(i, assignments(spec, all_points[i]), all_points[i]) for i in indices]
-        # A point run again has a key of its own: the scheduler may still hold the failed
-        # task, and a submit of its key would hand back that failure.
-        key = f"cosim-points-{sweep_id}-{indices[0]}-{len(indices)}{'-again' * again}"
-        return client.submit(run_points, pipeline_path, spec.runs, jobs, cosim_version(),
-                             pure=False, key=key)
-
-    batches = iter([todo[start:start + per_task] for start in range(0, len(todo), per_task)])
-    futures: dict = {}
-    pending = as_completed()
-
-    threads = {"count": slots, "asked": time.monotonic()}
-
-    def top_up() -> None:
-        """Tasks submitted up to TASKS_IN_FLIGHT per worker thread the scheduler has (asked
-        every few seconds, not at every task: workers may join mid-sweep)."""
-        if time.monotonic() - threads["asked"] > 2.0:
-            info = client.scheduler_info(n_workers=0)
-            threads.update(count=max(slots, info.get("total_threads", 0)),
-                           asked=time.monotonic())
-        while len(futures) < TASKS_IN_FLIGHT * max(1, threads["count"]):
-            batch = next(batches, None)
-            if batch is None:
-                return
-            future = submit(batch)
-            futures[future] = batch
-            pending.add(future)
-
-    top_up()
-    # Points of a task whose worker died, run again one at a time: alone on a worker, the
-    # point that kills it is the only one its death fails (Dask fails every task a dying
-    # worker holds once it has died under them too often).
-    again: list[int] = []
-    alone: list = []  # the one such point's future in flight
-
-    def next_alone() -> None:
-        if again and not alone:
-            index = again.pop(0)
-            single = submit([index], again=True)
-            futures[single] = [index]
-            alone.append(single)
-            pending.add(single)
-
+    tasks = _Tasks(spec, all_points, client, slots,
+                   [todo[start:start + per_task] for start in range(0, len(todo), per_task)])
+    tasks.top_up()
     rows: list[dict] = []
-    stranded = _watch_for_no_worker(client, futures, stranded_after, revive_after)
+    stranded = _watch_for_no_worker(client, tasks.futures, stranded_after, revive_after)
     try:
-        for future in pending:
+        for future in tasks.pending:
             if stranded.is_set():  # its tasks cancelled, to end the wait here
                 replaced = (f" nor new workers every {revive_after:g} s"
                             if revive_after < stranded_after else "")
@@ -154,10 +102,7 @@ def execute(spec: SweepSpec, all_points: list[dict], client: Client,
                     f"worker processes ended, and neither their restarts{replaced} joined: a "
                     "crashing plant on a machine too loaded to start them); the rows of the "
                     "finished points are kept: go on with --resume")
-            batch = futures.pop(future)
-            was_alone = future in alone
-            if was_alone:
-                alone.remove(future)
+            batch, was_alone = tasks.finished(future)
             try:
                 made = future.result()
             except WorkerMismatch as exc:
@@ -166,9 +111,9 @@ def execute(spec: SweepSpec, all_points: list[dict], client: Client,
                 if client.status not in ("running", "connecting"):
                     raise SchedulerLost(f"{type(exc).__name__}: {exc}") from None
                 if not was_alone:  # which point killed it is unknown: each on its own
-                    again.extend(batch)
-                    next_alone()
-                    top_up()
+                    tasks.again.extend(batch)
+                    tasks.next_alone()
+                    tasks.top_up()
                     continue
                 made = [{**point_row(batch[0], all_points[batch[0]], run), "status": "failed",
                          "error": worker_death(exc)} for run in runs]  # one per run
@@ -178,17 +123,85 @@ def execute(spec: SweepSpec, all_points: list[dict], client: Client,
                 sink(made)
             if on_rows is not None:
                 on_rows(len(batch))
-            next_alone()
-            top_up()
+            tasks.next_alone()
+            tasks.top_up()
     except KeyboardInterrupt:
-        client.cancel(list(futures))
+        client.cancel(list(tasks.futures))
         return sorted(rows, key=_order), True
     except SweepError:
-        client.cancel(list(futures))
+        client.cancel(list(tasks.futures))
         raise
     finally:
         stranded.set()  # ends the watch
     return sorted(rows, key=_order), False
+
+
+class _Tasks:
+    """A sweep's tasks on the client: the batches of points still to submit, the futures in
+    flight (a bounded number), and the points of a task whose worker died, run again one
+    at a time."""
+
+    def __init__(self, spec: SweepSpec, all_points: list[dict], client: Client, slots: int,
+                 batches: list[list[int]]) -> None:
+        import uuid
+
+        from dask.distributed import as_completed
+
+        self.spec, self.all_points, self.client = spec, all_points, client
+        # Keys unique to this call: a scheduler still holding another sweep's (or an
+        # earlier call's) "point 3" would hand back its result for this one.
+        self.sweep_id = uuid.uuid4().hex[:12]
+        # Workers need not run where this process does: the pipeline by its absolute path
+        # (the same files on every machine: a shared folder).
+        self.pipeline_path = str(Path(spec.pipeline).resolve())
+        self.batches = iter(batches)
+        self.futures: dict = {}  # future -> its points
+        self.pending = as_completed()
+        self.slots = slots
+        self.threads = {"count": slots, "asked": time.monotonic()}
+        # Points of a task whose worker died, run again one at a time: alone on a worker,
+        # the point that kills it is the only one its death fails (Dask fails every task a
+        # dying worker holds once it has died under them too often).
+        self.again: list[int] = []
+        self.alone: list = []  # the one such point's future in flight
+
+    def submit(self, indices: list[int], again: bool = False) -> Future:
+        jobs = [(i, assignments(self.spec, self.all_points[i]), self.all_points[i])
+                for i in indices]
+        # A point run again has a key of its own: the scheduler may still hold the failed
+        # task, and a submit of its key would hand back that failure.
+        key = f"cosim-points-{self.sweep_id}-{indices[0]}-{len(indices)}{'-again' * again}"
+        future = self.client.submit(run_points, self.pipeline_path, self.spec.runs, jobs,
+                                    cosim_version(), pure=False, key=key)
+        self.futures[future] = indices
+        self.pending.add(future)
+        return future
+
+    def top_up(self) -> None:
+        """Tasks submitted up to TASKS_IN_FLIGHT per worker thread the scheduler has (asked
+        every few seconds, not at every task: workers may join mid-sweep)."""
+        if time.monotonic() - self.threads["asked"] > 2.0:
+            info = self.client.scheduler_info(n_workers=0)
+            self.threads.update(count=max(self.slots, info.get("total_threads", 0)),
+                                asked=time.monotonic())
+        while len(self.futures) < TASKS_IN_FLIGHT * max(1, self.threads["count"]):
+            batch = next(self.batches, None)
+            if batch is None:
+                return
+            self.submit(batch)
+
+    def next_alone(self) -> None:
+        """The next point to run again alone, if none is in flight."""
+        if self.again and not self.alone:
+            self.alone.append(self.submit([self.again.pop(0)], again=True))
+
+    def finished(self, future: Future) -> tuple[list[int], bool]:
+        """(a finished future's points, whether it was a point run again alone)."""
+        batch = self.futures.pop(future)
+        was_alone = future in self.alone
+        if was_alone:
+            self.alone.remove(future)
+        return batch, was_alone
 
 
 def _watch_for_no_worker(client: Client, futures: dict, after: float | None,
