@@ -308,8 +308,20 @@ def _run_one(plan: RunPlan, scenario: Scenario, plant_info: dict, recorder: Reco
         if report and sys.stderr.isatty():
             print(file=sys.stderr)
     evaluate_rows()
-    evaluation = evaluator.result()
-    done = trace.completed()
+    handoff = recorder.handoff_seconds - handed_over if recorder is not None else None
+    result = _result(plan, trace.completed(), evaluator.result(), steps, wall, handoff, error,
+                     failure)
+    if recorder is not None:
+        recorder.end_run(name, result.summary())
+    return result
+
+
+def _result(plan: RunPlan, done: Trace, evaluation: Evaluation, steps: int, wall: float,
+            handoff: float | None, error: str | None, failure: BaseException | None
+            ) -> RunResult:
+    """A finished run's result: its evaluation with the loop's timing among the metrics
+    (``steps`` the run's, ``wall`` s; ``handoff``: the loop's share of writing the
+    recording, s, if it was recorded)."""
     metrics = evaluation.metrics
     # The run's model of the plant: the block publishing it (summary.json says which
     # source and links it used).
@@ -317,15 +329,12 @@ def _run_one(plan: RunPlan, scenario: Scenario, plant_info: dict, recorder: Reco
     metrics["wall_time_s"] = wall
     metrics["steps_per_second"] = steps / wall if wall == wall and wall > 0 else None
     metrics["simulated_time_s"] = float(done.time[-1]) if done.rows_done else 0.0
-    if recorder is not None:  # the loop's share of writing the recording
-        metrics["recording_handoff_s"] = recorder.handoff_seconds - handed_over
-    result = RunResult(name, done, evaluation, error is None, error, failure,
-                       model.describe() if model is not None else {}, wall,
-                       {block.instance: block.describe() for block in plan.blocks
-                        if block.describe()}, plan.torque_before_filter())
-    if recorder is not None:
-        recorder.end_run(name, result.summary())
-    return result
+    if handoff is not None:
+        metrics["recording_handoff_s"] = handoff
+    return RunResult(plan.name, done, evaluation, error is None, error, failure,
+                     model.describe() if model is not None else {}, wall,
+                     {block.instance: block.describe() for block in plan.blocks
+                      if block.describe()}, plan.torque_before_filter())
 
 
 def urdf_arm(pipeline: Pipeline) -> UrdfArm | None:
