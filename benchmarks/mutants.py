@@ -191,6 +191,9 @@ MUTANTS = [
      "excess = np.abs(truth - centre) - 2.0 * spread", PREMISES),
     ("premises-tube-room-doubled", "cosim/paper/premises.py",
      "room = allowance[row] - excess", "room = 2.0 * allowance[row] - excess", PREMISES),
+    # the plan's tube judged on every row, not only where the plan was followed
+    ("premises-plan-rows-all", "cosim/paper/premises.py",
+     "judged = np.isfinite(room) & followed[:, None]", "judged = np.isfinite(room)", PREMISES),
     ("premises-between-meet-dropped", "cosim/paper/premises.py",
      "for tau in (meet, first_top, second_top):", "for tau in (first_top, second_top):",
      PREMISES),

@@ -684,27 +684,29 @@ def summary_cells(ok: list[dict], compared: list[dict]) -> list[str]:
             apart, percent_low(sum(map(is_covered, viable)), len(viable)),
             str(sum(bool(r.get("guarantee.broken")) for r in ok)),
             str(sum(inside)) if inside else "-", str(above), ratio,
-            f"{sum(known)}/{len(known)}" if known else f"-/{len(left)}", tube_cell(ok)]
+            f"{sum(known)}/{len(known)}" if known else f"-/{len(left)}", tube_cell(ok),
+            tube_cell(ok, "plan_tube")]
 
 
-def tube_cell(ok: list[dict]) -> str:
+def tube_cell(ok: list[dict], tube: str = "tube") -> str:
     """How many covered runs left the check's tube by more than the room it leaves to the
     bounds (the guarantee's ``tube_exceeded_steps``, measured from the step a run is
-    covered from), and the largest velocity excess past that room, rad/s."""
+    covered from; ``tube`` "plan_tube": on the rows where the filter followed the plan in
+    force), and the largest velocity excess past that room, rad/s."""
     judged = [r for r in ok if r.get("guarantee.covered") is True
-              and isinstance(r.get("guarantee.tube_exceeded_steps"), int | float)
-              and not math.isnan(r["guarantee.tube_exceeded_steps"])]
+              and isinstance(r.get(f"guarantee.{tube}_exceeded_steps"), int | float)
+              and not math.isnan(r[f"guarantee.{tube}_exceeded_steps"])]
     if not judged:
         return "-"
-    left = [r for r in judged if r["guarantee.tube_exceeded_steps"] > 0]
-    slack = [r.get("guarantee.tube_slack.velocity") for r in left]
+    left = [r for r in judged if r[f"guarantee.{tube}_exceeded_steps"] > 0]
+    slack = [r.get(f"guarantee.{tube}_slack.velocity") for r in left]
     worst = max((-x for x in slack if isinstance(x, float) and math.isfinite(x)), default=0.0)
     return f"{len(left)}/{len(judged)}" + (f" {worst:.3g}" if left and worst > 0 else "")
 
 
 SUMMARY_COLUMNS = (("run", 14), ("limit", 11), ("kept, viable", 24), ("¬viable", 8),
                    ("covered, viable", 24), ("broken", 7), ("ε steps", 8), ("τ>lim", 6),
-                   ("τ1 ratio", 9), ("back≤1s", 9), ("tube left", 12))
+                   ("τ1 ratio", 9), ("back≤1s", 9), ("tube left", 14), ("plan tube", 12))
 
 
 def summary(groups: dict[tuple[str, str], list[dict]], rows: list[dict]) -> list[str]:
@@ -713,7 +715,8 @@ def summary(groups: dict[tuple[str, str], list[dict]], rows: list[dict]) -> list
              "≥ = Wilson 95 % lower bound; ε steps = within the declared ranges; τ1 ratio =",
              "median peak τ1 against the unfiltered run's; back≤1s = of the runs that left",
              "a set, back within 1 s; tube left = covered runs past the check's tube by",
-             "more than its room (of those covered), and the largest velocity excess, rad/s",
+             "more than its room (of those covered), and the largest velocity excess, rad/s;",
+             "plan tube = the same on the rows where the filter followed the plan in force",
              "".join(f"{name:<{width}}" for name, width in SUMMARY_COLUMNS)]
     for (run, limit), group in groups.items():
         ok = [r for r in group if r["status"] == "ok"]

@@ -93,6 +93,28 @@ def test_the_tube_may_be_left_by_the_room_the_check_leaves_and_no_more(quantity,
     assert report_line(g).endswith(f" (measured, not yet held against it: {g['tube_left']})")
 
 
+@pytest.mark.parametrize("joint", (0, 1))
+def test_the_plans_tube_is_judged_apart_where_the_filter_followed_the_plan(joint):
+    """A row the filter verified afresh rests on its own check; a row where it followed the
+    plan in force (``cbf_planned``) rests on that plan's proof, and its tube is judged
+    apart there (``plan_tube_*``): a box left at a fresh row counts in the tube's figures
+    only, at a followed row in both. Without the filter's flag, not judged (None)."""
+    trace = measured_trace()
+    assert judge(trace, WITH_CHECK)["plan_tube_exceeded_steps"] is None
+    trace.signals["cbf_planned"] = Signal("1", "-", "cbf_planned")
+    trace.arrays["cbf_planned"] = np.zeros(trace["q"].shape[0])
+    trace.arrays["cbf_planned"][600:700] = 1.0
+    trace["cbf_tube_velocity"][500, joint] += 1.0  # verified afresh there
+    g = judge(trace, WITH_CHECK)
+    assert g["tube_exceeded_steps"] == 1 and g["plan_tube_exceeded_steps"] == 0
+    assert g["plan_tube_slack"]["velocity"] == pytest.approx(3e-3 + 0.02)
+    trace["cbf_tube_velocity"][650, joint] += 1.0  # the plan followed there
+    g = judge(trace, WITH_CHECK)
+    assert g["tube_exceeded_steps"] == 2 and g["plan_tube_exceeded_steps"] == 1
+    assert g["plan_tube_slack"]["velocity"] == pytest.approx(3e-3 + 0.02 - 1.0)
+    assert g["broken"] is False  # measured, not yet held (guarantee.measured_premises)
+
+
 def test_no_plan_no_tube_and_a_filter_that_does_not_say_its_sets_is_not_judged():
     trace = measured_trace()
     trace["cbf_tube_velocity"][300:400] = np.nan  # not viable at the step before: no plan

@@ -285,7 +285,9 @@ def measured_premises(trace: Signals, safe: SafeSet, start: int,
     steps where each failed (None: not measured, the signals or the check's bounds
     missing), the least room left (``tube_slack``, ``between_samples_room``: per quantity,
     rad and rad/s), ``violations``, what failed, and ``tube_left``, the tube's excess where
-    there is one. The tube is measured and reported but not yet held against the
+    there is one; ``plan_tube_exceeded_steps`` and ``plan_tube_slack``, the same over the
+    rows where the filter followed the plan in force (``cbf_planned``), the rows that rest
+    on its proof. The tube is measured and reported but not yet held against the
     guarantee: the check's held step takes q̈ ± 1.5 D at the step's start, and q̈'s drift
     over the step takes the true velocity past it by up to ~0.016 rad/s at start-up braking
     of ~10 kN·m (4 of 29 full-state runs of tests/test_robust_safety.py's Monte Carlo, 1 ms),
@@ -295,11 +297,17 @@ def measured_premises(trace: Signals, safe: SafeSet, start: int,
     out["interval_exceeded_steps"], text = interval_exceedances(trace, start)
     out["violations"] += [text] if text else []
     sets = position_and_velocity_sets(trace, safe)
-    tube = (None, None, None)
+    tube = followed = (None, None, None)
     if sets is not None and check_bounds is not None:
         allowance = np.array([sets[1], sets[3]]) - check_bounds
         tube = tube_exceedances(trace, start, allowance)
+        followed = tube_exceedances(trace, start, allowance, followed_only=True)
     out["tube_exceeded_steps"], out["tube_slack"], out["tube_left"] = tube
+    # where the filter followed the plan (no torque verified afresh), the step rests on the
+    # plan's proof: the tube there is the premise that proof needs. Measured, not yet held:
+    # full-state runs braking at start-up leave it (docs/safety/measurements.md, "The tube
+    # premise")
+    out["plan_tube_exceeded_steps"], out["plan_tube_slack"], _ = followed
     between = (None, None, None)
     if sets is not None:
         between = between_samples(trace, start, (sets[0], sets[2]), (sets[1], sets[3]))
@@ -332,6 +340,9 @@ class Guarantee(Part):
                     "guarantee.covered_from_s": "s",
                     "guarantee.interval_exceeded_steps": "steps",
                     "guarantee.tube_exceeded_steps": "steps",
+                    "guarantee.plan_tube_exceeded_steps": "steps",
+                    "guarantee.plan_tube_slack.position": "rad",
+                    "guarantee.plan_tube_slack.velocity": "rad/s",
                     "guarantee.tube_slack.position": "rad",
                     "guarantee.tube_slack.velocity": "rad/s",
                     "guarantee.between_samples_exceeded_steps": "steps",

@@ -74,16 +74,25 @@ def interval_exceedances(trace: Signals, start: int) -> tuple[int | None, str | 
                    f"{np.max(excess[:, j]):.3g} rad/s past it)")
 
 
-def tube_exceedances(trace: Signals, start: int, allowance: np.ndarray
+def tube_exceedances(trace: Signals, start: int, allowance: np.ndarray,
+                     followed_only: bool = False
                      ) -> tuple[int | None, dict | None, str | None]:
     """(rows from ``start`` on where the true state left the box the plan in force put it
     in by more than ``allowance`` (2, n: rad, rad/s per joint, what the check leaves between
     its sets and the bounds), the least slack allowance − excess per quantity, what
-    failed); None without the signals."""
+    failed); None without the signals. ``followed_only``: only the rows where the filter
+    followed that plan (``cbf_planned``: no torque verified afresh, so the step rests on the
+    plan's proof; a row verified afresh rests on its own check, from the velocity's
+    interval); None without that signal."""
     names = [f"cbf_tube_{q}{p}" for q in ("position", "velocity") for p in ("", "_spread")]
-    if not all(name in trace for name in (*names, "q", "qdot")):
+    needed = (*names, "q", "qdot", *(["cbf_planned"] if followed_only else []))
+    if not all(name in trace for name in needed):
         return None, None, None
     done = trace.rows_done
+    followed = np.ones(done - start, bool)
+    if followed_only:
+        planned = np.asarray(trace["cbf_planned"], float)
+        followed = planned.reshape(len(planned), -1)[start:done, 0] > 0.5
     slack, outside = {}, []
     for quantity, truth in (("position", "q"), ("velocity", "qdot")):
         row = 0 if quantity == "position" else 1
@@ -91,7 +100,7 @@ def tube_exceedances(trace: Signals, start: int, allowance: np.ndarray
         half = np.asarray(trace[f"cbf_tube_{quantity}_spread"], float)[start:done]
         excess = np.abs(np.asarray(trace[truth], float)[start:done] - centre) - half
         room = allowance[row] - excess  # NaN where no plan said where the state goes
-        judged = np.isfinite(room)
+        judged = np.isfinite(room) & followed[:, None]
         slack[quantity] = float(np.min(room[judged])) if judged.any() else None
         outside.append(judged & (room < -TOLERANCE * (1.0 + np.abs(np.nan_to_num(centre)))))
     count, first, which, unit = _first_outside(outside, trace.dt)

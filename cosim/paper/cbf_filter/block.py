@@ -168,6 +168,9 @@ class CbfFilter(Block):
                            "cbf_filter/viable"),
             BACKUP: Signal("1", "-", "share of the braking backup in the torque (0 … 1)",
                            "cbf_filter/backup"),
+            "cbf_planned": Signal("1", "-", "1 where the filter followed the plan in force, "
+                                  "no torque verified afresh: the plan's tube holds the state "
+                                  "there", kept=True),
             "cbf_velocity_centre": Signal("n", "rad/s", "centre of the interval the filter "
                                           "holds the true q̇ in", kept=True),
             "cbf_velocity_spread": Signal("n", "rad/s", "half-width of the interval the "

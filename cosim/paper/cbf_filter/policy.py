@@ -116,6 +116,7 @@ def choose(k, a, tau):
     share 1 − λ). Without ``verify``: the QP's answer, viable where its hard rows hold as
     given."""
     n = tau.shape[0]
+    a.planned[k] = 0.0  # set where the plan in force is followed
     for i in range(n):
         tau[i] = min(max(tau[i], -a.torque_limit[i]), a.torque_limit[i])
     # The hard rows as given: the groups' (every payload corner's, among the QP's rows or
@@ -144,6 +145,7 @@ def choose(k, a, tau):
     plan = a.torque_limit if flags[PLAN_RESERVE] > 0.0 else a.braking_torque
     if not kept and planned:
         backup_at(k, a, int(flags[PLAN]), plan, tau)
+        a.planned[k] = 1.0
         return True, 1.0
     braking = a.braking_torque
     if a.braking_reserve:  # braking within braking_torque first, the limits in reserve
@@ -152,6 +154,7 @@ def choose(k, a, tau):
             return kept, share
         if planned and flags[PLAN_RESERVE] == 0.0:  # the plan needs no reserve
             backup_at(k, a, int(flags[PLAN]), braking, tau)
+            a.planned[k] = 1.0
             return True, 1.0
     share = blend_verified(k, a, tau, a.torque_limit, True)
     if share >= 0.0:
@@ -173,4 +176,5 @@ def choose(k, a, tau):
     # Before the first viable step (start-up), within the declared startup_torque.
     unplanned = a.torque_limit if flags[VIABLE_ONCE] > 0.0 else a.startup_torque
     backup_at(k, a, int(flags[PLAN]), plan if planned else unplanned, tau)
+    a.planned[k] = 1.0 if planned else 0.0
     return planned, 1.0

@@ -246,6 +246,9 @@ class CbfArgs(NamedTuple):
     correction: writes("cbf_correction")
     infeasible: writes("cbf_infeasible")
     viable: writes(VIABLE)  # 1 where a verified torque existed
+    # 1 where the step followed the plan in force, no torque verified afresh: its tube must
+    # hold the true state there (the guarantee's premise, cosim/paper/premises.py)
+    planned: writes("cbf_planned")
     backup_share: writes(BACKUP)  # the share of the backup in the torque, 0 … 1
     rows_met: writes("cbf_rows_met")  # 1 where the torque applied met every hard row as given
     velocity_centre: writes("cbf_velocity_centre")  # the true velocity's interval: centre
