@@ -284,15 +284,10 @@ def measured_premises(trace: Signals, safe: SafeSet, start: int,
     """The check's premises measured from row ``start`` on (cosim/paper/premises.py): the
     steps where each failed (None: not measured, the signals or the check's bounds
     missing), the least room left (``tube_slack``, ``between_samples_room``: per quantity,
-    rad and rad/s), ``violations``, what failed, and ``tube_left``, the tube's excess where
-    there is one; ``plan_tube_exceeded_steps`` and ``plan_tube_slack``, the same over the
-    rows where the filter followed the plan in force (``cbf_planned``), the rows that rest
-    on its proof. The tube is measured and reported but not yet held against the
-    guarantee: the check's held step takes q̈ ± 1.5 D at the step's start, and q̈'s drift
-    over the step takes the true velocity past it by up to ~0.016 rad/s at start-up braking
-    of ~10 kN·m (4 of 29 full-state runs of tests/test_robust_safety.py's Monte Carlo, 1 ms),
-    by 0.27 rad/s at 10 ms; docs/safety/filter.md, "The premises, measured along every run",
-    and docs/safety/measurements.md, "The tube premise"."""
+    rad and rad/s), ``violations``, what failed, and ``tube_left``, the tube's excess;
+    ``plan_tube_*`` the tube on the rows where the filter followed the plan in force
+    (``cbf_planned``), which rest on its proof. The tube is measured, not yet held: runs
+    braking at start-up leave it (docs/safety/measurements.md, "The tube premise")."""
     out: dict[str, Any] = {"violations": []}
     out["interval_exceeded_steps"], text = interval_exceedances(trace, start)
     out["violations"] += [text] if text else []
@@ -303,10 +298,6 @@ def measured_premises(trace: Signals, safe: SafeSet, start: int,
         tube = tube_exceedances(trace, start, allowance)
         followed = tube_exceedances(trace, start, allowance, followed_only=True)
     out["tube_exceeded_steps"], out["tube_slack"], out["tube_left"] = tube
-    # where the filter followed the plan (no torque verified afresh), the step rests on the
-    # plan's proof: the tube there is the premise that proof needs. Measured, not yet held:
-    # full-state runs braking at start-up leave it (docs/safety/measurements.md, "The tube
-    # premise")
     out["plan_tube_exceeded_steps"], out["plan_tube_slack"], _ = followed
     between = (None, None, None)
     if sets is not None:

@@ -120,6 +120,68 @@ class CbfFilterParams(Section):
     tolerance: PositiveFloat = 1e-12
 
 
+def filter_signals() -> dict[str, Signal]:
+    """What the filter writes: its torque, each set's barrier values and active flags, and
+    what the run's classifier reads to judge the guarantee and its premises."""
+    outputs: dict[str, Signal] = {"tau": Signal("n", "N·m", "filtered torque τ", "cbf_filter/tau")}
+    for name in SETS:
+        unit = SET_UNITS[name]
+        outputs[f"cbf_{name}"] = Signal(
+            "n", unit, f"{name} set: β − |x_i| − its uncertainty (≥ 0 inside for every "
+            "state the declared bounds allow)", f"cbf_filter/h/{name}", f"h_{name}")
+        outputs[f"cbf_{name}_active"] = Signal(
+            "n", "-", f"{name} set: a constraint of joint i active (1)",
+            f"cbf_filter/active/{name}", f"active_{name}")
+        outputs[f"cbf_{name}_norm"] = Signal(
+            "1", unit, f"{name} set as a norm: β − ‖x‖", f"cbf_filter/h/{name}_norm",
+            f"h_{name}_norm")
+        outputs[f"cbf_{name}_norm_active"] = Signal(
+            "1", "-", f"{name} norm constraint active (1)",
+            f"cbf_filter/active/{name}_norm", f"active_{name}_norm")
+    outputs.update({
+        "cbf_slack": Signal("1", "N·m", "largest slack of a soft (tracking) row",
+                            "cbf_filter/slack"),
+        "cbf_active": Signal("1", "-", "number of active constraints",
+                             "cbf_filter/active_count"),
+        "cbf_correction": Signal("1", "N·m", "‖τ − τ_nom‖", "cbf_filter/correction"),
+        "cbf_infeasible": Signal("1", "-", "1 where no torque was verified (the state was "
+                                 "not viable as the filter saw it): the backup acted",
+                                 "cbf_filter/infeasible"),
+        VIABLE: Signal("1", "-", "1 where a verified torque existed: the backup could "
+                       "keep every hard set under the declared uncertainty",
+                       "cbf_filter/viable"),
+        BACKUP: Signal("1", "-", "share of the braking backup in the torque (0 … 1)",
+                       "cbf_filter/backup"),
+        "cbf_planned": Signal("1", "-", "1 where the filter followed the plan in force, "
+                              "no torque verified afresh: the plan's tube holds the state "
+                              "there", kept=True),
+        "cbf_velocity_centre": Signal("n", "rad/s", "centre of the interval the filter "
+                                      "holds the true q̇ in", kept=True),
+        "cbf_velocity_spread": Signal("n", "rad/s", "half-width of the interval the "
+                                      "filter holds the true q̇ in", kept=True),
+        "cbf_rows_met": Signal("1", "-", "1 where the torque applied met every hard row of "
+                               "the QP as given (its conditions; the backup's check is "
+                               "apart)", "cbf_filter/rows_met"),
+        **{f"cbf_tube_{quantity}{part}": Signal(
+            "n", unit, f"{what} of the box the plan in force at the step before puts the "
+            f"true {quantity} in at this step (NaN: no plan)", kept=True)
+           for quantity, unit in (("position", "rad"), ("velocity", "rad/s"))
+           for part, what in (("", "centre"), ("_spread", "half-width"))},
+        **{f"cbf_acceleration_{end}": Signal(
+            "n", "rad/s²", f"{end} end of the check's bound on the true q̈ over the step "
+            "held from this row", kept=True) for end in ("low", "high")},
+    })
+    return outputs
+
+
+def rollout_step(backup_step: float, dt: float) -> float:
+    """``backup_step`` (s) rounded to a whole number of control steps ``dt``, at least one:
+    the check's rollout steps a whole number of the holds it models (the backup is applied
+    and held at the control step; check.feedback_contraction counts them)."""
+    holds = max(1, round(backup_step / dt))
+    return backup_step if abs(backup_step - holds * dt) <= 1e-9 * dt else holds * dt
+
+
 @register_block
 class CbfFilter(Block):
     kind = "cbf_filter"
@@ -139,54 +201,7 @@ class CbfFilter(Block):
                        "qddot_d", "M_model", "tau")
         self.requires = ("nominal_model", "inertia_is_plant",
                          *(("tau_d_model",) if params.tau_d is None else ()))
-        self.outputs = {"tau": Signal("n", "N·m", "filtered torque τ", "cbf_filter/tau")}
-        for name in SETS:
-            unit = SET_UNITS[name]
-            self.outputs[f"cbf_{name}"] = Signal(
-                "n", unit, f"{name} set: β − |x_i| − its uncertainty (≥ 0 inside for every "
-                "state the declared bounds allow)", f"cbf_filter/h/{name}", f"h_{name}")
-            self.outputs[f"cbf_{name}_active"] = Signal(
-                "n", "-", f"{name} set: a constraint of joint i active (1)",
-                f"cbf_filter/active/{name}", f"active_{name}")
-            self.outputs[f"cbf_{name}_norm"] = Signal(
-                "1", unit, f"{name} set as a norm: β − ‖x‖", f"cbf_filter/h/{name}_norm",
-                f"h_{name}_norm")
-            self.outputs[f"cbf_{name}_norm_active"] = Signal(
-                "1", "-", f"{name} norm constraint active (1)",
-                f"cbf_filter/active/{name}_norm", f"active_{name}_norm")
-        self.outputs.update({
-            "cbf_slack": Signal("1", "N·m", "largest slack of a soft (tracking) row",
-                                "cbf_filter/slack"),
-            "cbf_active": Signal("1", "-", "number of active constraints",
-                                 "cbf_filter/active_count"),
-            "cbf_correction": Signal("1", "N·m", "‖τ − τ_nom‖", "cbf_filter/correction"),
-            "cbf_infeasible": Signal("1", "-", "1 where no torque was verified (the state was "
-                                     "not viable as the filter saw it): the backup acted",
-                                     "cbf_filter/infeasible"),
-            VIABLE: Signal("1", "-", "1 where a verified torque existed: the backup could "
-                           "keep every hard set under the declared uncertainty",
-                           "cbf_filter/viable"),
-            BACKUP: Signal("1", "-", "share of the braking backup in the torque (0 … 1)",
-                           "cbf_filter/backup"),
-            "cbf_planned": Signal("1", "-", "1 where the filter followed the plan in force, "
-                                  "no torque verified afresh: the plan's tube holds the state "
-                                  "there", kept=True),
-            "cbf_velocity_centre": Signal("n", "rad/s", "centre of the interval the filter "
-                                          "holds the true q̇ in", kept=True),
-            "cbf_velocity_spread": Signal("n", "rad/s", "half-width of the interval the "
-                                          "filter holds the true q̇ in", kept=True),
-            "cbf_rows_met": Signal("1", "-", "1 where the torque applied met every hard row of "
-                                   "the QP as given (its conditions; the backup's check is "
-                                   "apart)", "cbf_filter/rows_met"),
-            **{f"cbf_tube_{quantity}{part}": Signal(
-                "n", unit, f"{what} of the box the plan in force at the step before puts the "
-                f"true {quantity} in at this step (NaN: no plan)", kept=True)
-               for quantity, unit in (("position", "rad"), ("velocity", "rad/s"))
-               for part, what in (("", "centre"), ("_spread", "half-width"))},
-            **{f"cbf_acceleration_{end}": Signal(
-                "n", "rad/s²", f"{end} end of the check's bound on the true q̈ over the step "
-                "held from this row", kept=True) for end in ("low", "high")},
-        })
+        self.outputs = filter_signals()
         boxes = joint_boxes(context.safety, context.links)
         if params.torque_limit is not None:
             limit = params.torque_limit
@@ -201,11 +216,7 @@ class CbfFilter(Block):
         keeps = tuple(KEPT_CHECKS[name] for name in params.hard)
         self.publishes = {FILTER_ASSUMES: FilterAssumptions(
             self.position, self.velocity, limit, np.zeros(context.links), keeps)}
-        # the check's rollout steps a whole number of the holds it models (the backup is
-        # applied and held at the control step; check.feedback_contraction counts them)
-        holds = max(1, round(params.backup_step / context.dt))
-        whole = abs(params.backup_step - holds * context.dt) <= 1e-9 * context.dt
-        self.backup_step = params.backup_step if whole else holds * context.dt
+        self.backup_step = rollout_step(params.backup_step, context.dt)
         if params.solver == "newton":
             self.kernel = cbf_step
         else:
