@@ -223,13 +223,14 @@ def verified(k, a, y, v, eps, first, hold, policy, limit):
         if held:
             _held_drift(k, a, r[R_TAU], limit, eps, widen)
         decay = np.exp(-a.recovery_rate * (t + h))
+        contraction = feedback_contraction(a.backup_rate, h, a.dt)  # the step's, every joint's
         stopped = backup and not clipped
         segment = tube[step]
         for i in range(n):
             # the backup's feedback acts on a joint whose torque is free (the held torque:
             # on none): a limited joint brakes as hard as it can, the others still steer
             free = backup and abs(r[R_TAU, i]) < limit[i] * (1.0 - 1e-9)
-            feedback = feedback_contraction(a.backup_rate, h, a.dt) if free else 0.0
+            feedback = contraction if free else 0.0
             segment[T_Q, i], segment[T_V, i], segment[T_ACC, i] = q[i], vel[i], acc[i]
             segment[T_DQ, i], segment[T_DV, i] = dq[i], dv[i]
             segment[T_WIDEN, i], segment[T_FEEDBACK, i] = widen[i], feedback
