@@ -117,7 +117,7 @@ class Uncertainty(Section):
     - ``observer_residual_rate``: a bound J̄ on the rate of the observer's unmodelled
       acceleration, rad/s³, which the observer's bound ε(t) once rested on. No longer used
       by it: ε(t) is certified from the quantities above, the applied torque and the
-      nominal chain (cosim/paper/observer.py; docs/safety/filter.md, "How the margins follow
+      nominal chain (cosim/paper/envelope.py; docs/safety/filter.md, "How the margins follow
       from them"), since the closed loop broke any declared J̄. Kept so that pipelines that
       set it still load.
     """

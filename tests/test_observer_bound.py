@@ -13,14 +13,13 @@ from test_robust_safety import simulated
 
 from cosim.blocks.base import BlockContext, Ports
 from cosim.declared import Uncertainty
-from cosim.paper.observer import (
-    FlnnObserver,
-    ObserverParams,
+from cosim.paper.envelope import (
     envelope_acceleration,
     envelope_position,
     envelope_step,
     envelope_windows,
 )
+from cosim.paper.observer import FlnnObserver, ObserverParams
 
 M1, M2, GRAVITY, TAU_D = 0.8, 2.3, 9.8, 0.01
 

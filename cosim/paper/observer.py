@@ -17,62 +17,8 @@ loop: "lagged" uses q̂̈ from the previous sub-step; "no_acceleration" drops it
 Weight laws: "paper" is (24) as printed, Ŵo' = Fo(κo·1 − Ŵo), which has no error signal;
 "error_driven" is Kim & Lewis's Ŵo' = Fo σo x̃1ᵀ − κo Fo ‖x̃1‖ Ŵo.
 
-**The bound ε(t) on |q̇ − x̂2| (``qdot_hat_bound``), certified beside the FLNN.** The FLNN's
-error dynamics give no bound the closed loop cannot break: their forcing is the plant's
-acceleration, which the safety filter's braking (kilo-newton-metres) drives, so a bound
-resting on a *declared* rate of it (the former J̄, ``uncertainty.observer_residual_rate``)
-failed in near-boundary runs (issue 30, by up to 2.7×). Instead the observer keeps an
-interval q̇(t_k) ∈ [lo_k, hi_k] per joint, proven from what is declared and what the loop
-knows, and publishes
-
-    ε_i(t_k) = |x̂2,i − c_i| + r_i,   c, r the interval's centre and half-width,
-
-which holds whatever x̂2 does. The interval:
-
-1. starts at x̂2(0) ± the declared initial error (ε(0) is that error);
-2. is propagated over each step [t_k−1, t_k] by a bound q̈ ∈ [a_lo, a_hi] on the true
-   acceleration: the torque τ applied over the step is known (the input ``tau``), and the
-   plant is the nominal model (inertia_model's ``nominal_model``: the planar chain or a
-   URDF's spatial chain, cosim.dynamics) plus a payload Δm in the declared range at its
-   payload point (the planar chain's last centre of mass, a URDF's tip frame) plus a
-   disturbance |d| ≤ d̄, so
-   q̈ = M(Δm)⁻¹(τ − τ_d − d − b(q, q̇, Δm)). With J the payload point's Jacobian,
-   K = J M̂⁻¹ Jᵀ = VΛVᵀ and s_j(Δm) = Δm/(1 + Δm λ_j) (each increasing in Δm), at a velocity c
-   q̈ = u − Σ_j s_j R_j v_jᵀ(J u + γ), u = M̂⁻¹(τ − τ_d − b̂(c)), R = M̂⁻¹JᵀV, γ = J̇c − g:
-   linear in each s_j, so exact at the ends of their ranges. For the true q̇ = c + δ,
-   |δ_j| ≤ r_j: b's velocity part is a quadratic form (Γ, affine in Δm), and
-   M(Δm)⁻¹ = M̂⁻¹ − R diag(s) Rᵀ, so the linear part M(Δm)⁻¹B(Δm)δ is bounded at the
-   vertices of (s_1 … s_d, Δm) (multilinear; d = 2 in the plane, 3 in space), the
-   quadratic part and d̄ through max |M(Δm)⁻¹| entrywise. The velocity box itself is an
-   a-priori enclosure of q̇ over the step (the interval widened by ρ) that the resulting
-   bound must confirm
-   (dt·max(−a_lo, a_hi, 0) ≤ ρ), widened until it does;
-3. is intersected with the estimates from the measured positions over the last N = 1 …
-   ``window`` steps: q̇(t_k) = (q(t_k) − q(t_k−N))/T + (1/T)∫(s − t_k−N) q̈(s) ds with
-   T = N dt, the noise |q_meas − q| ≤ n̄ contributing ±2n̄/T and q̈ the bounds of 2. (These
-   bring the interval back within a few steps whatever happened before, and keep it
-   ~2√(n̄ Δa) wide for an acceleration band Δa; without noise or payload it follows q̇ to
-   ~0.03 rad/s.)
-4. The payload dominates Δa (the Monte Carlo's 0–1 kg at the tip of a 2.3 kg link), and
-   it is constant: the declared range is split into ``payload_cells`` cells, each with its
-   own interval (1.–3. with the cell's range). A cell whose interval empties (no q̇ fits
-   its payloads and the measurements) is dropped; ε(t) uses the hull of the live cells'.
-   On the near-boundary runs only the true payload's cell is left after the first braking,
-   which takes the median ε from ~0.67 to ~0.48 rad/s (4 cells). Were every live cell to
-   fail at once (outside what is assumed), all restart from their hull.
-
-*Assumption* (the one approximation, beside rounding): over a step, q̈ is bounded by its
-bounds at the step's two measured positions y_k−1 and y_k (M and b taken at the measured
-position, not at the true q between them: first order in n̄ and in the ≤ 0.015 rad a joint
-moves in a step, the approximation the safety filter declares too, docs/safety/filter.md). Every
-other quantity is declared (payload range, n̄, initial error, d̄) or known (τ, the nominal
-chain, τ_d's model). A plant outside these (an undeclared payload, friction, disturbance)
-may break ε(t): tests/test_observer_bound.py checks it on every step of near-boundary
-runs inside the declared ranges and shows it failing outside them. The windows' best N was
-≤ 8 steps on those runs and on the paper's: ``window`` = 16 keeps the cost small. Cost
-(measured, this machine): the observer's kernel 0.98 → 4.39 µs a step on the paper's arm
-with one payload cell (benchmarks/bench_cosim.py --profile; the fused closed loop 5.6 →
-9.2 µs), ~+4.3 µs a step with the Monte Carlo's four cells.
+**The bound ε(t) on |q̇ − x̂2|** (``qdot_hat_bound``) is certified beside the FLNN, from a
+velocity interval the loop proves (:mod:`cosim.paper.envelope`), whatever x̂2 does.
 """
 
 from __future__ import annotations
@@ -87,20 +33,10 @@ from pydantic import Field
 from ..blocks.base import Block, BlockContext, Ports, register_block
 from ..blocks.binding import master_step, parameter, reads, scratch, uncertainty, writes
 from ..dynamics.model import (
-    RigidBodyModel,
-    model_bias,
-    model_friction,
-    model_friction_spread,
-    model_geometry,
-    model_mass,
-    model_payload,
-    model_point_forms,
-    model_velocity_forms,
     own_scratch,
     payload_dim,
     planar_model,
 )
-from ..numba_compat import no_refcount_jit
 from ..records import kernel_record
 from ..schema import (
     FiniteFloat,
@@ -111,8 +47,9 @@ from ..schema import (
     per_joint_array,
 )
 from ..signals import Signal
+from .envelope import Envelope, envelope_position, envelope_step
 from .inertia import InertiaModel, default_links
-from .linalg import invert, linear_part, small_symmetric_eigen, solve
+from .linalg import solve
 from .sampled_loop import check_friction_step
 
 LAWS = {"paper": 0, "error_driven": 1}
@@ -153,10 +90,10 @@ class ObserverParams(Section):
     initial_velocity: Annotated[Literal["desired", "zero"] | list[FiniteFloat],
                                 PerJoint.marker] = "desired"
     # longest window of the certified envelope's position-difference estimates of q̇ (ε(t),
-    # module docstring), dimensionless (a count of steps)
+    # cosim.paper.envelope), dimensionless (a count of steps)
     window: Annotated[int, Field(ge=1, le=10000)] = 16
     # cells of the declared payload range the envelope tracks apart, each dropped once the
-    # measurements rule its payloads out (ε(t), module docstring), dimensionless (a count)
+    # measurements rule its payloads out (ε(t), cosim.paper.envelope), dimensionless (a count)
     payload_cells: Annotated[int, Field(ge=1, le=64)] = 4
 
 
@@ -213,7 +150,7 @@ def error_envelope(kp, kd, k0):
     """The frozen-time error dynamics of (12), x̃1' = w, w' = −k0 x̃1 − (kp + kD) w + f̃, with
     w = x̃1' = x̃2 − kD x̃1: (decay rate of the slowest mode (1/s), peak factor of w's free
     response to w(0) (≥ 1), L1 norm of the impulse response from f̃' to w (s²)).
-    Not what ε(t) rests on any more (module docstring): a frozen-time envelope is no proof
+    Not what ε(t) rests on any more (cosim.paper.envelope): a frozen-time envelope is no proof
     while k0 moves, and its forcing's rate is the closed loop's; kept as the analysis
     docs/safety/filter.md describes."""
     sigma = 0.5 * (kp + kd)
@@ -225,322 +162,6 @@ def error_envelope(kp, kd, k0):
     slow, fast = sigma - root, sigma + root
     peak = (slow + fast) / max(fast - slow, 1e-12)
     return slow, max(peak, 1.0), 1.0 / max(k0, 1e-300)
-
-
-# ----------------------------------------------------------------------------------------
-# The certified velocity envelope: ε(t) = |x̂2 − c| + r with q̇ ∈ [c − r, c + r] proven
-# (see the module docstring).
-
-@kernel_record
-class Envelope(NamedTuple):
-    """The certified envelope's constants, its state, its per-position cache (two slots: the
-    step's two ends, slot k % 2 for y_k) and its scratch. d is the payload point's
-    dimension (the model's: 2 for the planar chain, 3 for a spatial one)."""
-
-    model: RigidBodyModel  # the nominal model (inertia_model's nominal_model)
-    zeros: scratch("n")  # stays 0
-    payload_low: float  # declared payload range, kg
-    payload_high: float
-    cells: np.ndarray  # (P + 1,) the payload cells' edges, low … high, kg
-    disturbance: uncertainty()  # declared d̄, N·m
-    window: parameter()  # longest window of the position-difference estimates, steps
-    interval: scratch("P, 2, n")  # per payload cell, q̇(t_k) ∈ [lo, hi], the state
-    alive: np.ndarray  # (P,) 1 while the cell is consistent with the measurements, else 0
-    since: scratch("P", int)  # the first step whose acc row the cell has (revived cells)
-    hull: scratch("2, n")  # the hull of the live cells' intervals: what ε(t) uses
-    rho: scratch("P, n")  # the a-priori enclosure's widening of the last step, rad/s
-    acc: scratch("P, steps, 2, n")  # q̈ ∈ [lo, hi] over [t_j, t_j+1], rad/s²
-    minv: scratch("2, n, n")  # M̂⁻¹ at the slot's position
-    pabs: scratch("2, P, n, n")  # max over the corners of |M(Δm)⁻¹|, entrywise
-    rmat: scratch("2, n, d")  # M̂⁻¹JᵀV
-    vec: scratch("2, d, d")  # V, K = J M̂⁻¹ Jᵀ = V Λ Vᵀ
-    s: scratch("2, P, 2, d")  # s_j(Δm) = Δm/(1 + Δm λ_j) at [slot, cell, end, j]
-    forms: scratch("2, 2, n, n, n")  # Γ of the nominal model [0] and of a unit payload [1]
-    grav: scratch("2, n")  # the nominal model's gravity torque G(y)
-    jac: scratch("2, d, n")  # the payload point's Jacobian J
-    point_forms: scratch("2, d, n, n")  # J̇v = (vᵀP_r v)_r, the point's velocity part
-    lift: scratch("2, d")  # −g at the point: γ = J̇v − g
-    # scratch
-    mass: scratch("n, n")
-    lu: scratch("n, n")
-    kmat: scratch("d, d")
-    lam: scratch("d")
-    eigen_work: scratch("d, d")
-    work: scratch("8, n")  # e, plus, minus, u, centre, radius, acc lo, acc hi
-    bmat: scratch("2, n, n")  # B(Δm) at the payload cell's ends
-    linear: scratch("2, n, n")  # M̂⁻¹B(Δm) at the cell's ends
-    projected: scratch("2, d, n")  # RᵀB(Δm) at the cell's ends
-    point: scratch("d")  # J u + γ
-    jac_work: scratch("d, n")
-
-
-E_, PLUS_, MINUS_, U_, CENTRE_, RADIUS_, ALO_, AHI_ = range(8)
-
-
-@no_refcount_jit(cache=True)
-def envelope_position(env, y, slot):
-    """What the acceleration bound needs of the position y, into cache ``slot``: M̂⁻¹, the
-    payload point's J and the quadratic form of J̇v, K = J M̂⁻¹ Jᵀ = VΛVᵀ, s_j at the ends of
-    the payload range, the entrywise largest magnitude of M(Δm)⁻¹ = M̂⁻¹ − R diag(s) Rᵀ
-    (R = M̂⁻¹JᵀV) over the corners of (s_1 … s_d), the Γ forms and the gravity torque."""
-    n = y.shape[0]
-    model = env.model
-    d = payload_dim(model)
-    model_geometry(model, y)
-    model_mass(model, 1.0, 0.0, env.mass)
-    minv = env.minv[slot]
-    invert(env.mass, minv, env.lu)
-    jac = env.jac[slot]
-    model_payload(model, env.zeros, 0.0, jac, env.point)
-    kmat = env.kmat
-    for r in range(d):
-        for c in range(d):
-            total = 0.0
-            for i in range(n):
-                for j in range(n):
-                    total += jac[r, i] * minv[i, j] * jac[c, j]
-            kmat[r, c] = total
-    vec = env.vec[slot]
-    small_symmetric_eigen(kmat, env.lam, vec, env.eigen_work)
-    rmat = env.rmat[slot]
-    for i in range(n):
-        for j in range(d):
-            total = 0.0
-            for col in range(n):
-                direction = 0.0
-                for r in range(d):
-                    direction += jac[r, col] * vec[r, j]
-                total += minv[i, col] * direction
-            rmat[i, j] = total
-    for cell in range(env.cells.shape[0] - 1):
-        s = env.s[slot, cell]
-        for end in range(2):
-            payload = env.cells[cell + end]
-            for j in range(d):
-                s[end, j] = payload / (1.0 + payload * max(env.lam[j], 0.0))
-        pabs = env.pabs[slot, cell]
-        for i in range(n):
-            for col in range(n):
-                # M(Δm)⁻¹ is separable in the s_j: its extremes over the corners are the
-                # sums of each term's
-                low = high = minv[i, col]
-                for j in range(d):
-                    term = rmat[i, j] * rmat[col, j]
-                    low -= max(s[0, j] * term, s[1, j] * term)
-                    high -= min(s[0, j] * term, s[1, j] * term)
-                pabs[i, col] = max(abs(low), abs(high))
-    e, plus = env.work[E_], env.work[PLUS_]
-    model_velocity_forms(model, 1.0, 0.0, e, plus, env.forms[slot, 0])
-    model_velocity_forms(model, 0.0, 1.0, e, plus, env.forms[slot, 1])
-    model_point_forms(model, e, env.jac_work, env.point, env.point_forms[slot], env.lift[slot])
-    model_bias(model, env.zeros, 1.0, 0.0, 1.0, env.grav[slot])
-
-
-@no_refcount_jit(cache=True)
-def envelope_acceleration(env, slot, cell, tau, tau_d, centre, radius, lo, hi):
-    """Widen [lo, hi] (per joint) to hold q̈ = M(Δm)⁻¹(τ − τ_d − d − b(y, q̇, Δm)) at the
-    cached position ``slot`` for every q̇ with |q̇ − centre| ≤ radius, Δm in the payload
-    ``cell`` and |d| ≤ d̄ (per joint): the payload exactly at q̇ = centre (q̈ = u − R diag(s)
-    Rᵀ... linear in each s_j), the velocity's linear part through M(Δm)⁻¹B(Δm) =
-    M̂⁻¹B(Δm) − Σ_j s_j R_j (R_jᵀB(Δm)) at the cell's ends (B is affine in Δm) and over the
-    box of (s_1 … s_d) (a sum of terms each linear in one s_j: its extremes are the sums of
-    the terms'), its quadratic part and d̄ through max |M(Δm)⁻¹| row by row."""
-    n = centre.shape[0]
-    d = payload_dim(env.model)
-    minv, rmat, vec, s = env.minv[slot], env.rmat[slot], env.vec[slot], env.s[slot, cell]
-    forms, jac = env.forms[slot], env.jac[slot]
-    point_forms, lift = env.point_forms[slot], env.lift[slot]
-    pabs = env.pabs[slot, cell]
-    payload_low, payload_high = env.cells[cell], env.cells[cell + 1]
-    u, work = env.work[U_], env.work[E_]
-    bmat, linear, projected = env.bmat, env.linear, env.projected
-    for l in range(n):  # noqa: E741
-        bias = env.grav[slot, l] + tau_d[l]
-        for j in range(n):
-            for k in range(n):
-                bias += forms[0, l, j, k] * centre[j] * centre[k]
-        work[l] = tau[l] - bias
-    friction, spread_of_friction = env.work[PLUS_], env.work[MINUS_]
-    friction[:] = 0.0
-    model_friction(env.model, centre, friction)
-    spread_of_friction[:] = 0.0
-    model_friction_spread(env.model, centre, radius, spread_of_friction)
-    for l in range(n):  # noqa: E741
-        work[l] -= friction[l]
-        for j in range(n):
-            bmat[0, l, j], bmat[1, l, j] = linear_part(forms[0], forms[1], centre, payload_low,
-                                                       payload_high, l, j)
-    linear[:] = 0.0  # M̂⁻¹B and RᵀB at each end of the cell, B's column j row by row
-    projected[:] = 0.0
-    for end in range(2):
-        for j in range(n):
-            for l in range(n):  # noqa: E741
-                entry = bmat[end, l, j]
-                for i in range(n):
-                    linear[end, i, j] += minv[i, l] * entry
-                for r in range(d):
-                    projected[end, r, j] += rmat[l, r] * entry
-    for i in range(n):
-        total = 0.0
-        for l in range(n):  # noqa: E741
-            total += minv[i, l] * work[l]
-        u[i] = total
-    # J u + γ, γ = J̇q̇ − g
-    point = env.point
-    for r in range(d):
-        total = lift[r]
-        for k in range(n):
-            total += jac[r, k] * u[k]
-            for j in range(n):
-                total += point_forms[r, j, k] * centre[j] * centre[k]
-        point[r] = total
-    size = 0.0
-    for l in range(n):  # noqa: E741 — the quadratic part plus d̄, per equation l
-        worst = 0.0
-        for end in range(2):
-            mass = payload_low if end == 0 else payload_high
-            total = 0.0
-            for j in range(n):
-                for k in range(n):
-                    total += abs(forms[0, l, j, k] + mass * forms[1, l, j, k]) \
-                        * radius[j] * radius[k]
-            worst = max(worst, total)
-        work[l] = worst + env.disturbance + spread_of_friction[l]
-    for i in range(n):
-        low, high = u[i], u[i]
-        for j in range(d):  # −s_j R_ij (v_jᵀ(J u + γ)), s_j over its range
-            along = 0.0
-            for r in range(d):
-                along += vec[r, j] * point[r]
-            z = rmat[i, j] * along
-            a, b = -s[0, j] * z, -s[1, j] * z
-            low += min(a, b)
-            high += max(a, b)
-        spread = 0.0
-        for j in range(n):
-            worst = 0.0
-            for end in range(2):
-                least = most = linear[end, i, j]
-                for r in range(d):
-                    term = rmat[i, r] * projected[end, r, j]
-                    least -= max(s[0, r] * term, s[1, r] * term)
-                    most -= min(s[0, r] * term, s[1, r] * term)
-                worst = max(worst, -least, most)
-            spread += worst * radius[j]
-        for l in range(n):  # noqa: E741
-            spread += pabs[i, l] * work[l]
-        size = spread
-        lo[i] = min(lo[i], low - size)
-        hi[i] = max(hi[i], high + size)
-
-
-@no_refcount_jit(cache=True)
-def envelope_windows(k, dt, noise, window, y, acc, interval):
-    """Intersect q̇(t_k) ∈ ``interval`` with the estimates from the position differences over
-    the last N = 1 … ``window`` steps: q̇(t_k) = (q(t_k) − q(t_k−N))/T + (1/T)∫(s − t_k−N)q̈ ds,
-    T = N dt, the measurements within ±``noise`` (±2 noise/T) and q̈ within acc[j] (lo, hi)
-    over step j, whose weight ∫(s − t_k−N) ds over the step is dt²(j − k + N + ½). False
-    when no q̇ fits every estimate (then the interval is the hull of the crossing ends)."""
-    n = y.shape[1]
-    consistent = True
-    for i in range(n):
-        sum_lo, sum_hi, moment_lo, moment_hi = 0.0, 0.0, 0.0, 0.0
-        lo, hi = interval[0, i], interval[1, i]
-        for length in range(1, min(k, window) + 1):
-            j = k - length
-            if not (np.isfinite(acc[j, 0, i]) and np.isfinite(acc[j, 1, i])):
-                break  # a step whose q̈ no bound held: no window over it says anything
-            sum_lo += acc[j, 0, i]
-            sum_hi += acc[j, 1, i]
-            moment_lo += (j - k + 0.5) * acc[j, 0, i]
-            moment_hi += (j - k + 0.5) * acc[j, 1, i]
-            span = length * dt
-            base = (y[k, i] - y[j, i]) / span
-            spread = 2.0 * noise / span
-            lo = max(lo, base - spread + (moment_lo + length * sum_lo) * dt / length)
-            hi = min(hi, base + spread + (moment_hi + length * sum_hi) * dt / length)
-        if lo > hi:  # no q̇ fits: outside what is assumed; the hull of the two, never less
-            lo, hi = hi, lo
-            consistent = False
-        interval[0, i], interval[1, i] = lo, hi
-    return consistent
-
-
-@no_refcount_jit(cache=True)
-def envelope_cell(k, dt, y, tau, tau_d, noise, env, cell):
-    """One payload cell from t_k−1 to t_k: q̈'s bound over the step on an a-priori enclosure
-    of q̇ that the bound itself must confirm (widened until it does), the interval
-    propagated by it, then intersected with the windows. False when the cell's payloads
-    cannot explain the measurements."""
-    n = y.shape[1]
-    centre, radius = env.work[CENTRE_], env.work[RADIUS_]
-    alo, ahi = env.work[ALO_], env.work[AHI_]
-    interval, rho, acc = env.interval[cell], env.rho[cell], env.acc[cell]
-    for i in range(n):
-        centre[i] = 0.5 * (interval[0, i] + interval[1, i])
-    for _ in range(60):
-        for i in range(n):
-            radius[i] = 0.5 * (interval[1, i] - interval[0, i]) + rho[i]
-            alo[i], ahi[i] = np.inf, -np.inf
-        envelope_acceleration(env, (k - 1) % 2, cell, tau, tau_d, centre, radius, alo, ahi)
-        envelope_acceleration(env, k % 2, cell, tau, tau_d, centre, radius, alo, ahi)
-        confirmed = True
-        for i in range(n):  # q̇ over the step stays within [lo + dt·min(0, alo), hi + …]
-            need = dt * max(-alo[i], ahi[i], 0.0)
-            if need > rho[i]:
-                confirmed = False
-                rho[i] = max(1.5 * need, 2.0 * rho[i])
-        if confirmed:
-            break
-    for i in range(n):
-        if not confirmed or not (alo[i] > -np.inf and ahi[i] < np.inf):
-            alo[i], ahi[i] = -np.inf, np.inf
-        rho[i] = 1.2 * dt * max(-alo[i], ahi[i], 0.0) + 1e-9  # next step's first guess
-        acc[k - 1, 0, i] = alo[i]
-        acc[k - 1, 1, i] = ahi[i]
-        interval[0, i] += dt * alo[i]
-        interval[1, i] += dt * ahi[i]
-    return envelope_windows(k, dt, noise, min(env.window, k - env.since[cell]), y, acc,
-                            interval)
-
-
-@no_refcount_jit(cache=True)
-def envelope_step(k, dt, y, tau, tau_d, noise, env):
-    """The envelope from t_k−1 to t_k: each live payload cell (envelope_cell); a cell no
-    q̇ fits is dropped (the payload is constant: it is not in that cell), unless every live
-    cell fails at once (then outside what is assumed: every cell restarts from the hull of
-    the failed ones, its windows from then on). The published interval (``hull``) is the
-    hull of the live cells'."""
-    n = y.shape[1]
-    envelope_position(env, y[k], k % 2)
-    cells = env.alive.shape[0]
-    live = 0
-    for cell in range(cells):
-        if env.alive[cell] == 0.0:
-            continue
-        if envelope_cell(k, dt, y, tau, tau_d, noise, env, cell):
-            live += 1
-        else:
-            env.alive[cell] = -1.0  # failed this step
-    hull = env.hull
-    for i in range(n):
-        hull[0, i], hull[1, i] = np.inf, -np.inf
-        for cell in range(cells):
-            if env.alive[cell] != 0.0:
-                hull[0, i] = min(hull[0, i], env.interval[cell, 0, i])
-                hull[1, i] = max(hull[1, i], env.interval[cell, 1, i])
-    for cell in range(cells):
-        if live == 0:  # outside what is assumed: every cell again, from the failed hull
-            if env.alive[cell] == 0.0:
-                env.since[cell] = k
-                for i in range(n):
-                    env.rho[cell, i] = 0.0
-            env.alive[cell] = 1.0
-            for i in range(n):
-                env.interval[cell, 0, i] = hull[0, i]
-                env.interval[cell, 1, i] = hull[1, i]
-        elif env.alive[cell] == -1.0:
-            env.alive[cell] = 0.0
 
 
 @njit(cache=True)
@@ -671,7 +292,7 @@ def observer_step(k, a):
         qdot_hat[i] = z2[i] + kp * x1_err[i]
     a.k0[k] = k0
     a.W_o_norm[k] = w_norm
-    # ε(t) from the certified envelope q̇(t_k) ∈ [lo, hi] (module docstring): whatever x̂2
+    # ε(t) from the certified envelope q̇(t_k) ∈ [lo, hi] (cosim.paper.envelope): whatever x̂2
     # is, |q̇ − x̂2| ≤ |x̂2 − c| + r with c, r the interval's centre and half-width.
     env = a.env
     interval = env.hull

@@ -13,7 +13,7 @@ Two things set the range (docs/safety/filter.md, "The steps it supports"):
 - **The observer's certified bound ε(t)** (an output-feedback filter reads it). Each step
   the observer propagates its interval of q̇ with a bound on q̈ over the step, taken on an
   enclosure of q̇ that the bound itself must confirm, then narrows it by the position
-  differences (cosim/paper/observer.py). The velocity's uncertainty feeds back into that
+  differences (cosim/paper/envelope.py). The velocity's uncertainty feeds back into that
   bound through b's velocity part and the viscous friction: per joint, the acceleration
   band's half-width grows by (G R)_i for an enclosure of half-widths R, with the nonnegative
   matrix G = |M(Δm)⁻¹ B(Δm, q̇)| + |M(Δm)⁻¹| diag(b̂ + |Δb|), B_lj = 2 Σ_k Γ_l,jk q̇_k the
