@@ -73,15 +73,15 @@ MUTANTS = [
     ("ctrl-lambda", "cosim/paper/controller.py",
      "r[i] = edot[i] + a.lam[i] * e[i]", "r[i] = edot[i] + e[i]", LAWS),
     # the filter's margins
-    ("cbf-noise-margin", "cosim/paper/cbf_filter/rows.py",
+    ("cbf-noise-margin", "cosim/paper/cbf_filter/groups.py",
      "limit = a.k0 * (h - a.noise_bound) - a.k1 * (side * v0[i] + eps[i])",
      "limit = a.k0 * h - a.k1 * (side * v0[i] + eps[i])", FILTER),
-    ("cbf-eps-position", "cosim/paper/cbf_filter/rows.py",
+    ("cbf-eps-position", "cosim/paper/cbf_filter/groups.py",
      "limit = a.k0 * (h - a.noise_bound) - a.k1 * (side * v0[i] + eps[i])",
      "limit = a.k0 * (h - a.noise_bound) - a.k1 * (side * v0[i])", FILTER),
-    ("cbf-velocity-eps", "cosim/paper/cbf_filter/rows.py",
+    ("cbf-velocity-eps", "cosim/paper/cbf_filter/groups.py",
      "limit = a.k_velocity * max(h - eps[i], 0.0)", "limit = a.k_velocity * h", FILTER),
-    ("cbf-bias-error-dropped", "cosim/paper/cbf_filter/rows.py",
+    ("cbf-bias-error-dropped", "cosim/paper/cbf_filter/groups.py",
      "                limit -= scale * rows_error[i]\n", "", FILTER),
     # (It drops the plane's box corner (g, g+1), mask 2. Dropping (g+1, g) instead is an
     # equivalent mutant: s2 = s1/(1 + (λ2 − λ1)s1) is concave in s1 with λ1 ≤ λ2, so the
@@ -94,10 +94,10 @@ MUTANTS = [
     # the hard rows the solve leaves out (cutting planes): the payload corners' terms not
     # taken in a group's screen, rows within hard_tolerance of their lowered limit left out,
     # the QP not solved again with the rows added
-    ("cbf-cuts-screen-centre", "cosim/paper/cbf_filter/rows.py",
+    ("cbf-cuts-screen-centre", "cosim/paper/cbf_filter/groups.py",
      "        most += max(s_phase[0, j] * terms[1 + j], s_phase[-1, j] * terms[1 + j])\n",
      "        pass\n", CUTS),
-    ("cbf-cuts-no-tolerance", "cosim/paper/cbf_filter/rows.py",
+    ("cbf-cuts-no-tolerance", "cosim/paper/cbf_filter/groups.py",
      "        room = -a.hard_tolerance * w.group_values[g, NORM_BOUND]\n",
      "        room = 0.0\n", CUTS),
     ("cbf-cuts-one-round", "cosim/paper/cbf_filter/step.py",
@@ -170,7 +170,7 @@ MUTANTS = [
      "    if False:", FILTER),
     ("cbf-braking-held-not-tried", "cosim/paper/cbf_filter/policy.py",
      "    if reserve and a.braking_reserve:", "    if False:", FILTER),
-    ("cbf-rows-left-out-always", "cosim/paper/cbf_filter/rows.py",
+    ("cbf-rows-left-out-always", "cosim/paper/cbf_filter/groups.py",
      "if scale * (reach[i] + room[i]) < limit + scale * side * base[i]:", "if True:", FILTER),
     # the steps the filter supports (cbf_filter/steps.py): the backup's hold allowed to
     # overshoot, the observer's bound asked only not to grow, its gain G without the

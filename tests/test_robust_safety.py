@@ -133,7 +133,8 @@ def test_the_hard_rows_the_solve_leaves_out_are_met_with_the_tolerance_to_spare(
     it, or just beyond that, plus a random part along the row's null space: every row
     add_cuts leaves out has g·τ − h ≤ −hard_tolerance, and a row within the tolerance or
     past its limit is added."""
-    from cosim.paper.cbf_filter.rows import add_cuts, cbf_rows
+    from cosim.paper.cbf_filter.groups import add_cuts
+    from cosim.paper.cbf_filter.rows import cbf_rows
     from cosim.paper.cbf_filter.scratch import G_CORNERS, GROUPS
 
     _, plan, _ = simulated([], "proposed_cbf", duration=0.05)

@@ -43,8 +43,8 @@ compiled semismooth Newton solves the penalty form with the hard rows at weight 
 their limits lowered by ``hard_tolerance`` (each Newton step a least-squares solve in
 square-root form, to ~1e-13 of τ; started from the rows that bound at the step before,
 which is the answer at once at 99.9 % of the paper's steps). The hard rows are kept in
-groups, a joint's side of a set with a row per payload corner (:func:`.rows.hard_groups`),
-and enter the solve only where it needs them (cutting planes, :func:`.rows.add_cuts`): it
+groups, a joint's side of a set with a row per payload corner (:func:`.groups.hard_groups`),
+and enter the solve only where it needs them (cutting planes, :func:`.groups.add_cuts`): it
 solves over the soft rows and the torque limits, then again with every corner row its
 answer violates or comes within ``hard_tolerance`` of, until there is none; a row left out
 is then met with the tolerance to spare, so the answer is the whole QP's minimiser (the

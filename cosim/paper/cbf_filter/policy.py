@@ -10,8 +10,8 @@ from __future__ import annotations
 from ...numba_compat import no_refcount_jit
 from .backup import backup_at
 from .check import verified
+from .groups import groups_violated
 from .interval import inside
-from .rows import groups_violated
 from .scratch import (
     ANSWER,
     CONSISTENT,

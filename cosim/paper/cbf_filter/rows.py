@@ -1,8 +1,8 @@
 """The rows of one step's QP: G τ ≤ h, each scaled to unit norm, with its weight, kind and
 joint; the hard rows robust to the declared uncertainty (see the package docstring), kept in
-groups (a joint's side of a set, a row per payload corner, unscaled) that the solve takes
-rows from as it needs them (cutting planes), the soft (tracking) rows, and the torque
-limits; and the barrier values the step reports."""
+groups (a joint's side of a set, a row per payload corner, unscaled: :mod:`.groups`) that the
+solve takes rows from as it needs them (cutting planes), the soft (tracking) rows, and the
+torque limits; and the barrier values the step reports."""
 
 from __future__ import annotations
 
@@ -10,310 +10,31 @@ import numpy as np
 
 from ...numba_compat import no_refcount_jit
 from ..linalg import dot, invert, product
+from .groups import add_corner, hard_groups
 from .interval import velocity_interval
-from .model import moved_model, nominal_model, robust_model
+from .model import moved_model, nominal_model
 from .scratch import (
     ACCELERATION,
-    ALPHA,
     BASE,
     BASE_END,
     BASE_MID,
-    BETA,
     BIAS,
     DRIFT,
     G_CORNERS,
-    G_JOINT,
-    G_PHASE,
-    G_SET,
     GROUPS,
-    H_ZERO,
     LU,
     MINV,
     MINV_END,
     MINV_MID,
     NOMINAL_NOW,
-    NORM_BOUND,
-    OFFSETS,
-    PLANT_SHIFT,
-    REACH,
-    ROOM,
     ROW,
-    ROWS_ERROR,
     V_END,
     V_MID,
     Y_END,
     Y_MID,
     X,
 )
-
-
-@no_refcount_jit(cache=True, inline="always")
-def add_row(qp, count, row, limit, weight, hard, kind, joint):
-    """Row ``count`` of the QP from ``row`` (scaled to unit norm, N·m), its limit, weight
-    and labels, into ``qp`` = (a.rows, a.limits, a.weights, a.is_hard, a.kinds, a.joints);
-    returns the next row's index. (Not ``a`` itself: binding a tuple to an argument counts a
-    reference to each of its arrays, and a holds ~100.)"""
-    G, limits, weights, is_hard, kinds, joints = qp
-    n = row.shape[0]
-    norm = 0.0
-    for j in range(n):
-        norm += row[j] * row[j]
-    norm = np.sqrt(norm)
-    if norm == 0.0:  # no τ in it: a row that holds or not whatever the filter does
-        norm = 1.0
-    inverse = 1.0 / norm  # one division, not n + 1 (a step builds ~1000 rows)
-    for j in range(n):
-        G[count, j] = row[j] * inverse
-    limits[count] = limit * inverse
-    weights[count] = weight
-    is_hard[count] = 1.0 if hard else 0.0
-    kinds[count] = kind
-    joints[count] = joint
-    return count + 1
-
-@no_refcount_jit(cache=True)
-def hard_groups(a, k, y, v, eps, minv, base, at_end):
-    """The hard rows of row k in groups (one per joint, side and hard set; a row per payload
-    corner: g_c = g_0 + Σ_j s_cj u_j, h_c = h_0 + Σ_j s_cj o_j, scratch.py's CbfWork), with
-    the model (M̂, b̂, the payload's structure, the bias error) evaluated at (y, v) and the
-    barriers at row k's state, appended to the groups already made at this step. The rows
-    themselves are made only where needed (:func:`add_cuts`, or all of them:
-    :func:`cbf_rows`). ``at_end``: the conditions at the end of the hold instead, at a
-    predicted (y, v): a held τ must keep them there too, and q̈ drifts over a hold fast where
-    M̂ is ill-conditioned and τ large. With q(dt) = q + dt q̇ + ½dt² q̈ and
-    q̇(dt) = q̇ + dt q̈, a condition at the end weighs q̈ by 1 + k dt (velocity) or
-    1 + 2p dt + ½p² dt² (position) and the position's by p² dt q̇."""
-    n = y.shape[0]
-    w = a.work
-    vectors = w.vectors
-    corners = robust_model(a, y, v, eps, minv, base)
-    rows_error, plant_shift = vectors[ROWS_ERROR], vectors[PLANT_SHIFT]
-    reach, room = vectors[REACH], vectors[ROOM]
-    _reach(a, minv, corners, reach, room)
-    phase = 1 if at_end else 0
-    s_grid = w.s_grid
-    for g in range(s_grid.shape[0]):
-        for j in range(s_grid.shape[1]):
-            w.s_phase[phase, g, j] = s_grid[g, j]
-    terms = s_grid.shape[1] if corners > 1 else 0
-    alpha, beta = w.point_rows[ALPHA], w.point_vectors[BETA]
-    y0, v0, dt = a.position[k], a.velocity[k], a.dt
-    for s in range(2):
-        if not a.hard[s]:
-            continue
-        for i in range(n):
-            for side in (1.0, -1.0):
-                # side·q̈_i ≤ limit for every q, q̇ within the bounds
-                if s == 0:
-                    h = a.joint_bounds[0, i] - side * (y0[i] - a.centres[0, i])
-                    limit = a.k0 * (h - a.noise_bound) - a.k1 * (side * v0[i] + eps[i])
-                    scale = 1.0 + a.k1 * dt + 0.5 * a.k0 * dt * dt if at_end else 1.0
-                    if at_end:
-                        limit -= a.k0 * dt * side * v0[i]
-                else:
-                    # The true h is ≥ 0 until the set is first left (by induction) and at
-                    # least h − ε: its worst case is max(h − ε, 0), not h − ε. So an estimate
-                    # that may lie outside asks only "do not approach", not recovery at rate
-                    # k from a state the plant may not be in.
-                    h = a.joint_bounds[1, i] - side * (v0[i] - a.centres[1, i])
-                    limit = a.k_velocity * max(h - eps[i], 0.0)
-                    scale = 1.0 + a.k_velocity * dt if at_end else 1.0
-                limit -= scale * rows_error[i]
-                if corners == 1:
-                    limit -= scale * max(-a.payload_low * side * plant_shift[i],
-                                         -a.payload_high * side * plant_shift[i])
-                # no torque within the limits could violate any corner's row: left out
-                if scale * (reach[i] + room[i]) < limit + scale * side * base[i]:
-                    continue
-                g = int(w.flags[GROUPS])
-                w.flags[GROUPS] = g + 1
-                rows, values, labels = w.group_rows[g], w.group_values[g], w.group_labels[g]
-                for col in range(n):
-                    rows[0, col] = scale * side * minv[i, col]
-                values[H_ZERO] = limit + scale * side * base[i]
-                values[NORM_BOUND] = np.sqrt(dot(rows[0], rows[0]))
-                for j in range(terms):
-                    coefficient = scale * side * alpha[j, i]
-                    for col in range(n):
-                        rows[1 + j, col] = -coefficient * alpha[j, col]
-                    values[OFFSETS + j] = coefficient * beta[j]
-                    # s_j increases with the payload: its largest |s_j| at an end
-                    values[NORM_BOUND] += max(abs(s_grid[0, j]), abs(s_grid[-1, j])) \
-                        * np.sqrt(dot(rows[1 + j], rows[1 + j]))
-                labels[G_SET], labels[G_JOINT], labels[G_PHASE] = s, i, phase
-                labels[G_CORNERS] = corners
-                w.group_added[g, :corners] = False
-
-
-@no_refcount_jit(cache=True)
-def _group_terms(a, g, tau, terms):
-    """Group g's g_0·τ − h_0 and u_j·τ − o_j at τ, into ``terms`` (1 + d); returns the number
-    of u_j it has (0 without a payload range)."""
-    w = a.work
-    rows, values = w.group_rows[g], w.group_values[g]
-    count = w.s_phase.shape[2] if w.group_labels[g, G_CORNERS] > 1 else 0
-    terms[0] = dot(rows[0], tau) - values[H_ZERO]
-    for j in range(count):
-        terms[1 + j] = dot(rows[1 + j], tau) - values[OFFSETS + j]
-    return count
-
-
-@no_refcount_jit(cache=True)
-def _corner_excess(a, g, c, terms, count):
-    """Corner c's g_c·τ − h_c (unscaled), from group g's terms at τ (:func:`_group_terms`)."""
-    w = a.work
-    phase = w.group_labels[g, G_PHASE]
-    excess = terms[0]
-    for j in range(count):
-        excess += w.s_phase[phase, w.corner_index[c, j], j] * terms[1 + j]
-    return excess
-
-
-@no_refcount_jit(cache=True)
-def _most_excess(a, g, terms, count):
-    """The most any corner of group g may exceed its limit at τ (unscaled): every corner's
-    s_cj lies between the grid's ends, so a sum of each term's largest over them."""
-    w = a.work
-    s_phase = w.s_phase[w.group_labels[g, G_PHASE]]
-    most = terms[0]
-    for j in range(count):
-        most += max(s_phase[0, j] * terms[1 + j], s_phase[-1, j] * terms[1 + j])
-    return most
-
-
-@no_refcount_jit(cache=True)
-def _corner_row(a, g, c, row):
-    """Group g's corner c: g_c (unscaled) into ``row``; returns h_c."""
-    w = a.work
-    rows, values, labels = w.group_rows[g], w.group_values[g], w.group_labels[g]
-    n = row.shape[0]
-    for col in range(n):
-        row[col] = rows[0, col]
-    limit = values[H_ZERO]
-    if labels[G_CORNERS] > 1:
-        for j in range(w.s_phase.shape[2]):
-            s = w.s_phase[labels[G_PHASE], w.corner_index[c, j], j]
-            for col in range(n):
-                row[col] += s * rows[1 + j, col]
-            limit += s * values[OFFSETS + j]
-    return limit
-
-
-@no_refcount_jit(cache=True)
-def add_corner(a, count, g, c):
-    """Row ``count`` of the QP: group g's corner c (scaled to unit norm by add_row); returns
-    the next row's index."""
-    w = a.work
-    row = w.vectors[ROW]
-    limit = _corner_row(a, g, c, row)
-    w.group_added[g, c] = True
-    qp = (a.rows, a.limits, a.weights, a.is_hard, a.kinds, a.joints)
-    return add_row(qp, count, row, limit, a.rho_hard, True, w.group_labels[g, G_SET],
-                   w.group_labels[g, G_JOINT])
-
-
-@no_refcount_jit(cache=True)
-def add_cuts(a, count, tau):
-    """Appends to the QP's first ``count`` rows every hard row of the groups not among them
-    with g_c·τ − h_c > −hard_tolerance × (a bound on ‖g_c‖): at least every one that τ
-    violates with its limit lowered by hard_tolerance (as the QP has it, scaled to unit
-    norm), flagged as binding, with its lowered limit and weight in the solver's
-    (``work.per_row``); returns the new count. A row left out is then met at τ with the
-    tolerance to spare: a τ minimising the penalty form over the rows in it, where none
-    left out adds to it, minimises it over all of them."""
-    w = a.work
-    terms = w.group_values[-1]  # the last row: scratch
-    lowered, weights = w.per_row[0], w.per_row[1]
-    for g in range(int(w.flags[GROUPS])):
-        terms_count = _group_terms(a, g, tau, terms)
-        room = -a.hard_tolerance * w.group_values[g, NORM_BOUND]
-        if not _most_excess(a, g, terms, terms_count) > room:
-            continue
-        for c in range(w.group_labels[g, G_CORNERS]):
-            if w.group_added[g, c] or not _corner_excess(a, g, c, terms, terms_count) > room:
-                continue
-            count = add_corner(a, count, g, c)
-            lowered[count - 1] = a.limits[count - 1] - a.hard_tolerance
-            weights[count - 1] = a.weights[count - 1]
-            w.binding[count - 1] = True
-    return count
-
-
-@no_refcount_jit(cache=True)
-def groups_violated(a, tau):
-    """Whether τ violates any hard row of the groups as given (its limit not lowered)."""
-    terms = a.work.group_values[-1]
-    for g in range(int(a.work.flags[GROUPS])):
-        count = _group_terms(a, g, tau, terms)
-        if not _most_excess(a, g, terms, count) > 0.0:
-            continue
-        for c in range(a.work.group_labels[g, G_CORNERS]):
-            if _corner_excess(a, g, c, terms, count) > 0.0:
-                return True
-    return False
-
-
-@no_refcount_jit(cache=True)
-def groups_record(k, a, tau):
-    """Row k's activity of the hard rows in groups under τ: each row within twice the
-    hard_tolerance of its limit (scaled to unit norm, as the QP has it) binds, and marks its
-    set and joint active. Returns (whether every one is met as given, how many bind)."""
-    w = a.work
-    terms, row = w.group_values[-1], w.vectors[ROW]
-    met, active = True, 0
-    for g in range(int(w.flags[GROUPS])):
-        count = _group_terms(a, g, tau, terms)
-        room = -2.0 * a.hard_tolerance * w.group_values[g, NORM_BOUND]
-        if not _most_excess(a, g, terms, count) > room:
-            continue
-        labels = w.group_labels[g]
-        for c in range(labels[G_CORNERS]):
-            excess = _corner_excess(a, g, c, terms, count)
-            if not excess > room:
-                continue
-            met = met and not excess > 0.0
-            norm = _corner_norm(a, g, c, row)
-            if excess > -2.0 * a.hard_tolerance * norm:
-                active += 1
-                a.active_sets[labels[G_SET], k, labels[G_JOINT]] = 1.0
-    return met, active
-
-
-@no_refcount_jit(cache=True)
-def _corner_norm(a, g, c, row):
-    """‖g_c‖ of group g's corner c (1 for a row without τ, as add_row takes it), ``row`` its
-    scratch."""
-    _corner_row(a, g, c, row)
-    norm = np.sqrt(dot(row, row))
-    return norm if norm > 0.0 else 1.0
-
-
-@no_refcount_jit(cache=True)
-def _reach(a, minv, corners, reach, room):
-    """Per joint i, what decides whether its hard rows can bind within the torque limits
-    (hard_groups leaves out those that cannot): into ``reach`` the most any payload corner's
-    row g·τ (unscaled) reaches over the box |τ| ≤ τ_max, with 0.1 % and 1e-3 N·m beyond it
-    to spare (the solver's τ meets its limits to its tolerance); into ``room`` the most the
-    corners lower the row's limit. Infinite with unlimited torque: then nothing is left out.
-    Leaving rows out changes no answer within the limits; where the hard rows and the limits
-    conflict (no torque in the box meets them all) the penalty form's compromise may move,
-    and the check decides."""
-    alpha, beta = a.work.point_rows[ALPHA], a.work.point_vectors[BETA]
-    s_grid, n = a.work.s_grid, minv.shape[0]
-    for i in range(n):
-        largest, spread, lowered = 0.0, 0.0, 0.0  # spread: a bound on ‖g‖₁
-        for col in range(n):
-            largest += abs(minv[i, col]) * a.torque_limit[col]
-            spread += abs(minv[i, col])
-        if corners > 1:  # s_j increases with the payload: its largest |s_j| at an end
-            for j in range(alpha.shape[0]):
-                weight = abs(alpha[j, i]) * max(abs(s_grid[0, j]), abs(s_grid[-1, j]))
-                lowered += weight * abs(beta[j])
-                for col in range(n):
-                    largest += weight * abs(alpha[j, col]) * a.torque_limit[col]
-                    spread += weight * abs(alpha[j, col])
-        reach[i] = largest * 1.001 + 1e-3 * spread
-        room[i] = lowered
+from .solver import add_row
 
 
 @no_refcount_jit(cache=True)
@@ -326,9 +47,9 @@ def cbf_rows(k, a):
 
 @no_refcount_jit(cache=True)
 def step_rows(k, a, every):
-    """Row k's QP: the hard rows in groups (:func:`hard_groups`), each of their
+    """Row k's QP: the hard rows in groups (:func:`.groups.hard_groups`), each of their
     rows first if ``every`` (:func:`cbf_rows`), else none (the step's solve adds those it
-    needs: :func:`add_cuts`); then the soft rows and the torque limits as rows; the barrier
+    needs: :func:`.groups.add_cuts`); then the soft rows and the torque limits as rows; the barrier
     values and the true velocity's interval. Returns the number of rows."""
     vectors, matrices = a.work.vectors, a.work.matrices
     y, v, eps = a.position[k], a.velocity[k], a.velocity_bound[k]

@@ -37,7 +37,7 @@ TAU, TRIAL, GRADIENT, DIRECTION, ROTATED = range(5)
 # predicted at the hold's end and midpoint; dv/dt − M̂⁻¹τ; a row before its scaling; the bias
 # error's quadratic part, and its bound on |M̂⁻¹(Δb + d)|; M̂⁻¹Jᵀγ when M̂ is the plant's;
 # per joint, the most a hard row's g·τ reaches within the torque limits and the most its
-# payload corners lower its limit (rows.py, _reach); the friction's error per joint at
+# payload corners lower its limit (groups.py, _reach); the friction's error per joint at
 # (y, v); from X, 4 rows: each set's x, SETS order.
 (BIAS, MOVED_BIAS, BASE, BASE_END, BASE_MID, ACCELERATION, Y_END, V_END, Y_MID, V_MID, DRIFT,
  ROW, QUADRATIC, ROWS_ERROR, PLANT_SHIFT, REACH, ROOM, FRICTION, X) = range(19)

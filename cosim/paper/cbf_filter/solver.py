@@ -1,5 +1,6 @@
 """The QP's solver: the penalty form by semismooth Newton, each step a least-squares solve
-in square-root form (Givens rotations), warm-started from the rows that bound before."""
+in square-root form (Givens rotations), warm-started from the rows that bound before; and
+:func:`add_row`, which writes a row of the QP it solves (scaled to unit norm)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,31 @@ from numba import njit
 from ...numba_compat import no_refcount_jit
 from ..linalg import dot
 from .scratch import DIRECTION, GRADIENT, ROTATED, TAU, TRIAL
+
+
+@no_refcount_jit(cache=True, inline="always")
+def add_row(qp, count, row, limit, weight, hard, kind, joint):
+    """Row ``count`` of the QP from ``row`` (scaled to unit norm, N·m), its limit, weight
+    and labels, into ``qp`` = (a.rows, a.limits, a.weights, a.is_hard, a.kinds, a.joints);
+    returns the next row's index. (Not ``a`` itself: binding a tuple to an argument counts a
+    reference to each of its arrays, and a holds ~100.)"""
+    G, limits, weights, is_hard, kinds, joints = qp
+    n = row.shape[0]
+    norm = 0.0
+    for j in range(n):
+        norm += row[j] * row[j]
+    norm = np.sqrt(norm)
+    if norm == 0.0:  # no τ in it: a row that holds or not whatever the filter does
+        norm = 1.0
+    inverse = 1.0 / norm  # one division, not n + 1 (a step builds ~1000 rows)
+    for j in range(n):
+        G[count, j] = row[j] * inverse
+    limits[count] = limit * inverse
+    weights[count] = weight
+    is_hard[count] = 1.0 if hard else 0.0
+    kinds[count] = kind
+    joints[count] = joint
+    return count + 1
 
 
 @no_refcount_jit(cache=True, inline="always")

@@ -11,9 +11,10 @@ import numpy as np
 from ...numba_compat import no_refcount_jit
 from ..linalg import dot
 from .check import plan_box
+from .groups import add_cuts, groups_record
 from .interval import predict_interval
 from .policy import choose
-from .rows import add_cuts, groups_record, step_rows
+from .rows import step_rows
 from .scratch import (
     ANSWER,
     FACTOR,
@@ -43,7 +44,7 @@ def hard_violated(G, h, is_hard, count, tau):
 def solve_with_cuts(k, a, count):
     """The QP's answer over every row (the groups' included) into the solver's TAU, by
     Newton over the first ``count`` rows, then again with the hard rows it violates (or
-    comes within hard_tolerance of) added, until there are none (:func:`.rows.add_cuts`):
+    comes within hard_tolerance of) added, until there are none (:func:`.groups.add_cuts`):
     the same minimiser, over the few rows that can bind instead of every payload corner's.
     Returns the number of rows the QP then has."""
     w = a.work
