@@ -140,6 +140,6 @@ def test_a_wrong_row_is_found():
     assert any("'no such code' is not in" in p for p in found)
     assert any("no def test_no_such_test" in p for p in found)
     assert any("no mutant no-such-mutant" in p for p in found)
-    assert any("mutant cbf-velocity-eps is in cosim/paper/cbf_filter/rows.py" in p
+    assert any("mutant cbf-velocity-eps is in cosim/paper/cbf_filter/groups.py" in p
                for p in found)
     assert any(p.startswith("mutant premises-interval-doubled ") for p in found)
