@@ -130,6 +130,10 @@ MUTANTS = [
     ("cbf-held-drift-dropped", "cosim/paper/cbf_filter/check.py",
      "            _held_drift(k, a, r[R_TAU], limit, eps, widen)\n", "            pass\n",
      ["tests/test_steps.py"]),
+    # the candidate's held step at 1 ms without q̈'s drift over it (backup_step > dt)
+    ("cbf-candidate-drift-dropped", "cosim/paper/cbf_filter/check.py",
+     "        if held or not backup:\n", "        if held:\n",
+     ["tests/test_robust_safety.py"]),
     # the payload's departure at the range's ends only (the grid's first and last point)
     ("cbf-payload-ends-only", "cosim/paper/cbf_filter/deviation.py",
      "start, end = weight * s_grid[g, j], weight * s_grid[g + 1, j]",

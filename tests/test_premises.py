@@ -73,8 +73,8 @@ def test_the_tube_may_be_left_by_the_room_the_check_leaves_and_no_more(quantity,
                                                                        room, joint):
     """Past the plan's box by less than the half-margin the check leaves to the bound: the
     premise holds; past it by more (either side, at either joint): reported, naming it, on
-    the run's line. (Not yet held against the guarantee: guarantee.py's measured_premises
-    says why.)"""
+    the run's line. (Held against the guarantee only where the filter followed the plan:
+    the next test.)"""
     trace = measured_trace()
     trace[f"cbf_tube_{quantity}"][800, joint] += half + room - 1e-6
     g = judge(trace, WITH_CHECK)
@@ -90,15 +90,17 @@ def test_the_tube_may_be_left_by_the_room_the_check_leaves_and_no_more(quantity,
     assert g["broken"] is False and g["violations"] == []
     from test_guarantee import report_line
 
-    assert report_line(g).endswith(f" (measured, not yet held against it: {g['tube_left']})")
+    assert report_line(g).endswith(" (the tube, measured where a torque was verified afresh, "
+                                   f"not held against it: {g['tube_left']})")
 
 
 @pytest.mark.parametrize("joint", (0, 1))
 def test_the_plans_tube_is_judged_apart_where_the_filter_followed_the_plan(joint):
     """A row the filter verified afresh rests on its own check; a row where it followed the
     plan in force (``cbf_planned``) rests on that plan's proof, and its tube is judged
-    apart there (``plan_tube_*``): a box left at a fresh row counts in the tube's figures
-    only, at a followed row in both. Without the filter's flag, not judged (None)."""
+    apart there (``plan_tube_*``) and held: a box left at a fresh row counts in the tube's
+    figures only, at a followed row in both and breaks the guarantee, naming it. Without the
+    filter's flag, not judged (None)."""
     trace = measured_trace()
     assert judge(trace, WITH_CHECK)["plan_tube_exceeded_steps"] is None
     trace.signals["cbf_planned"] = Signal("1", "-", "cbf_planned")
@@ -108,11 +110,15 @@ def test_the_plans_tube_is_judged_apart_where_the_filter_followed_the_plan(joint
     g = judge(trace, WITH_CHECK)
     assert g["tube_exceeded_steps"] == 1 and g["plan_tube_exceeded_steps"] == 0
     assert g["plan_tube_slack"]["velocity"] == pytest.approx(3e-3 + 0.02)
+    assert g["broken"] is False and g["violations"] == []
     trace["cbf_tube_velocity"][650, joint] += 1.0  # the plan followed there
     g = judge(trace, WITH_CHECK)
     assert g["tube_exceeded_steps"] == 2 and g["plan_tube_exceeded_steps"] == 1
     assert g["plan_tube_slack"]["velocity"] == pytest.approx(3e-3 + 0.02 - 1.0)
-    assert g["broken"] is False  # measured, not yet held (guarantee.measured_premises)
+    assert g["broken"] is True and g["violations"] == [
+        "where the filter followed its plan, the true state outside the check's tube by more "
+        "than the room it leaves to the bounds at 1 steps (first t = 0.65 s; the velocity by "
+        "up to 0.977 rad/s past that room)"]
 
 
 def test_no_plan_no_tube_and_a_filter_that_does_not_say_its_sets_is_not_judged():

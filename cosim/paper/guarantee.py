@@ -30,8 +30,9 @@ true state:
   one to recover from, reported, not kept); ``violations``: what the guarantee promised a
   covered run that did not hold (a hard set left, ε(t) exceeded, |τ| above the limit; from
   the step it is covered from, a step not viable and a failed premise of the check — the
-  velocity's interval or the motion between samples; the tube is measured and reported,
-  not a violation: :func:`measured_premises`); ``broken``: covered with a violation;
+  velocity's interval, the motion between samples, and the plan's tube where the filter
+  followed its plan; the tube elsewhere is measured and reported, not a violation:
+  :func:`measured_premises`); ``broken``: covered with a violation;
 - ``torque``: where each joint's largest |τ| comes from (:func:`torque_peaks`): at
   start-up, before the filter first found the state viable, or later, and how much of it
   was the braking backup's.
@@ -286,8 +287,9 @@ def measured_premises(trace: Signals, safe: SafeSet, start: int,
     missing), the least room left (``tube_slack``, ``between_samples_room``: per quantity,
     rad and rad/s), ``violations``, what failed, and ``tube_left``, the tube's excess;
     ``plan_tube_*`` the tube on the rows where the filter followed the plan in force
-    (``cbf_planned``), which rest on its proof. The tube is measured, not yet held: runs
-    braking at start-up leave it (docs/safety/measurements.md, "The tube premise")."""
+    (``cbf_planned``), which rest on its proof: held, a violation. On the other rows, where
+    a torque was verified afresh from the velocity's interval, the tube is measured and
+    reported (docs/safety/measurements.md, "The tube premise")."""
     out: dict[str, Any] = {"violations": []}
     out["interval_exceeded_steps"], text = interval_exceedances(trace, start)
     out["violations"] += [text] if text else []
@@ -298,7 +300,8 @@ def measured_premises(trace: Signals, safe: SafeSet, start: int,
         tube = tube_exceedances(trace, start, allowance)
         followed = tube_exceedances(trace, start, allowance, followed_only=True)
     out["tube_exceeded_steps"], out["tube_slack"], out["tube_left"] = tube
-    out["plan_tube_exceeded_steps"], out["plan_tube_slack"], _ = followed
+    out["plan_tube_exceeded_steps"], out["plan_tube_slack"], text = followed
+    out["violations"] += [f"where the filter followed its plan, {text}"] if text else []
     between = (None, None, None)
     if sets is not None:
         between = between_samples(trace, start, (sets[0], sets[2]), (sets[1], sets[3]))
@@ -396,5 +399,5 @@ class Guarantee(Part):
                                          "not yet shown inside)" if later else ""))
                    if g["covered"] else "does not cover this run: " + "; ".join(why))
                 + (" — BROKEN: " + "; ".join(g["violations"]) if g["broken"] else "")
-                + (f" (measured, not yet held against it: {g['tube_left']})"
-                   if g.get("tube_left") else "")), []
+                + (f" (the tube, measured where a torque was verified afresh, not held "
+                   f"against it: {g['tube_left']})" if g.get("tube_left") else "")), []

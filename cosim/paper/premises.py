@@ -3,9 +3,10 @@ classifier's, cosim/paper/guarantee.py): what the check takes as given and no de
 makes true by itself, each compared at every step from the one the guarantee covers the run
 from. A covered run where the velocity's interval or the motion between samples fails is a
 broken guarantee, whatever the sets did (cosim.paper.guarantee.measured_premises names it
-among the violations). The tube is measured and reported only (``tube_exceeded_steps``,
-``tube_slack``, ``tube_left``), not held against the guarantee: the check's held step takes
-q̈ ± 1.5 D at the step's start, and q̈'s drift over the step can take the true velocity past it
+among the violations). The plan's tube is held where the filter followed its plan
+(``plan_tube_exceeded_steps``, ``plan_tube_slack``): those steps rest on the plan's proof. On
+every row it is measured and reported (``tube_exceeded_steps``, ``tube_slack``,
+``tube_left``): a row verified afresh rests on its own check, from the velocity's interval
 (docs/safety/measurements.md, "The tube premise").
 
 - **The velocity's interval** (:func:`interval_exceedances`): the check rolls its backup out
@@ -13,12 +14,12 @@ q̈ ± 1.5 D at the step's start, and q̈'s drift over the step can take the tru
   intersected with the filter's own prediction from the step before): the true q̇ must lie
   in it.
 - **The tube** (:func:`tube_exceedances`): the check's rollout puts the true state within a
-  tube about its nominal trajectory, widened by TUBE_SAFETY = 1.5 times D, a first-order
-  model of the backup's feedback (cosim/paper/cbf_filter/check.py). The filter records at
+  tube about its nominal trajectory, widened by TUBE_SAFETY = 1.5 times D and by q̈'s drift
+  over a held step (cosim/paper/cbf_filter/check.py). The filter records at
   every step the box the plan in force at the step before puts the state in
   (``cbf_tube_*``); the true state may leave it by at most what the check leaves between
   its sets and the bounds (half of ``bound_margin``), or the rollout's proof of the sets
-  does not hold. Measured and reported, not a violation (above).
+  does not hold. A violation on the rows where the filter followed the plan (above).
 - **Between samples** (:func:`between_samples`): the sets are judged at the samples; between
   two, under the torque held, q̈ lies within the check's bound [lo, hi] for that step
   (``cbf_acceleration_low``, ``_high``), so that x(t) lies below both parabolas of
