@@ -400,4 +400,5 @@ class Guarantee(Part):
                    if g["covered"] else "does not cover this run: " + "; ".join(why))
                 + (" — BROKEN: " + "; ".join(g["violations"]) if g["broken"] else "")
                 + (f" (the tube, measured where a torque was verified afresh, not held "
-                   f"against it: {g['tube_left']})" if g.get("tube_left") else "")), []
+                   f"against it: {g['tube_left']})"
+                   if g.get("tube_left") and not g.get("plan_tube_exceeded_steps") else "")), []
