@@ -15,10 +15,9 @@ true state:
 - ``within_bounds`` / ``outside``: the payload, every other plant parameter against the
   nominal model (gravity, friction, disturbance, links), a system's components beside the
   arm (a drive's rotor inertia, and the torque its lag or limit kept from the arm within
-  the declared disturbance), and what the filter reads — the
-  noise if it reads the measured position, the initial observer error if it reads the
-  observer's velocity — as declared (``outside`` names each one that is not;
-  :mod:`.within_bounds`);
+  the declared disturbance), and what the filter reads — the noise if it reads the
+  measured position, the initial observer error if it reads the observer's velocity — as
+  declared (``outside`` names each one that is not; :mod:`.within_bounds`);
 - ``feasible`` / ``infeasible_steps``: no step where the filter found the state not viable
   (``cbf_infeasible``: no torque verified, the backup acted) (None: no filter);
 - ``hard_kept`` / ``first_exit``: whether, and where first, a hard set was left, and the
@@ -29,9 +28,7 @@ true state:
   covered from then on (``covered_from_s``, :func:`covered_from`) (a start outside a set is
   one to recover from, reported, not kept); ``violations``: what the guarantee promised a
   covered run that did not hold (a hard set left, ε(t) exceeded, |τ| above the limit; from
-  the step it is covered from, a step not viable and a failed premise of the check — the
-  velocity's interval, the motion between samples, and the plan's tube where the filter
-  followed its plan; the tube elsewhere is measured and reported, not a violation:
+  the step it is covered from, a step not viable and a failed premise of the check:
   :func:`measured_premises`); ``broken``: covered with a violation;
 - ``torque``: where each joint's largest |τ| comes from (:func:`torque_peaks`): at
   start-up, before the filter first found the state viable, or later, and how much of it
