@@ -282,11 +282,9 @@ def measured_premises(trace: Signals, safe: SafeSet, start: int,
     """The check's premises measured from row ``start`` on (cosim/paper/premises.py): the
     steps where each failed (None: not measured, the signals or the check's bounds
     missing), the least room left (``tube_slack``, ``between_samples_room``: per quantity,
-    rad and rad/s), ``violations``, what failed, and ``tube_left``, the tube's excess;
-    ``plan_tube_*`` the tube on the rows where the filter followed the plan in force
-    (``cbf_planned``), which rest on its proof: held, a violation. On the other rows, where
-    a torque was verified afresh from the velocity's interval, the tube is measured and
-    reported (docs/safety/measurements.md, "The tube premise")."""
+    rad and rad/s), ``violations``, what failed, and ``tube_left``, the tube's excess (on
+    every row: reported); ``plan_tube_*`` the tube where the filter followed the plan in
+    force (``cbf_planned``), the rows that rest on its proof: held, a violation."""
     out: dict[str, Any] = {"violations": []}
     out["interval_exceeded_steps"], text = interval_exceedances(trace, start)
     out["violations"] += [text] if text else []
