@@ -127,6 +127,21 @@ def feedback_contraction(rate, h, dt):
 
 
 @no_refcount_jit(cache=True)
+def held_end(k, a, tau, limit, spread):
+    """A held step's predicted end: the rollout's row state (R_Q, R_V) moved by dt under its
+    q̈ (R_ACC), and there the nominal q̈ under τ held (R_ACC) and D for the velocity error
+    ``spread`` (R_DEV). The true q̈ over the step lies in the hull of q̈ ± 1.5 D at the
+    step's start and at this end (:func:`_held_drift`, :func:`.interval.predict_interval`)."""
+    r = a.work.rollout
+    q, vel, acc = r[R_Q], r[R_V], r[R_ACC]
+    for i in range(q.shape[0]):
+        q[i] += a.dt * vel[i] + 0.5 * a.dt * a.dt * acc[i]
+        vel[i] += a.dt * acc[i]
+    nominal_acceleration(k, a, tau, False, 0, limit)
+    deviation_bound(a, vel, spread, acc, r[R_DEV])
+
+
+@no_refcount_jit(cache=True)
 def _held_drift(k, a, first, limit, eps, widen):
     """Take q̈'s drift over a held step (``first`` held for dt) into the tube: the true q̈
     over the step lies in the hull of q̈ ± ``widen`` at the step's start (1.5 D there, per
@@ -141,10 +156,7 @@ def _held_drift(k, a, first, limit, eps, widen):
     n = q.shape[0]
     for i in range(n):
         held_q[i], held_v[i], held_acc[i] = q[i], vel[i], acc[i]
-        q[i] += a.dt * vel[i] + 0.5 * a.dt * a.dt * acc[i]
-        vel[i] += a.dt * acc[i]
-    nominal_acceleration(k, a, first, False, 0, limit)
-    deviation_bound(a, vel, eps, acc, deviation)
+    held_end(k, a, first, limit, eps)
     for i in range(n):
         # the hull of q̈ ± W at the start and q̈ ± W at the end: its middle and half-width
         low = min(held_acc[i] - widen[i], acc[i] - TUBE_SAFETY * deviation[i])

@@ -11,7 +11,7 @@ import numpy as np
 
 from ...numba_compat import no_refcount_jit
 from .backup import nominal_acceleration
-from .check import TUBE_SAFETY
+from .check import TUBE_SAFETY, held_end
 from .deviation import deviation_bound, fixed_deviation
 from .scratch import (
     CONSISTENT,
@@ -85,16 +85,14 @@ def predict_interval(k, a, tau):
             return
     deviation, acceleration = r[R_DEV], r[R_ACC]
     fixed_deviation(a, r[R_HALF])
+    nominal_acceleration(k, a, tau, False, 0, a.torque_limit)
+    deviation_bound(a, r[R_V], r[R_HALF], acceleration, deviation)
     for end in range(2):
-        nominal_acceleration(k, a, tau, False, 0, a.torque_limit)
-        deviation_bound(a, r[R_V], r[R_HALF], acceleration, deviation)
+        if end == 1:  # the step's predicted end
+            held_end(k, a, tau, a.torque_limit, r[R_HALF])
         for i in range(n):
             low[i] = min(low[i], acceleration[i] - TUBE_SAFETY * deviation[i])
             high[i] = max(high[i], acceleration[i] + TUBE_SAFETY * deviation[i])
-        if end == 0:  # to the predicted end of the step
-            for i in range(n):
-                r[R_Q, i] += a.dt * r[R_V, i] + 0.5 * a.dt * a.dt * acceleration[i]
-                r[R_V, i] += a.dt * acceleration[i]
     for i in range(n):
         r[R_ACC_LOW, i], r[R_ACC_HIGH, i] = low[i], high[i]  # the check's bound on q̈
         low[i] = r[R_CENTRE, i] - r[R_HALF, i] + a.dt * low[i]
