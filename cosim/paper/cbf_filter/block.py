@@ -217,6 +217,8 @@ class CbfFilter(Block):
         self.publishes = {FILTER_ASSUMES: FilterAssumptions(
             self.position, self.velocity, limit, np.zeros(context.links), keeps)}
         self.backup_step = rollout_step(params.backup_step, context.dt)
+        # a rollout step where a torque limit binds is one control step (check.verified)
+        self.segments = int(np.ceil(params.backup_horizon / context.dt)) + 2
         if params.solver == "newton":
             self.kernel = cbf_step
         else:
@@ -309,7 +311,7 @@ class CbfFilter(Block):
                                             ("active_norms", "_norm_active", (steps,)))},
             work=self.bind(CbfWork, ports, sizes={
                 "rows": rows, "d": dim, "corners": (2**dim - 1) * p.payload_grid + 1,
-                "segments": int(np.ceil(p.backup_horizon / self.backup_step)) + 2},
+                "segments": self.segments},
                 corner_index=payload_corners(p.payload_grid, dim)))
 
     def step(self, k: int) -> bool:

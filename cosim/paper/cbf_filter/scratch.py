@@ -55,12 +55,13 @@ ROLL_MASS, ROLL_MINV, ROLL_LU, BACKUP_FACTOR = range(8, 12)
 # rollout's state; the tube's widening per step (TUBE_SAFETY D); the box the plan predicts
 # for the true state at the next step (position centre and half-width, velocity centre and
 # half-width); the check's bound on the true q̈ over the held step (its low and high ends);
-# the held step's start (q, q̇, q̈) while the check looks at its predicted end.
+# the held step's start (q, q̇, q̈) while the check looks at its predicted end; the
+# rollout's q̈ over its step's first hold (:func:`.check.held_average`).
 (R_Q, R_V, R_DQ, R_DV, R_TAU, R_ACC, R_BIAS, R_DEV, R_LIMIT_Q, R_LIMIT_V, R_TARGET, R_SCRATCH,
  R_CANDIDATE, R_CENTRE, R_HALF, R_NEXT_LOW, R_NEXT_HIGH, R_WEIGHT, R_QUADRATIC,
  R_FRICTION, R_WIDEN, R_BOX_Q, R_BOX_Q_HALF, R_BOX_V, R_BOX_V_HALF, R_ACC_LOW,
- R_ACC_HIGH, R_HELD_Q, R_HELD_V, R_HELD_ACC) = range(30)
-ROLLOUT_ROWS = 30
+ R_ACC_HIGH, R_HELD_Q, R_HELD_V, R_HELD_ACC, R_HOLD_ACC) = range(31)
+ROLLOUT_ROWS = 31
 # CbfWork.flags: CONSISTENT, 1 where the velocity's intervals met at this step; PLAN, the
 # backup policy of the last torque verified (a row of their own: an arm of one joint has a
 # rollout row of one)
@@ -78,11 +79,12 @@ FLAGS = 8
 # Of CbfWork.tube[buffer, segment] (n each): a rollout's segment, kept so that the plan it
 # verified can say where it puts the true state later (the tube measured along the run):
 # the nominal state at its start (q, q̇), the tube's half-widths there (δq, δv), its nominal
-# q̈, the tube's widening (TUBE_SAFETY D) and the share of δv the backup's feedback removes
-# over it; and of CbfWork.tube_steps[buffer, segment]: the segment's length, s (0 past the
-# rollout's last segment).
-T_Q, T_V, T_DQ, T_DV, T_ACC, T_WIDEN, T_FEEDBACK = range(7)
-TUBE_ROWS = 7
+# q̈ (over its first hold, and on average over its holds), the tube's widening
+# (TUBE_SAFETY D) and the share of δv the backup's feedback removes over it; and of
+# CbfWork.tube_steps[buffer, segment]: the segment's length, s (0 past the rollout's last
+# segment).
+T_Q, T_V, T_DQ, T_DV, T_ACC_FIRST, T_ACC, T_WIDEN, T_FEEDBACK = range(8)
+TUBE_ROWS = 8
 # The hard rows in groups (cosim.paper.cbf_filter.rows): a joint's side of a hard set, now or
 # at the hold's end, one row per payload corner c, g_c = g_0 + Σ_j s_cj u_j with the limit
 # h_c = h_0 + Σ_j s_cj o_j (unscaled). Of CbfWork.group_values: h_0, a bound on every ‖g_c‖,
