@@ -137,14 +137,14 @@ MUTANTS = [
     # a step where a limit binds in the backup without q̈'s drift over it
     ("cbf-limited-drift-dropped", "cosim/paper/cbf_filter/check.py",
      "        if held or clipped:\n", "        if held or not backup:\n",
-     ["tests/test_rollout_holds.py"]),
+     ["tests/test_rollout_holds.py", "tests/test_viability.py"]),
     # a step where a limit binds in the backup over several holds (backup_step)
     ("cbf-limited-step-several-holds", "cosim/paper/cbf_filter/check.py",
      "h = a.backup_step if backup and not clipped else a.dt",
      "h = a.backup_step if backup else a.dt", ["tests/test_rollout_holds.py"]),
     # a free backup's step at its first hold's q̈ throughout (not the holds' average)
     ("cbf-held-average-dropped", "cosim/paper/cbf_filter/check.py",
-     "            held_average(a, h)\n", "            pass\n", ["tests/test_rollout_holds.py"]),
+     "            held_average(a, h)\n", "            pass\n", ["tests/test_viability.py"]),
     # the payload's departure at the range's ends only (the grid's first and last point)
     ("cbf-payload-ends-only", "cosim/paper/cbf_filter/deviation.py",
      "start, end = weight * s_grid[g, j], weight * s_grid[g + 1, j]",
