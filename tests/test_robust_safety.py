@@ -543,17 +543,22 @@ def test_the_backup_brakes_within_braking_torque_where_that_is_verified():
 
 def test_braking_at_start_up_the_true_state_keeps_the_plans_tube_where_the_filter_follows_it():
     """The plan's tube is held where the filter follows its plan (cosim/paper/premises.py).
-    baseline_cbf (the true velocity, ε = 0) from the project distribution's start where it
-    left that tube furthest before the check took the candidate step's drift: at start-up
-    braking the candidate's torque, held over the 1 ms step, drifts in q̈ by more than the
-    tube's D, and on the rows that followed the plan the true q̇ went 0.031 rad/s past the
-    room the check leaves (mutant cbf-candidate-drift-dropped; 22 of 73 covered runs left
-    the tube on some row, 3 where the plan was followed; docs/safety/measurements.md, "The
-    tube premise"). With the drift: covered, the plan's tube kept with room to spare."""
+    baseline_cbf (the true velocity, ε = 0) from the project distribution's sample 108, the
+    one full-state run of its 200 at 2000 N·m that still left the plan's tube with the
+    candidate step's drift taken (by 0.0016 rad/s, broken, at 44193ca), braking at
+    start-up: joint 1 at 12.7 rad/s, 3.2 kg on the 2.3 kg link. A torque held over a 1 ms
+    step drifts in q̈ by more than the tube's D there: the candidate's step (mutant
+    cbf-candidate-drift-dropped) and a backup's step where a limit binds, which took the
+    first hold's q̈ for 2 ms before. With both taken: covered, the plan followed and its
+    tube kept with room to spare. (The start this test ran from before, where the plan's
+    tube was left furthest without the candidate's drift, 0.031 rad/s at 0426454, now
+    verifies a torque afresh at every step: no plan is followed there.)"""
     pipeline = load_pipeline(MC, [
-        'plant.parameters."q0[1]"=0.476071', 'plant.parameters."q0[2]"=-0.074912',
-        'plant.parameters."qdot0[1]"=13.26808', 'plant.parameters."qdot0[2]"=13.276226',
-        'plant.parameters."m[2]"=3.18488', "sensor.seed=871421",
+        'plant.parameters."q0[1]"=-0.2376148038108299',
+        'plant.parameters."q0[2]"=-0.25466337557561725',
+        'plant.parameters."qdot0[1]"=12.747330486829124',
+        'plant.parameters."qdot0[2]"=8.824556995306782',
+        'plant.parameters."m[2]"=3.226966707284615', "sensor.seed=463058",
         "cbf_filter.torque_limit=2000", "simulation.duration=0.1"])
     pipeline.runs = {"baseline_cbf": pipeline.runs["baseline_cbf"]}
     g = run(pipeline, None, progress=False)["baseline_cbf"].metrics["guarantee"]

@@ -31,10 +31,10 @@ def guarantee(name: str, sets: list[str]) -> dict:
 
 
 def test_a_free_joint_pulled_at_200_per_second_keeps_the_plans_tube():
-    """Sample 21: joint 1 brakes towards its −20 rad bound while joint 2, free, is pulled by
-    the backup at 200 1/s. With the first hold's q̈ over each 2 ms step, joint 2's true
-    velocity left the plan's tube by 0.237 rad/s past its room at t = 0.187 s (broken;
-    mutant cbf-held-average-dropped). With the holds' average: covered, not broken, the
+    """Sample 21: joint 1 brakes at its limit towards its −20 rad bound while joint 2, free,
+    is pulled by the backup at 200 1/s. With the first hold's q̈ over each 2 ms step, limit
+    or not, joint 2's true velocity left the plan's tube by 0.237 rad/s past its room at
+    t = 0.187 s (broken). Stepped as the filter holds the backup: covered, not broken, the
     plan followed and its tube kept with room."""
     g = guarantee("proposed_cbf", [
         'plant.parameters."q0[1]"=-18.01268629317071',
@@ -53,9 +53,9 @@ def test_both_joints_at_their_braking_limit_keep_the_checks_tube():
     """Sample 44 (baseline_cbf, the true velocity): joint 1 at 19.2 rad moving outward,
     joint 2 at 13.4 rad/s. Braking both at the 1000 N·m braking_torque over a 2 ms step of
     the rollout, q̈ drifts with the bias as the state moves, and the true velocity left the
-    plan's tube by 0.011 rad/s past its room at t = 0.151 s (broken; mutants
-    cbf-limited-step-several-holds, cbf-limited-drift-dropped). With a limited step one
-    hold, its drift taken: covered, not broken, the tube kept with room on every row."""
+    plan's tube by 0.011 rad/s past its room at t = 0.151 s (broken, with the holds'
+    average alone). With a limited step one hold, its drift taken: covered, not broken, the
+    tube kept with room on every row."""
     g = guarantee("baseline_cbf", [
         'plant.parameters."q0[1]"=19.2306988493742',
         'plant.parameters."q0[2]"=0.39794290785886555',
