@@ -550,9 +550,8 @@ def test_braking_at_start_up_the_true_state_keeps_the_plans_tube_where_the_filte
     step drifts in q̈ by more than the tube's D there: the candidate's step (mutant
     cbf-candidate-drift-dropped) and a backup's step where a limit binds, which took the
     first hold's q̈ for 2 ms before. With both taken: covered, the plan followed and its
-    tube kept with room to spare. (The start this test ran from before, where the plan's
-    tube was left furthest without the candidate's drift, 0.031 rad/s at 0426454, now
-    verifies a torque afresh at every step: no plan is followed there.)"""
+    tube kept with room to spare. (The start this test ran from before now verifies a
+    torque afresh at every step, and no plan is followed there: the next test.)"""
     pipeline = load_pipeline(MC, [
         'plant.parameters."q0[1]"=-0.2376148038108299',
         'plant.parameters."q0[2]"=-0.25466337557561725',
@@ -565,6 +564,26 @@ def test_braking_at_start_up_the_true_state_keeps_the_plans_tube_where_the_filte
     assert g["covered"] is True and g["broken"] is False, g["violations"]
     assert g["plan_tube_exceeded_steps"] == 0 and g["tube_exceeded_steps"] == 0
     assert g["plan_tube_slack"]["velocity"] > 0.0 and g["plan_tube_slack"]["position"] > 0.0
+
+
+def test_braking_at_start_up_from_both_joints_near_the_velocity_bound_keeps_the_checks_tube():
+    """baseline_cbf from the project distribution's start where the plan's tube was left
+    furthest before the check took the candidate step's drift (0.031 rad/s past the room
+    it leaves, at 0426454; mutant cbf-candidate-drift-dropped): both joints at 13.3 rad/s,
+    braking with the whole 2000 N·m at start-up. The candidate's torque, held over the 1 ms
+    step, drifts in q̈ by more than the tube's D. With the drift taken the filter verifies
+    a torque afresh at every step here, and the true state keeps the check's tube on every
+    row with room."""
+    pipeline = load_pipeline(MC, [
+        'plant.parameters."q0[1]"=0.476071', 'plant.parameters."q0[2]"=-0.074912',
+        'plant.parameters."qdot0[1]"=13.26808', 'plant.parameters."qdot0[2]"=13.276226',
+        'plant.parameters."m[2]"=3.18488', "sensor.seed=871421",
+        "cbf_filter.torque_limit=2000", "simulation.duration=0.1"])
+    pipeline.runs = {"baseline_cbf": pipeline.runs["baseline_cbf"]}
+    g = run(pipeline, None, progress=False)["baseline_cbf"].metrics["guarantee"]
+    assert g["covered"] is True and g["broken"] is False, g["violations"]
+    assert g["plan_tube_exceeded_steps"] == 0 and g["tube_exceeded_steps"] == 0
+    assert g["tube_slack"]["velocity"] > 0.0 and g["tube_slack"]["position"] > 0.0
 
 
 def test_start_up_brakes_within_startup_torque_until_the_first_viable_step():
