@@ -8,7 +8,8 @@ out rather than by its sensitivities).
 The check (:func:`verified`) rolls the nominal model out from the estimate (y, v), carrying
 the middle of the declared payload range (:func:`.backup.rollout_payload`; the backup's torque
 too): the candidate torque held over one step, then the backup, in steps of
-``backup_step``, until every joint is stopped (|v − q̇_s − w| ≤ ``STOPPED``) or
+``backup_step`` (of one control step where a torque limit binds in it), until every joint
+is stopped (|v − q̇_s − w| ≤ ``STOPPED``) or
 ``backup_horizon`` has passed (unverified). Around the nominal rollout a tube of
 half-widths δq, δv holds the true state: δq(0) = n̄ (noise), δv(0) = the half-width of the
 velocity's interval (:func:`.interval.velocity_interval`, at most ε), and per step, with D taken
@@ -25,12 +26,15 @@ true velocity, so the true velocity's departure u from the rollout's obeys
 u̇ = −k_b (u + e) + Δ, |e| ≤ ε, |Δ| ≤ D. The factor 1.5 is empirical: D is taken at the
 rollout's state with the spread ε, while over a held step the true state departs from it
 by δv (docs/safety/filter.md, "The check"). A torque held over a whole step drifts in q̈
-as the state moves: the candidate's step always, and, where the rollout's step is the
-control step (``backup_step`` ≥ dt: from 2 ms at the default), every step of the backup
-too. Over such a step the tube's centre takes the middle of the hull of q̈ ± 1.5 D at the
-step's start and at its predicted end, and 1.5 D_i its half-width (:func:`_held_drift`), as
-the velocity's interval is predicted (:func:`.interval.predict_interval`). At shorter steps
-the backup is re-evaluated within a rollout step (its feedback is what f models). Without
+as the state moves: the candidate's step always, every step where a limit binds in the
+backup (whose q̈ is then the small QP's, moving with the bias as a held torque's does),
+and, where the rollout's step is the control step (``backup_step`` ≥ dt: from 2 ms at the
+default), every step of the backup too. Over such a step the tube's centre takes the
+middle of the hull of q̈ ± 1.5 D at the step's start and at its predicted end, and
+1.5 D_i its half-width (:func:`_held_drift`), as the velocity's interval is predicted
+(:func:`.interval.predict_interval`). Over a free backup's step of several holds the
+backup is re-evaluated at each: its feedback on the departure is what f models, and the
+fall of its own q̈ is the holds' average (:func:`held_average`). Without
 the candidate's drift at 1 ms, 22 of 73 covered full-state runs on the project's
 distribution left the tube at start-up braking (docs/safety/measurements.md, "The tube
 premise"). D_i is the
