@@ -142,6 +142,10 @@ MUTANTS = [
     ("cbf-limited-step-several-holds", "cosim/paper/cbf_filter/check.py",
      "h = a.backup_step if backup and not clipped else a.dt",
      "h = a.backup_step if backup else a.dt", ["tests/test_rollout_holds.py"]),
+    # the plan's box inside a step of several holds at the first hold's q̈ throughout
+    ("cbf-held-travel-first-order", "cosim/paper/cbf_filter/check.py",
+     "    remains = (1.0 - c) ** holds\n", "    remains = 1.0 - c * holds\n",
+     ["tests/test_viability.py"]),
     # a free backup's step at its first hold's q̈ throughout (not the holds' average)
     ("cbf-held-average-dropped", "cosim/paper/cbf_filter/check.py",
      "            held_average(a, h)\n", "            pass\n", ["tests/test_viability.py"]),

@@ -181,9 +181,12 @@ def held_average(a, h):
     faster than the filter does, by c dt |q̈_0| m (m − 1)/2 in velocity after a step to first
     order: 0.2 dt |q̈_0| at 200 1/s and m = 2, up to 0.24 rad/s along a rollout
     (docs/safety/filter.md, "The check"). With the average, Σ_k (1 − c)^k / m = f / (m c),
-    the rollout's velocity after the step is the holds' (its position is within
-    ½ dt² c |q̈_0| a step of theirs, in the room ``bound_margin`` leaves between the check's
-    points). A step where a limit binds is one hold (:func:`verified`)."""
+    the rollout's velocity after the step is the holds'. Its position is ahead of theirs in
+    the direction of motion (conservative) by c dt² |q̈_0| m (m² − 1)/12 a step to first
+    order (½ dt² c |q̈_0| at m = 2; over a braking from 13 rad/s at 1 ms, 1.7e-4 rad at
+    50 1/s and 7.2e-4 rad at 200 1/s, in the room ``bound_margin`` leaves between the
+    check's points). Inside the step, the plan's box takes the holds' own velocities
+    (:func:`held_travel`). A step where a limit binds is one hold (:func:`verified`)."""
     r = a.work.rollout
     acc, first = r[R_ACC], r[R_HOLD_ACC]
     c = min(a.backup_rate * a.dt, 1.0)
@@ -193,6 +196,19 @@ def held_average(a, h):
     for i in range(acc.shape[0]):
         first[i] = acc[i]
         acc[i] *= share
+
+
+@no_refcount_jit(cache=True, inline="always")
+def held_travel(a, h, s):
+    """The velocity a step of h moves by after s, per unit of its first hold's q̈: s where
+    the step is one hold (its q̈ constant), else the holds' Σ_{k<J} (1 − c)^k dt (J = s/dt,
+    c = k_b dt: :func:`held_average`) and the next hold's share of the rest."""
+    c = min(a.backup_rate * a.dt, 1.0)
+    if h <= a.dt * (1.0 + 1e-9) or c <= 0.0:
+        return s
+    holds = np.floor(s / a.dt + 1e-9)
+    remains = (1.0 - c) ** holds
+    return a.dt * (1.0 - remains) / c + (s - holds * a.dt) * remains
 
 
 @no_refcount_jit(cache=True)
@@ -223,17 +239,55 @@ def plan_box(k, a):
                                  + 0.5 * s * s * segment[T_ACC, i])
                 r[R_BOX_Q_HALF, i] = (segment[T_DQ, i] + s * segment[T_DV, i]
                                       + 0.5 * s * s * segment[T_WIDEN, i])
-                # the first hold at its own q̈, then the rest of the step's (held_average)
-                first = min(s, a.dt)
-                rest = 0.0 if h <= a.dt * (1.0 + 1e-9) else \
-                    (s - first) * (h * segment[T_ACC, i] - a.dt * segment[T_ACC_FIRST, i]) \
-                    / (h - a.dt)
-                r[R_BOX_V, i] = segment[T_V, i] + first * segment[T_ACC_FIRST, i] + rest
+                r[R_BOX_V, i] = segment[T_V, i] + segment[T_ACC_FIRST, i] * held_travel(a, h, s)
                 share = segment[T_FEEDBACK, i] * s / h
                 r[R_BOX_V_HALF, i] = max(segment[T_DV, i] * (1.0 - share) + share * eps[i]
                                          + segment[T_WIDEN, i] * s, eps[i])
             return
         start += h
+
+
+@no_refcount_jit(cache=True, inline="always")
+def _advance(a, segment, h, eps, backup, stopped, limit, decay):
+    """One step h of the rollout and its tube (module docstring), kept in ``segment``, the
+    state's excess over a set it started outside of allowed to shrink by ``decay``: −1 if
+    a hard set is left, else 1 if every joint has stopped (``stopped``: the step's backup
+    is free of its limits), else 0."""
+    r = a.work.rollout
+    q, vel, dq, dv, acc, widen = r[R_Q], r[R_V], r[R_DQ], r[R_DV], r[R_ACC], r[R_WIDEN]
+    limit_q, limit_v = r[R_LIMIT_Q], r[R_LIMIT_V]
+    n = q.shape[0]
+    contraction = feedback_contraction(a.backup_rate, h, a.dt)  # the step's, every joint's
+    for i in range(n):
+        # the backup's feedback acts on a joint whose torque is free (the held torque:
+        # on none): a limited joint brakes as hard as it can, the others still steer
+        free = backup and abs(r[R_TAU, i]) < limit[i] * (1.0 - 1e-9)
+        feedback = contraction if free else 0.0
+        segment[T_Q, i], segment[T_V, i], segment[T_ACC, i] = q[i], vel[i], acc[i]
+        segment[T_ACC_FIRST, i] = r[R_HOLD_ACC, i]
+        segment[T_DQ, i], segment[T_DV, i] = dq[i], dv[i]
+        segment[T_WIDEN, i], segment[T_FEEDBACK, i] = widen[i], feedback
+        # exact for q̈ constant over the step (the position's error would be ~v·h/2),
+        # with its turning point inside the step checked too
+        turn = q[i]
+        if vel[i] * acc[i] < 0.0 and abs(vel[i]) < abs(acc[i]) * h:
+            turn = q[i] - 0.5 * vel[i] * vel[i] / acc[i]
+        q[i] += h * vel[i] + 0.5 * h * h * acc[i]
+        vel[i] += h * acc[i]
+        dq[i] += h * dv[i] + 0.5 * h * h * widen[i]
+        # the feedback acts on the estimate e within ε of the true velocity: the true
+        # velocity's departure u from the rollout's obeys u̇ = −k_b (u + e) + Δ, |Δ| ≤ D,
+        # so |u| grows by at most f ε + D h a step as the feedback f contracts it
+        dv[i] = max(dv[i] * (1.0 - feedback) + feedback * eps[i] + widen[i] * h, eps[i])
+        allowed_q = a.viable_bounds[0, i] + (limit_q[i] - a.viable_bounds[0, i]) * decay
+        allowed_v = a.viable_bounds[1, i] + (limit_v[i] - a.viable_bounds[1, i]) * decay
+        if a.hard[0] and max(abs(q[i] - a.centres[0, i]), abs(turn - a.centres[0, i])) + dq[i] \
+                > allowed_q:
+            return -1
+        if a.hard[1] and abs(vel[i] - a.centres[1, i]) + dv[i] > allowed_v:
+            return -1
+        stopped = stopped and abs(vel[i] - a.centres[1, i] - r[R_TARGET, i]) <= STOPPED
+    return 1 if stopped else 0
 
 
 @no_refcount_jit(cache=True)
@@ -284,42 +338,13 @@ def verified(k, a, y, v, eps, first, hold, policy, limit):
         else:  # a step of several holds, the backup re-evaluated at each
             held_average(a, h)
         decay = np.exp(-a.recovery_rate * (t + h))
-        contraction = feedback_contraction(a.backup_rate, h, a.dt)  # the step's, every joint's
-        stopped = backup and not clipped
-        segment = tube[step]
-        for i in range(n):
-            # the backup's feedback acts on a joint whose torque is free (the held torque:
-            # on none): a limited joint brakes as hard as it can, the others still steer
-            free = backup and abs(r[R_TAU, i]) < limit[i] * (1.0 - 1e-9)
-            feedback = contraction if free else 0.0
-            segment[T_Q, i], segment[T_V, i], segment[T_ACC, i] = q[i], vel[i], acc[i]
-            segment[T_ACC_FIRST, i] = r[R_HOLD_ACC, i]
-            segment[T_DQ, i], segment[T_DV, i] = dq[i], dv[i]
-            segment[T_WIDEN, i], segment[T_FEEDBACK, i] = widen[i], feedback
-            # exact for q̈ constant over the step (the position's error would be ~v·h/2),
-            # with its turning point inside the step checked too
-            turn = q[i]
-            if vel[i] * acc[i] < 0.0 and abs(vel[i]) < abs(acc[i]) * h:
-                turn = q[i] - 0.5 * vel[i] * vel[i] / acc[i]
-            q[i] += h * vel[i] + 0.5 * h * h * acc[i]
-            vel[i] += h * acc[i]
-            dq[i] += h * dv[i] + 0.5 * h * h * widen[i]
-            # the feedback acts on the estimate e within ε of the true velocity: the true
-            # velocity's departure u from the rollout's obeys u̇ = −k_b (u + e) + Δ, |Δ| ≤ D,
-            # so |u| grows by at most f ε + D h a step as the feedback f contracts it
-            dv[i] = max(dv[i] * (1.0 - feedback) + feedback * eps[i] + widen[i] * h, eps[i])
-            allowed_q = a.viable_bounds[0, i] + (limit_q[i] - a.viable_bounds[0, i]) * decay
-            allowed_v = a.viable_bounds[1, i] + (limit_v[i] - a.viable_bounds[1, i]) * decay
-            if a.hard[0] and max(abs(q[i] - a.centres[0, i]), abs(turn - a.centres[0, i])) + dq[i] \
-                    > allowed_q:
-                return False
-            if a.hard[1] and abs(vel[i] - a.centres[1, i]) + dv[i] > allowed_v:
-                return False
-            stopped = stopped and abs(vel[i] - a.centres[1, i] - r[R_TARGET, i]) <= STOPPED
+        state = _advance(a, tube[step], h, eps, backup, backup and not clipped, limit, decay)
+        if state < 0:
+            return False
         lengths[step] = h
         t += h
         step += 1
-        if stopped:
+        if state > 0:  # every joint stopped
             if step < lengths.shape[0]:
                 lengths[step] = 0.0  # the rollout's end
             # verified: this rollout is the plan (the next check writes the other buffer)
