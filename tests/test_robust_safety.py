@@ -541,6 +541,23 @@ def test_the_backup_brakes_within_braking_torque_where_that_is_verified():
         assert np.all(np.abs(trace["qdot"]) <= 13.5) and np.all(trace["cbf_viable"] == 1.0)
 
 
+def start_up_guarantee(q1: float, q2: float, v1: float, v2: float, m2: float,
+                       seed: int) -> dict:
+    """baseline_cbf's first 0.1 s from a start of the project's distribution at 2000 N·m
+    (rad, rad/s, kg): its guarantee, asserted covered, not broken and inside the check's
+    tube (and the plan's) on every row."""
+    pipeline = load_pipeline(MC, [
+        f'plant.parameters."q0[1]"={q1}', f'plant.parameters."q0[2]"={q2}',
+        f'plant.parameters."qdot0[1]"={v1}', f'plant.parameters."qdot0[2]"={v2}',
+        f'plant.parameters."m[2]"={m2}', f"sensor.seed={seed}",
+        "cbf_filter.torque_limit=2000", "simulation.duration=0.1"])
+    pipeline.runs = {"baseline_cbf": pipeline.runs["baseline_cbf"]}
+    g = run(pipeline, None, progress=False)["baseline_cbf"].metrics["guarantee"]
+    assert g["covered"] is True and g["broken"] is False, g["violations"]
+    assert g["plan_tube_exceeded_steps"] == 0 and g["tube_exceeded_steps"] == 0
+    return g
+
+
 def test_braking_at_start_up_the_true_state_keeps_the_plans_tube_where_the_filter_follows_it():
     """The plan's tube is held where the filter follows its plan (cosim/paper/premises.py).
     baseline_cbf (the true velocity, ε = 0) from the project distribution's sample 108, the
@@ -552,17 +569,8 @@ def test_braking_at_start_up_the_true_state_keeps_the_plans_tube_where_the_filte
     first hold's q̈ for 2 ms before. With both taken: covered, the plan followed and its
     tube kept with room to spare. (The start this test ran from before now verifies a
     torque afresh at every step, and no plan is followed there: the next test.)"""
-    pipeline = load_pipeline(MC, [
-        'plant.parameters."q0[1]"=-0.2376148038108299',
-        'plant.parameters."q0[2]"=-0.25466337557561725',
-        'plant.parameters."qdot0[1]"=12.747330486829124',
-        'plant.parameters."qdot0[2]"=8.824556995306782',
-        'plant.parameters."m[2]"=3.226966707284615', "sensor.seed=463058",
-        "cbf_filter.torque_limit=2000", "simulation.duration=0.1"])
-    pipeline.runs = {"baseline_cbf": pipeline.runs["baseline_cbf"]}
-    g = run(pipeline, None, progress=False)["baseline_cbf"].metrics["guarantee"]
-    assert g["covered"] is True and g["broken"] is False, g["violations"]
-    assert g["plan_tube_exceeded_steps"] == 0 and g["tube_exceeded_steps"] == 0
+    g = start_up_guarantee(-0.2376148038108299, -0.25466337557561725, 12.747330486829124,
+                           8.824556995306782, 3.226966707284615, 463058)
     assert g["plan_tube_slack"]["velocity"] > 0.0 and g["plan_tube_slack"]["position"] > 0.0
 
 
@@ -574,15 +582,7 @@ def test_braking_at_start_up_from_both_joints_near_the_velocity_bound_keeps_the_
     step, drifts in q̈ by more than the tube's D. With the drift taken the filter verifies
     a torque afresh at every step here, and the true state keeps the check's tube on every
     row with room."""
-    pipeline = load_pipeline(MC, [
-        'plant.parameters."q0[1]"=0.476071', 'plant.parameters."q0[2]"=-0.074912',
-        'plant.parameters."qdot0[1]"=13.26808', 'plant.parameters."qdot0[2]"=13.276226',
-        'plant.parameters."m[2]"=3.18488', "sensor.seed=871421",
-        "cbf_filter.torque_limit=2000", "simulation.duration=0.1"])
-    pipeline.runs = {"baseline_cbf": pipeline.runs["baseline_cbf"]}
-    g = run(pipeline, None, progress=False)["baseline_cbf"].metrics["guarantee"]
-    assert g["covered"] is True and g["broken"] is False, g["violations"]
-    assert g["plan_tube_exceeded_steps"] == 0 and g["tube_exceeded_steps"] == 0
+    g = start_up_guarantee(0.476071, -0.074912, 13.26808, 13.276226, 3.18488, 871421)
     assert g["tube_slack"]["velocity"] > 0.0 and g["tube_slack"]["position"] > 0.0
 
 
