@@ -148,7 +148,8 @@ MUTANTS = [
      ["tests/test_viability.py"]),
     # a free backup's step at its first hold's q̈ throughout (not the holds' average)
     ("cbf-held-average-dropped", "cosim/paper/cbf_filter/check.py",
-     "            held_average(a, h)\n", "            pass\n", ["tests/test_viability.py"]),
+     "            held_average(a, h, contraction)\n", "            pass\n",
+     ["tests/test_viability.py"]),
     # the payload's departure at the range's ends only (the grid's first and last point)
     ("cbf-payload-ends-only", "cosim/paper/cbf_filter/deviation.py",
      "start, end = weight * s_grid[g, j], weight * s_grid[g + 1, j]",

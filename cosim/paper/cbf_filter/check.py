@@ -172,7 +172,7 @@ def _held_drift(k, a, first, limit, eps, widen):
 
 
 @no_refcount_jit(cache=True, inline="always")
-def held_average(a, h):
+def held_average(a, h, contraction):
     """The rollout's q̈ over a step of h = m dt, m > 1 holds of a backup no torque limit
     binds: its q̈ at each hold, averaged (into R_ACC; the first hold's into R_HOLD_ACC).
     The filter re-evaluates the backup at every control step dt and holds it, so over the
@@ -186,13 +186,14 @@ def held_average(a, h):
     order (½ dt² c |q̈_0| at m = 2; over a braking from 13 rad/s at 1 ms, 1.7e-4 rad at
     50 1/s and 7.2e-4 rad at 200 1/s, in the room ``bound_margin`` leaves between the
     check's points). Inside the step, the plan's box takes the holds' own velocities
-    (:func:`held_travel`). A step where a limit binds is one hold (:func:`verified`)."""
+    (:func:`held_travel`). A step where a limit binds is one hold (:func:`verified`).
+    ``contraction``: the step's f (:func:`feedback_contraction`)."""
     r = a.work.rollout
     acc, first = r[R_ACC], r[R_HOLD_ACC]
     c = min(a.backup_rate * a.dt, 1.0)
     share = 1.0
     if c > 0.0:
-        share = feedback_contraction(a.backup_rate, h, a.dt) / (max(1, round(h / a.dt)) * c)
+        share = contraction / (max(1, round(h / a.dt)) * c)
     for i in range(acc.shape[0]):
         first[i] = acc[i]
         acc[i] *= share
@@ -248,16 +249,16 @@ def plan_box(k, a):
 
 
 @no_refcount_jit(cache=True, inline="always")
-def _advance(a, segment, h, eps, backup, stopped, limit, decay):
+def _advance(a, segment, h, eps, backup, stopped, limit, decay, contraction):
     """One step h of the rollout and its tube (module docstring), kept in ``segment``, the
-    state's excess over a set it started outside of allowed to shrink by ``decay``: −1 if
-    a hard set is left, else 1 if every joint has stopped (``stopped``: the step's backup
-    is free of its limits), else 0."""
+    state's excess over a set it started outside of allowed to shrink by ``decay``, the
+    feedback removing the share ``contraction`` of a free joint's δv: −1 if a hard set is
+    left, else 1 if every joint has stopped (``stopped``: the step's backup is free of its
+    limits), else 0."""
     r = a.work.rollout
     q, vel, dq, dv, acc, widen = r[R_Q], r[R_V], r[R_DQ], r[R_DV], r[R_ACC], r[R_WIDEN]
     limit_q, limit_v = r[R_LIMIT_Q], r[R_LIMIT_V]
     n = q.shape[0]
-    contraction = feedback_contraction(a.backup_rate, h, a.dt)  # the step's, every joint's
     for i in range(n):
         # the backup's feedback acts on a joint whose torque is free (the held torque:
         # on none): a limited joint brakes as hard as it can, the others still steer
@@ -331,14 +332,16 @@ def verified(k, a, y, v, eps, first, hold, policy, limit):
         deviation_bound(a, vel, eps, acc, deviation)
         for i in range(n):
             widen[i] = TUBE_SAFETY * deviation[i]
+        contraction = feedback_contraction(a.backup_rate, h, a.dt)  # the step's, every joint's
         if held or clipped:
             _held_drift(k, a, r[R_TAU], limit, eps, widen)
             for i in range(n):
                 r[R_HOLD_ACC, i] = acc[i]
         else:  # a step of several holds, the backup re-evaluated at each
-            held_average(a, h)
+            held_average(a, h, contraction)
         decay = np.exp(-a.recovery_rate * (t + h))
-        state = _advance(a, tube[step], h, eps, backup, backup and not clipped, limit, decay)
+        state = _advance(a, tube[step], h, eps, backup, backup and not clipped, limit, decay,
+                         contraction)
         if state < 0:
             return False
         lengths[step] = h
