@@ -190,6 +190,9 @@ MUTANTS = [
      "    if False:", FILTER),
     ("cbf-braking-held-not-tried", "cosim/paper/cbf_filter/policy.py",
      "    if reserve and a.braking_reserve:", "    if False:", FILTER),
+    ("cbf-startup-policy-ignored", "cosim/paper/cbf_filter/policy.py",
+     "unplanned = a.torque_limit if flags[VIABLE_ONCE] > 0.0 else a.startup_torque",
+     "unplanned = a.torque_limit", ["tests/test_robust_safety.py"]),
     ("cbf-rows-left-out-always", "cosim/paper/cbf_filter/groups.py",
      "if scale * (reach[i] + room[i]) < limit + scale * side * base[i]:", "if True:", FILTER),
     # the steps the filter supports (cbf_filter/steps.py): the backup's hold allowed to

@@ -546,13 +546,15 @@ def torque_lines(rows: list[dict], compared: list[dict], compared_name: str) -> 
         text += f" against {compared_name}'s {theirs:.0f} N·m: ratio {median / theirs:.2f}"
     lines += [text, f"  peak τ1 spread                  min {quartiles[0]:.0f}, quartiles "
                     f"{quartiles[1]:.0f}-{quartiles[2]:.0f}, max {quartiles[3]:.0f} N·m"]
-    return lines + startup_lines(rows)
+    return lines + startup_lines(rows, compared, compared_name)
 
 
-def startup_lines(rows: list[dict]) -> list[str]:
+def startup_lines(rows: list[dict], compared: list[dict] = (),
+                  compared_name: str = "") -> list[str]:
     """Where the peak τ1 comes from (the guarantee's ``torque`` metrics, rows of a cosim
     that records them): in how many runs it falls before the filter first found the state
-    viable (start-up), and the median peak τ1 from then on."""
+    viable (start-up), the median peak τ1 from then on, and each run's start-up peak τ1
+    against the same sample's peak τ1 in ``compared`` (the unfiltered run), their median."""
     timed = [r for r in rows if isinstance(r.get("guarantee.torque.peak_at_startup.1"), bool)]
     if not timed:
         return []
@@ -561,12 +563,22 @@ def startup_lines(rows: list[dict]) -> list[str]:
              if isinstance(r.get("guarantee.torque.peak_after_startup.1"), float)]
     backup = [r["guarantee.torque.peak_backup_share.1"] for r in at_startup
               if isinstance(r.get("guarantee.torque.peak_backup_share.1"), float)]
-    return [f"  peak τ1 at start-up             {len(at_startup)} of {len(timed)} runs (before "
-            "the first viable step)"
-            + (f"; the backup's share of those peaks: median {np.median(backup):.2f}"
-               if backup else ""),
-            "  median peak τ1 after start-up   "
-            + (f"{np.median(after):.0f} N·m ({len(after)} runs ever viable)" if after else "-")]
+    theirs = {r.get("sample.index"): r.get("peak_torque.1") for r in compared}
+    ratios = [r["guarantee.torque.peak_during_startup.1"] / theirs[r.get("sample.index")]
+              for r in timed if isinstance(r.get("guarantee.torque.peak_during_startup.1"), float)
+              and theirs.get(r.get("sample.index"))]
+    lines = [f"  peak τ1 at start-up             {len(at_startup)} of {len(timed)} runs (before "
+             "the first viable step)"
+             + (f"; the backup's share of those peaks: median {np.median(backup):.2f}"
+                if backup else ""),
+             "  median peak τ1 after start-up   "
+             + (f"{np.median(after):.0f} N·m ({len(after)} runs ever viable)" if after else "-")]
+    if ratios:
+        quartiles = np.percentile(ratios, [25, 75])
+        lines.append(f"  start-up peak τ1 / {compared_name}'s peak τ1, per sample: median "
+                     f"{np.median(ratios):.2f} (quartiles {quartiles[0]:.2f}-{quartiles[1]:.2f}, "
+                     f"max {max(ratios):.2f}; {len(ratios)} runs with a start-up)")
+    return lines
 
 
 def kept_share(rows: list[dict], checks: list[str]) -> str:

@@ -372,8 +372,14 @@ def test_where_each_joints_peak_torque_comes_from():
     assert torque["peak_after_startup"] == pytest.approx(
         np.abs(trace["tau"][30:]).max(axis=0).tolist())
     assert torque["peak_after_startup"][0] < 50.0 + 1e-9
-    trace[VIABLE][:] = 0.0  # never viable: no "after start-up"
+    assert torque["peak_during_startup"] == pytest.approx(
+        [95.0, np.abs(trace["tau"][:30, 1]).max()])
+    trace[VIABLE][:] = 1.0  # viable at once: no start-up
+    assert judge(trace)["torque"]["peak_during_startup"] == [None, None]
+    trace[VIABLE][:] = 0.0  # never viable: no "after start-up", the whole run is start-up
     assert judge(trace)["torque"]["startup_steps"] is None
+    assert judge(trace)["torque"]["peak_during_startup"] == pytest.approx(
+        np.abs(trace["tau"]).max(axis=0).tolist())
     assert judge(trace)["torque"]["peak_after_startup"] == [None, None]
     assert judge(trace)["torque"]["peak_at_startup"] == [True, True]
     unlimited = OUTPUT_FEEDBACK._replace(torque_limit=np.full(2, np.inf))

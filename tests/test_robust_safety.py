@@ -499,7 +499,8 @@ def test_the_tracking_rows_ask_no_more_torque_than_the_controller_has():
 def test_the_backup_brakes_within_braking_torque_where_that_is_verified():
     """proposed_cbf at a 2000 N·m limit from a start of the project's distribution
     (x̂2(0) = 10 ± 5 rad/s reaches past the 13.5 rad/s bound: nothing is verified at first,
-    and the backup brakes with the whole limit either way). After start-up, with
+    and the backup brakes with the whole limit either way, startup_torque at the limit
+    where monte_carlo.toml declares 1000 N·m). After start-up, with
     braking_torque at the limits (nothing in reserve) the filter spends the whole limit
     again at the edge of its verified set; with 1000 N·m the limits beyond it are spent in a
     few steps only, where the check proves them needed. The hard sets hold (true state)
@@ -514,7 +515,7 @@ def test_the_backup_brakes_within_braking_torque_where_that_is_verified():
     sets = ["cbf_filter.torque_limit=2000", 'plant.parameters."q0[1]"=-0.198',
             'plant.parameters."q0[2]"=-0.182', 'plant.parameters."qdot0[1]"=12.166',
             'plant.parameters."qdot0[2]"=9.707', 'plant.parameters."m[2]"=2.715',
-            "sensor.seed=853457"]
+            "sensor.seed=853457", "cbf_filter.startup_torque=2000"]
     traces = {braking: simulated([*sets, f"cbf_filter.braking_torque={braking}"],
                                  "proposed_cbf", duration=0.3)[2]
               for braking in (1e9, 1000.0)}
@@ -587,18 +588,19 @@ def test_braking_at_start_up_from_both_joints_near_the_velocity_bound_keeps_the_
 
 
 def test_start_up_brakes_within_startup_torque_until_the_first_viable_step():
-    """The start-up policy: from the same start (nothing verified at first, the backup
-    brakes with the whole 2000 N·m limit by default), cbf_filter.startup_torque = 1000
-    bounds every joint's torque by 1000 N·m until the first viable step; from then on the
-    limits are the filter's again. The start becomes viable all the same, and the hard
-    sets hold (true state)."""
+    """The start-up policy: from the same start (nothing verified at first), with
+    startup_torque at the 2000 N·m limit (its default) the backup brakes with the whole
+    limit; with monte_carlo.toml's own cbf_filter.startup_torque = 1000 every joint's torque
+    is within 1000 N·m until the first viable step; from then on the limits are the
+    filter's again. The start becomes viable all the same, and the hard sets hold (true
+    state)."""
     sets = ["cbf_filter.torque_limit=2000", 'plant.parameters."q0[1]"=-0.221',
             'plant.parameters."q0[2]"=0.240', 'plant.parameters."qdot0[1]"=9.673',
             'plant.parameters."qdot0[2]"=8.705', 'plant.parameters."m[2]"=2.655',
             "sensor.seed=831061", "cbf_filter.braking_torque=1000"]
-    default = simulated(sets, "proposed_cbf", duration=0.3)[2]
-    policy = simulated([*sets, "cbf_filter.startup_torque=1000"], "proposed_cbf",
-                       duration=0.3)[2]
+    default = simulated([*sets, "cbf_filter.startup_torque=2000"], "proposed_cbf",
+                        duration=0.3)[2]
+    policy = simulated(sets, "proposed_cbf", duration=0.3)[2]
     for trace in (default, policy):
         assert np.all(np.abs(trace["qdot"]) <= 13.5) and np.all(np.abs(trace["q"]) <= 20.0)
     first = {name: int(np.argmax(trace["cbf_viable"] > 0))

@@ -155,12 +155,11 @@ def torque_violation(trace: Signals, assumes: FilterAssumptions | None
 
 def torque_peaks(trace: Signals, assumes: FilterAssumptions | None) -> dict | None:
     """Where each joint's largest |τ_i| comes from, for a filtered run: ``startup_steps``,
-    the steps before the first the filter found viable (None: never viable); per joint, the
-    peak's time ``peak_t`` (s), whether it fell in those steps ``peak_at_startup``, its
-    share of the torque limit ``peak_of_limit`` (None without a limit), the backup's share
-    of the torque at that step ``peak_backup_share``, and the largest |τ_i| from the first
-    viable step on, ``peak_after_startup`` (N·m). A filter that must brake an uncertain
-    start hard shows it here: a peak at start-up, the backup's, the rest of the run below."""
+    the steps before the first the filter found viable (None: never); per joint, the peak's
+    time ``peak_t`` (s), whether it fell in those steps ``peak_at_startup``, its share of the
+    torque limit ``peak_of_limit`` (None: no limit), the backup's share of the torque there
+    ``peak_backup_share``, and the largest |τ_i| before that first viable step
+    ``peak_during_startup`` (None: viable at once) and from it on ``peak_after_startup``, N·m."""
     if "tau" not in trace or not len(trace["tau"]):
         return None
     tau = np.abs(np.asarray(trace["tau"], float))
@@ -178,6 +177,8 @@ def torque_peaks(trace: Signals, assumes: FilterAssumptions | None) -> dict | No
                               for j, k in enumerate(at)],
             "peak_backup_share": [float(backup[k]) if backup is not None else None
                                   for k in at],
+            "peak_during_startup": [float(np.max(tau[:first, j])) if first != 0 else None
+                                    for j in range(joints)],
             "peak_after_startup": [float(np.max(tau[first:, j])) if first is not None else None
                                    for j in range(joints)]}
 
@@ -320,13 +321,13 @@ class Guarantee(Part):
     metric_units = {"filter_active_fraction": "1",
                     "guarantee.observer_bound_exceeded_steps": "steps",
                     "guarantee.torque_over_limit_steps": "steps",
-                    "guarantee.infeasible_steps": "steps",
-                    "guarantee.time_to_return_s": "s", "guarantee.first_exit.t": "s",
+                    "guarantee.infeasible_steps": "steps", "guarantee.first_exit.t": "s",
+                    "guarantee.time_to_return_s": "s",
                     "guarantee.torque.startup_steps": "steps", "guarantee.torque.peak_t": "s",
                     "guarantee.torque.peak_of_limit": "1",
                     "guarantee.torque.peak_backup_share": "1",
-                    "guarantee.torque.peak_after_startup": "N·m",
-                    "guarantee.covered_from_s": "s",
+                    "guarantee.torque.peak_during_startup": "N·m",
+                    "guarantee.torque.peak_after_startup": "N·m", "guarantee.covered_from_s": "s",
                     "guarantee.interval_exceeded_steps": "steps",
                     "guarantee.tube_exceeded_steps": "steps",
                     "guarantee.plan_tube_exceeded_steps": "steps",
