@@ -14,24 +14,15 @@ trust (exit status 1 on a regression):
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
-
-from plant_fmu.named_file import not_a_file, read_text
-
-from ..config.sections import check_name
 from ..evaluate.checks import VERDICT_KINDS, Kind, is_left, kind, unit
 from ..evaluate.parts import metric_unit
+from .compared_folder import CompareError, read_summary, verify_summary
 
 # Metrics that measure the machine, not the controller: shown, never called a change.
 TIMING = ("wall_time_s", "steps_per_second", "recording_handoff_s")
-
-
-class CompareError(Exception):
-    """A folder that cannot be compared: one line naming it."""
 
 
 @dataclass
@@ -39,156 +30,6 @@ class Comparison:
     lines: list[str] = field(default_factory=list)
     regressions: list[str] = field(default_factory=list)
     document: dict = field(default_factory=dict)  # the same, for --json
-
-
-def _summary(folder: Path, label: str) -> dict:
-    """A folder's summary.json, read strictly: a folder without one, a summary that is not
-    JSON, and a sweep's folder are each named as such."""
-    where = f"{label} {folder}"
-    path = folder / "summary.json"
-    if not folder.is_dir() or not_a_file(path) == "does not exist":
-        raise CompareError(f"{where}: not a cosim run folder (no summary.json with runs); "
-                           "give folders `cosim run --out` wrote")
-    try:
-        document = json.loads(read_text(path))
-    except (OSError, ValueError) as exc:
-        why = f"not JSON: {exc}" if isinstance(exc, ValueError) else str(exc)
-        raise CompareError(f"{where}: its summary.json cannot be read ({why}); give folders "
-                           "`cosim run --out` wrote, as it wrote them") from None
-    if isinstance(document, dict) and document.get("kind") == "sweep":
-        raise CompareError(f"{where}: a sweep's folder, not a run folder; compare two run "
-                           "folders (a sweep's --record writes its best and worst points' "
-                           "run folders), or read the sweep's results.parquet")
-    if not isinstance(document, dict) or "complete" not in document \
-            or not isinstance(document.get("runs"), dict):
-        raise CompareError(f"{where}: not a cosim run folder (no summary.json with runs); "
-                           "give folders `cosim run --out` wrote")
-    return document
-
-
-def _number(value: object) -> bool:
-    return isinstance(value, int | float) and not isinstance(value, bool)
-
-
-def _verified(folder: Path, label: str, summary: dict) -> None:
-    """:class:`CompareError` unless every check of every run is what its numbers say: a
-    bound and a worst value that are numbers, a verdict that is true or false, a kind
-    cosim knows; the verdict the worst value and the bound give (NaN: violated) is the
-    one stored; and the worst value and the verdict are those of the check's values in the
-    run's trace (trace_<run>.npz), which cosim wrote beside it. A compare gate must not
-    believe a summary edited, or damaged, into "no regression"."""
-    where = f"{label} {folder}: summary.json's"
-    simulation = (summary.get("pipeline") or {}).get("simulation") or {}
-    for key in ("duration", "step"):
-        if key in simulation and not _number(simulation[key]):
-            raise CompareError(f"{where} pipeline.simulation.{key} = "
-                               f"{json.dumps(simulation[key])[:40]} is not a number")
-    for name, run in summary["runs"].items():
-        try:
-            check_name(name, "run name")
-        except ValueError as exc:
-            raise CompareError(f"{where} runs: {exc}") from None
-        safety = run.get("safety") if isinstance(run, dict) else None
-        if not isinstance(run, dict) or not isinstance(safety, dict | None):
-            raise CompareError(f"{where} runs.{name} is not a run's table (its safety a table "
-                               "of checks)")
-        done = (run.get("metrics") or {}).get("simulated_time_s")
-        if done is not None and not _number(done):
-            raise CompareError(f"{where} runs.{name}.metrics.simulated_time_s = "
-                               f"{json.dumps(done)[:40]} is not a number")
-        if not safety:
-            continue
-        rows = (round(simulation["duration"] / simulation["step"]) + 1
-                if simulation.get("duration") and simulation.get("step") else None)
-        trace = _TraceChecks(folder, label, name, rows)
-        try:
-            for check, entry in safety.items():
-                _check_verified(f"{where} runs.{name}.safety.{check}", entry, trace, check)
-        finally:
-            trace.close()
-
-
-def _check_verified(key: str, entry: object, trace: _TraceChecks, check: str) -> None:
-    """One check's entry against itself and its trace (see :func:`_verified`)."""
-    if not isinstance(entry, dict):
-        raise CompareError(f"{key} is not a check's table")
-    bound, worst, satisfied = entry.get("bound"), entry.get("worst"), entry.get("satisfied")
-    for field_, value, valid, what in (
-            ("bound", bound, _number(bound), "a number"),
-            ("worst", worst, worst is None or _number(worst), "a number (or null: unknown)"),
-            ("satisfied", satisfied, satisfied is None or isinstance(satisfied, bool),
-             "true or false (or null: unknown)"),
-            ("attainable", entry.get("attainable"),
-             isinstance(entry.get("attainable"), bool | None), "true or false"),
-            ("kind", entry.get("kind"), entry.get("kind", Kind.SOFT) in set(Kind),
-             f"one of {', '.join(Kind)}")):
-        if not valid:
-            raise CompareError(f"{key}.{field_} = {json.dumps(value)[:40]} is not {what}")
-    u = f" {unit(entry)}".rstrip()
-    held = None if worst is None else bool(worst <= bound)  # NaN: not known inside, not held
-    # a row of ±inf is outside its set without being the worst finite value
-    excused = held is True and satisfied is False and "rows_unknown" in entry
-    if satisfied is not held and not excused:
-        raise CompareError(f"{key} disagrees with its own numbers: satisfied = "
-                           f"{json.dumps(satisfied)}, but its worst value "
-                           + (f"is unknown (null) against its bound {bound}{u}" if worst is None
-                              else f"is NaN, not known to be within its bound {bound}{u}"
-                              if worst != worst else
-                              f"{worst}{u} is {'within' if held else 'beyond'} its bound "
-                              f"{bound}{u}")
-                           + "; a summary.json edited or damaged is not judged")
-    values = trace.values(check, key)
-    known = values[np.isfinite(values)]
-    traced_worst = float(np.max(np.abs(known))) if known.size else None
-    traced_held = None if traced_worst is None else not bool((np.abs(values) > bound).any())
-    if traced_worst != worst or traced_held is not satisfied:
-        raise CompareError(f"{key} disagrees with the run's trace: worst {worst}{u}, "
-                           f"satisfied = {json.dumps(satisfied)} in summary.json; worst "
-                           f"{traced_worst}{u}, satisfied = {json.dumps(traced_held)} from "
-                           f"{trace.path.name}'s check_{check} against the bound {bound}{u}; "
-                           "a summary.json edited or damaged is not judged")
-
-
-class _TraceChecks:
-    """The check values of a run's trace file, read as they are asked for, each at most
-    ``rows`` long (the run's steps + 1; None: unknown): an entry that says it is larger is
-    refused before it is read (a shared folder's trace could declare terabytes)."""
-
-    def __init__(self, folder: Path, label: str, run: str, rows: int | None):
-        self.path = folder / f"trace_{run}.npz"
-        self.where = f"{label} {folder}"
-        self.largest = NPY_HEADER + 8 * rows if rows is not None else None
-        why = not_a_file(self.path)
-        if why is not None:
-            raise CompareError(f"{self.where}: {self.path.name} {why}, so the checks of run "
-                               f"{run} cannot be verified against their values; give folders "
-                               "`cosim run --out` wrote, as it wrote them")
-        try:
-            self.archive = np.load(self.path, allow_pickle=False)
-        except (OSError, ValueError) as exc:
-            raise CompareError(f"{self.where}: {self.path.name} cannot be read ({exc})") \
-                from None
-
-    def values(self, check: str, key: str) -> np.ndarray:
-        entry = f"check_{check}"
-        if entry not in self.archive.files:
-            raise CompareError(f"{key} has no values in {self.path.name} (no {entry}): the "
-                               "summary names a check its trace does not hold")
-        try:
-            size = self.archive.zip.getinfo(f"{entry}.npy").file_size
-            if self.largest is not None and size > self.largest:
-                raise ValueError(f"it says it holds {size} bytes, more than the run's rows "
-                                 f"take ({self.largest})")
-            return np.asarray(self.archive[entry], float)
-        except (OSError, ValueError, KeyError) as exc:
-            raise CompareError(f"{self.where}: {self.path.name}'s {entry} cannot be read "
-                               f"({exc})") from None
-
-    def close(self) -> None:
-        self.archive.close()
-
-
-NPY_HEADER = 4096  # bytes: an .npy entry's header is 128 (at most a few kB), then its values
 
 
 def verdict(entry: dict | None) -> str:
@@ -310,6 +151,68 @@ def _judge(ca: dict | None, cb: dict | None, tolerance: float) -> tuple[str, boo
     return "", False
 
 
+def _compare_checks(name: str, run_a: dict, run_b: dict, tolerance: float,
+                    result: Comparison, entries: dict) -> None:
+    """One run's safety checks in A and B: a table row each, its entry for --json, and a
+    regression where :func:`_judge` finds one."""
+    rows = [["check", "A", "B", "B - A", ""]]
+    safety_a, safety_b = run_a.get("safety") or {}, run_b.get("safety") or {}
+    for check in dict.fromkeys([*safety_a, *safety_b]):
+        ca, cb = safety_a.get(check), safety_b.get(check)
+        change, regressed = _judge(ca, cb, tolerance)
+        if regressed:
+            result.regressions.append(
+                f"{name}/{check}: violated in A ({verdict(ca)}) and worse in B "
+                f"({verdict(cb)})" if change == "WORSE" else
+                f"{name}/{check}: not in A, {verdict(cb)} in B" if ca is None else
+                f"{name}/{check}: {'held' if ca.get('satisfied') else 'checked'} in A "
+                f"({verdict(ca)}), not in B ({verdict(cb)})")
+        both = ca and cb and ca.get("worst") is not None and cb.get("worst") is not None
+        delta = cb["worst"] - ca["worst"] if both else None
+        declared = unit(cb or ca)
+        rows.append([f"{check} ({declared})" if declared else check, verdict(ca),
+                     verdict(cb), f"{delta:+.4g}" if delta is not None else "", change])
+        entries[check] = {
+            "unit": declared, "bound": (cb or ca).get("bound"),
+            "a": ca and ca.get("worst"), "b": cb and cb.get("worst"), "b_minus_a": delta,
+            "a_verdict": verdict(ca), "b_verdict": verdict(cb),
+            "change": change.lower() or None, "regression": regressed}
+    result.lines.extend(_table(rows))
+
+
+def _compare_metrics(run_a: dict, run_b: dict, result: Comparison, entries: dict) -> None:
+    """One run's numeric metrics in A and B: a table row for each that differs (with its
+    unit; units that differ are not subtracted), an entry each for --json."""
+    ma, mb = _numbers(run_a.get("metrics", {})), _numbers(run_b.get("metrics", {}))
+    units_a, units_b = _metric_units(run_a), _metric_units(run_b)
+    if not units_a and not units_b and (ma or mb):
+        result.lines.append("  (neither folder declares its metrics' units: written by "
+                            "an older cosim; the metrics are shown bare)")
+    rows = [["metric (unit)", "A", "B", "B - A", ""]]
+    same = 0
+    for metric in dict.fromkeys([*ma, *mb]):
+        va, vb = ma.get(metric), mb.get(metric)
+        unit_a, unit_b = metric_unit(units_a, metric), metric_unit(units_b, metric)
+        clash = unit_a is not None and unit_b is not None and unit_a != unit_b
+        delta = vb - va if va is not None and vb is not None and not clash else None
+        declared = f"A {unit_a}, B {unit_b}" if clash else unit_b or unit_a
+        entries[metric] = {"unit": declared, "a": va, "b": vb, "b_minus_a": delta,
+                           "timing": metric in TIMING}
+        if clash:
+            entries[metric].update(unit=None, unit_a=unit_a, unit_b=unit_b)
+        if va == vb and not clash:
+            same += 1
+            continue
+        cells = [f"{v:.6g}" if v is not None else "-" for v in (va, vb)]
+        note = ("units differ: not subtracted" if clash
+                else "timing" if metric in TIMING else "")
+        rows.append([f"{metric} ({declared})" if declared else metric, *cells,
+                     f"{delta:+.4g}" if delta is not None else "", note])
+    if len(rows) > 1:
+        result.lines.extend(_table(rows))
+    result.lines.append(f"  {same} metric(s) equal in A and B (--json lists every one)")
+
+
 def compare(a: str | Path, b: str | Path, runs: list[str] | None = None,
             tolerance: float = 0.0) -> Comparison:
     """Compare the runs the two folders share (or ``runs``, each once); a run of A missing
@@ -317,9 +220,9 @@ def compare(a: str | Path, b: str | Path, runs: list[str] | None = None,
     (a fraction of the check's bound) an already violated check may get in B before it
     counts. Raises :class:`CompareError` when A and B do not compare like with like."""
     a, b = Path(a), Path(b)
-    first, second = _summary(a, "A"), _summary(b, "B")
-    _verified(a, "A", first)
-    _verified(b, "B", second)
+    first, second = read_summary(a, "A"), read_summary(b, "B")
+    verify_summary(a, "A", first)
+    verify_summary(b, "B", second)
     runs = list(dict.fromkeys(runs)) if runs else None
     for name in runs or []:
         if name not in first["runs"] and name not in second["runs"]:
@@ -354,57 +257,8 @@ def compare(a: str | Path, b: str | Path, runs: list[str] | None = None,
         result.lines.append(f"\nrun {name}")
         entries: dict = {"checks": {}, "metrics": {}}
         result.document["runs"][name] = entries
-        rows = [["check", "A", "B", "B - A", ""]]
-        safety_a, safety_b = run_a.get("safety") or {}, run_b.get("safety") or {}
-        for check in dict.fromkeys([*safety_a, *safety_b]):
-            ca, cb = safety_a.get(check), safety_b.get(check)
-            change, regressed = _judge(ca, cb, tolerance)
-            if regressed:
-                result.regressions.append(
-                    f"{name}/{check}: violated in A ({verdict(ca)}) and worse in B "
-                    f"({verdict(cb)})" if change == "WORSE" else
-                    f"{name}/{check}: not in A, {verdict(cb)} in B" if ca is None else
-                    f"{name}/{check}: {'held' if ca.get('satisfied') else 'checked'} in A "
-                    f"({verdict(ca)}), not in B ({verdict(cb)})")
-            both = ca and cb and ca.get("worst") is not None and cb.get("worst") is not None
-            delta = cb["worst"] - ca["worst"] if both else None
-            declared = unit(cb or ca)
-            rows.append([f"{check} ({declared})" if declared else check, verdict(ca),
-                         verdict(cb), f"{delta:+.4g}" if delta is not None else "", change])
-            entries["checks"][check] = {
-                "unit": declared, "bound": (cb or ca).get("bound"),
-                "a": ca and ca.get("worst"), "b": cb and cb.get("worst"), "b_minus_a": delta,
-                "a_verdict": verdict(ca), "b_verdict": verdict(cb),
-                "change": change.lower() or None, "regression": regressed}
-        result.lines.extend(_table(rows))
-        ma, mb = _numbers(run_a.get("metrics", {})), _numbers(run_b.get("metrics", {}))
-        units_a, units_b = _metric_units(run_a), _metric_units(run_b)
-        if not units_a and not units_b and (ma or mb):
-            result.lines.append("  (neither folder declares its metrics' units: written by "
-                                "an older cosim; the metrics are shown bare)")
-        rows = [["metric (unit)", "A", "B", "B - A", ""]]
-        same = 0
-        for metric in dict.fromkeys([*ma, *mb]):
-            va, vb = ma.get(metric), mb.get(metric)
-            unit_a, unit_b = metric_unit(units_a, metric), metric_unit(units_b, metric)
-            clash = unit_a is not None and unit_b is not None and unit_a != unit_b
-            delta = vb - va if va is not None and vb is not None and not clash else None
-            declared = f"A {unit_a}, B {unit_b}" if clash else unit_b or unit_a
-            entries["metrics"][metric] = {"unit": declared, "a": va, "b": vb,
-                                          "b_minus_a": delta, "timing": metric in TIMING}
-            if clash:
-                entries["metrics"][metric].update(unit=None, unit_a=unit_a, unit_b=unit_b)
-            if va == vb and not clash:
-                same += 1
-                continue
-            cells = [f"{v:.6g}" if v is not None else "-" for v in (va, vb)]
-            note = ("units differ: not subtracted" if clash
-                    else "timing" if metric in TIMING else "")
-            rows.append([f"{metric} ({declared})" if declared else metric, *cells,
-                         f"{delta:+.4g}" if delta is not None else "", note])
-        if len(rows) > 1:
-            result.lines.extend(_table(rows))
-        result.lines.append(f"  {same} metric(s) equal in A and B (--json lists every one)")
+        _compare_checks(name, run_a, run_b, tolerance, result, entries["checks"])
+        _compare_metrics(run_a, run_b, result, entries["metrics"])
     if result.regressions:
         result.lines.append(f"\n{len(result.regressions)} regression(s):")
         result.lines.extend(f"  {r}" for r in result.regressions)
