@@ -191,14 +191,14 @@ def test_every_export_format_has_its_writer_and_is_offered_by_the_command():
     """The formats are listed once (cosim/outputs/formats.py): each has a writer, the
     command offers each, and the run folder counts each export file as its own."""
     from cosim.outputs.export import WRITERS
+    from cosim.outputs.folder_owner import our_entries
     from cosim.outputs.formats import EXPORT_FORMATS
-    from cosim.outputs.run_folder import _our_entries
 
     assert set(WRITERS) == set(EXPORT_FORMATS)
     offered = cosim_cli("export", "--help").stdout
     assert all(name in offered for name in EXPORT_FORMATS)
     assert {f"export_paper{suffix}" for suffix in EXPORT_FORMATS.values()} <= \
-        _our_entries({"runs": {"paper": {}}})
+        our_entries({"runs": {"paper": {}}})
 
 
 def test_every_metric_has_its_unit_in_the_summary_and_in_compare(folders):

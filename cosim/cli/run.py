@@ -184,7 +184,7 @@ def _settle_named_folder(out: Path) -> None:
 
 def _print_plan(pipeline, out: Path, args: argparse.Namespace) -> None:
     """--dry-run: the resolved plan, and a refusal the run itself would meet."""
-    from ..outputs.run_folder import would_refuse
+    from ..outputs.folder_owner import would_refuse
     from ..plan import describe_plan
 
     print(describe_plan(pipeline, out, record=not args.no_recording))

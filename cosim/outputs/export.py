@@ -18,8 +18,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .folder_owner import ours_summary
 from .formats import EXPORT_FORMATS
-from .run_folder import UNITS_KEY, _ours_summary
+from .run_folder import UNITS_KEY
 
 FORMATS = tuple(EXPORT_FORMATS)
 SUFFIX = EXPORT_FORMATS
@@ -39,7 +40,7 @@ class Column:
 
 def trace_runs(folder: Path) -> list[str]:
     """The runs of a run folder that have a trace file, in summary.json's order."""
-    summary = _ours_summary(folder) if folder.is_dir() else None
+    summary = ours_summary(folder) if folder.is_dir() else None
     if summary is None:
         raise ExportError(f"{folder}: not a cosim run folder (no summary.json of ours); give "
                           "the folder `cosim run --out` wrote")
@@ -52,7 +53,7 @@ def trace_runs(folder: Path) -> list[str]:
 
 def runs_without_trace(folder: Path) -> list[str]:
     """The runs summary.json names whose trace file is missing."""
-    summary = _ours_summary(folder) or {}
+    summary = ours_summary(folder) or {}
     return [r for r in summary_runs(folder, summary)
             if not (folder / f"trace_{r}.npz").is_file()]
 
@@ -206,7 +207,7 @@ def export(folder: str | Path, fmt: str = "parquet", runs: list[str] | None = No
         target.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise ExportError(f"--out {target}: cannot be made ({exc.strerror or exc})") from None
-    summary = _ours_summary(folder) or {}
+    summary = ours_summary(folder) or {}
     for run, path in zip(chosen, paths, strict=True):
         arrays, units = read_trace(folder, run)
         about = {"run": run, "source": str(folder.resolve() / f"trace_{run}.npz"),

@@ -85,7 +85,7 @@ def record_points(spec: SweepSpec, rows: Rows | list[dict], which: list[str], ou
 def _dry_run(spec: SweepSpec, all_points: list[dict], runs: list[str], out: Path,
              args: argparse.Namespace) -> int:
     """What the sweep would do, every point checked (as before a real sweep), nothing run."""
-    from ..outputs.run_folder import would_refuse
+    from ..outputs.folder_owner import would_refuse
 
     load = load_pipeline(spec.pipeline, spec.base, warn=None)
     steps = round(load.simulation.duration / load.simulation.step)
