@@ -14,7 +14,8 @@ into the chain from a base link to a tip link:
   the URDF's package or folder, since the recording copies them (:mod:`plant_fmu.meshes`).
 
 Finding the file and the files it names, and the checks its XML passes before it is read,
-are :mod:`plant_fmu.urdf_files`.
+are :mod:`plant_fmu.urdf_files`; reading and checking each joint and link,
+:mod:`plant_fmu.urdf_elements`.
 
 A URDF the plant cannot honestly simulate is refused with :class:`UrdfError`, one message
 naming the element at fault. Units are the URDF's: SI, radians.
@@ -23,13 +24,20 @@ naming the element at fault. Units are the URDF's: SI, radians.
 from __future__ import annotations
 
 import os
-import sys
 from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from .urdf_elements import (
+    check_inertial,
+    check_joint,
+    joint_limits,
+    joint_motion,
+    origin,
+    unit_axis,
+)
 from .urdf_files import (
     UrdfError,
     check_meshes,
@@ -45,16 +53,7 @@ __all__ = ["Chain", "UrdfError", "check_meshes", "mesh_files", "package_dirs", "
            "resolve_uri"]
 
 GRAVITY = np.array([0.0, 0.0, -9.81])  # m/s^2 along the base's -z
-MOVING_TYPES = ("revolute", "continuous", "prismatic")
-SUPPORTED_TYPES = (*MOVING_TYPES, "fixed")
 REVOLUTE, PRISMATIC = 0, 1  # Chain.kind
-# A moving joint's numbers: element, attribute, what it is, units (revolute, prismatic).
-JOINT_NUMBERS = (("limit", "lower", "lower limit", ("rad", "m")),
-                 ("limit", "upper", "upper limit", ("rad", "m")),
-                 ("limit", "velocity", "velocity limit", ("rad/s", "m/s")),
-                 ("limit", "effort", "effort limit", ("N m", "N")),
-                 ("dynamics", "damping", "damping", ("N m s/rad", "N s/m")),
-                 ("dynamics", "friction", "friction", ("N m", "N")))
 
 
 @dataclass(frozen=True, eq=False)
@@ -172,151 +171,6 @@ def _subtree(base: str, child_joints: dict) -> list:
     return order
 
 
-def _limits(joint) -> tuple[float, float, float, float]:
-    """lower, upper, velocity, effort; a missing or zero velocity or effort limit is none
-    given (some URDFs write 0 for it): inf."""
-    limit = joint.limit
-    lower = -np.inf if limit is None or limit.lower is None else float(limit.lower)
-    upper = np.inf if limit is None or limit.upper is None else float(limit.upper)
-    if joint.type == "continuous":
-        lower, upper = -np.inf, np.inf
-    velocity = float(limit.velocity) if limit is not None and limit.velocity else np.inf
-    effort = float(limit.effort) if limit is not None and limit.effort else np.inf
-    return lower, upper, velocity, effort
-
-
-def _motion(joint, value: float, path: Path) -> np.ndarray:
-    """The joint's motion at ``value`` (rad or m) as a 4x4 transform."""
-    transform = np.eye(4)
-    if joint.type == "fixed" or value == 0.0:
-        return transform
-    axis = _unit_axis(joint, path)
-    if joint.type == "prismatic":
-        transform[:3, 3] = axis * value
-    else:
-        k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
-        transform[:3, :3] = np.eye(3) + np.sin(value) * k + (1 - np.cos(value)) * k @ k
-    return transform
-
-
-def _unit_axis(joint, path: Path) -> np.ndarray:
-    axis = np.array([1.0, 0.0, 0.0]) if joint.axis is None else np.asarray(joint.axis, float)
-    norm = np.linalg.norm(axis)
-    if axis.shape != (3,) or not np.isfinite(norm) or norm == 0.0:
-        raise UrdfError(f"{path}: joint '{joint.name}' <axis xyz='"
-                        f"{' '.join(f'{x:g}' for x in axis.ravel())}'>: the axis must be a "
-                        "non-zero vector of three finite numbers")
-    return axis / norm
-
-
-def _origin(element) -> np.ndarray:
-    return np.eye(4) if element.origin is None else np.asarray(element.origin, float)
-
-
-def _check_origin(element, name: str, path: Path) -> None:
-    """``element``'s <origin> (a 4x4 transform once yourdfpy has read it), ``name`` in the
-    message, is finite."""
-    if not np.all(np.isfinite(_origin(element))):
-        raise UrdfError(f"{path}: {name}: its xyz (m) and rpy (rad) must be finite numbers")
-
-
-def _check_joint(joint, path: Path) -> None:
-    """A joint below the base: a type the plant supports, a finite <origin>; if it moves,
-    a finite non-zero <axis>, finite <limit>s with lower <= upper (a continuous joint's
-    position limits are ignored), velocity, effort, damping and friction >= 0.
-
-    lower == upper is accepted: held (off the chain, or by --fix), the joint is held there;
-    on the chain it is q0's one valid value (the plant bounds q0 alone), and URDFs write
-    0 and 0 for no limits (the spec's default; example-robot-data's double pendulum)."""
-    if joint.type not in SUPPORTED_TYPES:
-        raise UrdfError(f"{path}: joint '{joint.name}' has type '{joint.type}': the plant "
-                        f"supports {', '.join(SUPPORTED_TYPES)} joints")
-    _check_origin(joint, f"joint '{joint.name}' <origin>", path)
-    if joint.type == "fixed":
-        return
-    _unit_axis(joint, path)
-    unit = int(joint.type == "prismatic")
-    for element, attribute, what, units in JOINT_NUMBERS:
-        value = getattr(getattr(joint, element), attribute, None)
-        if value is None or (element == "limit" and attribute in ("lower", "upper") and
-                             joint.type == "continuous"):
-            continue
-        bound = "" if attribute in ("lower", "upper") else " >= 0"
-        if not np.isfinite(float(value)) or (bound and float(value) < 0):
-            raise UrdfError(f"{path}: joint '{joint.name}' <{element} {attribute}="
-                            f"'{float(value):g}'>: the {what} must be a finite number{bound} "
-                            f"({units[unit]})")
-    lower, upper, _, _ = _limits(joint)
-    if lower > upper:
-        raise UrdfError(f"{path}: joint '{joint.name}' <limit lower='{lower:g}' upper="
-                        f"'{upper:g}'>: lower must be <= upper ({('rad', 'm')[unit]}); no "
-                        "position lies within these limits")
-
-
-def _check_inertial(link, carried_by, path: Path) -> None:
-    """A link's <inertial>: required, with a finite positive mass, a finite <origin> and a
-    finite positive semi-definite inertia, where a moving joint carries the link
-    (``carried_by``); elsewhere (massless frames such as a flange) it may be absent or
-    massless, but never negative."""
-    inertial = link.inertial
-    if inertial is None or inertial.mass is None:
-        if carried_by is not None:
-            raise UrdfError(f"{path}: link '{link.name}' has no <inertial> (with <mass>), but "
-                            f"moving joint '{carried_by}' carries it: give its mass, centre "
-                            "of mass and inertia")
-        return
-    mass = float(inertial.mass)
-    if not np.isfinite(mass) or mass < 0 or (carried_by is not None and mass == 0):
-        raise UrdfError(f"{path}: link '{link.name}' <inertial><mass value='{mass:g}'>: a "
-                        "mass must be a finite " +
-                        ("positive number" if carried_by is not None else "number >= 0") +
-                        " (kg)" +
-                        (f": moving joint '{carried_by}' carries it" if mass == 0 else ""))
-    if mass and not LIGHTEST <= mass <= HEAVIEST:
-        raise UrdfError(f"{path}: link '{link.name}' <inertial><mass value='{mass:g}'>: "
-                        f"outside {LIGHTEST:g} to {HEAVIEST:g} kg, the masses the plant "
-                        "simulates (double precision makes nothing of the dynamics beyond "
-                        "them); a massless frame has mass 0")
-    _check_origin(inertial, f"link '{link.name}' <inertial><origin>", path)
-    if inertial.inertia is None:
-        if not mass:
-            return
-        raise UrdfError(f"{path}: link '{link.name}' <inertial> has no <inertia>: give ixx, "
-                        "ixy, ixz, iyy, iyz and izz (kg m^2) about its centre of mass")
-    inertia = np.asarray(inertial.inertia, float)
-    if not np.all(np.isfinite(inertia)):
-        raise UrdfError(f"{path}: link '{link.name}' <inertial><inertia>: ixx, ixy, ixz, "
-                        "iyy, iyz and izz must be finite numbers (kg m^2)")
-    if np.abs(inertia).max() > HEAVIEST:
-        raise UrdfError(f"{path}: link '{link.name}' <inertial><inertia>: ixx, ixy, ixz, "
-                        f"iyy, iyz and izz must be at most {HEAVIEST:g} kg m^2, what the plant "
-                        "simulates")
-    moments = np.linalg.eigvalsh(inertia)
-    if moments.min() < -1e-12 * max(1.0, np.abs(inertia).max()):
-        raise UrdfError(f"{path}: link '{link.name}' <inertial><inertia>: the inertia tensor "
-                        "(kg m^2) must be symmetric positive semi-definite")
-    if carried_by is not None and moments[0] + moments[1] < moments[2] * (1 - 1e-6):
-        _warn_once(f"{path}: link '{link.name}' <inertial><inertia>: its principal moments "
-                   f"{', '.join(f'{m:.6g}' for m in moments)} kg m^2 break the triangle "
-                   "inequality (the two smaller sum to less than the largest): no rigid body "
-                   "has this inertia; simulated as given")
-
-
-# The masses (kg) and inertias (kg m^2, their largest entry) a link may have: far beyond any
-# robot's links either way (example-robot-data's lightest frame is 1e-9 kg), yet far from
-# where the dynamics' products leave double precision (a mass of 1e300 or 1e-300 kg).
-LIGHTEST, HEAVIEST = 1e-12, 1e12
-_warned: set[str] = set()
-
-
-def _warn_once(text: str) -> None:
-    """A warning on stderr, once per process (the URDF is read by the build, the nominal
-    model, the limits and the 3-D view alike)."""
-    if text not in _warned:
-        _warned.add(text)
-        print(f"cosim: warning: {text}", file=sys.stderr)
-
-
 def _lumped(parts: list[tuple[float, np.ndarray, np.ndarray]]):
     """Mass, centre of mass and inertia about it of rigidly joined parts, each given as
     (mass, centre of mass, inertia about its centre of mass) in one frame."""
@@ -339,6 +193,70 @@ def _held(held_by: str, name: str, value: float | str | None = None) -> str:
     return f"{held_by}.{name}" + ("" if value is None else f" = {value}")
 
 
+def _check_held(fixed: dict[str, float], subtree: list, base: str, held_by: str,
+                path: Path) -> None:
+    """Each held joint a moving joint below the base, held at a finite value within its
+    limits (rad or m)."""
+    by_name = {joint.name: joint for joint in subtree}
+    for name, value in fixed.items():
+        if name not in by_name or by_name[name].type == "fixed":
+            raise UrdfError(f"{path}: {_held(held_by, name)}: not a moving joint below base link "
+                            f"'{base}'; moving joints: "
+                            f"{[j.name for j in subtree if j.type != 'fixed']}")
+        if not np.isfinite(value):
+            raise UrdfError(f"{path}: {_held(held_by, name, value)}: the value is not a finite "
+                            "number; give the angle in rad (m for a prismatic joint)")
+        lower, upper, _, _ = joint_limits(by_name[name])
+        if not lower <= value <= upper:
+            raise UrdfError(f"{path}: {_held(held_by, name, value)}: outside the joint's limits "
+                            f"[{lower}, {upper}] (rad or m)")
+
+
+def _bodies(subtree: list, base: str, on_path: set[str], fixed: dict[str, float],
+            held_by: str, path: Path) -> tuple[list, list, dict, dict, dict]:
+    """The subtree walked from the base: the moving joints with their parent body, their
+    placements, the joints held (at ``fixed``'s value, else 0 or its nearest limit), and
+    each link's body (-1 the base) and frame in that body's frame."""
+    body_of, frame_in_body = {base: -1}, {base: np.eye(4)}
+    moving, placements, held = [], [], {}
+    for joint in subtree:
+        body, frame = body_of[joint.parent], frame_in_body[joint.parent] @ origin(joint)
+        if joint.type != "fixed" and joint.name in on_path and joint.name not in fixed:
+            if joint.mimic is not None:
+                raise UrdfError(f"{path}: joint '{joint.name}' mimics '{joint.mimic.joint}': "
+                                "a mimic joint on the chain is not supported; hold it with "
+                                f"{_held(held_by, joint.name, 'VALUE')}")
+            moving.append((joint, body))
+            placements.append(frame)
+            body_of[joint.child], frame_in_body[joint.child] = len(moving) - 1, np.eye(4)
+            continue
+        if joint.type != "fixed":
+            lower, upper, _, _ = joint_limits(joint)
+            held[joint.name] = fixed.get(joint.name, float(np.clip(0.0, lower, upper)))
+        body_of[joint.child] = body
+        frame_in_body[joint.child] = frame @ joint_motion(joint, held.get(joint.name, 0.0), path)
+    return moving, placements, held, body_of, frame_in_body
+
+
+def _lumped_bodies(robot, moving: list, body_of: dict, frame_in_body: dict,
+                   path: Path) -> list[tuple[float, np.ndarray, np.ndarray]]:
+    """Each moving body's mass, centre of mass and inertia, its links' lumped (each link's
+    <inertial> checked)."""
+    carried_by = {j.child: j.name for j, _ in moving}
+    links_by_name = {link.name: link for link in robot.links}
+    parts: list[list] = [[] for _ in moving]
+    for link_name, body in body_of.items():
+        link = links_by_name[link_name]
+        check_inertial(link, carried_by.get(link_name), path)
+        if body < 0 or link.inertial is None or not link.inertial.mass:
+            continue
+        to_body = frame_in_body[link_name] @ origin(link.inertial)
+        rotation = to_body[:3, :3]
+        parts[body].append((float(link.inertial.mass), to_body[:3, 3],
+                            rotation @ np.asarray(link.inertial.inertia, float) @ rotation.T))
+    return [_lumped(p) for p in parts]
+
+
 def read_urdf(path: str | os.PathLike, base: str | None = None, tip: str | None = None,
               fixed: dict[str, float] | None = None, held_by: str = "--fix") -> Chain:
     """The chain of ``path`` from link ``base`` (default: the root link) to link ``tip``
@@ -357,62 +275,18 @@ def read_urdf(path: str | os.PathLike, base: str | None = None, tip: str | None 
                         f"{sorted(child_joints)}")
     subtree = _subtree(base, child_joints)
     for joint in subtree:
-        _check_joint(joint, path)
+        check_joint(joint, path)
     checked_meshes(robot, path)
-    by_name = {joint.name: joint for joint in subtree}
-    for name, value in fixed.items():
-        if name not in by_name or by_name[name].type == "fixed":
-            raise UrdfError(f"{path}: {_held(held_by, name)}: not a moving joint below base link "
-                            f"'{base}'; moving joints: "
-                            f"{[j.name for j in subtree if j.type != 'fixed']}")
-        if not np.isfinite(value):
-            raise UrdfError(f"{path}: {_held(held_by, name, value)}: the value is not a finite "
-                            "number; give the angle in rad (m for a prismatic joint)")
-        lower, upper, _, _ = _limits(by_name[name])
-        if not lower <= value <= upper:
-            raise UrdfError(f"{path}: {_held(held_by, name, value)}: outside the joint's limits "
-                            f"[{lower}, {upper}] (rad or m)")
+    _check_held(fixed, subtree, base, held_by, path)
     chain_path = _path(base, tip, parent_joint, child_joints, path)
-    on_path = {joint.name for joint in chain_path}
     tip_link = chain_path[-1].child if chain_path else base
-
-    # Walk the subtree: each link's body (-1 the base) and its frame in that body's frame.
-    body_of, frame_in_body = {base: -1}, {base: np.eye(4)}
-    moving, placements, held = [], [], {}
-    for joint in subtree:
-        body, frame = body_of[joint.parent], frame_in_body[joint.parent] @ _origin(joint)
-        if joint.type != "fixed" and joint.name in on_path and joint.name not in fixed:
-            if joint.mimic is not None:
-                raise UrdfError(f"{path}: joint '{joint.name}' mimics '{joint.mimic.joint}': "
-                                "a mimic joint on the chain is not supported; hold it with "
-                                f"{_held(held_by, joint.name, 'VALUE')}")
-            moving.append((joint, body))
-            placements.append(frame)
-            body_of[joint.child], frame_in_body[joint.child] = len(moving) - 1, np.eye(4)
-            continue
-        if joint.type != "fixed":
-            lower, upper, _, _ = _limits(joint)
-            held[joint.name] = fixed.get(joint.name, float(np.clip(0.0, lower, upper)))
-        body_of[joint.child] = body
-        frame_in_body[joint.child] = frame @ _motion(joint, held.get(joint.name, 0.0), path)
+    moving, placements, held, body_of, frame_in_body = _bodies(
+        subtree, base, {joint.name for joint in chain_path}, fixed, held_by, path)
     if not moving:
         raise UrdfError(f"{path}: no revolute, continuous or prismatic joint moves between "
                         f"base link '{base}' and tip link '{tip_link}'")
-
-    carried_by = {j.child: j.name for j, _ in moving}
-    links_by_name = {link.name: link for link in robot.links}
-    parts: list[list] = [[] for _ in moving]
-    for link_name, body in body_of.items():
-        link = links_by_name[link_name]
-        _check_inertial(link, carried_by.get(link_name), path)
-        if body < 0 or link.inertial is None or not link.inertial.mass:
-            continue
-        to_body = frame_in_body[link_name] @ _origin(link.inertial)
-        rotation = to_body[:3, :3]
-        parts[body].append((float(link.inertial.mass), to_body[:3, 3],
-                            rotation @ np.asarray(link.inertial.inertia, float) @ rotation.T))
-    lumped = [_lumped(p) for p in parts]
-    limits = np.array([_limits(j) for j, _ in moving]).reshape(-1, 4)
+    lumped = _lumped_bodies(robot, moving, body_of, frame_in_body, path)
+    limits = np.array([joint_limits(j) for j, _ in moving]).reshape(-1, 4)
 
     def dynamics(attribute: str) -> np.ndarray:
         values = [getattr(j.dynamics, attribute, None) if j.dynamics else None for j, _ in moving]
@@ -426,7 +300,7 @@ def read_urdf(path: str | os.PathLike, base: str | None = None, tip: str | None 
         continuous=np.array([j.type == "continuous" for j, _ in moving]),
         parent=np.array([body for _, body in moving]),
         placement=np.array(placements),
-        axis=np.array([_unit_axis(j, path) for j, _ in moving]),
+        axis=np.array([unit_axis(j, path) for j, _ in moving]),
         mass=np.array([m for m, _, _ in lumped]),
         com=np.array([c for _, c, _ in lumped]),
         inertia=np.array([i for _, _, i in lumped]),
