@@ -37,13 +37,14 @@ from pathlib import Path
 import numpy as np
 from numba import njit
 
-from cosim.assemble import assemble_run, open_plant
+from cosim.assemble import assemble_run
 from cosim.blocks import Ports
 from cosim.config import load_pipeline
 from cosim.engine import simulate
 from cosim.engine.fused import fused_loop
 from cosim.paper.inertia import InertiaModel, InertiaModelParams
 from cosim.plant.ports import OUTPUT_PORTS
+from cosim.plant_source import open_plant
 from cosim.runner import run
 
 PIPELINE = Path(__file__).resolve().parent.parent / "pipelines" / "paper_two_link.toml"

@@ -30,10 +30,11 @@ import numpy as np
 from bench_cosim import fmu_only_compiled
 from numba import njit
 
-from cosim.assemble import assemble_run, open_plant
+from cosim.assemble import assemble_run
 from cosim.config import load_pipeline
 from cosim.dynamics.model import chain_model, model_bias, model_geometry, model_mass
 from cosim.engine import simulate
+from cosim.plant_source import open_plant
 
 PIPELINE = Path(__file__).resolve().parent.parent / "pipelines" / "panda.toml"
 

@@ -60,10 +60,11 @@ import control as ct
 import numpy as np
 from fmpy import extract, read_model_description, simulate_fmu
 
-from cosim.assemble import assemble_run, open_plant
+from cosim.assemble import assemble_run
 from cosim.config import Pipeline, load_pipeline
 from cosim.engine import simulate
 from cosim.plant.fmu import Fmu
+from cosim.plant_source import open_plant
 
 ROOT = Path(__file__).resolve().parent.parent
 PAPER = ROOT / "pipelines" / "paper_two_link.toml"

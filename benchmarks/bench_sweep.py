@@ -46,9 +46,10 @@ from pathlib import Path
 from monte_carlo import RUNS as MONTE_CARLO_RUNS
 from monte_carlo import SAMPLES as MONTE_CARLO_SAMPLES
 
-from cosim.assemble import assemble, open_plant
+from cosim.assemble import assemble
 from cosim.config import load_pipeline
 from cosim.engine import simulate
+from cosim.plant_source import open_plant
 from cosim.runner import run
 from cosim.sweep import (
     SweepSpec,

@@ -38,9 +38,9 @@ from fmpy.fmi2 import FMU2Slave
 from fmpy.fmi3 import FMU3Slave
 from fmpy.ssp.ssd import read_ssd
 
-from cosim.assemble import open_plant
 from cosim.config import load_pipeline
 from cosim.plant.lifecycle import open_instance
+from cosim.plant_source import open_plant
 from cosim.runner import run
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -12,12 +12,8 @@ is one :class:`PipelineError` naming the run, the block and the signal.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from pathlib import Path
 
 import numpy as np
-
-from plant_fmu import build_fmu
-from plant_fmu.named_file import not_a_file
 
 from . import interface as io
 from .blocks import BLOCKS, Block, BlockContext, Ports
@@ -29,14 +25,10 @@ from .evaluate.parts import select
 from .memory import check_memory
 from .plant import PLANT_INPUT, PLANT_INPUT_ENTITY, PLANT_OUTPUTS, Plant
 from .plant.fmu import Fmu, FmuError
-from .plant.mapping import check_plant_fmu
 from .plant.ports import traced_outputs
-from .plant.unpack import remove
+from .plant_source import open_plant
 from .signals import Signal, Trace, trace_name_clash
-from .system.export import single_fmu_system
 from .system.plant import SystemPlant
-from .system.ssp import read_ssp
-from .system.structure import Component, System, parse_connection
 
 
 @dataclass
@@ -142,115 +134,6 @@ class Scenario:
     def close(self) -> None:
         if self.owns_plant:
             self.plant.close()
-
-
-def plant_path(pipeline: Pipeline) -> Path:
-    """The plant's file: the pipeline's ``plant.fmu`` or ``plant.ssp``, or the built-in
-    plant or the ``plant.urdf`` robot, built on demand and cached by its build options (a
-    ``plant.system`` has none: :func:`plant_files`)."""
-    if pipeline.plant.fmu is not None:
-        return existing_file(pipeline.plant.fmu, "plant.fmu", "FMU")
-    if pipeline.plant.ssp is not None:
-        return existing_file(pipeline.plant.ssp, "plant.ssp", "SSP")
-    if pipeline.plant.urdf is not None:
-        return urdf_plant_path(pipeline.plant.urdf)
-    b = pipeline.plant.builtin
-    return build_fmu(links=b.links, fmi_version=b.fmi_version, model=b.model)
-
-
-def existing_file(name: str, key: str, kind: str) -> Path:
-    """``name``, a file the pipeline's ``key`` names (an ``kind`` archive), or a
-    :class:`PipelineError` saying why it is not one."""
-    path = Path(name)
-    if path.is_dir():
-        raise PipelineError(f"{key}: {path} is a folder, not an {kind} file (an unpacked "
-                            f"{kind} cannot be used: give its .{kind.lower()} archive)")
-    why = not_a_file(path)
-    if why is not None:
-        raise PipelineError(f"{key}: {path} {why.replace(', not a file', f', not an {kind} file')}")
-    return path
-
-
-def plant_files(pipeline: Pipeline) -> list[Path]:
-    """The files the plant is made of, built on demand: its FMU, its SSP archive, or each
-    FMU of its ``plant.system``."""
-    if pipeline.plant.system is None:
-        return [plant_path(pipeline)]
-    return [component.source for component in table_system(pipeline.plant.system).components]
-
-
-def table_system(table) -> System:
-    """The system a pipeline's ``[plant.system]`` (a :class:`~cosim.config.sections.
-    SystemTable`) writes: its built-in components built on demand (cached), its
-    connections read."""
-    components = []
-    for name, spec in table.components.items():
-        where = f"plant.system.components.{name}"
-        if spec.fmu is not None:
-            source = existing_file(spec.fmu, f"{where}.fmu", "FMU")
-        else:
-            b = spec.builtin
-            source = build_fmu(links=b.links, fmi_version=b.fmi_version, model=b.model)
-        components.append(Component(name, source, dict(spec.parameters), None,
-                                    spec.step_multiple, where))
-    names = set(table.components)
-    delayed = [parse_connection(text, names, True, f"plant.system.delayed[{i}]")
-               for i, text in enumerate(table.delayed, 1)]
-    held = {(c.start, c.end) for c in delayed}
-    connections = [parse_connection(text, names, False, f"plant.system.connections[{i}]")
-                   for i, text in enumerate(table.connections, 1)]
-    return System(table.name, components,
-                  [c for c in connections if (c.start, c.end) not in held] + delayed,
-                  origin="plant.system")
-
-
-def urdf_plant_path(urdf) -> Path:
-    """The FMU of ``plant.urdf`` (a :class:`~cosim.config.sections.UrdfPlant`), built on
-    demand and cached by the URDF's chain; a URDF it refuses is a :class:`PipelineError`."""
-    from plant_fmu import UrdfError, build_urdf_fmu
-    from plant_fmu.urdf import resolve_uri
-
-    try:
-        return build_urdf_fmu(resolve_uri(urdf.file, Path.cwd()), base=urdf.base, tip=urdf.tip,
-                              fixed=dict(urdf.fixed), fmi_version=urdf.fmi_version,
-                              held_by="plant.urdf.fixed")
-    except UrdfError as exc:
-        raise PipelineError(f"plant.urdf: {exc}") from None
-
-
-def open_plant(pipeline: Pipeline) -> Fmu | SystemPlant:
-    """The pipeline's plant, checked: an FMU (its file, Co-Simulation binary,
-    ``plant.variables`` and ``plant.parameters``) or a system of FMUs (every component,
-    connector and connection too): :class:`PipelineError` naming the file and the
-    variable, component or connection."""
-    mapping, parameters = pipeline.plant.variables.model_dump(), dict(pipeline.plant.parameters)
-    try:
-        if pipeline.plant.system is None and pipeline.plant.ssp is None:
-            return Fmu(plant_path(pipeline), mapping, parameters)
-        system, folder = plant_system(pipeline)
-        try:
-            return SystemPlant(system, mapping, parameters, folder)
-        except BaseException:
-            if folder is not None:
-                remove(folder)
-            raise
-    except FmuError as exc:
-        raise PipelineError(str(exc)) from None
-
-
-def plant_system(pipeline: Pipeline) -> tuple[System, str | None]:
-    """The pipeline's plant as a system of FMUs, and the folder an SSP archive was unpacked
-    into (the caller removes it; None for the others): ``plant.ssp``, ``plant.system``, or
-    one FMU as a system of one component (:func:`~cosim.system.export.single_fmu_system`).
-    :class:`FmuError` where the plant is not valid."""
-    if pipeline.plant.ssp is not None:
-        return read_ssp(plant_path(pipeline))
-    if pipeline.plant.system is not None:
-        return table_system(pipeline.plant.system), None
-    path = plant_path(pipeline)
-    _, variables = check_plant_fmu(path, pipeline.plant.variables.model_dump(),
-                                   dict(pipeline.plant.parameters))
-    return single_fmu_system(path, variables.names, dict(pipeline.plant.parameters)), None
 
 
 def assemble(pipeline: Pipeline, plant: Fmu | SystemPlant | None = None) -> Scenario:
@@ -419,6 +302,13 @@ def wire(blocks: list[Block], context: BlockContext, run: str, plant,
         raise PipelineError(f"{where}: no block produces '{PLANT_INPUT}', the plant's torque "
                             f"input (chain: {', '.join(b.instance for b in blocks)})")
     read.add(current[PLANT_INPUT])
+    _check_read_or_recorded(signals, read, producer, where)
+    return signals, inputs, outputs, current[PLANT_INPUT]
+
+
+def _check_read_or_recorded(signals: dict[str, Signal], read: set[str],
+                            producer: dict[str, str], where: str) -> None:
+    """Every block's output read, recorded (one entity each) or evaluated."""
     evaluated = evaluated_signals()
     entities: dict[str, str] = {}
     for key, signal in signals.items():
@@ -432,7 +322,6 @@ def wire(blocks: list[Block], context: BlockContext, run: str, plant,
                 raise PipelineError(f"{where}: '{key}' and '{entities[signal.entity]}' are "
                                     f"both recorded as '{signal.entity}'")
             entities[signal.entity] = key
-    return signals, inputs, outputs, current[PLANT_INPUT]
 
 
 def _producers_hint(port: str, chain: list[Block], kinds: dict[str, type[Block]]) -> str:

@@ -189,7 +189,8 @@ def _kernel_jobs(pipelines: list[Path]) -> tuple[dict[str, list], list, list[Pat
     each); and the plant FMU files (built here, into their cache)."""
     from numba import typeof, types
 
-    from .assemble import assemble, plant_files
+    from .assemble import assemble
+    from .plant_source import plant_files
 
     modules: dict[str, list] = {}
     loops: dict[tuple, tuple[str, str]] = {}

@@ -20,7 +20,7 @@ LAYERS = (
     ("cosim.plant", "cosim.system", "cosim.evaluate", "cosim.dynamics"),
     ("cosim.blocks", "cosim.paper"),
     ("cosim.config", "cosim.engine"),
-    ("cosim.memory", "cosim.assemble"),
+    ("cosim.memory", "cosim.plant_source", "cosim.assemble"),
     ("cosim.outputs", "cosim.plan", "cosim.runner"),
     ("cosim.sweep", "cosim.warm"),
     ("cosim.cli", "cosim"),

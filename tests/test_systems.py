@@ -27,9 +27,10 @@ from test_plant_swapping import FOREIGN_ARM, build_pythonfmu
 sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
 from bench_systems import plain_fmpy_loop  # noqa: E402 (the benchmarks' folder, just added)
 
-from cosim.assemble import assemble, open_plant
+from cosim.assemble import assemble
 from cosim.cli import main
 from cosim.config import PipelineError, load_pipeline
+from cosim.plant_source import open_plant
 from cosim.runner import run
 from plant_fmu import build_fmu
 

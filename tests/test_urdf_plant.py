@@ -28,10 +28,10 @@ from urdf_helpers import (
     pinocchio_model,
 )
 
-from cosim.assemble import plant_path
 from cosim.cli import main
 from cosim.config import PipelineError, load_pipeline
 from cosim.plant.fmu import Fmu
+from cosim.plant_source import plant_path
 from plant_fmu import build_urdf_fmu
 from plant_fmu.build import _build_key
 from plant_fmu.models.spatial_chain import SpatialChainModel

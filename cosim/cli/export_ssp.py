@@ -30,10 +30,10 @@ def add_parser(commands: argparse._SubParsersAction) -> None:
 
 
 def handle(args: argparse.Namespace) -> None:
-    from ..assemble import plant_system
     from ..config import PipelineError, load_pipeline
     from ..plant.mapping import FmuError
     from ..plant.unpack import remove
+    from ..plant_source import plant_system
     from ..system.export import export_ssp
 
     if args.output.suffix.lower() != ".ssp":

@@ -22,7 +22,7 @@ _PLANTS: dict[str, object] = {}  # per worker process: one open plant per plant 
 def _plant_for(pipeline: Pipeline) -> object:
     """This process's open plant for the pipeline's plant (an FMU, a URDF's, a system) and
     mapping (created once; each point sets its parameters)."""
-    from ..assemble import open_plant
+    from ..plant_source import open_plant
 
     key = json.dumps(pipeline.plant.model_dump(exclude={"parameters"}), sort_keys=True)
     if key not in _PLANTS:
