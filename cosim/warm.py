@@ -29,7 +29,7 @@ import zipfile
 from pathlib import Path
 from typing import TextIO
 
-from . import jit_cache
+from . import jit_cache, kernel_digest
 
 _PACKAGE = Path(__file__).resolve().parent
 # The pipeline of the first run (README.md): `make demo`'s, `cosim run`'s example.
@@ -332,7 +332,7 @@ def warm_up(pipelines: list[Path], workers: int | None = None,
 
 
 def _source_size(module: str) -> int:
-    path = jit_cache.module_file(module)
+    path = kernel_digest.module_file(module)
     return path.stat().st_size if path is not None else 0
 
 

@@ -121,36 +121,37 @@ def test_a_changed_kernel_source_recompiles_only_its_kernels_in_a_fresh_process(
 def test_a_fused_loop_is_versioned_by_the_kernels_it_calls(tmp_path, monkeypatch):
     """The generated loop imports its kernels by name: its folder's digest covers their
     modules' sources (and those they import), not only its own text."""
-    from cosim import jit_cache
+    from cosim import kernel_digest
 
     loop = tmp_path / "cosim_fused_probe.py"
     loop.write_text("from numba import njit\n\n"
                     "from cosim.paper.sensor import sensor_step as kernel_0\n"
                     "from cosim.paper.pd_controller import pd_step as kernel_1\n")
-    monkeypatch.setattr(jit_cache, "_closures", {})
-    monkeypatch.setattr(jit_cache, "_digests", {})
-    closure = jit_cache._closure("cosim_fused_probe", loop)
+    monkeypatch.setattr(kernel_digest, "_closures", {})
+    monkeypatch.setattr(kernel_digest, "_digests", {})
+    closure = kernel_digest._closure("cosim_fused_probe", loop)
     # pd_controller calls the nominal model's kernels (cosim.dynamics, with what they import):
     # they are part of the loop's code; so is the layout its records reach kernels in
     # (cosim.records)
     assert closure == ("cosim.dynamics.model", "cosim.dynamics.planar", "cosim.dynamics.spatial",
                        "cosim.numba_compat", "cosim.paper.pd_controller", "cosim.paper.sensor",
                        "cosim.records", "cosim_fused_probe")
-    digest = jit_cache.module_digest("cosim_fused_probe", loop)
-    assert jit_cache._ours("cosim_fused_probe", str(loop))
+    digest = kernel_digest.module_digest("cosim_fused_probe", loop)
+    assert kernel_digest.versioned_here("cosim_fused_probe", str(loop))
     import numpy
 
-    assert not jit_cache._ours("numpy.linalg", numpy.__file__)  # installed: numba's own way
+    # installed: numba's own way
+    assert not kernel_digest.versioned_here("numpy.linalg", numpy.__file__)
     # a kernel module's digest changes with a callee's source, and with nothing else
-    sensor = jit_cache.module_digest("cosim.paper.sensor")
-    monkeypatch.setattr(jit_cache, "_digests", {})
-    real = jit_cache.module_file
+    sensor = kernel_digest.module_digest("cosim.paper.sensor")
+    monkeypatch.setattr(kernel_digest, "_digests", {})
+    real = kernel_digest.module_file
     copy = tmp_path / "planar.py"
     copy.write_text(real("cosim.dynamics.planar").read_text() + "\n# an edit\n")
-    monkeypatch.setattr(jit_cache, "module_file",
+    monkeypatch.setattr(kernel_digest, "module_file",
                         lambda name: copy if name == "cosim.dynamics.planar" else real(name))
-    assert jit_cache.module_digest("cosim_fused_probe", loop) != digest
-    assert jit_cache.module_digest("cosim.paper.sensor") == sensor
+    assert kernel_digest.module_digest("cosim_fused_probe", loop) != digest
+    assert kernel_digest.module_digest("cosim.paper.sensor") == sensor
 
 
 def test_a_kernel_that_cannot_be_cached_is_numbas_warning_naming_its_file(tmp_path):

@@ -14,7 +14,7 @@ ROOT = Path(__file__).resolve().parent.parent
 # Low to high; a module may import its own layer and those before it.
 LAYERS = (
     ("cosim.schema", "cosim.declared", "cosim.signals", "cosim.numba_compat", "cosim.records",
-     "cosim.jit_cache",
+     "cosim.jit_cache", "cosim.kernel_digest",
      "cosim.progress", "cosim.interface", "cosim.run_note", "cosim.environment",
      "cosim.interrupts", "plant_fmu"),
     ("cosim.plant", "cosim.system", "cosim.evaluate", "cosim.dynamics"),
