@@ -119,6 +119,97 @@ def _quoted(text: str) -> str:
     return '"' + text.replace("\\", "\\\\").replace('"', '\\"') + '"'
 
 
+def _robot_lines(chain, urdf: str, base: str | None, fixed: dict[str, float] | None
+                 ) -> list[str]:
+    """The [robot] table's lines: the URDF as the user named it, the chain's ends, the
+    joints held."""
+    robot = [f"file = {_quoted(urdf)}"]
+    robot += [f"base = {_quoted(base)}"] if base else []
+    robot += [f"tip = {_quoted(chain.tip_link)}"]
+    if fixed:
+        robot.append("fixed = { " + ", ".join(f"{_quoted(k)} = {v:g}" for k, v in
+                                              fixed.items()) + " }   # rad (m: prismatic)")
+    return robot
+
+
+def _safety_overrides(chain, p) -> str:
+    """[safety]'s finite limits where the URDF gives none ("" where it gives them all)."""
+    n = chain.n
+    continuous = [chain.joints[i] for i in range(n)
+                  if not (np.isfinite(chain.lower[i]) and np.isfinite(chain.upper[i]))]
+    unlimited = [chain.joints[i] for i in range(n) if not np.isfinite(chain.velocity[i])]
+    if not (continuous or unlimited):
+        return ""
+    return ("# The URDF gives no position limits for " + (", ".join(continuous) or "no joint")
+            + " (continuous) and no velocity limit for " + (", ".join(unlimited) or "no joint")
+            + ":\n# the safe sets need finite ones, so these are chosen here (±π about the "
+            "start; 2 rad/s).\n"
+            f"position_lower = {_list(p.lower)}   # rad\n"
+            f"position_upper = {_list(p.upper)}   # rad\n"
+            f"velocity_limit = {_list(p.velocity)}   # rad/s\n")
+
+
+# The pipeline's blocks and runs, the same for every arm (gains in accelerations, scaled by
+# M̂(q)); ``payload``: the declared payload's upper end, kg.
+_BLOCKS = '''[observer]
+tau_d = 0.0                  # N·m: the plant's disturbance is 0
+initial_velocity = "zero"    # rad/s: the arm starts at rest
+
+# Gains in accelerations, scaled by each configuration's M̂(q): the same bandwidth on
+# every joint, whatever its inertia (kv in 1/s, the robust terms in rad/s²).
+[controller]
+variant = "proposed"
+scale = "inertia"
+kv = 50.0         # 1/s
+lambda = 10.0     # 1/s
+init = "random"
+init_scale = 0.1
+kz = 0.1
+z_wc = 1.0
+c0 = 5.0
+c1 = 0.1
+delta = 1.0
+psi_b = 3.0
+kappa = 0.1
+
+[pd_controller]
+scale = "inertia"
+kp = 400.0   # 1/s²
+kd = 40.0    # 1/s
+
+# The filter: the robot's limits hard (its torque limits the efforts), the tracking soft.
+[cbf_filter]
+hard = ["position", "velocity"]
+soft = ["error", "error_rate"]
+soft_norms = []
+position_rate = 30.0     # 1/s
+tracking_rate = 100.0    # 1/s
+velocity_rate = 100.0    # 1/s
+bound_margin = 0.002
+
+# What the filter's and the observer's guarantees assume: the payload at the tip within
+# [0, {payload:g}] kg (a tenth of the arm's mass), the position measured exactly, the
+# observer's initial velocity error within 0.05 rad/s, no disturbance beyond the model's,
+# and the URDF's friction exact.
+[uncertainty]
+payload = [0.0, {payload:g}]   # kg at the tip
+noise_bound = 0.0              # rad
+initial_velocity_error = 0.05  # rad/s
+disturbance = 0.0              # N·m
+viscous_friction = 0.0         # N·m·s/rad, |b − b̂|
+coulomb_friction = 0.0         # N·m, |fc − f̂c|
+
+[runs.proposed]
+blocks = ["reference", "sensor", "inertia_model", "observer", "controller"]
+
+[runs.proposed_cbf]
+blocks = ["reference", "sensor", "inertia_model", "observer", "controller", "cbf_filter"]
+
+[runs.pd]
+blocks = ["reference", "sensor", "inertia_model", "pd_controller"]
+'''
+
+
 def pipeline_text(chain, urdf: str, name: str, base: str | None = None,
                   tip: str | None = None, fixed: dict[str, float] | None = None,
                   friction: str = "auto") -> str:
@@ -129,26 +220,9 @@ def pipeline_text(chain, urdf: str, name: str, base: str | None = None,
     n = chain.n
     waypoints = [p.start, p.start + p.swing * _signs(n), p.start - p.swing * _signs(n), p.start]
     times = [SEGMENT * i for i in range(len(waypoints))]
-    continuous = [chain.joints[i] for i in range(n)
-                  if not (np.isfinite(chain.lower[i]) and np.isfinite(chain.upper[i]))]
-    unlimited = [chain.joints[i] for i in range(n) if not np.isfinite(chain.velocity[i])]
-    robot = [f"file = {_quoted(urdf)}"]
-    robot += [f"base = {_quoted(base)}"] if base else []
-    robot += [f"tip = {_quoted(chain.tip_link)}"]
-    if fixed:
-        robot.append("fixed = { " + ", ".join(f"{_quoted(k)} = {v:g}" for k, v in
-                                              fixed.items()) + " }   # rad (m: prismatic)")
+    robot = _robot_lines(chain, urdf, base, fixed)
     start = "\n".join(f'"q0[{i + 1}]" = {p.start[i]:.4g}   # {chain.joints[i]}' for i in range(n))
-    safety_overrides = ""
-    if continuous or unlimited:
-        safety_overrides = (
-            "# The URDF gives no position limits for " + (", ".join(continuous) or "no joint")
-            + " (continuous) and no velocity limit for " + (", ".join(unlimited) or "no joint")
-            + ":\n# the safe sets need finite ones, so these are chosen here (±π about the "
-            "start; 2 rad/s).\n"
-            f"position_lower = {_list(p.lower)}   # rad\n"
-            f"position_upper = {_list(p.upper)}   # rad\n"
-            f"velocity_limit = {_list(p.velocity)}   # rad/s\n")
+    safety_overrides = _safety_overrides(chain, p)
     held = ", ".join(f"{k} = {v:g}" for k, v in chain.held) or "none"
     friction_text = _friction_text(chain, p)
     rows = ",\n  ".join(_list(w) for w in waypoints)
@@ -199,63 +273,7 @@ error_rate_bound = 2.0     # |ė_i|, rad/s
 [inertia_model]
 source = "nominal"   # M̂ from the URDF at the measured position (not the plant's own M)
 {friction_text.model}
-[observer]
-tau_d = 0.0                  # N·m: the plant's disturbance is 0
-initial_velocity = "zero"    # rad/s: the arm starts at rest
-
-# Gains in accelerations, scaled by each configuration's M̂(q): the same bandwidth on
-# every joint, whatever its inertia (kv in 1/s, the robust terms in rad/s²).
-[controller]
-variant = "proposed"
-scale = "inertia"
-kv = 50.0         # 1/s
-lambda = 10.0     # 1/s
-init = "random"
-init_scale = 0.1
-kz = 0.1
-z_wc = 1.0
-c0 = 5.0
-c1 = 0.1
-delta = 1.0
-psi_b = 3.0
-kappa = 0.1
-
-[pd_controller]
-scale = "inertia"
-kp = 400.0   # 1/s²
-kd = 40.0    # 1/s
-
-# The filter: the robot's limits hard (its torque limits the efforts), the tracking soft.
-[cbf_filter]
-hard = ["position", "velocity"]
-soft = ["error", "error_rate"]
-soft_norms = []
-position_rate = 30.0     # 1/s
-tracking_rate = 100.0    # 1/s
-velocity_rate = 100.0    # 1/s
-bound_margin = 0.002
-
-# What the filter's and the observer's guarantees assume: the payload at the tip within
-# [0, {p.payload:g}] kg (a tenth of the arm's mass), the position measured exactly, the
-# observer's initial velocity error within 0.05 rad/s, no disturbance beyond the model's,
-# and the URDF's friction exact.
-[uncertainty]
-payload = [0.0, {p.payload:g}]   # kg at the tip
-noise_bound = 0.0              # rad
-initial_velocity_error = 0.05  # rad/s
-disturbance = 0.0              # N·m
-viscous_friction = 0.0         # N·m·s/rad, |b − b̂|
-coulomb_friction = 0.0         # N·m, |fc − f̂c|
-
-[runs.proposed]
-blocks = ["reference", "sensor", "inertia_model", "observer", "controller"]
-
-[runs.proposed_cbf]
-blocks = ["reference", "sensor", "inertia_model", "observer", "controller", "cbf_filter"]
-
-[runs.pd]
-blocks = ["reference", "sensor", "inertia_model", "pd_controller"]
-'''
+{_BLOCKS.format(payload=p.payload)}'''
 
 
 @dataclass(frozen=True)
