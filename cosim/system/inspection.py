@@ -6,8 +6,8 @@ from __future__ import annotations
 
 from ..plant.mapping import declared_unit, map_variables
 from ..plant.ports import PORTS
+from .layout import system_description
 from .order import schedule
-from .plant import SystemPlant
 from .structure import System
 from .wiring import check_system
 
@@ -47,7 +47,7 @@ def describe_system(system: System, mapping: dict[str, list[str] | None] | None 
                  "outputs are read):")
     lines += [f"  {i}. {p.component}: {p.action} {', '.join(p.variables)}"
               for i, p in enumerate(passes, 1)]
-    variables, problems = map_variables(SystemPlant.description_of(wiring), mapping)
+    variables, problems = map_variables(system_description(wiring), mapping)
     if variables is None:
         lines.append("fits the cosim plant interface: no")
         lines += [f"  - {problem}" for problem in problems]

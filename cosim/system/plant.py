@@ -25,79 +25,32 @@ nothing beyond the FMI calls. The trace's row k holds what the components exchan
 from __future__ import annotations
 
 import ctypes
-import re
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from fmpy.model_description import ModelDescription, ModelVariable
 
 from ..plant.errors import FmuError
-from ..plant.lifecycle import STATUS, FmiInstance, open_instance
+from ..plant.lifecycle import STATUS, open_instance
 from ..plant.mapping import (
-    REAL_TYPES,
-    declared_unit,
     map_variables,
     unit_differences,
     unit_spelling,
 )
 from ..plant.ports import OUTPUT_PORTS, output_buffers
 from ..plant.unpack import remove
-from ..signals import Signal, Trace
-from .order import Pass, schedule
+from ..signals import Trace
+from .layout import (
+    Call,
+    Component,
+    component_info,
+    component_signals,
+    folded_passes,
+    lay_out,
+    system_description,
+)
+from .order import schedule
 from .structure import Endpoint, System
 from .wiring import Wiring, check_system
-
-_ELEMENT = re.compile(r"^(.+)\[(\d+)(?:,(\d+))?\]$")  # "tau[2]", "M[1,2]"
-
-
-@dataclass
-class _Component:
-    """A component as it runs: its FMI instance, and where its outputs and inputs (every
-    Real one, for the trace) sit in the flat array."""
-
-    name: str
-    path: Path
-    md: ModelDescription
-    multiple: int
-    parameters: dict[str, float]
-    outputs: list[str]
-    inputs: list[str]
-    # where each output and input sits in the flat array: its outputs from ``at`` on, then
-    # its inputs of their own (``own``: those no connection feeds, or a delayed one feeds);
-    # an input a connection feeds is its source's place (the values are one)
-    at: int = 0
-    own: list[str] = field(default_factory=list)
-    where: dict[str, int] = field(default_factory=dict)
-    fmi: FmiInstance | None = None
-    # Bound when it is instantiated: its (set, doStep, get) functions, value references,
-    # doStep's trailing arguments, and the calls that read all its outputs and inputs.
-    functions: tuple = ()
-    refs: dict[str, int] = field(default_factory=dict)
-    flags: np.ndarray = field(default_factory=lambda: np.zeros(4))
-    tail: tuple = ()
-    read_outputs: _Call | None = None
-    read_inputs: _Call | None = None
-
-    @property
-    def version(self) -> int:
-        return int(self.md.fmiVersion[0])
-
-    def index(self, variable: str) -> int:
-        """Where ``variable`` (an output or input) sits in the flat array."""
-        return self.where[variable]
-
-
-@dataclass
-class _Call:
-    """One pass's FMI call, and the gather before it: ``copy_to[:] = flat[copy_from]``."""
-
-    component: _Component
-    what: str  # the call, for messages: "SetReal (inputs)", "GetReal (outputs)"
-    function: object
-    args: tuple
-    copy_to: np.ndarray | None = None
-    copy_from: np.ndarray | None = None
 
 
 class SystemPlant:
@@ -113,8 +66,9 @@ class SystemPlant:
         self.path = Path(system.origin) if system.origin else Path(system.name)
         self.parameters = dict(parameters or {})
         self.wiring: Wiring = check_system(system, self.parameters)
-        self.passes, self._read_after = self._folded(schedule(self.wiring))
-        self.model_description = self.description_of(self.wiring)
+        self.passes, self._read_after = folded_passes(system, self.wiring,
+                                                      schedule(self.wiring))
+        self.model_description = system_description(self.wiring)
         variables, problems = map_variables(self.model_description, mapping)
         if variables is None:
             raise FmuError(f"{self.path.name}: the system does not fit the plant interface: "
@@ -130,16 +84,16 @@ class SystemPlant:
         self.mapped = frozenset(p.name for p in OUTPUT_PORTS if p.name in variables.mapped)
         self.fmi_version = tuple(sorted({int(md.fmiVersion[0])
                                          for md in self.wiring.descriptions.values()}))
-        self._components, width = self._lay_out()
+        self._components, width = lay_out(system, self.wiring, self.passes, self.parameters,
+                                          variables.tau, self.links)
         self._flat = np.zeros(width)
         self.tau = self._flat[:self.links]
         self.values, self._copied = self._ports()
-        self.signals: dict[str, Signal] = {}
-        self._views: dict[str, tuple] = {}  # trace key -> (first, count, shape) in the flat array
-        self._directions: dict[str, str] = {}  # trace key -> "input" | "output"
-        self._signals()
+        # trace key -> its signal, (first, count, shape) in the flat array, "input" | "output"
+        self.signals, self._views, self._directions = component_signals(self._components,
+                                                                        self.links)
         self._record: np.ndarray | None = None
-        self._calls: list[_Call] = []
+        self._calls: list[Call] = []
         # what the exchange does with each: (its component's step multiple, its function and
         # arguments, the gather before it, the call); built once, read each step
         self._plan: list[tuple] = []
@@ -152,80 +106,7 @@ class SystemPlant:
 
     # What the system is, and where each value sits ----------------------------------------
 
-    def _folded(self, passes: list[Pass]) -> tuple[list[Pass], set[str]]:
-        """The passes, and the components whose outputs are read after each step. A
-        component stepped every master step whose outputs are got in the exchange anyway,
-        whose every reader (none of them the system's outputs, none through a delayed
-        connection) is set after that get, has all its outputs got there instead: the
-        values are the same (what depends on no input is unchanged by setting them) and a
-        step makes one FMI call fewer."""
-        sources = self.wiring.sources
-        read_after = set()
-        out = list(passes)
-        for component in self.system.components:
-            name = component.name
-            gets = [i for i, p in enumerate(passes) if (p.component, p.action) == (name, "get")]
-            readers = [end for end, source in sources.items() if source.element == name]
-            folds = component.step_multiple == 1 and len(gets) == 1 and all(
-                end.element is not None and end not in self.wiring.delayed
-                and any(i > gets[0] and p.action == "set" and p.component == end.element
-                        and end.connector in p.variables for i, p in enumerate(passes))
-                for end in readers)
-            if not folds:
-                read_after.add(name)
-                continue
-            md = self.wiring.descriptions[name]
-            out[gets[0]] = Pass(name, "get", tuple(
-                v.name for v in md.modelVariables if v.causality == "output"
-                and v.type in REAL_TYPES and not v.dimensions))
-        return out, read_after
-
-    @staticmethod
-    def description_of(wiring: Wiring) -> ModelDescription:
-        """A system's own connectors as one FMU's variables (the ports' checks read them)."""
-        md = ModelDescription()
-        md.fmiVersion, md.modelName = "2.0", wiring.system.name
-        for vr, port in enumerate(wiring.ports):
-            md.modelVariables.append(ModelVariable(name=port.name, valueReference=vr,
-                                                   type="Real", causality=port.kind,
-                                                   unit=port.unit))
-        return md
-
-    def _lay_out(self) -> tuple[list[_Component], int]:
-        """Each component's outputs, ordered so that each pass's are adjacent (one FMI call
-        on a slice of the flat array), then its inputs of its own; an input a connection
-        feeds (not delayed) takes its source's place. Returns the components and the flat
-        array's length."""
-        by_pass: dict[str, list[str]] = {}
-        for step in self.passes:
-            by_pass.setdefault(f"{step.component}/{step.action}", []).extend(step.variables)
-        out, at = [], self.links
-        for component in self.system.components:
-            md = self.wiring.descriptions[component.name]
-            real = [v for v in md.modelVariables if v.type in REAL_TYPES and not v.dimensions]
-            outputs = _ordered(by_pass.get(f"{component.name}/get", []),
-                               [v.name for v in real if v.causality == "output"])
-            inputs = _ordered(by_pass.get(f"{component.name}/set", []),
-                              [v.name for v in real if v.causality == "input"])
-            own = [n for n in inputs if Endpoint(component.name, n) not in self.wiring.sources
-                   or Endpoint(component.name, n) in self.wiring.delayed]
-            parameters = self.wiring.component_parameters(component.name, self.parameters)
-            c = _Component(component.name, component.source, md, component.step_multiple,
-                           parameters, outputs, inputs, at, own)
-            c.where = {name: at + i for i, name in enumerate(outputs + own)}
-            out.append(c)
-            at += len(outputs) + len(own)
-        by_name = {c.name: c for c in out}
-        for c in out:
-            for name in c.inputs:
-                if name not in c.where:
-                    source = self.wiring.sources[Endpoint(c.name, name)]
-                    c.where[name] = (self.variables.tau.index(source.connector)
-                                     if source.element is None
-                                     else by_name[source.element].where[source.connector])
-        return out, at
-
-    def _component(self, name: str) -> _Component:
+    def _component(self, name: str) -> Component:
         return next(c for c in self._components if c.name == name)
 
     def _source_index(self, end: Endpoint) -> int:
@@ -251,38 +132,6 @@ class SystemPlant:
             else:
                 copied.append((values[port.name].reshape(-1), index))
         return values, copied
-
-    def _signals(self) -> None:
-        """Every component's Real outputs and inputs as trace signals, ``<component>.<name>``
-        (a family ``name[1]``..``name[n]`` of n = joints elements as one per-joint signal,
-        ``name[i,j]`` n×n as one, each where it is adjacent in the flat array; any other
-        variable alone), recorded under ``plant/<component>/``."""
-        n = self.links
-        for c in self._components:
-            names = c.outputs + c.inputs
-            families: dict[str, list[str]] = {}
-            for name in names:
-                match = _ELEMENT.match(name)
-                families.setdefault(match.group(1) if match else name, []).append(name)
-            by_name = {v.name: v for v in c.md.modelVariables}
-            for base, members in families.items():
-                index = [c.index(m) for m in members]
-                shape = ("n" if members == [f"{base}[{i}]" for i in range(1, n + 1)] else
-                         "nn" if members == [f"{base}[{i},{j}]" for i in range(1, n + 1)
-                                             for j in range(1, n + 1)] else None)
-                adjacent = all(b == a + 1 for a, b in zip(index, index[1:], strict=False))
-                groups = ([(base, members, shape)] if shape and adjacent
-                          else [(m, [m], "1") for m in members])
-                for name, elements, form in groups:
-                    var = by_name[elements[0]]
-                    direction = "input" if elements[0] in c.inputs else "output"
-                    key = f"{c.name}.{name}"
-                    self.signals[key] = Signal(
-                        form, declared_unit(var) or "1",
-                        f"{var.description or name} (component {c.name}'s {direction})",
-                        f"plant/{c.name}/{_entity_part(name)}", name)
-                    self._views[key] = (c.index(elements[0]), len(elements), form)
-                    self._directions[key] = direction
 
     def _delayed_copies(self) -> tuple[np.ndarray, np.ndarray] | None:
         ends = sorted(self.wiring.delayed, key=str)
@@ -323,7 +172,7 @@ class SystemPlant:
         self._exchange(0, start_time)
         self._copy_ports()
 
-    def _bind(self, c: _Component) -> None:
+    def _bind(self, c: Component) -> None:
         """The component's per-step FMI functions, and its calls that read every output and
         every input into the flat array."""
         c.functions = c.fmi.raw_step_functions()
@@ -333,8 +182,8 @@ class SystemPlant:
         c.read_outputs = self._on_flat(c, "get", c.outputs, c.at, "outputs")
         c.read_inputs = self._on_flat(c, "get", c.own, c.at + len(c.outputs), "inputs")
 
-    def _on_flat(self, c: _Component, action: str, names: list[str], first: int,
-                 what: str, values: np.ndarray | None = None) -> _Call:
+    def _on_flat(self, c: Component, action: str, names: list[str], first: int,
+                 what: str, values: np.ndarray | None = None) -> Call:
         """An FMI call that sets or gets ``names`` of ``c`` from or into the flat array's
         slice at ``first`` (or ``values``, from its start)."""
         vrs = (ctypes.c_uint32 * len(names))(*(c.refs[n] for n in names))
@@ -342,11 +191,11 @@ class SystemPlant:
         function = c.functions[0 if action == "set" else 2]
         name = c.fmi.set_name if action == "set" else c.fmi.get_name
         array = self._flat if values is None else values
-        return _Call(c, f"{name} ({what})", function,
+        return Call(c, f"{name} ({what})", function,
                      (c.fmi.fmu.component, vrs, len(names),
                       array.ctypes.data + 8 * int(first), *count))
 
-    def _pass_calls(self) -> list[_Call]:
+    def _pass_calls(self) -> list[Call]:
         """The passes (:mod:`.order`) as calls on the flat array: on the slice their
         variables sit in, or (inputs whose sources are not adjacent) on a buffer gathered
         from them just before."""
@@ -365,12 +214,12 @@ class SystemPlant:
             calls.append(call)
         return calls
 
-    def _call(self, call: _Call, t: float) -> None:
+    def _call(self, call: Call, t: float) -> None:
         status = call.function(*call.args)
         if status > 1:
             raise FmuError(self._failure(call.component, call.what, status, t))
 
-    def _failure(self, c: _Component, what: str, status: int, t: float) -> str:
+    def _failure(self, c: Component, what: str, status: int, t: float) -> str:
         c.fmi.time = t
         return (f"component {c.name!r}: "
                 + c.fmi.describe_failure(what, STATUS.get(status, f"status {status}")))
@@ -444,7 +293,7 @@ class SystemPlant:
         under ``system``: that component's name, the trace key of its per-joint torque
         input (what it was given, beside the torque the plant was asked for), and per
         component its model, file, FMI version, step and every real parameter as used."""
-        components = {c.name: _component_info(c) for c in self._components}
+        components = {c.name: component_info(c) for c in self._components}
         arm = self.wiring.arm
         torque = next((key for key, signal in self.signals.items()
                        if key.startswith(f"{arm}.") and signal.shape == "n"
@@ -483,29 +332,3 @@ class SystemPlant:
 
     def __exit__(self, *exc) -> None:
         self.close()
-
-
-def _ordered(first: list[str], every: list[str]) -> list[str]:
-    """``first`` (a component's variables in pass order), then the rest of ``every``."""
-    chosen = [name for name in first if name in every]
-    return chosen + [name for name in every if name not in chosen]
-
-
-def _entity_part(name: str) -> str:
-    """A variable's name as a recording entity's path part: letters, digits, '_', '-' and
-    '.' kept, anything else '_'."""
-    return re.sub(r"[^A-Za-z0-9_.-]", "_", name)
-
-
-def _component_info(c: _Component) -> dict:
-    names = [v.name for v in c.md.modelVariables
-             if v.causality == "parameter" and v.type in REAL_TYPES and not v.dimensions]
-    refs = {v.name: v.valueReference for v in c.md.modelVariables}
-    if c.fmi is not None and names:
-        values = [float(x) for x in c.fmi.get_reals([refs[n] for n in names])]
-    else:
-        by_name = {v.name: v for v in c.md.modelVariables}
-        values = [float(by_name[n].start or "nan") for n in names]
-    return {"model_name": c.md.modelName, "file": str(c.path),
-            "fmi_version": c.md.fmiVersion, "generation_tool": c.md.generationTool or "",
-            "step_multiple": c.multiple, "parameters": dict(zip(names, values, strict=True))}
