@@ -46,7 +46,7 @@ MUTANTS = [
      "chain[FX, i] = m[i] * (ax + w2 * chain[CX, i])", LAWS),
     ("inertia-link-vs-com", "cosim/dynamics/planar.py",
      "        ax -= w2 * chain[LX, i]\n", "        ax -= w2 * chain[CX, i]\n", LAWS),
-    ("obs-gain-sqrt", "cosim/paper/observer.py",
+    ("obs-gain-sqrt", "cosim/paper/observer_block.py",
      "den_scale=2.0 * math.sqrt(p.kp * p.kd)", "den_scale=2.0 * (p.kp * p.kd)", LAWS),
     ("obs-input-one-substep-off", "cosim/paper/observer.py",
      "frac = (j + 1) / a.substeps", "frac = j / a.substeps", LAWS),
@@ -54,7 +54,7 @@ MUTANTS = [
      "denom = 1.0 + hc + hh * k0", "denom = 1.0 + h * kp + hh * k0", LAWS),
     ("obs-drift-injection", "cosim/paper/observer.py",
      "+ (k0 - kp * a.kd) * x1_err[i]", "+ k0 * x1_err[i]", LAWS + ["tests/test_robust_safety.py"]),
-    ("obs-envelope-noise", "cosim/paper/envelope.py",
+    ("obs-envelope-noise", "cosim/paper/position_windows.py",
      "spread = 2.0 * noise / span", "spread = 0.0", LAWS + BOUND),
     # the envelope's forcing without the payload's share, or without the disturbance d̄
     ("obs-envelope-payload-dropped", "cosim/paper/envelope.py",

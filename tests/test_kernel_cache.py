@@ -134,8 +134,9 @@ def test_a_fused_loop_is_versioned_by_the_kernels_it_calls(tmp_path, monkeypatch
     # they are part of the loop's code; so is the layout its records reach kernels in
     # (cosim.records)
     assert closure == ("cosim.dynamics.model", "cosim.dynamics.planar", "cosim.dynamics.spatial",
-                       "cosim.numba_compat", "cosim.paper.pd_controller", "cosim.paper.sensor",
-                       "cosim.records", "cosim_fused_probe")
+                       "cosim.dynamics.spatial_forms", "cosim.numba_compat",
+                       "cosim.paper.pd_controller", "cosim.paper.sensor", "cosim.records",
+                       "cosim_fused_probe")
     digest = kernel_digest.module_digest("cosim_fused_probe", loop)
     assert kernel_digest.versioned_here("cosim_fused_probe", str(loop))
     import numpy

@@ -14,7 +14,8 @@ ROOT = Path(__file__).resolve().parents[1]
 LEDGER = ROOT / "docs" / "safety" / "ledger.md"
 COLUMNS = ["term", "formula", "place", "test", "mutant"]
 # the files whose every curated mutant must have a row
-LEDGERED = ("cosim/paper/cbf_filter/", "cosim/paper/observer.py", "cosim/paper/envelope.py",
+LEDGERED = ("cosim/paper/cbf_filter/", "cosim/paper/observer.py", "cosim/paper/observer_block.py",
+            "cosim/paper/envelope.py", "cosim/paper/position_windows.py",
             "cosim/paper/premises.py",
             "cosim/paper/guarantee.py", "cosim/paper/within_bounds.py",
             "cosim/paper/viable_start.py", "cosim/paper/theorem.py")

@@ -17,9 +17,9 @@ from cosim.paper.envelope import (
     envelope_acceleration,
     envelope_position,
     envelope_step,
-    envelope_windows,
 )
-from cosim.paper.observer import FlnnObserver, ObserverParams
+from cosim.paper.observer_block import FlnnObserver, ObserverParams
+from cosim.paper.position_windows import envelope_windows
 
 M1, M2, GRAVITY, TAU_D = 0.8, 2.3, 9.8, 0.01
 

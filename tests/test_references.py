@@ -42,7 +42,8 @@ from cosim.evaluate import Evaluator, SafeSet
 from cosim.paper.controller import ControllerParams, NnController, NnGains, controller_step
 from cosim.paper.guarantee import classify
 from cosim.paper.inertia import planar_bias, planar_mass_matrix
-from cosim.paper.observer import FlnnObserver, ObserverParams, _gain, observer_step
+from cosim.paper.observer import _gain, observer_step
+from cosim.paper.observer_block import FlnnObserver, ObserverParams
 from cosim.paper.theorem import theorem1
 from cosim.signals import Signal, Trace
 from cosim.sweep import wilson

@@ -52,9 +52,8 @@ from .spatial import (
     spatial_geometry,
     spatial_mass,
     spatial_payload,
-    spatial_point_forms,
-    spatial_velocity_forms,
 )
+from .spatial_forms import spatial_point_forms, spatial_velocity_forms
 
 
 @kernel_record
@@ -252,7 +251,7 @@ def _planar_velocity_forms(model, bodies, payload, e, plus, out):
 
 @no_refcount_jit(cache=True)
 def _spatial_velocity_forms(model, bodies, payload, e, plus, out):
-    """In closed form (:func:`.spatial.spatial_velocity_forms`; ``e``, ``plus`` unused: the
+    """In closed form (:func:`.spatial_forms.spatial_velocity_forms`; ``e``, ``plus`` unused: the
     planar chain's polarisation's scratch)."""
     spatial_velocity_forms(model, bodies, payload, out)
 
@@ -280,7 +279,7 @@ def _planar_point_forms(model, e, jac, gamma, out, lift):
 
 @no_refcount_jit(cache=True)
 def _spatial_point_forms(model, e, jac, gamma, out, lift):
-    """In closed form (:func:`.spatial.spatial_point_forms`; ``e``, ``gamma`` unused: the
+    """In closed form (:func:`.spatial_forms.spatial_point_forms`; ``e``, ``gamma`` unused: the
     planar chain's signature), −g the same at every point."""
     for r in range(SPATIAL_DIM):
         lift[r] = -model.gravity[r]
@@ -324,7 +323,7 @@ def model_velocity_forms(model: RigidBodyModel, bodies: float, payload: float, e
     The planar chain's by polarisation, from the bias without gravity at e_i (Γ_l,ii) and
     at e_i + e_j (Γ_l,ii + Γ_l,jj + 2Γ_l,ij), n(n + 1)/2 evaluations (``e``, ``plus``:
     scratch of n); the spatial chain's in closed form
-    (:func:`.spatial.spatial_velocity_forms`)."""
+    (:func:`.spatial_forms.spatial_velocity_forms`)."""
 
 
 @_by_kind(_planar_payload, spatial_payload)

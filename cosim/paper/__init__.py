@@ -16,7 +16,7 @@ from . import (  # noqa: F401  (they register on import)
     evaluators,
     guarantee,
     inertia,
-    observer,
+    observer_block,
     pd_controller,
     reference,
     sensor,

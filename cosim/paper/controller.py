@@ -166,18 +166,10 @@ def _torques(mass, vector, scratch):
 
 
 @njit(cache=True)
-def controller_step(k, a):
-    """One step of the NN controller (21)–(27) in one body, which its speed needs: loops
-    over scratch arrays rather than numpy expressions (at n = 2 and 10 hidden units the
-    temporaries and BLAS calls cost more than the arithmetic)."""
+def _errors(k, a, e, edot, r, xi):
+    """e, ė and r̂ = ė + Λe at step k (ė from the velocity read, or from the positions'
+    difference), and the NN's input ξ = [1; e; ė; q_d; q̇_d; q̈_d]; returns ‖r̂‖²."""
     n = a.position.shape[1]
-    hidden = a.hidden
-    n_in = 1 + 5 * n
-    W = a.state[0:(hidden + 1) * n].reshape((hidden + 1, n))
-    V = a.state[(hidden + 1) * n:(hidden + 1) * n + n_in * hidden].reshape((n_in, hidden))
-    xi, act, sig_hat, back = a.xi, a.act, a.sig_hat, a.back  # scratch
-    e, edot, r = a.e[k], a.edot[k], a.r_hat[k]  # written here, then read
-
     r_sq = 0.0
     for i in range(n):
         e[i] = a.q_d[k, i] - a.position[k, i]
@@ -197,6 +189,48 @@ def controller_step(k, a):
         xi[1 + 3 * n + i] = a.qdot_d[k, i]
         xi[1 + 4 * n + i] = a.qddot_d[k, i]
     xi[0] = 1.0
+    return r_sq
+
+
+@njit(cache=True)
+def _learn(a, W, V, r, r_norm):
+    """The weight laws (25)-(26) over [t_k, t_k+1), the κ‖r̂‖ decay implicit:
+    Ŵ⁺ = (Ŵ + dt F (σ̂ − σ̂'V̂ᵀξ) r̂ᵀ) / (1 + dt κ F ‖r̂‖),
+    V̂⁺ = (V̂ + dt G ξ (σ̂'ᵀŴr̂)ᵀ) / (1 + dt κ G ‖r̂‖)."""
+    n, hidden = W.shape[1], a.hidden
+    n_in = V.shape[0]
+    sig_hat, act, xi, back = a.sig_hat, a.act, a.xi, a.back  # scratch, this step's
+    dt_f = a.dt * a.f
+    shrink_w = 1.0 + a.dt * a.kappa * a.f * r_norm
+    for m in range(hidden + 1):
+        if m == 0:
+            row = 1.0  # σ̂'s bias entry, whose σ̂' row is 0
+        else:
+            s = sig_hat[m]
+            row = s - s * (1.0 - s) * act[m - 1]
+        for i in range(n):
+            W[m, i] = (W[m, i] + dt_f * (row * r[i])) / shrink_w
+    dt_g = a.dt * a.g
+    shrink_v = 1.0 + a.dt * a.kappa * a.g * r_norm
+    for m in range(n_in):
+        for j in range(hidden):
+            V[m, j] = (V[m, j] + dt_g * (xi[m] * back[j])) / shrink_v
+
+
+@njit(cache=True)
+def controller_step(k, a):
+    """One step of the NN controller (21)–(27) in one body, which its speed needs: loops
+    over scratch arrays rather than numpy expressions (at n = 2 and 10 hidden units the
+    temporaries and BLAS calls cost more than the arithmetic)."""
+    n = a.position.shape[1]
+    hidden = a.hidden
+    n_in = 1 + 5 * n
+    W = a.state[0:(hidden + 1) * n].reshape((hidden + 1, n))
+    V = a.state[(hidden + 1) * n:(hidden + 1) * n + n_in * hidden].reshape((n_in, hidden))
+    xi, act, sig_hat, back = a.xi, a.act, a.sig_hat, a.back  # scratch
+    e, edot, r = a.e[k], a.edot[k], a.r_hat[k]  # written here, then read
+
+    r_sq = _errors(k, a, e, edot, r, xi)
     # V̂ᵀξ, σ̂ = [1; σ(V̂ᵀξ)], and ‖V̂‖² on the same pass over V̂
     v_sq = 0.0
     for j in range(hidden):
@@ -252,24 +286,7 @@ def controller_step(k, a):
     a.V_norm[k] = v_norm
     a.feedback_gain[k] = np.sqrt(feedback_sq) / r_norm if r_norm > 0.0 else 0.0
 
-    # (25)-(26) over [t_k, t_k+1), the κ‖r̂‖ decay implicit:
-    # Ŵ⁺ = (Ŵ + dt F (σ̂ − σ̂'V̂ᵀξ) r̂ᵀ) / (1 + dt κ F ‖r̂‖),
-    # V̂⁺ = (V̂ + dt G ξ (σ̂'ᵀŴr̂)ᵀ) / (1 + dt κ G ‖r̂‖)
-    dt_f = a.dt * a.f
-    shrink_w = 1.0 + a.dt * a.kappa * a.f * r_norm
-    for m in range(hidden + 1):
-        if m == 0:
-            row = 1.0  # σ̂'s bias entry, whose σ̂' row is 0
-        else:
-            s = sig_hat[m]
-            row = s - s * (1.0 - s) * act[m - 1]
-        for i in range(n):
-            W[m, i] = (W[m, i] + dt_f * (row * r[i])) / shrink_w
-    dt_g = a.dt * a.g
-    shrink_v = 1.0 + a.dt * a.kappa * a.g * r_norm
-    for m in range(n_in):
-        for j in range(hidden):
-            V[m, j] = (V[m, j] + dt_g * (xi[m] * back[j])) / shrink_v
+    _learn(a, W, V, r, r_norm)
     return np.isfinite(finite)
 
 

@@ -80,6 +80,7 @@ from ..dynamics.model import (
 from ..numba_compat import no_refcount_jit
 from ..records import kernel_record
 from .linalg import invert, linear_part, small_symmetric_eigen
+from .position_windows import envelope_windows
 
 
 @kernel_record
@@ -188,6 +189,51 @@ def envelope_position(env, y, slot):
 
 
 @no_refcount_jit(cache=True)
+def _linear_part_at_ends(env, slot, centre, payload_low, payload_high):
+    """b's part linear in q̇ − centre, B(Δm), at each end of the payload cell (into
+    ``env.bmat``), and M̂⁻¹B and RᵀB there (``env.linear``, ``env.projected``), B's column j
+    row by row."""
+    n = centre.shape[0]
+    d = payload_dim(env.model)
+    minv, rmat, forms = env.minv[slot], env.rmat[slot], env.forms[slot]
+    bmat, linear, projected = env.bmat, env.linear, env.projected
+    for l in range(n):  # noqa: E741
+        for j in range(n):
+            bmat[0, l, j], bmat[1, l, j] = linear_part(forms[0], forms[1], centre, payload_low,
+                                                       payload_high, l, j)
+    linear[:] = 0.0
+    projected[:] = 0.0
+    for end in range(2):
+        for j in range(n):
+            for l in range(n):  # noqa: E741
+                entry = bmat[end, l, j]
+                for i in range(n):
+                    linear[end, i, j] += minv[i, l] * entry
+                for r in range(d):
+                    projected[end, r, j] += rmat[l, r] * entry
+
+
+@no_refcount_jit(cache=True)
+def _quadratic_part(env, slot, radius, payload_low, payload_high, spread_of_friction, work):
+    """Per equation l, the most b's part quadratic in q̇ − centre reaches over the box of
+    half-widths ``radius`` and the payload cell's ends, plus d̄ and the friction's spread,
+    into ``work``."""
+    n = radius.shape[0]
+    forms = env.forms[slot]
+    for l in range(n):  # noqa: E741
+        worst = 0.0
+        for end in range(2):
+            mass = payload_low if end == 0 else payload_high
+            total = 0.0
+            for j in range(n):
+                for k in range(n):
+                    total += abs(forms[0, l, j, k] + mass * forms[1, l, j, k]) \
+                        * radius[j] * radius[k]
+            worst = max(worst, total)
+        work[l] = worst + env.disturbance + spread_of_friction[l]
+
+
+@no_refcount_jit(cache=True)
 def envelope_acceleration(env, slot, cell, tau, tau_d, centre, radius, lo, hi):
     """Widen [lo, hi] (per joint) to hold q̈ = M(Δm)⁻¹(τ − τ_d − d − b(y, q̇, Δm)) at the
     cached position ``slot`` for every q̇ with |q̇ − centre| ≤ radius, Δm in the payload
@@ -204,7 +250,7 @@ def envelope_acceleration(env, slot, cell, tau, tau_d, centre, radius, lo, hi):
     pabs = env.pabs[slot, cell]
     payload_low, payload_high = env.cells[cell], env.cells[cell + 1]
     u, work = env.work[U_], env.work[E_]
-    bmat, linear, projected = env.bmat, env.linear, env.projected
+    linear, projected = env.linear, env.projected
     for l in range(n):  # noqa: E741
         bias = env.grav[slot, l] + tau_d[l]
         for j in range(n):
@@ -218,19 +264,7 @@ def envelope_acceleration(env, slot, cell, tau, tau_d, centre, radius, lo, hi):
     model_friction_spread(env.model, centre, radius, spread_of_friction)
     for l in range(n):  # noqa: E741
         work[l] -= friction[l]
-        for j in range(n):
-            bmat[0, l, j], bmat[1, l, j] = linear_part(forms[0], forms[1], centre, payload_low,
-                                                       payload_high, l, j)
-    linear[:] = 0.0  # M̂⁻¹B and RᵀB at each end of the cell, B's column j row by row
-    projected[:] = 0.0
-    for end in range(2):
-        for j in range(n):
-            for l in range(n):  # noqa: E741
-                entry = bmat[end, l, j]
-                for i in range(n):
-                    linear[end, i, j] += minv[i, l] * entry
-                for r in range(d):
-                    projected[end, r, j] += rmat[l, r] * entry
+    _linear_part_at_ends(env, slot, centre, payload_low, payload_high)
     for i in range(n):
         total = 0.0
         for l in range(n):  # noqa: E741
@@ -246,17 +280,7 @@ def envelope_acceleration(env, slot, cell, tau, tau_d, centre, radius, lo, hi):
                 total += point_forms[r, j, k] * centre[j] * centre[k]
         point[r] = total
     size = 0.0
-    for l in range(n):  # noqa: E741 — the quadratic part plus d̄, per equation l
-        worst = 0.0
-        for end in range(2):
-            mass = payload_low if end == 0 else payload_high
-            total = 0.0
-            for j in range(n):
-                for k in range(n):
-                    total += abs(forms[0, l, j, k] + mass * forms[1, l, j, k]) \
-                        * radius[j] * radius[k]
-            worst = max(worst, total)
-        work[l] = worst + env.disturbance + spread_of_friction[l]
+    _quadratic_part(env, slot, radius, payload_low, payload_high, spread_of_friction, work)
     for i in range(n):
         low, high = u[i], u[i]
         for j in range(d):  # −s_j R_ij (v_jᵀ(J u + γ)), s_j over its range
@@ -283,38 +307,6 @@ def envelope_acceleration(env, slot, cell, tau, tau_d, centre, radius, lo, hi):
         size = spread
         lo[i] = min(lo[i], low - size)
         hi[i] = max(hi[i], high + size)
-
-
-@no_refcount_jit(cache=True)
-def envelope_windows(k, dt, noise, window, y, acc, interval):
-    """Intersect q̇(t_k) ∈ ``interval`` with the estimates from the position differences over
-    the last N = 1 … ``window`` steps: q̇(t_k) = (q(t_k) − q(t_k−N))/T + (1/T)∫(s − t_k−N)q̈ ds,
-    T = N dt, the measurements within ±``noise`` (±2 noise/T) and q̈ within acc[j] (lo, hi)
-    over step j, whose weight ∫(s − t_k−N) ds over the step is dt²(j − k + N + ½). False
-    when no q̇ fits every estimate (then the interval is the hull of the crossing ends)."""
-    n = y.shape[1]
-    consistent = True
-    for i in range(n):
-        sum_lo, sum_hi, moment_lo, moment_hi = 0.0, 0.0, 0.0, 0.0
-        lo, hi = interval[0, i], interval[1, i]
-        for length in range(1, min(k, window) + 1):
-            j = k - length
-            if not (np.isfinite(acc[j, 0, i]) and np.isfinite(acc[j, 1, i])):
-                break  # a step whose q̈ no bound held: no window over it says anything
-            sum_lo += acc[j, 0, i]
-            sum_hi += acc[j, 1, i]
-            moment_lo += (j - k + 0.5) * acc[j, 0, i]
-            moment_hi += (j - k + 0.5) * acc[j, 1, i]
-            span = length * dt
-            base = (y[k, i] - y[j, i]) / span
-            spread = 2.0 * noise / span
-            lo = max(lo, base - spread + (moment_lo + length * sum_lo) * dt / length)
-            hi = min(hi, base + spread + (moment_hi + length * sum_hi) * dt / length)
-        if lo > hi:  # no q̇ fits: outside what is assumed; the hull of the two, never less
-            lo, hi = hi, lo
-            consistent = False
-        interval[0, i], interval[1, i] = lo, hi
-    return consistent
 
 
 @no_refcount_jit(cache=True)
