@@ -37,6 +37,9 @@ VIABILITY = FILTER + ["tests/test_viability.py", "tests/test_guarantee.py"]
 CUTS = ["tests/test_filter_speed.py", *FILTER]
 STEPS = ["tests/test_steps.py"]
 PREMISES = ["tests/test_premises.py"]
+COMPARISONS = ["tests/test_guarantee_comparisons.py", "tests/test_guarantee.py",
+               "tests/test_premises.py"]
+URDF = ["tests/test_urdf_plant.py", "tests/test_guarantee_comparisons.py"]
 
 # (id, file, text, replacement, tests): the text must occur exactly once in the file.
 MUTANTS = [
@@ -226,6 +229,40 @@ MUTANTS = [
     ("guarantee-every-hard-set", "cosim/paper/guarantee.py",
      "if c.declared.family in assumes.keeps or c.declared.family not in KEPT_SETS}",
      "if c.declared.family}", ["tests/test_guarantee.py"]),
+    # the classifier's comparisons, each a bug an outside audit planted that the tests of
+    # the day let through: the start-up's last row, a one-sided reach, the smoothing law
+    # compared only where both have Coulomb friction, the drives' budget without the plant's
+    # own disturbance, the last joint's rotor skipped, extra parameters read backwards
+    ("guarantee-startup-last-row", "cosim/paper/guarantee.py",
+     "check.outside[:first + 1].any()", "check.outside[:first].any()", COMPARISONS),
+    ("viable-reach-one-sided", "cosim/paper/viable_start.py",
+     "reach = np.abs(centre - sets[2]) + spread", "reach = (centre - sets[2]) + spread",
+     COMPARISONS),
+    ("within-smoothing-both-coulomb", "cosim/paper/within_bounds.py",
+     "if (coulomb or table[COULOMB, i - 1]) and", "if (coulomb and table[COULOMB, i - 1]) and",
+     COMPARISONS),
+    ("within-drives-budget-whole", "cosim/paper/within_bounds.py",
+     "budget = np.maximum(uncertainty.disturbance\n"
+     "                        - _disturbance_errors(parameters, tau_d_model, n), 0.0)",
+     "budget = np.full(n, float(uncertainty.disturbance))", COMPARISONS),
+    ("within-rotor-last-joint", "cosim/paper/within_bounds.py",
+     "        for i in range(1, n + 1):", "        for i in range(1, n):", COMPARISONS),
+    ("within-extra-parameters-backwards", "cosim/paper/within_bounds.py",
+     "extra = [name for name in parameters if name not in modelled]",
+     "extra = [name for name in modelled if name not in parameters]", COMPARISONS),
+    # the URDF reader's held joints (the same audit)
+    ("urdf-held-nearest-limit-dropped", "plant_fmu/urdf.py",
+     "fixed.get(joint.name, float(np.clip(0.0, lower, upper)))", "fixed.get(joint.name, 0.0)",
+     URDF),
+    ("urdf-held-folded-at-given-only", "plant_fmu/urdf.py",
+     "joint_motion(joint, held.get(joint.name, 0.0), path)",
+     "joint_motion(joint, fixed.get(joint.name, 0.0), path)", URDF),
+    ("urdf-prismatic-sign", "plant_fmu/urdf_elements.py",
+     "transform[:3, 3] = axis * value", "transform[:3, 3] = -axis * value", URDF),
+    ("urdf-held-lower-limit-unchecked", "plant_fmu/urdf.py",
+     "if not lower <= value <= upper:", "if not value <= upper:", URDF),
+    ("urdf-held-fixed-joint-accepted", "plant_fmu/urdf.py",
+     'if name not in by_name or by_name[name].type == "fixed":', "if name not in by_name:", URDF),
     # the evaluation
     ("eval-position-centre", "cosim/evaluate/sets.py",
      '"position": rows["q"] - position_centre,', '"position": rows["q"],', EVALUATION),

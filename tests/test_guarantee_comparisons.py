@@ -9,9 +9,17 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_guarantee import DECLARED, OUTPUT_FEEDBACK, conclude, make_trace
+from test_guarantee import DECLARED, DEFAULTS, NOMINAL, OUTPUT_FEEDBACK, conclude, make_trace
 
+from cosim.declared import Uncertainty
 from cosim.dynamics.model import friction_table, planar_model
+from cosim.paper.within_bounds import (
+    plant_payload,
+    rigid_chain_parameters,
+    system_differences,
+    undeclared_differences,
+)
+from cosim.signals import Signal, Trace
 
 DELTA = 1e-6  # past or short of a declared bound by this much
 EXACT = 2e-9  # past the classifier's tolerance for a parameter not declared uncertain (1e-9)
@@ -174,6 +182,64 @@ def test_the_initial_observer_error_at_every_joint_either_sign(side, joint):
         assert (outside != []) is named, (error, outside)
         if named:
             assert outside == [f"initial observer error {error:.7g} rad/s > 0.5"]
+
+
+def test_the_coulomb_laws_smoothing_is_compared_where_only_the_plant_has_coulomb_friction():
+    """A nominal model without Coulomb friction (f̂c = 0) that declares |fc − f̂c| ≤ 0.4 N·m:
+    the plant's fc within it, but its fc_vel another than the model's: outside, named."""
+    table = friction_table(2, [0.0, 0.0], [0.0, 0.0], 0.01, [0.0, 0.0], [0.4, 0.4])
+    out = undeclared_differences({"fc[1]": 0.3, "fc_vel[1]": 0.05, "fc_vel[2]": 0.01}, None,
+                                 Uncertainty(coulomb_friction=[0.4, 0.4]), np.zeros(2), 2, table)
+    assert out == ["fc_vel[1] = 0.05 rad/s (the nominal model's 0.01 rad/s, "
+                   "inertia_model.fc_vel): another Coulomb friction law"]
+
+
+def test_a_parameter_the_rigid_chain_does_not_have_makes_it_another_model():
+    _, differ = plant_payload({**DEFAULTS, "m[2]": 2.8, "k[1]": 100.0}, NOMINAL,
+                              rigid_chain_parameters(2))
+    assert differ == ["has parameters the nominal rigid chain does not (k[1]): it is another "
+                      "model"]
+
+
+def drive_trace(error) -> Trace:
+    """A system's run: the torque commanded 1 N·m, the arm given 1 N·m + ``error``."""
+    trace = Trace({"tau": Signal("n", "N·m", "tau"), "arm.tau": Signal("n", "N·m", "arm.tau")},
+                  2, 100, 1e-3)
+    trace.arrays["tau"][:] = 1.0
+    trace.arrays["arm.tau"][:] = 1.0 + np.asarray(error)
+    trace.rows_done = 101
+    return trace
+
+
+def drives(rotor=(0.0, 0.0)) -> dict:
+    """A system of an arm and its drives (gear 100, rotor inertias ``rotor``, kg·m²)."""
+    parameters = {f"{k}[{i}]": v for i in LINKS for k, v in
+                  (("N", 100.0), ("kt", 0.1), ("i_max", 10.0), ("T", 0.001))}
+    parameters.update({f"J[{i}]": rotor[i - 1] for i in LINKS})
+    return {"arm": "arm", "arm_torque": "arm.tau",
+            "components": {"arm": {"parameters": {}, "model_name": "arm"},
+                           "drives": {"parameters": parameters, "model_name": "drives"}}}
+
+
+@pytest.mark.parametrize("joint", LINKS)
+def test_a_drives_torque_error_shares_the_disturbance_bound_with_the_plants_own(joint):
+    """0.15 N·m between command and arm on one joint, 0.3 N·m declared: within it alone, but
+    outside once the plant's own 0.2 N·m disturbance on that joint takes its share."""
+    error = [0.15 if i == joint else 0.0 for i in LINKS]
+    declared = Uncertainty(disturbance=0.3)
+    assert system_differences(drive_trace(error), drives(), {}, declared, np.zeros(2)) == []
+    out = system_differences(drive_trace(error), drives(), {f"tau_d_amp[{joint}]": 0.2},
+                             declared, np.zeros(2))
+    assert len(out) == 1 and f"on joint {joint}" in out[0]
+    assert "more than the 0.1 N·m uncertainty.disturbance leaves" in out[0]
+
+
+@pytest.mark.parametrize("joint", LINKS)
+def test_a_rotor_inertia_is_named_at_every_joint(joint):
+    rotor = tuple(1e-5 if i == joint else 0.0 for i in LINKS)
+    out = system_differences(drive_trace([0.0, 0.0]), drives(rotor), {},
+                             Uncertainty(disturbance=0.3), np.zeros(2))
+    assert len(out) == 1 and out[0].startswith(f"drive 'drives': J[{joint}] = 1e-05 kg·m²")
 
 
 # The URDF reader's held joints, at angles other than zero: the nominal model (the reader's

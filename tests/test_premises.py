@@ -225,6 +225,31 @@ def test_a_set_left_during_the_start_up_means_the_guarantee_never_began():
     assert g["covered"] is False and g["broken"] is False and g["covered_from_s"] is None
 
 
+def test_a_set_left_at_the_first_viable_step_means_the_guarantee_never_began():
+    """The start-up runs up to the first viable step inclusive: a set left at that very step
+    is left before the guarantee began (not covered, not broken)."""
+    trace = uncertain_start(30)
+    place(trace, "q", (30, 0), 2.1)
+    g = judge(trace, WITH_CHECK)
+    assert g["covered"] is False and g["broken"] is False and g["covered_from_s"] is None
+
+
+@pytest.mark.parametrize("joint", (0, 1))
+def test_an_uncertain_start_below_the_velocity_bound_starts_later_at_either_joint(joint):
+    """The filter's interval at t = 0 reaching past the lower velocity bound (−1 ± 2.5
+    against −3 rad/s), the other joint's well inside: not viable as seen, named at that
+    joint, and covered from the first viable step."""
+    trace = uncertain_start(4)
+    trace["cbf_velocity_spread"][0] = 0.05
+    place(trace, "qdot", (0, joint), -1.0)
+    trace["cbf_velocity_centre"][0, joint] = -1.0
+    trace["cbf_velocity_spread"][0, joint] = 2.5
+    g = judge(trace, WITH_CHECK)
+    assert g["not_viable"].startswith("the velocity the filter holds at t = 0 reaches past "
+                                      f"the velocity bound (joint {joint + 1}:")
+    assert g["covered"] is True and g["covered_from_s"] == pytest.approx(4 * DT)
+
+
 def test_only_an_uncertain_velocity_and_only_an_output_feedback_filter_start_later():
     trace = uncertain_start(4)
     trace["cbf_velocity_spread"][0] = 0.05  # not viable for another reason: never covered

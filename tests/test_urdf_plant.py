@@ -35,7 +35,7 @@ from cosim.plant_source import plant_path
 from plant_fmu import build_urdf_fmu
 from plant_fmu.build import _build_key
 from plant_fmu.models.spatial_chain import SpatialChainModel
-from plant_fmu.urdf import read_urdf, resolve_uri
+from plant_fmu.urdf import UrdfError, read_urdf, resolve_uri
 
 # Five arms of example-robot-data and our own robot, built for FMI 2 or 3 (UR10 and SO-101
 # too in benchmarks/bench_urdf.py).
@@ -102,6 +102,40 @@ def test_panda_chain_stops_at_the_hand_with_the_fingers_folded():
     ur5 = read_urdf(ARMS["ur5"], tip="tool0", fixed={"wrist_3_joint": 0.5})
     assert ur5.joints[-1] == "wrist_2_joint" and ur5.tip_link == "tool0"
     assert ur5.held == (("wrist_3_joint", 0.5),)
+
+
+def test_an_off_chain_joint_whose_limits_exclude_zero_is_held_at_its_nearest_limit(tmp_path):
+    """The Panda with its fingers' range [0.01, 0.04] m: held at 0.01 (not 0), and the hand
+    folded with them there, as Pinocchio's model locked at the held values."""
+    robot = tmp_path / "panda.urdf"
+    robot.write_text(ARMS["panda"].read_text().replace('lower="0.0" upper="0.04"',
+                                                       'lower="0.01" upper="0.04"'))
+    chain = read_urdf(robot)
+    assert dict(chain.held) == {"panda_finger_joint1": 0.01, "panda_finger_joint2": 0.01}
+    hand = pinocchio_model(ARMS["panda"], chain).inertias[chain.n]
+    np.testing.assert_allclose(chain.com[-1], hand.lever, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(chain.inertia[-1], hand.inertia, rtol=0, atol=1e-14)
+
+
+def test_a_held_prismatic_joint_folds_as_pinocchio_locks_it():
+    """One finger held at 0.03 m (one only: the two are symmetric, so holding both would
+    hide a sign)."""
+    chain = read_urdf(ARMS["panda"], fixed={"panda_finger_joint1": 0.03})
+    assert dict(chain.held)["panda_finger_joint1"] == 0.03
+    hand = pinocchio_model(ARMS["panda"], chain).inertias[chain.n]
+    np.testing.assert_allclose(chain.com[-1], hand.lever, rtol=0, atol=1e-14)
+    np.testing.assert_allclose(chain.inertia[-1], hand.inertia, rtol=0, atol=1e-14)
+
+
+@pytest.mark.parametrize("value", (-4.0, 4.0))
+def test_a_held_value_outside_the_joints_limits_is_refused_on_either_side(value):
+    with pytest.raises(UrdfError, match=r"elbow_joint=.*outside the joint's limits"):
+        read_urdf(ARMS["ur5"], fixed={"elbow_joint": value})
+
+
+def test_holding_a_joint_that_does_not_move_is_refused():
+    with pytest.raises(UrdfError, match="panda_joint8: not a moving joint"):
+        read_urdf(ARMS["panda"], fixed={"panda_joint8": 0.0})
 
 
 def test_own_robot_prismatic_continuous_and_fixed_joints():
