@@ -40,6 +40,7 @@ PREMISES = ["tests/test_premises.py"]
 COMPARISONS = ["tests/test_guarantee_comparisons.py", "tests/test_guarantee.py",
                "tests/test_premises.py"]
 URDF = ["tests/test_urdf_plant.py", "tests/test_guarantee_comparisons.py"]
+RULES = ["tests/test_check_rules.py", "tests/test_viability.py"]
 
 # (id, file, text, replacement, tests): the text must occur exactly once in the file.
 MUTANTS = [
@@ -226,6 +227,18 @@ MUTANTS = [
     ("premises-rate-cross-dropped", "cosim/paper/premises.py",
      "return np.maximum(ends, np.minimum(v0 + high * cross, v1 - low * (dt - cross)))",
      "return ends", PREMISES),
+    # the check's rules an outside audit found the viability tests let through: a joint
+    # stopped only moving one way, inside only below the upper velocity bound, the tube's
+    # position half-width grown with the control step where the rollout's step is meant
+    ("cbf-stopped-one-sided", "cosim/paper/cbf_filter/check.py",
+     "stopped = stopped and abs(vel[i] - a.centres[1, i] - r[R_TARGET, i]) <= STOPPED",
+     "stopped = stopped and (vel[i] - a.centres[1, i] - r[R_TARGET, i]) <= STOPPED", RULES),
+    ("cbf-inside-one-sided", "cosim/paper/cbf_filter/interval.py",
+     "abs(r[R_CENTRE, i] - a.centres[1, i]) + r[R_HALF, i]",
+     "(r[R_CENTRE, i] - a.centres[1, i]) + r[R_HALF, i]", RULES),
+    ("cbf-tube-dq-dt-for-h", "cosim/paper/cbf_filter/check.py",
+     "dq[i] += h * dv[i] + 0.5 * h * h * widen[i]",
+     "dq[i] += h * dv[i] + 0.5 * a.dt * a.dt * widen[i]", RULES),
     ("guarantee-every-hard-set", "cosim/paper/guarantee.py",
      "if c.declared.family in assumes.keeps or c.declared.family not in KEPT_SETS}",
      "if c.declared.family}", ["tests/test_guarantee.py"]),

@@ -1,0 +1,108 @@
+"""The filter's check rule by rule, in both directions and at either joint: the state
+inside the hard sets as the check holds them (cosim/paper/cbf_filter/interval.py,
+``inside``), a braking rollout that stops whichever way a joint moves, and the tube's
+half-widths growing by the recurrence the check states (cosim/paper/cbf_filter/check.py,
+``_advance``). Each catches a bug an outside audit planted that the viability tests let
+through. SI units, radians."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_viability import args_of, is_verified
+
+from cosim.paper.cbf_filter.check import STOPPED
+from cosim.paper.cbf_filter.interval import inside
+from cosim.paper.cbf_filter.scratch import (
+    PLAN_TUBE,
+    R_CENTRE,
+    R_HALF,
+    R_TARGET,
+    R_V,
+    T_DQ,
+    T_DV,
+    T_FEEDBACK,
+    T_WIDEN,
+)
+
+
+@pytest.fixture(scope="module")
+def paper_args():
+    return args_of("pipelines/paper_safety.toml")
+
+
+@pytest.fixture(scope="module")
+def uncertain_args():
+    """near_boundary.toml: a payload of 0-1 kg at the tip, noise 6e-4 rad declared."""
+    return args_of("pipelines/near_boundary.toml")
+
+
+def plan(a) -> tuple[np.ndarray, np.ndarray]:
+    """The rollout just verified, segment by segment, and each segment's length, s (up to
+    the first of length 0, its end: an earlier, longer rollout's may follow)."""
+    buffer = int(a.work.flags[PLAN_TUBE])
+    lengths = a.work.tube_steps[buffer]
+    ends = np.flatnonzero(lengths == 0.0)
+    count = int(ends[0]) if len(ends) else len(lengths)
+    return a.work.tube[buffer, :count], lengths[:count]
+
+
+@pytest.mark.parametrize("joint", (0, 1))
+@pytest.mark.parametrize("side", (1.0, -1.0))
+def test_the_state_is_inside_only_within_both_bounds_at_either_joint(uncertain_args, joint,
+                                                                     side):
+    """``inside`` on the velocity interval and the measured position: 0.1 within a bound
+    (the check's own, viable_bounds) inside, 0.1 past it not, on either side of either
+    joint."""
+    a = uncertain_args
+    rollout, position = a.work.rollout, a.position[0]
+    kept = rollout[R_CENTRE].copy(), rollout[R_HALF].copy(), position.copy()
+    try:
+        rollout[R_HALF] = 0.0
+        rollout[R_CENTRE] = a.centres[1]
+        position[:] = a.centres[0]
+        for quantity, bound in ((1, a.viable_bounds[1, joint]),
+                                (0, a.viable_bounds[0, joint] - a.noise_bound)):
+            values = rollout[R_CENTRE] if quantity else position
+            for offset, expected in ((-0.1, True), (0.1, False)):
+                values[joint] = a.centres[quantity, joint] + side * (bound + offset)
+                assert inside(0, a) is expected, (quantity, offset)
+            values[joint] = a.centres[quantity, joint]
+    finally:
+        rollout[R_CENTRE], rollout[R_HALF], position[:] = kept
+
+
+@pytest.mark.parametrize("joint", (0, 1))
+def test_a_joint_moving_either_way_is_braked_to_its_target_and_stops(paper_args, joint):
+    """From rest but one joint at ±1 rad/s, the verified rollout takes as many segments
+    either way, and ends with every joint within STOPPED of its backup's target."""
+    a = paper_args
+    segments = {}
+    for side in (1.0, -1.0):
+        v = np.zeros(2)
+        v[joint] = side
+        assert is_verified(a, [0.0, 0.0], v)
+        tube, _ = plan(a)
+        segments[side] = len(tube)
+        rollout = a.work.rollout
+        assert np.all(np.abs(rollout[R_V] - a.centres[1] - rollout[R_TARGET]) <= STOPPED)
+    assert segments[1.0] == segments[-1.0] > 1, segments
+
+
+def test_the_tubes_half_widths_grow_by_the_recurrence_the_check_states(uncertain_args):
+    """A rollout of steps of 1 and 2 ms near the position bound with the payload and an
+    estimate within 0.5 rad/s: segment by segment, δq' = δq + h δv + ½h²·widen and
+    δv' = max(δv (1 − f) + f ε + h·widen, ε), f the feedback's share, to rounding."""
+    a = uncertain_args
+    bound = a.viable_bounds[0, 0]
+    eps = 0.5
+    assert is_verified(a, [bound - 0.3, 0.1], [3.0, 5.0], eps)
+    tube, lengths = plan(a)
+    assert len(tube) > 10 and len(set(np.round(lengths, 9))) > 1, lengths
+    for j in range(len(tube) - 1):
+        h, now, then = lengths[j], tube[j], tube[j + 1]
+        np.testing.assert_allclose(then[T_DQ], now[T_DQ] + h * now[T_DV]
+                                   + 0.5 * h * h * now[T_WIDEN], rtol=1e-12, atol=1e-15)
+        f = now[T_FEEDBACK]
+        np.testing.assert_allclose(then[T_DV], np.maximum(
+            now[T_DV] * (1.0 - f) + f * eps + now[T_WIDEN] * h, eps), rtol=1e-12, atol=1e-15)
