@@ -229,7 +229,8 @@ MUTANTS = [
      "return ends", PREMISES),
     # the check's rules an outside audit found the viability tests let through: a joint
     # stopped only moving one way, inside only below the upper velocity bound, the tube's
-    # position half-width grown with the control step where the rollout's step is meant
+    # position half-width grown with the control step where the rollout's step is meant,
+    # the plan's box contracted by the whole step's feedback at its first hold
     ("cbf-stopped-one-sided", "cosim/paper/cbf_filter/check.py",
      "stopped = stopped and abs(vel[i] - a.centres[1, i] - r[R_TARGET, i]) <= STOPPED",
      "stopped = stopped and (vel[i] - a.centres[1, i] - r[R_TARGET, i]) <= STOPPED", RULES),
@@ -239,6 +240,8 @@ MUTANTS = [
     ("cbf-tube-dq-dt-for-h", "cosim/paper/cbf_filter/check.py",
      "dq[i] += h * dv[i] + 0.5 * h * h * widen[i]",
      "dq[i] += h * dv[i] + 0.5 * a.dt * a.dt * widen[i]", RULES),
+    ("cbf-plan-box-share-whole", "cosim/paper/cbf_filter/check.py",
+     "share = segment[T_FEEDBACK, i] * s / h", "share = segment[T_FEEDBACK, i]", RULES),
     ("guarantee-every-hard-set", "cosim/paper/guarantee.py",
      "if c.declared.family in assumes.keeps or c.declared.family not in KEPT_SETS}",
      "if c.declared.family}", ["tests/test_guarantee.py"]),

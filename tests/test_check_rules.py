@@ -106,3 +106,36 @@ def test_the_tubes_half_widths_grow_by_the_recurrence_the_check_states(uncertain
         f = now[T_FEEDBACK]
         np.testing.assert_allclose(then[T_DV], np.maximum(
             now[T_DV] * (1.0 - f) + f * eps + now[T_WIDEN] * h, eps), rtol=1e-12, atol=1e-15)
+
+
+def test_the_plans_box_inside_a_step_of_several_holds_contracts_no_faster_than_the_holds(
+        uncertain_args):
+    """At a 0.5 ms control step and 200 1/s the rollout's steps span several holds of the
+    backup, each removing the share c = k_b dt of a free joint's δv. The plan's box after J
+    holds into a segment keeps at least δv (1 − c)^J + (1 − (1 − c)^J) ε + J dt·widen: the
+    feedback has had J holds to act, not the whole segment's (the payload's D > 0, so the
+    tube is not nil)."""
+    from cosim.paper.cbf_filter.check import plan_box
+    from cosim.paper.cbf_filter.scratch import R_BOX_V_HALF
+
+    a = uncertain_args._replace(backup_rate=200.0, dt=5e-4)
+    eps, c = 0.3, 200.0 * 5e-4
+    assert is_verified(a, [0.1, 0.5], [2.0, 1.0], eps)
+    tube, lengths = plan(a)
+    starts = np.concatenate(([0.0], np.cumsum(lengths)))
+    inside_steps = 0
+    for k in range(int(round(starts[-1] / a.dt)) - 1):
+        plan_box(k, a)
+        offset = (k + 1) * a.dt
+        j = int(np.searchsorted(starts, offset - 1e-12)) - 1
+        holds = int(round((offset - starts[j]) / a.dt))
+        if not 0 < holds < round(lengths[j] / a.dt):
+            continue  # at a segment's edge, where the box is the segment's own
+        segment = tube[j]
+        free = segment[T_FEEDBACK] > 0.0
+        kept = (1.0 - c) ** holds
+        least = segment[T_DV] * kept + (1.0 - kept) * eps + holds * a.dt * segment[T_WIDEN]
+        box = a.work.rollout[R_BOX_V_HALF]
+        assert np.all(box[free] >= least[free] - 1e-12), (k, box, least)
+        inside_steps += int(free.any())
+    assert inside_steps >= 10, inside_steps
