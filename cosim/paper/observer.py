@@ -143,6 +143,13 @@ def _weights_times(W, sigma, out):
         out[i] = total
 
 
+@njit(cache=True, inline="always")
+def _state(a):
+    """Views of the observer's flat state: x̂1, ẑ2, q̂̈ (n each) and Ŵo (n_basis × n)."""
+    n, n_basis, s = a.q_meas.shape[1], a.n_basis, a.state
+    return s[0:n], s[n:2 * n], s[2 * n:3 * n], s[3 * n:3 * n + n_basis * n].reshape((n_basis, n))
+
+
 @njit(cache=True)
 def observer_step(k, a):
     """One step of the observer (5)–(10), (24): its sub-steps, gain and weight law in one
@@ -152,11 +159,7 @@ def observer_step(k, a):
     n_basis = a.n_basis
     kp = a.kp
     c = kp + a.kd
-    s = a.state
-    x1 = s[0:n]
-    z2 = s[n:2 * n]
-    qdd = s[2 * n:3 * n]
-    W = s[3 * n:3 * n + n_basis * n].reshape((n_basis, n))
+    x1, z2, qdd, W = _state(a)
     sigma, y, x1_err, x2, g = a.sigma, a.y, a.x1_err, a.x2, a.g  # scratch
     w_sq = 0.0  # ‖Ŵo‖², kept up to date by the weight law's loop below
     for b in range(n_basis):
@@ -225,13 +228,8 @@ def _publish(k, a, w_sq):
     ‖Ŵo‖, the certified bound ε(t) and the envelope's centre, and x̂2's drift; False where
     the state is not finite."""
     n = a.q_meas.shape[1]
-    n_basis = a.n_basis
     kp = a.kp
-    s = a.state
-    x1 = s[0:n]
-    z2 = s[n:2 * n]
-    qdd = s[2 * n:3 * n]
-    W = s[3 * n:3 * n + n_basis * n].reshape((n_basis, n))
+    x1, z2, qdd, W = _state(a)
     sigma, x1_err, g = a.sigma, a.x1_err, a.g  # scratch
     y_k = a.q_meas[k]
     err_sq = 0.0
