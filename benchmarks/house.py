@@ -9,7 +9,8 @@ Figures (each printed with what it counts):
 - modules over 400 lines and functions over 80 (Python: cosim/, plant_fmu/; C: plant_fmu/);
 - fields of the kernels' argument and work records (NamedTuple classes), written by hand;
 - row-index constants written by hand (``A, B, C = range(3)`` and ``NAME = <int>`` in the
-  filter's scratch);
+  filter's scratch), and the rows declared by name instead (members of a ``Rows`` class,
+  cosim.blocks.binding, numbered by their order);
 - the lines of cosim/paper;
 - cosim/paper's imports of project modules that docs/api.md does not document;
 - the parameter's occurrences as a name in code (not in comments or strings), and in how
@@ -74,7 +75,8 @@ def record_fields() -> dict[str, int]:
     return out
 
 
-SOURCES = ("parameter", "reads", "writes", "uncertainty", "master_step", "scratch")
+SOURCES = ("parameter", "reads", "writes", "uncertainty", "master_step", "scratch",
+           "published")
 
 
 def declared_fields() -> dict[str, int]:
@@ -101,13 +103,17 @@ def per_joint_lists() -> list[str]:
 
 def writes_of(name: str) -> list[str]:
     """Where ``name`` is written over cosim/: a class field declared with it, a keyword
-    argument, an assignment to it (a name or an attribute), a ``per_joint`` entry."""
+    argument, an assignment to it (a name or an attribute), a ``per_joint`` entry; and the
+    kernel records' fields that declare its source (cosim.blocks.binding), listed apart: the
+    framework binds them, nothing writes them by hand."""
     out = []
     for path in sorted(ROOT.glob("cosim/**/*.py")):
         for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
             where = f"{path.relative_to(ROOT)}:{getattr(node, 'lineno', '')}"
             if isinstance(node, ast.AnnAssign) and getattr(node.target, "id", None) == name:
-                out.append(f"{where} field")
+                declared = isinstance(node.annotation, ast.Call) and getattr(
+                    node.annotation.func, "id", None) in SOURCES
+                out.append(f"{where} {'bound from its declared source' if declared else 'field'}")
             elif isinstance(node, ast.keyword) and node.arg == name:
                 out.append(f"{path.relative_to(ROOT)}:{node.value.lineno} keyword")
             elif isinstance(node, ast.Assign):
@@ -137,6 +143,19 @@ def index_constants(path: Path) -> int:
                 isinstance(e, ast.Constant) and type(e.value) is int for e in value.elts):
             count += len(value.elts)
     return count
+
+
+def declared_rows() -> tuple[int, int]:
+    """(rows declared as members of a ``Rows`` class, numbered by their order, the classes)
+    over cosim/."""
+    members, classes = 0, 0
+    for path in ROOT.glob("cosim/**/*.py"):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.ClassDef) and any(
+                    getattr(base, "id", None) == "Rows" for base in node.bases):
+                classes += 1
+                members += sum(isinstance(item, ast.Assign) for item in node.body)
+    return members, classes
 
 
 def name_occurrences(name: str) -> tuple[int, int]:
@@ -188,6 +207,9 @@ def main() -> None:
     print(f"blocks listing per_joint by hand: {len(lists)}")
     scratch = ROOT / "cosim/paper/cbf_filter/scratch.py"
     print(f"index constants by hand in {scratch.relative_to(ROOT)}: {index_constants(scratch)}")
+    members, classes = declared_rows()
+    print(f"  rows declared by name (Rows classes, numbered by the framework): {members} in "
+          f"{classes} classes")
 
     paper = [p for p in python_files() if p.is_relative_to(ROOT / "cosim/paper")]
     print(f"lines of cosim/paper: {sum(sizes[p] for p in paper)} in {len(paper)} modules")
@@ -197,9 +219,14 @@ def main() -> None:
         print(f"  {module} -> {imported}")
     total, files = name_occurrences(args.parameter)
     print(f"'{args.parameter}' as a name in code: {total} times in {files} files of cosim/")
-    written = writes_of(args.parameter)
+    places = writes_of(args.parameter)
+    written = [where for where in places if not where.endswith("declared source")]
     print(f"'{args.parameter}' written: {len(written)} places")
     for where in written:
+        print(f"  {where}")
+    bound = [where for where in places if where.endswith("declared source")]
+    print(f"'{args.parameter}' read by a kernel record through a declared source: {len(bound)}")
+    for where in bound:
         print(f"  {where}")
 
 

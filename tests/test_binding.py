@@ -6,6 +6,7 @@ parameter's per-joint form is declared once, in its type."""
 
 from __future__ import annotations
 
+from enum import auto
 from typing import NamedTuple
 
 import numpy as np
@@ -14,8 +15,10 @@ from pydantic import Field
 
 from cosim.blocks.base import Block, BlockContext, Ports
 from cosim.blocks.binding import (
+    Rows,
     master_step,
     parameter,
+    published,
     reads,
     scratch,
     sources,
@@ -61,10 +64,11 @@ class Toy(Block):
     per_joint = ("extra",)  # a class's own keys are kept beside the declared ones
 
 
-def _bound(params: ToyParams | None = None, record=ToyArgs, **computed):
+def _bound(params: ToyParams | None = None, record=ToyArgs, published=None, **computed):
     context = BlockContext(links=3, dt=0.002, run="r", plant_outputs=frozenset(),
                            uncertainty=Uncertainty(noise_bound=1e-4))
     block = Toy(params or ToyParams(), context)
+    block.publishes.update(published or {})
     trace = Trace({}, 3, 4, 0.002)
     q, tau = np.arange(12.0).reshape(4, 3), np.zeros((4, 3))
     ports = Ports(inputs={"q": q}, outputs={"tau": tau}, trace=trace)
@@ -147,6 +151,66 @@ def test_a_scratch_size_is_integers_and_names_only():
         _bound(record=Sized)
     with pytest.raises(TypeError, match=r"Unknown.block: scratch size 'rows'.* width, n"):
         _bound(record=Unknown)
+
+
+class Layout(Rows):
+    """Rows of a scratch array (a Rows class in the record's module: what its shape names)."""
+
+    A = auto()
+    B = auto()
+    C = auto()  # the first of a few, as the filter's Vector.X
+
+
+class Published(NamedTuple):
+    limit: np.ndarray
+
+
+@kernel_record
+class Laid(NamedTuple):
+    rows: scratch("Layout, n")
+    tail: scratch("Layout.C + n")
+    limit: published("assumes")
+
+
+def test_named_rows_are_numbered_by_their_order_and_sized_by_their_class():
+    """A Rows class numbers its members 0, 1, … as declared, whatever is added before them;
+    a shape naming it takes its count, ``Class.MEMBER`` that member's row; a kernel indexes
+    by member as by the integer."""
+    from numba import njit
+
+    assert [int(row) for row in Layout] == [0, 1, 2]
+
+    class Longer(Rows):
+        NEW = auto()  # a row added first moves the others on
+        A = auto()
+        B = auto()
+
+    assert (Longer.A, Longer.B, len(Longer)) == (1, 2, 3)
+    args, _, _ = _bound(record=Laid, published={"assumes": Published(np.full(3, 5.0))})
+    assert args.rows.shape == (3, 3) and args.tail.shape == (2 + 3,)
+
+    @njit
+    def fill(rows):
+        for i in range(rows.shape[1]):
+            rows[Layout.B, i] = 1.0
+            rows[Layout.C + 0, i] = 2.0
+        return rows[Layout.A:Layout.C].sum()
+
+    rows = np.zeros((len(Layout), 2))
+    assert fill(rows) == 2.0
+    np.testing.assert_array_equal(rows, [[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]])
+
+
+def test_a_published_field_is_the_blocks_own_constant_and_a_missing_one_is_named():
+    """``published`` binds the field of a constant the block resolved as it was made (the
+    filter's torque limit, its default from the robot), the same array the blocks after it
+    read; a constant the block does not publish is refused, named."""
+    limit = np.array([1.0, 2.0, 3.0])
+    args, _, _ = _bound(record=Laid, published={"assumes": Published(limit)})
+    assert args.limit is limit
+    with pytest.raises(TypeError, match=r"Laid.limit: toy publishes no 'assumes' \(it "
+                                        r"publishes: nothing\)"):
+        _bound(record=Laid)
 
 
 def test_per_joint_is_read_from_the_parameters_types_at_any_depth():

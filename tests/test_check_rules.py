@@ -13,17 +13,7 @@ from test_viability import args_of, is_verified
 
 from cosim.paper.cbf_filter.check import STOPPED
 from cosim.paper.cbf_filter.interval import inside
-from cosim.paper.cbf_filter.scratch import (
-    PLAN_TUBE,
-    R_CENTRE,
-    R_HALF,
-    R_TARGET,
-    R_V,
-    T_DQ,
-    T_DV,
-    T_FEEDBACK,
-    T_WIDEN,
-)
+from cosim.paper.cbf_filter.scratch import Flag, Rollout, Tube
 
 
 @pytest.fixture(scope="module")
@@ -40,7 +30,7 @@ def uncertain_args():
 def plan(a) -> tuple[np.ndarray, np.ndarray]:
     """The rollout just verified, segment by segment, and each segment's length, s (up to
     the first of length 0, its end: an earlier, longer rollout's may follow)."""
-    buffer = int(a.work.flags[PLAN_TUBE])
+    buffer = int(a.work.flags[Flag.PLAN_TUBE])
     lengths = a.work.tube_steps[buffer]
     ends = np.flatnonzero(lengths == 0.0)
     count = int(ends[0]) if len(ends) else len(lengths)
@@ -56,20 +46,20 @@ def test_the_state_is_inside_only_within_both_bounds_at_either_joint(uncertain_a
     joint."""
     a = uncertain_args
     rollout, position = a.work.rollout, a.position[0]
-    kept = rollout[R_CENTRE].copy(), rollout[R_HALF].copy(), position.copy()
+    kept = rollout[Rollout.CENTRE].copy(), rollout[Rollout.HALF].copy(), position.copy()
     try:
-        rollout[R_HALF] = 0.0
-        rollout[R_CENTRE] = a.centres[1]
+        rollout[Rollout.HALF] = 0.0
+        rollout[Rollout.CENTRE] = a.centres[1]
         position[:] = a.centres[0]
         for quantity, bound in ((1, a.viable_bounds[1, joint]),
                                 (0, a.viable_bounds[0, joint] - a.noise_bound)):
-            values = rollout[R_CENTRE] if quantity else position
+            values = rollout[Rollout.CENTRE] if quantity else position
             for offset, expected in ((-0.1, True), (0.1, False)):
                 values[joint] = a.centres[quantity, joint] + side * (bound + offset)
                 assert inside(0, a) is expected, (quantity, offset)
             values[joint] = a.centres[quantity, joint]
     finally:
-        rollout[R_CENTRE], rollout[R_HALF], position[:] = kept
+        rollout[Rollout.CENTRE], rollout[Rollout.HALF], position[:] = kept
 
 
 @pytest.mark.parametrize("joint", (0, 1))
@@ -85,7 +75,8 @@ def test_a_joint_moving_either_way_is_braked_to_its_target_and_stops(paper_args,
         tube, _ = plan(a)
         segments[side] = len(tube)
         rollout = a.work.rollout
-        assert np.all(np.abs(rollout[R_V] - a.centres[1] - rollout[R_TARGET]) <= STOPPED)
+        moving = rollout[Rollout.V] - a.centres[1] - rollout[Rollout.TARGET]
+        assert np.all(np.abs(moving) <= STOPPED)
     assert segments[1.0] == segments[-1.0] > 1, segments
 
 
@@ -101,11 +92,11 @@ def test_the_tubes_half_widths_grow_by_the_recurrence_the_check_states(uncertain
     assert len(tube) > 10 and len(set(np.round(lengths, 9))) > 1, lengths
     for j in range(len(tube) - 1):
         h, now, then = lengths[j], tube[j], tube[j + 1]
-        np.testing.assert_allclose(then[T_DQ], now[T_DQ] + h * now[T_DV]
-                                   + 0.5 * h * h * now[T_WIDEN], rtol=1e-12, atol=1e-15)
-        f = now[T_FEEDBACK]
-        np.testing.assert_allclose(then[T_DV], np.maximum(
-            now[T_DV] * (1.0 - f) + f * eps + now[T_WIDEN] * h, eps), rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(then[Tube.DQ], now[Tube.DQ] + h * now[Tube.DV]
+                                   + 0.5 * h * h * now[Tube.WIDEN], rtol=1e-12, atol=1e-15)
+        f = now[Tube.FEEDBACK]
+        np.testing.assert_allclose(then[Tube.DV], np.maximum(
+            now[Tube.DV] * (1.0 - f) + f * eps + now[Tube.WIDEN] * h, eps), rtol=1e-12, atol=1e-15)
 
 
 def test_the_plans_box_inside_a_step_of_several_holds_contracts_no_faster_than_the_holds(
@@ -116,7 +107,7 @@ def test_the_plans_box_inside_a_step_of_several_holds_contracts_no_faster_than_t
     feedback has had J holds to act, not the whole segment's (the payload's D > 0, so the
     tube is not nil)."""
     from cosim.paper.cbf_filter.check import plan_box
-    from cosim.paper.cbf_filter.scratch import R_BOX_V_HALF
+    from cosim.paper.cbf_filter.scratch import Rollout
 
     a = uncertain_args._replace(backup_rate=200.0, dt=5e-4)
     eps, c = 0.3, 200.0 * 5e-4
@@ -132,10 +123,10 @@ def test_the_plans_box_inside_a_step_of_several_holds_contracts_no_faster_than_t
         if not 0 < holds < round(lengths[j] / a.dt):
             continue  # at a segment's edge, where the box is the segment's own
         segment = tube[j]
-        free = segment[T_FEEDBACK] > 0.0
+        free = segment[Tube.FEEDBACK] > 0.0
         kept = (1.0 - c) ** holds
-        least = segment[T_DV] * kept + (1.0 - kept) * eps + holds * a.dt * segment[T_WIDEN]
-        box = a.work.rollout[R_BOX_V_HALF]
+        least = segment[Tube.DV] * kept + (1.0 - kept) * eps + holds * a.dt * segment[Tube.WIDEN]
+        box = a.work.rollout[Rollout.BOX_V_HALF]
         assert np.all(box[free] >= least[free] - 1e-12), (k, box, least)
         inside_steps += int(free.any())
     assert inside_steps >= 10, inside_steps

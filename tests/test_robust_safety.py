@@ -135,7 +135,7 @@ def test_the_hard_rows_the_solve_leaves_out_are_met_with_the_tolerance_to_spare(
     past its limit is added."""
     from cosim.paper.cbf_filter.groups import add_cuts
     from cosim.paper.cbf_filter.rows import cbf_rows
-    from cosim.paper.cbf_filter.scratch import G_CORNERS, GROUPS
+    from cosim.paper.cbf_filter.scratch import Flag, GroupLabel
 
     _, plan, _ = simulated([], "proposed_cbf", duration=0.05)
     a = plan.block("cbf_filter").args
@@ -144,8 +144,8 @@ def test_the_hard_rows_the_solve_leaves_out_are_met_with_the_tolerance_to_spare(
     counts = {"past": 0, "within": 0, "beyond": 0}
     for k in (0, 25, 49):
         full = cbf_rows(k, a)  # the groups' rows first, in their order
-        groups = int(work.flags[GROUPS])
-        corners = work.group_labels[:groups, G_CORNERS]
+        groups = int(work.flags[Flag.GROUPS])
+        corners = work.group_labels[:groups, GroupLabel.CORNERS]
         rows = int(corners.sum())
         assert rows > 100 and np.all(a.is_hard[:rows] == 1) and np.all(a.kinds[:rows] >= 0)
         G, h = a.rows[:rows].copy(), a.limits[:rows].copy()

@@ -185,13 +185,13 @@ def payload_deviation_bound(a, q, v, tau) -> np.ndarray:
     departure bound plus the disturbance's (|M̂⁻¹| d̄, tiny here)."""
     from cosim.paper.cbf_filter.backup import nominal_acceleration
     from cosim.paper.cbf_filter.deviation import deviation_bound
-    from cosim.paper.cbf_filter.scratch import R_ACC, R_Q, R_V
+    from cosim.paper.cbf_filter.scratch import Rollout
 
     r = a.work.rollout
-    r[R_Q], r[R_V] = q, v
+    r[Rollout.Q], r[Rollout.V] = q, v
     nominal_acceleration(0, a, np.asarray(tau, float), False, 0, a.torque_limit)
     out = np.zeros(2)
-    deviation_bound(a, r[R_V], np.zeros(2), r[R_ACC], out)
+    deviation_bound(a, r[Rollout.V], np.zeros(2), r[Rollout.ACC], out)
     return out
 
 
@@ -290,14 +290,14 @@ def test_the_true_arm_braked_with_its_estimate_off_by_epsilon_stays_in_the_check
     the true arm braked apart with its estimate off by ε = 0.5 rad/s throughout; at each of
     the check's rollout steps, the true q̇ is within the tube's half-width of the rollout's."""
     pytest.importorskip("qpsolvers")
-    from cosim.paper.cbf_filter.scratch import PLAN_TUBE, T_DV, T_V
+    from cosim.paper.cbf_filter.scratch import Flag, Tube
 
     a = args_of("pipelines/near_boundary.toml")
     spread, (distance, joint2) = 0.5, STARTS[0]
     q = [a.viable_bounds[0, 0] - distance, joint2[0]]
     estimate = np.array([uncertain_boundary(a, distance, joint2, spread), joint2[1]])
     assert is_verified(a, q, estimate, spread)
-    buffer = int(a.work.flags[PLAN_TUBE])  # the rollout just verified, segment by segment
+    buffer = int(a.work.flags[Flag.PLAN_TUBE])  # the rollout just verified, segment by segment
     tube, lengths = a.work.tube[buffer], a.work.tube_steps[buffer]
     offset = np.array([-spread, spread])  # the estimate off by ε, joint 1 slower than true
     true_velocities: list = []
@@ -309,8 +309,8 @@ def test_the_true_arm_braked_with_its_estimate_off_by_epsilon_stays_in_the_check
             break
         row = int(round(start / 1e-3))
         if abs(row * 1e-3 - start) < 1e-9 and row < len(true_velocities):
-            worst = max(worst, float(np.max(np.abs(true_velocities[row] - segment[T_V])
-                                            - segment[T_DV])))
+            worst = max(worst, float(np.max(np.abs(true_velocities[row] - segment[Tube.V])
+                                            - segment[Tube.DV])))
             checked += 1
         start += h
     assert checked > 40, checked  # the whole rollout, every 2 ms until it stops
@@ -363,12 +363,12 @@ def test_the_rollout_follows_the_arm_braked_by_the_backup_held_at_the_control_st
     cbf-held-average-dropped) the rollout braked faster than the arm: (1 − k_b h) against
     (1 − k_b dt)², 0.016 rad/s off after one step from 0.4 rad/s."""
     pytest.importorskip("qpsolvers")
-    from cosim.paper.cbf_filter.scratch import PLAN_TUBE, T_V
+    from cosim.paper.cbf_filter.scratch import Flag, Tube
 
     a = filter_args._replace(backup_rate=200.0)
     q, v = np.array([0.1, 0.5]), np.array(velocity)
     assert is_verified(a, q, v)
-    buffer = int(a.work.flags[PLAN_TUBE])
+    buffer = int(a.work.flags[Flag.PLAN_TUBE])
     tube, lengths = a.work.tube[buffer], a.work.tube_steps[buffer]
     true_velocities: list = []
     brake_apart(a, q, v, seconds=0.2, velocities=true_velocities)
@@ -378,7 +378,7 @@ def test_the_rollout_follows_the_arm_braked_by_the_backup_held_at_the_control_st
             break
         row = int(round(start / 1e-3))
         if row < len(true_velocities):
-            worst = max(worst, float(np.max(np.abs(true_velocities[row] - segment[T_V]))))
+            worst = max(worst, float(np.max(np.abs(true_velocities[row] - segment[Tube.V]))))
             checked += 1
         start += h
     assert checked >= 5, checked
@@ -396,7 +396,7 @@ def test_the_plans_box_inside_a_step_of_four_holds_is_where_the_held_arm_is(filt
     and 3 (mutant cbf-held-travel-first-order)."""
     pytest.importorskip("qpsolvers")
     from cosim.paper.cbf_filter.check import plan_box
-    from cosim.paper.cbf_filter.scratch import R_BOX_V
+    from cosim.paper.cbf_filter.scratch import Rollout
 
     a = filter_args._replace(backup_rate=200.0, dt=5e-4)
     q, v = np.array([0.1, 0.5]), np.array([0.4, 0.3])
@@ -406,7 +406,7 @@ def test_the_plans_box_inside_a_step_of_four_holds_is_where_the_held_arm_is(filt
     worst, rows = 0.0, 0
     for k in range(len(true_velocities) - 1):
         plan_box(k, a)  # the box at row k + 1 of a plan verified at row 0
-        box = a.work.rollout[R_BOX_V]
+        box = a.work.rollout[Rollout.BOX_V]
         if np.isnan(box).any():
             break
         worst = max(worst, float(np.max(np.abs(box - true_velocities[k + 1]))))

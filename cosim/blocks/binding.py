@@ -10,9 +10,15 @@ in its annotation, so that the block's ``reset`` writes only what it computes:
         q_d: reads()                     # the input signal ``q_d``, all rows
         tau: writes()                    # the output signal ``tau``, all rows
         acceleration: scratch("n")       # zeros (n,), the step's own
+        rollout: scratch("Rollout, n")   # a row per member of the Rows class Rollout
         position: np.ndarray             # no source: ``reset`` computes it
 
     self.args = self.bind(PdArgs, ports, position=...)
+
+A scratch array with named rows declares them as a :class:`Rows` class beside the record,
+one member a row, numbered by their order; its shape names the class for their count, and
+a kernel indexes the array by member (``w.rollout[Rollout.DV]``): no row number or count
+is written by hand.
 
 A parameter is thus declared once, in the block's ``Params`` (name, type, default, units,
 per joint or not), and named once more where the kernel reads it; nothing copies it by hand
@@ -24,6 +30,7 @@ mistake, not a user's).
 from __future__ import annotations
 
 import ast
+import enum
 import sys
 import typing
 from dataclasses import dataclass
@@ -41,10 +48,23 @@ Record = TypeVar("Record", bound=tuple)
 class Source:
     """Where a field's value comes from (see the module's docstring)."""
 
-    kind: str  # "parameter", "reads", "writes", "uncertainty", "master_step", "scratch"
+    # "parameter", "reads", "writes", "uncertainty", "master_step", "scratch", "published"
+    kind: str
     name: str | None = None  # the parameter, signal or declared key (default: the field's)
+    constant: str = ""  # published: the block's own published constant the field is read from
     shape: str = ""  # scratch: its shape, comma-separated sizes ("n", "hidden + 1", "2, n")
     dtype: type = float  # scratch: float, int (int64) or bool
+
+
+class Rows(enum.IntEnum):
+    """The named rows of a scratch array, numbered 0, 1, … in the order they are declared
+    (each member ``= enum.auto()``). A kernel indexes by member, which compiled code reads as
+    the integer constant; a scratch shape naming the class (``"Rollout, n"``) takes its
+    count, and ``Rollout.X + 2`` the member two rows on."""
+
+    @staticmethod
+    def _generate_next_value_(name: str, start: int, count: int, last_values: list) -> int:
+        return count
 
 
 def parameter(name: str | None = None) -> object:
@@ -69,6 +89,13 @@ def uncertainty(key: str | None = None) -> object:
     return Annotated[float, Source("uncertainty", key)]
 
 
+def published(constant: str, name: str | None = None) -> object:
+    """Field ``name`` (default: the field's) of the block's own published constant
+    ``constant`` (a NamedTuple the block resolved as it was made, as a parameter's default
+    taken from the robot): the value the blocks after it read, bound unchanged."""
+    return Annotated[object, Source("published", name, constant=constant)]
+
+
 def master_step() -> object:
     """The master step h, s."""
     return Annotated[float, Source("master_step")]
@@ -77,8 +104,9 @@ def master_step() -> object:
 def scratch(shape: str, dtype: type = float) -> object:
     """Zeros of ``shape``: comma-separated sizes, each a sum or product of integers and
     names: ``n`` the joint count, the block's integer parameters, the sizes given to
-    :func:`bind` and the integer constants of the record's module (``"hidden + 1"``,
-    ``"2, n, n"``, ``"ROWS, n"``)."""
+    :func:`bind`, the integer constants of the record's module and its :class:`Rows`
+    classes, a class for its count and ``Class.MEMBER`` for a member's row (``"hidden + 1"``,
+    ``"2, n, n"``, ``"Rollout, n"``, ``"GroupValue.OFFSETS + d"``)."""
     return Annotated[np.ndarray, Source("scratch", shape=shape, dtype=dtype)]
 
 
@@ -126,7 +154,7 @@ def bind(record: type[Record], block, ports, sizes: dict[str, int] | None = None
         raise TypeError(f"{record.__name__}: {', '.join(twice)} declared bound from "
                         f"{', '.join(declared[name].kind for name in twice)} and given too")
     constants = {name: value for name, value in vars(sys.modules[record.__module__]).items()
-                 if type(value) is int}
+                 if type(value) is int or isinstance(value, type) and issubclass(value, Rows)}
     integers = {name: value for name, value in block.params if type(value) is int}
     names = {**constants, **integers, "n": block.context.links, **(sizes or {})}
     values = {name: _value(record, name, source, block, ports, names)
@@ -134,7 +162,8 @@ def bind(record: type[Record], block, ports, sizes: dict[str, int] | None = None
     return kernel_args(record, **values, **computed)
 
 
-def _value(record: type, field: str, source: Source, block, ports, sizes: dict[str, int]):
+def _value(record: type, field: str, source: Source, block, ports,
+           sizes: dict[str, int | type[Rows]]):
     key = source.name or field
     where = f"{record.__name__}.{field}"
     if source.kind == "parameter":
@@ -150,6 +179,11 @@ def _value(record: type, field: str, source: Source, block, ports, sizes: dict[s
         return getattr(block.context.uncertainty, key)
     if source.kind == "master_step":
         return block.context.dt
+    if source.kind == "published":
+        if source.constant not in block.publishes:
+            raise TypeError(f"{where}: {block.kind} publishes no {source.constant!r} (it "
+                            f"publishes: {', '.join(block.publishes) or 'nothing'})")
+        return getattr(block.publishes[source.constant], key)
     shape = tuple(_size(term, sizes, where) for term in source.shape.split(","))
     return np.zeros(shape, np.int64 if source.dtype is int else source.dtype)
 
@@ -173,14 +207,20 @@ def _parameter(block, key: str, where: str):
 _OPERATORS = {ast.Add: int.__add__, ast.Sub: int.__sub__, ast.Mult: int.__mul__}
 
 
-def _size(term: str, sizes: dict[str, int], where: str) -> int:
-    """One size of a scratch's shape: integers and names joined by +, − and ×."""
+def _size(term: str, sizes: dict[str, int | type[Rows]], where: str) -> int:
+    """One size of a scratch's shape: integers and names joined by +, − and ×; a
+    :class:`Rows` class its count, ``Class.MEMBER`` that member's row."""
 
     def evaluate(node: ast.AST) -> int:
         if isinstance(node, ast.Constant) and type(node.value) is int:
             return node.value
         if isinstance(node, ast.Name) and node.id in sizes:
-            return int(sizes[node.id])
+            size = sizes[node.id]
+            return len(size) if isinstance(size, type) else int(size)
+        if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name):
+            rows = sizes.get(node.value.id)
+            if isinstance(rows, type) and node.attr in rows.__members__:
+                return int(rows[node.attr])
         if isinstance(node, ast.BinOp) and type(node.op) in _OPERATORS:
             return _OPERATORS[type(node.op)](evaluate(node.left), evaluate(node.right))
         raise TypeError(f"{where}: scratch size {term.strip()!r} is not a sum or product of "

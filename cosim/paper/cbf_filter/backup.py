@@ -19,22 +19,7 @@ import numpy as np
 from ...dynamics.model import model_bias, model_friction, model_geometry, model_mass
 from ...numba_compat import no_refcount_jit
 from ..linalg import invert, product
-from .scratch import (
-    BACKUP_FACTOR,
-    R_ACC,
-    R_BIAS,
-    R_CENTRE,
-    R_Q,
-    R_SCRATCH,
-    R_TARGET,
-    R_TAU,
-    R_V,
-    R_WEIGHT,
-    ROLL_LU,
-    ROLL_MASS,
-    ROLL_MINV,
-    TAU,
-)
+from .scratch import Matrix, Rollout, Solver
 from .solver import newton
 
 BACKUP_WEIGHT = 1e10  # the torque limits' weight in the backup's penalty form (then clipped)
@@ -52,13 +37,13 @@ def backup_torque(k, a, q, v, mass, bias, out, policy, limit):
     the torques ``limit`` allow (the torque limits, or braking_torque:
     :func:`.policy.choose`), τ_b = M̂ q̈ + b̂ (a small QP in q̈: clipping each τ_i alone
     would turn the coupled arm's braking of one joint into accelerating another), w the
-    recovery velocity of a joint outside its position set (into the rollout's R_TARGET row,
+    recovery velocity of a joint outside its position set (into the rollout's Rollout.TARGET row,
     relative to q̇_s). ``policy`` 1 weighs the q̈ of joints near their position bound first
     (0: every joint alike). Returns whether a torque limit binds."""
     n = q.shape[0]
     w = a.work
     r = w.rollout
-    target, desired = r[R_TARGET], r[R_SCRATCH]
+    target, desired = r[Rollout.TARGET], r[Rollout.SCRATCH]
     for i in range(n):
         x = q[i] - a.centres[0, i]
         # within HOLD of the bound, or past it: back in at HOLD_RATE per rad of depth, up
@@ -73,14 +58,14 @@ def backup_torque(k, a, q, v, mass, bias, out, policy, limit):
     # Weighted towards the joints near their position bound (what the limits cannot give
     # every joint, those get first): in z = √W q̈ the weights are the identity the solver
     # has, so q̈ = z/√W and a row's coefficients are divided by √W.
-    scale = r[R_WEIGHT]
+    scale = r[Rollout.WEIGHT]
     for i in range(n):
         distance = a.viable_bounds[0, i] - abs(q[i] - a.centres[0, i]) - a.noise_bound
         scale[i] = np.sqrt(1.0 + NEAR_WEIGHT * policy * max(0.0, 1.0 - distance / NEAR))
         desired[i] *= scale[i]
     # The q̈ asked for, where it needs no torque beyond a limit, is the QP's answer as it
     # stands (every row slack): the QP is solved only where a limit binds.
-    acceleration = w.backup_solver[TAU]
+    acceleration = w.backup_solver[Solver.TAU]
     for i in range(n):
         acceleration[i] = desired[i] / scale[i]
     product(mass, acceleration, out)
@@ -117,9 +102,9 @@ def _limited_acceleration(n, limit, mass, bias, scale, desired, w):
             limits[count] = (limit[i] - side * bias[i]) / norm
             weights[count] = BACKUP_WEIGHT
             count += 1
-    acceleration = w.backup_solver[TAU]
+    acceleration = w.backup_solver[Solver.TAU]
     newton(desired, rows, limits, weights, count, 50, 1e-12, w.backup_solver,
-           w.matrices[BACKUP_FACTOR], w.backup_binding, False)
+           w.matrices[Matrix.BACKUP_FACTOR], w.backup_binding, False)
     for i in range(n):
         acceleration[i] /= scale[i]
 
@@ -139,13 +124,15 @@ def rollout_payload(a):
 @no_refcount_jit(cache=True)
 def nominal_acceleration(k, a, first, backup, policy, limit):
     """The rollout's torque (``first``, or the backup's within ``limit`` if ``backup``) into
-    R_TAU and the nominal model's q̈ under it into R_ACC; the model's geometry left at the
+    Rollout.TAU and the nominal model's q̈ under it into Rollout.ACC; the model's geometry left
+    at the
     rollout's q.
     Returns whether the torque is held or limited (the backup's feedback does not act)."""
     w = a.work
     r, matrices = w.rollout, w.matrices
-    q, vel, tau, acc, bias = r[R_Q], r[R_V], r[R_TAU], r[R_ACC], r[R_BIAS]
-    mass, minv = matrices[ROLL_MASS], matrices[ROLL_MINV]
+    q, vel, tau = r[Rollout.Q], r[Rollout.V], r[Rollout.TAU]
+    acc, bias = r[Rollout.ACC], r[Rollout.BIAS]
+    mass, minv = matrices[Matrix.ROLL_MASS], matrices[Matrix.ROLL_MINV]
     n = q.shape[0]
     model_geometry(a.model, q)
     centre = rollout_payload(a)
@@ -160,7 +147,7 @@ def nominal_acceleration(k, a, first, backup, policy, limit):
     else:
         for i in range(n):
             tau[i] = first[i]
-    invert(mass, minv, matrices[ROLL_LU])
+    invert(mass, minv, matrices[Matrix.ROLL_LU])
     for i in range(n):
         bias[i] = tau[i] - bias[i]
     product(minv, bias, acc)
@@ -174,7 +161,7 @@ def backup_at(k, a, policy, limit, out):
     r = a.work.rollout
     y = a.position[k]
     for i in range(y.shape[0]):
-        r[R_Q, i], r[R_V, i] = y[i], r[R_CENTRE, i]
+        r[Rollout.Q, i], r[Rollout.V, i] = y[i], r[Rollout.CENTRE, i]
     nominal_acceleration(k, a, out, True, policy, limit)
     for i in range(y.shape[0]):
-        out[i] = r[R_TAU, i]
+        out[i] = r[Rollout.TAU, i]

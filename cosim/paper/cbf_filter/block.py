@@ -291,7 +291,7 @@ class CbfFilter(Block):
             viable_bounds=joint_bounds * (1.0 - 0.5 * p.bound_margin) / (1.0 - p.bound_margin),
             centres=centres, k1=2.0 * p.position_rate, k0=p.position_rate**2,
             tracking_k1=2.0 * p.tracking_rate, tracking_k0=p.tracking_rate**2,
-            torque_limit=limit, braking_torque=braking,
+            braking_torque=braking,
             braking_reserve=bool(np.any(braking < limit)),
             startup_torque=within_limits(limit, p.startup_torque),
             torque_limited=bool(np.any(np.isfinite(limit))),

@@ -68,43 +68,7 @@ from ..linalg import invert, product
 from .backup import nominal_acceleration
 from .deviation import deviation_bound, fixed_deviation
 from .model import nominal_model, robust_model
-from .scratch import (
-    BASE,
-    BIAS,
-    LU,
-    MINV,
-    NOMINAL_NOW,
-    PLAN_STEP,
-    PLAN_TUBE,
-    R_ACC,
-    R_BOX_Q,
-    R_BOX_Q_HALF,
-    R_BOX_V,
-    R_BOX_V_HALF,
-    R_DEV,
-    R_DQ,
-    R_DV,
-    R_HELD_ACC,
-    R_HELD_Q,
-    R_HELD_V,
-    R_HOLD_ACC,
-    R_LIMIT_Q,
-    R_LIMIT_V,
-    R_Q,
-    R_TARGET,
-    R_TAU,
-    R_V,
-    R_WIDEN,
-    T_ACC,
-    T_ACC_FIRST,
-    T_DQ,
-    T_DV,
-    T_FEEDBACK,
-    T_Q,
-    T_V,
-    T_WIDEN,
-    TUBE_TRIAL,
-)
+from .scratch import Flag, Matrix, Rollout, Tube, Vector
 
 STOPPED = 0.05  # rad/s: a joint within this of its backup's target velocity has stopped
 # The tube's D is taken this many times: its linear model of the backup's feedback (each
@@ -134,17 +98,18 @@ def feedback_contraction(rate, h, dt):
 
 @no_refcount_jit(cache=True)
 def held_end(k, a, tau, limit, spread):
-    """A held step's predicted end: the rollout's row state (R_Q, R_V) moved by dt under its
-    q̈ (R_ACC), and there the nominal q̈ under τ held (R_ACC) and D for the velocity error
-    ``spread`` (R_DEV). The true q̈ over the step lies in the hull of q̈ ± 1.5 D at the
+    """A held step's predicted end: the rollout's row state (Rollout.Q, Rollout.V) moved by dt
+    under its
+    q̈ (Rollout.ACC), and there the nominal q̈ under τ held (Rollout.ACC) and D for the velocity error
+    ``spread`` (Rollout.DEV). The true q̈ over the step lies in the hull of q̈ ± 1.5 D at the
     step's start and at this end (:func:`_held_drift`, :func:`.interval.predict_interval`)."""
     r = a.work.rollout
-    q, vel, acc = r[R_Q], r[R_V], r[R_ACC]
+    q, vel, acc = r[Rollout.Q], r[Rollout.V], r[Rollout.ACC]
     for i in range(q.shape[0]):
         q[i] += a.dt * vel[i] + 0.5 * a.dt * a.dt * acc[i]
         vel[i] += a.dt * acc[i]
     nominal_acceleration(k, a, tau, False, 0, limit)
-    deviation_bound(a, vel, spread, acc, r[R_DEV])
+    deviation_bound(a, vel, spread, acc, r[Rollout.DEV])
 
 
 @no_refcount_jit(cache=True)
@@ -157,8 +122,8 @@ def _held_drift(k, a, first, limit, eps, widen):
     start's q̈ as the centre, widened to max(1.5 D, |q̈(end) − q̈| + 1.5 D(end)), is as sound
     and wider by up to half the drift.)"""
     r = a.work.rollout
-    q, vel, acc, deviation = r[R_Q], r[R_V], r[R_ACC], r[R_DEV]
-    held_q, held_v, held_acc = r[R_HELD_Q], r[R_HELD_V], r[R_HELD_ACC]
+    q, vel, acc, deviation = r[Rollout.Q], r[Rollout.V], r[Rollout.ACC], r[Rollout.DEV]
+    held_q, held_v, held_acc = r[Rollout.HELD_Q], r[Rollout.HELD_V], r[Rollout.HELD_ACC]
     n = q.shape[0]
     for i in range(n):
         held_q[i], held_v[i], held_acc[i] = q[i], vel[i], acc[i]
@@ -174,7 +139,7 @@ def _held_drift(k, a, first, limit, eps, widen):
 @no_refcount_jit(cache=True, inline="always")
 def held_average(a, h, contraction):
     """The rollout's q̈ over a step of h = m dt, m > 1 holds of a backup no torque limit
-    binds: its q̈ at each hold, averaged (into R_ACC; the first hold's into R_HOLD_ACC).
+    binds: its q̈ at each hold, averaged (into Rollout.ACC; the first hold's into Rollout.HOLD_ACC).
     The filter re-evaluates the backup at every control step dt and holds it, so over the
     step its q̈ = k_b (w − (v − q̇_s)) falls as it acts: (1 − c)^k q̈_0 at hold k,
     c = min(k_b dt, 1). Taken at the first hold's q̈ for the whole step, the rollout braked
@@ -189,7 +154,7 @@ def held_average(a, h, contraction):
     (:func:`held_travel`). A step where a limit binds is one hold (:func:`verified`).
     ``contraction``: the step's f (:func:`feedback_contraction`)."""
     r = a.work.rollout
-    acc, first = r[R_ACC], r[R_HOLD_ACC]
+    acc, first = r[Rollout.ACC], r[Rollout.HOLD_ACC]
     c = min(a.backup_rate * a.dt, 1.0)
     share = 1.0
     if c > 0.0:
@@ -215,7 +180,8 @@ def held_travel(a, h, s):
 @no_refcount_jit(cache=True)
 def plan_box(k, a):
     """The box the plan in force (the rollout of the last torque verified, at step k0) puts
-    the true state in at row k + 1, into R_BOX_Q … R_BOX_V_HALF: its tube (k + 1 − k0)·dt
+    the true state in at row k + 1, into Rollout.BOX_Q … Rollout.BOX_V_HALF: its tube
+    (k + 1 − k0)·dt
     after its start, within the segment holding that time (the nominal state exactly, q̈
     constant over a segment; δq, δv as the check grows them). NaN past the rollout's end.
     The classifier holds the true state to it (the tube measured along the run)."""
@@ -223,10 +189,11 @@ def plan_box(k, a):
     r = w.rollout
     n = r.shape[1]
     for i in range(n):
-        r[R_BOX_Q, i] = r[R_BOX_Q_HALF, i] = r[R_BOX_V, i] = r[R_BOX_V_HALF, i] = np.nan
-    plan = int(w.flags[PLAN_TUBE])
+        r[Rollout.BOX_Q, i] = r[Rollout.BOX_Q_HALF, i] = np.nan
+        r[Rollout.BOX_V, i] = r[Rollout.BOX_V_HALF, i] = np.nan
+    plan = int(w.flags[Flag.PLAN_TUBE])
     tube, lengths, eps = w.tube[plan], w.tube_steps[plan], w.tube_eps[plan]
-    offset = (k + 1 - w.flags[PLAN_STEP]) * a.dt
+    offset = (k + 1 - w.flags[Flag.PLAN_STEP]) * a.dt
     start = 0.0
     for j in range(lengths.shape[0]):
         h = lengths[j]
@@ -236,14 +203,16 @@ def plan_box(k, a):
             s = offset - start
             segment = tube[j]
             for i in range(n):
-                r[R_BOX_Q, i] = (segment[T_Q, i] + s * segment[T_V, i]
-                                 + 0.5 * s * s * segment[T_ACC, i])
-                r[R_BOX_Q_HALF, i] = (segment[T_DQ, i] + s * segment[T_DV, i]
-                                      + 0.5 * s * s * segment[T_WIDEN, i])
-                r[R_BOX_V, i] = segment[T_V, i] + segment[T_ACC_FIRST, i] * held_travel(a, h, s)
-                share = segment[T_FEEDBACK, i] * s / h
-                r[R_BOX_V_HALF, i] = max(segment[T_DV, i] * (1.0 - share) + share * eps[i]
-                                         + segment[T_WIDEN, i] * s, eps[i])
+                r[Rollout.BOX_Q, i] = (segment[Tube.Q, i] + s * segment[Tube.V, i]
+                                       + 0.5 * s * s * segment[Tube.ACC, i])
+                r[Rollout.BOX_Q_HALF, i] = (segment[Tube.DQ, i] + s * segment[Tube.DV, i]
+                                            + 0.5 * s * s * segment[Tube.WIDEN, i])
+                r[Rollout.BOX_V, i] = segment[Tube.V, i] \
+                    + segment[Tube.ACC_FIRST, i] * held_travel(a, h, s)
+                share = segment[Tube.FEEDBACK, i] * s / h
+                r[Rollout.BOX_V_HALF, i] = max(segment[Tube.DV, i] * (1.0 - share)
+                                               + share * eps[i] + segment[Tube.WIDEN, i] * s,
+                                               eps[i])
             return
         start += h
 
@@ -256,18 +225,19 @@ def _advance(a, segment, h, eps, backup, stopped, limit, decay, contraction):
     left, else 1 if every joint has stopped (``stopped``: the step's backup is free of its
     limits), else 0."""
     r = a.work.rollout
-    q, vel, dq, dv, acc, widen = r[R_Q], r[R_V], r[R_DQ], r[R_DV], r[R_ACC], r[R_WIDEN]
-    limit_q, limit_v = r[R_LIMIT_Q], r[R_LIMIT_V]
+    q, vel, dq, dv = r[Rollout.Q], r[Rollout.V], r[Rollout.DQ], r[Rollout.DV]
+    acc, widen = r[Rollout.ACC], r[Rollout.WIDEN]
+    limit_q, limit_v = r[Rollout.LIMIT_Q], r[Rollout.LIMIT_V]
     n = q.shape[0]
     for i in range(n):
         # the backup's feedback acts on a joint whose torque is free (the held torque:
         # on none): a limited joint brakes as hard as it can, the others still steer
-        free = backup and abs(r[R_TAU, i]) < limit[i] * (1.0 - 1e-9)
+        free = backup and abs(r[Rollout.TAU, i]) < limit[i] * (1.0 - 1e-9)
         feedback = contraction if free else 0.0
-        segment[T_Q, i], segment[T_V, i], segment[T_ACC, i] = q[i], vel[i], acc[i]
-        segment[T_ACC_FIRST, i] = r[R_HOLD_ACC, i]
-        segment[T_DQ, i], segment[T_DV, i] = dq[i], dv[i]
-        segment[T_WIDEN, i], segment[T_FEEDBACK, i] = widen[i], feedback
+        segment[Tube.Q, i], segment[Tube.V, i], segment[Tube.ACC, i] = q[i], vel[i], acc[i]
+        segment[Tube.ACC_FIRST, i] = r[Rollout.HOLD_ACC, i]
+        segment[Tube.DQ, i], segment[Tube.DV, i] = dq[i], dv[i]
+        segment[Tube.WIDEN, i], segment[Tube.FEEDBACK, i] = widen[i], feedback
         # exact for q̈ constant over the step (the position's error would be ~v·h/2),
         # with its turning point inside the step checked too
         turn = q[i]
@@ -287,7 +257,7 @@ def _advance(a, segment, h, eps, backup, stopped, limit, decay, contraction):
             return -1
         if a.hard[1] and abs(vel[i] - a.centres[1, i]) + dv[i] > allowed_v:
             return -1
-        stopped = stopped and abs(vel[i] - a.centres[1, i] - r[R_TARGET, i]) <= STOPPED
+        stopped = stopped and abs(vel[i] - a.centres[1, i] - r[Rollout.TARGET, i]) <= STOPPED
     return 1 if stopped else 0
 
 
@@ -298,20 +268,21 @@ def verified(k, a, y, v, eps, first, hold, policy, limit):
     the backup's ``policy`` within the torques ``limit`` (the torque limits or less)."""
     w = a.work
     r = w.rollout
-    q, vel, dq, dv, acc = r[R_Q], r[R_V], r[R_DQ], r[R_DV], r[R_ACC]
-    limit_q, limit_v, deviation, widen = r[R_LIMIT_Q], r[R_LIMIT_V], r[R_DEV], r[R_WIDEN]
+    q, vel, dq, dv, acc = r[Rollout.Q], r[Rollout.V], r[Rollout.DQ], r[Rollout.DV], r[Rollout.ACC]
+    limit_q, limit_v = r[Rollout.LIMIT_Q], r[Rollout.LIMIT_V]
+    deviation, widen = r[Rollout.DEV], r[Rollout.WIDEN]
     n = y.shape[0]
     for i in range(n):
         if not eps[i] < np.inf:  # nothing known of the velocity: nothing is verified
             return False
-    trial = int(w.flags[TUBE_TRIAL])  # the rollout is kept here; the plan, if verified
+    trial = int(w.flags[Flag.TUBE_TRIAL])  # the rollout is kept here; the plan, if verified
     tube, lengths = w.tube[trial], w.tube_steps[trial]
     for i in range(n):
         q[i], vel[i], dq[i], dv[i] = y[i], v[i], a.noise_bound, eps[i]
         # what each set allows: its bound, or the excess it starts with (recovery)
         limit_q[i] = max(a.viable_bounds[0, i], abs(y[i] - a.centres[0, i]) + a.noise_bound)
         limit_v[i] = max(a.viable_bounds[1, i], abs(v[i] - a.centres[1, i]) + eps[i])
-        r[R_TARGET, i] = 0.0
+        r[Rollout.TARGET, i] = 0.0
         w.tube_eps[trial, i] = eps[i]
     fixed_deviation(a, eps)
     t = 0.0
@@ -334,9 +305,9 @@ def verified(k, a, y, v, eps, first, hold, policy, limit):
             widen[i] = TUBE_SAFETY * deviation[i]
         contraction = feedback_contraction(a.backup_rate, h, a.dt)  # the step's, every joint's
         if held or clipped:
-            _held_drift(k, a, r[R_TAU], limit, eps, widen)
+            _held_drift(k, a, r[Rollout.TAU], limit, eps, widen)
             for i in range(n):
-                r[R_HOLD_ACC, i] = acc[i]
+                r[Rollout.HOLD_ACC, i] = acc[i]
         else:  # a step of several holds, the backup re-evaluated at each
             held_average(a, h, contraction)
         decay = np.exp(-a.recovery_rate * (t + h))
@@ -351,8 +322,8 @@ def verified(k, a, y, v, eps, first, hold, policy, limit):
             if step < lengths.shape[0]:
                 lengths[step] = 0.0  # the rollout's end
             # verified: this rollout is the plan (the next check writes the other buffer)
-            w.flags[PLAN_TUBE], w.flags[TUBE_TRIAL] = trial, 1 - trial
-            w.flags[PLAN_STEP] = k
+            w.flags[Flag.PLAN_TUBE], w.flags[Flag.TUBE_TRIAL] = trial, 1 - trial
+            w.flags[Flag.PLAN_STEP] = k
             return True
     return False
 
@@ -366,9 +337,9 @@ def verified_from(a, y, v, eps, policy):
     rows take them in a step; :func:`verified` alone would use whatever state the filter's
     work space last held. Overwrites that work space (not for use inside a step)."""
     matrices, vectors = a.work.matrices, a.work.vectors
-    minv, bias, base = matrices[MINV], vectors[BIAS], vectors[BASE]
-    nominal_model(a, y, v, matrices[NOMINAL_NOW], bias)
-    invert(matrices[NOMINAL_NOW], minv, matrices[LU])
+    minv, bias, base = matrices[Matrix.MINV], vectors[Vector.BIAS], vectors[Vector.BASE]
+    nominal_model(a, y, v, matrices[Matrix.NOMINAL_NOW], bias)
+    invert(matrices[Matrix.NOMINAL_NOW], minv, matrices[Matrix.LU])
     product(minv, bias, base)
     robust_model(a, y, v, eps, minv, base)
     # nothing held: bias unread

@@ -16,22 +16,13 @@ from .model import (
     payload_structure,
     quadratic_error_into,
 )
-from .scratch import (
-    ALPHA,
-    BETA,
-    GAMMA,
-    JAC,
-    R_FRICTION,
-    R_QUADRATIC,
-    ROLL_MINV,
-    VEC,
-)
+from .scratch import Matrix, PointRow, PointVector, Rollout, Square
 
 
 @no_refcount_jit(cache=True)
 def _payload_deviation(a, q_dot, acceleration, deviation):
     """D_i += the largest |q̈(Δm)_i − q̈(0)_i| over the payload range under the rollout's
-    torque (the model's geometry at the rollout's state, its M̂⁻¹ in ROLL_MINV and its q̈
+    torque (the model's geometry at the rollout's state, its M̂⁻¹ in Matrix.ROLL_MINV and its q̈
     ``acceleration`` at the velocity ``q_dot``), Δm about the payload the rollout's model
     carries (:func:`rollout_payload`): from low − centre to high − centre.
 
@@ -47,8 +38,8 @@ def _payload_deviation(a, q_dot, acceleration, deviation):
     if a.payload_low == 0.0 and a.payload_high == 0.0:
         return
     w = a.work
-    minv = w.matrices[ROLL_MINV]
-    jac, gamma = w.point_rows[JAC], w.point_vectors[GAMMA]
+    minv = w.matrices[Matrix.ROLL_MINV]
+    jac, gamma = w.point_rows[PointRow.JAC], w.point_vectors[PointVector.GAMMA]
     model_payload(a.model, q_dot, 1.0, jac, gamma)
     n, d = q_dot.shape[0], jac.shape[0]
     if a.inertia_is_plant:
@@ -63,12 +54,12 @@ def _payload_deviation(a, q_dot, acceleration, deviation):
     # γ + Jq̈(0) into γ: the point's acceleration the payload's force is proportional to
     for r in range(d):
         gamma[r] += dot(jac[r], acceleration)
-    structure = w.point_vectors[BETA]  # v_jᵀ(Jq̈(0) + γ), per eigenvector j
+    structure = w.point_vectors[PointVector.BETA]  # v_jᵀ(Jq̈(0) + γ), per eigenvector j
     centre = rollout_payload(a)  # the rollout's model carries it: Δm is taken about it
     payload_structure(a.payload_low - centre, a.payload_high - centre, minv, acceleration,
                       w.point_rows, w.point_vectors, w.squares, w.s_grid)
-    vec = w.squares[VEC]
-    alpha, s_grid = w.point_rows[ALPHA], w.s_grid
+    vec = w.squares[Square.VEC]
+    alpha, s_grid = w.point_rows[PointRow.ALPHA], w.s_grid
     grid = s_grid.shape[0] - 1
     for j in range(d):
         structure[j] = 0.0
@@ -90,11 +81,11 @@ def _payload_deviation(a, q_dot, acceleration, deviation):
 @no_refcount_jit(cache=True)
 def fixed_deviation(a, spread):
     """D's part that a rollout with the velocity error ``spread`` keeps at every step, into
-    R_QUADRATIC (:func:`.model.quadratic_error_into`: Γ is the hard rows' for the whole
+    Rollout.QUADRATIC (:func:`.model.quadratic_error_into`: Γ is the hard rows' for the whole
     rollout), so that :func:`deviation_bound` need not take it again."""
     w = a.work
     quadratic_error_into(spread, a.payload_low, a.payload_high, a.disturbance, w.forms[0],
-                         w.forms[1], w.rollout[R_QUADRATIC])
+                         w.forms[1], w.rollout[Rollout.QUADRATIC])
 
 
 @no_refcount_jit(cache=True)
@@ -106,8 +97,8 @@ def deviation_bound(a, q_dot, spread, acceleration, deviation):
     (:func:`_payload_deviation`): the velocity's and the payload's departures add up (a
     payload's true q̈ also carries the velocity error's)."""
     w = a.work
-    friction_error_into(a.model, q_dot, spread, w.rollout[R_FRICTION])
-    linear_error_bound_into(q_dot, spread, w.matrices[ROLL_MINV], a.payload_low,
+    friction_error_into(a.model, q_dot, spread, w.rollout[Rollout.FRICTION])
+    linear_error_bound_into(q_dot, spread, w.matrices[Matrix.ROLL_MINV], a.payload_low,
                             a.payload_high, w.forms[0], w.forms[1], w.linear,
-                            w.rollout[R_QUADRATIC], w.rollout[R_FRICTION], deviation)
+                            w.rollout[Rollout.QUADRATIC], w.rollout[Rollout.FRICTION], deviation)
     _payload_deviation(a, q_dot, acceleration, deviation)

@@ -11,23 +11,7 @@ import numpy as np
 from ...numba_compat import no_refcount_jit
 from ..linalg import dot
 from .model import robust_model
-from .scratch import (
-    ALPHA,
-    BETA,
-    G_CORNERS,
-    G_JOINT,
-    G_PHASE,
-    G_SET,
-    GROUPS,
-    H_ZERO,
-    NORM_BOUND,
-    OFFSETS,
-    PLANT_SHIFT,
-    REACH,
-    ROOM,
-    ROW,
-    ROWS_ERROR,
-)
+from .scratch import Flag, GroupLabel, GroupValue, PointRow, PointVector, Vector
 from .solver import add_row
 
 
@@ -47,8 +31,8 @@ def hard_groups(a, k, y, v, eps, minv, base, at_end):
     w = a.work
     vectors = w.vectors
     corners = robust_model(a, y, v, eps, minv, base)
-    rows_error, plant_shift = vectors[ROWS_ERROR], vectors[PLANT_SHIFT]
-    reach, room = vectors[REACH], vectors[ROOM]
+    rows_error, plant_shift = vectors[Vector.ROWS_ERROR], vectors[Vector.PLANT_SHIFT]
+    reach, room = vectors[Vector.REACH], vectors[Vector.ROOM]
     _reach(a, minv, corners, reach, room)
     phase = 1 if at_end else 0
     s_grid = w.s_grid
@@ -56,7 +40,7 @@ def hard_groups(a, k, y, v, eps, minv, base, at_end):
         for j in range(s_grid.shape[1]):
             w.s_phase[phase, g, j] = s_grid[g, j]
     terms = s_grid.shape[1] if corners > 1 else 0
-    alpha, beta = w.point_rows[ALPHA], w.point_vectors[BETA]
+    alpha, beta = w.point_rows[PointRow.ALPHA], w.point_vectors[PointVector.BETA]
     y0, v0, dt = a.position[k], a.velocity[k], a.dt
     for s in range(2):
         if not a.hard[s]:
@@ -85,23 +69,24 @@ def hard_groups(a, k, y, v, eps, minv, base, at_end):
                 # no torque within the limits could violate any corner's row: left out
                 if scale * (reach[i] + room[i]) < limit + scale * side * base[i]:
                     continue
-                g = int(w.flags[GROUPS])
-                w.flags[GROUPS] = g + 1
+                g = int(w.flags[Flag.GROUPS])
+                w.flags[Flag.GROUPS] = g + 1
                 rows, values, labels = w.group_rows[g], w.group_values[g], w.group_labels[g]
                 for col in range(n):
                     rows[0, col] = scale * side * minv[i, col]
-                values[H_ZERO] = limit + scale * side * base[i]
-                values[NORM_BOUND] = np.sqrt(dot(rows[0], rows[0]))
+                values[GroupValue.H_ZERO] = limit + scale * side * base[i]
+                values[GroupValue.NORM_BOUND] = np.sqrt(dot(rows[0], rows[0]))
                 for j in range(terms):
                     coefficient = scale * side * alpha[j, i]
                     for col in range(n):
                         rows[1 + j, col] = -coefficient * alpha[j, col]
-                    values[OFFSETS + j] = coefficient * beta[j]
+                    values[GroupValue.OFFSETS + j] = coefficient * beta[j]
                     # s_j increases with the payload: its largest |s_j| at an end
-                    values[NORM_BOUND] += max(abs(s_grid[0, j]), abs(s_grid[-1, j])) \
+                    values[GroupValue.NORM_BOUND] += max(abs(s_grid[0, j]), abs(s_grid[-1, j])) \
                         * np.sqrt(dot(rows[1 + j], rows[1 + j]))
-                labels[G_SET], labels[G_JOINT], labels[G_PHASE] = s, i, phase
-                labels[G_CORNERS] = corners
+                labels[GroupLabel.SET], labels[GroupLabel.JOINT] = s, i
+                labels[GroupLabel.PHASE] = phase
+                labels[GroupLabel.CORNERS] = corners
                 w.group_added[g, :corners] = False
 
 
@@ -111,10 +96,10 @@ def _group_terms(a, g, tau, terms):
     of u_j it has (0 without a payload range)."""
     w = a.work
     rows, values = w.group_rows[g], w.group_values[g]
-    count = w.s_phase.shape[2] if w.group_labels[g, G_CORNERS] > 1 else 0
-    terms[0] = dot(rows[0], tau) - values[H_ZERO]
+    count = w.s_phase.shape[2] if w.group_labels[g, GroupLabel.CORNERS] > 1 else 0
+    terms[0] = dot(rows[0], tau) - values[GroupValue.H_ZERO]
     for j in range(count):
-        terms[1 + j] = dot(rows[1 + j], tau) - values[OFFSETS + j]
+        terms[1 + j] = dot(rows[1 + j], tau) - values[GroupValue.OFFSETS + j]
     return count
 
 
@@ -122,7 +107,7 @@ def _group_terms(a, g, tau, terms):
 def _corner_excess(a, g, c, terms, count):
     """Corner c's g_c·τ − h_c (unscaled), from group g's terms at τ (:func:`_group_terms`)."""
     w = a.work
-    phase = w.group_labels[g, G_PHASE]
+    phase = w.group_labels[g, GroupLabel.PHASE]
     excess = terms[0]
     for j in range(count):
         excess += w.s_phase[phase, w.corner_index[c, j], j] * terms[1 + j]
@@ -134,7 +119,7 @@ def _most_excess(a, g, terms, count):
     """The most any corner of group g may exceed its limit at τ (unscaled): every corner's
     s_cj lies between the grid's ends, so a sum of each term's largest over them."""
     w = a.work
-    s_phase = w.s_phase[w.group_labels[g, G_PHASE]]
+    s_phase = w.s_phase[w.group_labels[g, GroupLabel.PHASE]]
     most = terms[0]
     for j in range(count):
         most += max(s_phase[0, j] * terms[1 + j], s_phase[-1, j] * terms[1 + j])
@@ -149,13 +134,13 @@ def _corner_row(a, g, c, row):
     n = row.shape[0]
     for col in range(n):
         row[col] = rows[0, col]
-    limit = values[H_ZERO]
-    if labels[G_CORNERS] > 1:
+    limit = values[GroupValue.H_ZERO]
+    if labels[GroupLabel.CORNERS] > 1:
         for j in range(w.s_phase.shape[2]):
-            s = w.s_phase[labels[G_PHASE], w.corner_index[c, j], j]
+            s = w.s_phase[labels[GroupLabel.PHASE], w.corner_index[c, j], j]
             for col in range(n):
                 row[col] += s * rows[1 + j, col]
-            limit += s * values[OFFSETS + j]
+            limit += s * values[GroupValue.OFFSETS + j]
     return limit
 
 
@@ -164,12 +149,12 @@ def add_corner(a, count, g, c):
     """Row ``count`` of the QP: group g's corner c (scaled to unit norm by add_row); returns
     the next row's index."""
     w = a.work
-    row = w.vectors[ROW]
+    row = w.vectors[Vector.ROW]
     limit = _corner_row(a, g, c, row)
     w.group_added[g, c] = True
     qp = (a.rows, a.limits, a.weights, a.is_hard, a.kinds, a.joints)
-    return add_row(qp, count, row, limit, a.rho_hard, True, w.group_labels[g, G_SET],
-                   w.group_labels[g, G_JOINT])
+    return add_row(qp, count, row, limit, a.rho_hard, True, w.group_labels[g, GroupLabel.SET],
+                   w.group_labels[g, GroupLabel.JOINT])
 
 
 @no_refcount_jit(cache=True)
@@ -184,12 +169,12 @@ def add_cuts(a, count, tau):
     w = a.work
     terms = w.group_values[-1]  # the last row: scratch
     lowered, weights = w.per_row[0], w.per_row[1]
-    for g in range(int(w.flags[GROUPS])):
+    for g in range(int(w.flags[Flag.GROUPS])):
         terms_count = _group_terms(a, g, tau, terms)
-        room = -a.hard_tolerance * w.group_values[g, NORM_BOUND]
+        room = -a.hard_tolerance * w.group_values[g, GroupValue.NORM_BOUND]
         if not _most_excess(a, g, terms, terms_count) > room:
             continue
-        for c in range(w.group_labels[g, G_CORNERS]):
+        for c in range(w.group_labels[g, GroupLabel.CORNERS]):
             if w.group_added[g, c] or not _corner_excess(a, g, c, terms, terms_count) > room:
                 continue
             count = add_corner(a, count, g, c)
@@ -203,11 +188,11 @@ def add_cuts(a, count, tau):
 def groups_violated(a, tau):
     """Whether τ violates any hard row of the groups as given (its limit not lowered)."""
     terms = a.work.group_values[-1]
-    for g in range(int(a.work.flags[GROUPS])):
+    for g in range(int(a.work.flags[Flag.GROUPS])):
         count = _group_terms(a, g, tau, terms)
         if not _most_excess(a, g, terms, count) > 0.0:
             continue
-        for c in range(a.work.group_labels[g, G_CORNERS]):
+        for c in range(a.work.group_labels[g, GroupLabel.CORNERS]):
             if _corner_excess(a, g, c, terms, count) > 0.0:
                 return True
     return False
@@ -219,15 +204,15 @@ def groups_record(k, a, tau):
     hard_tolerance of its limit (scaled to unit norm, as the QP has it) binds, and marks its
     set and joint active. Returns (whether every one is met as given, how many bind)."""
     w = a.work
-    terms, row = w.group_values[-1], w.vectors[ROW]
+    terms, row = w.group_values[-1], w.vectors[Vector.ROW]
     met, active = True, 0
-    for g in range(int(w.flags[GROUPS])):
+    for g in range(int(w.flags[Flag.GROUPS])):
         count = _group_terms(a, g, tau, terms)
-        room = -2.0 * a.hard_tolerance * w.group_values[g, NORM_BOUND]
+        room = -2.0 * a.hard_tolerance * w.group_values[g, GroupValue.NORM_BOUND]
         if not _most_excess(a, g, terms, count) > room:
             continue
         labels = w.group_labels[g]
-        for c in range(labels[G_CORNERS]):
+        for c in range(labels[GroupLabel.CORNERS]):
             excess = _corner_excess(a, g, c, terms, count)
             if not excess > room:
                 continue
@@ -235,7 +220,7 @@ def groups_record(k, a, tau):
             norm = _corner_norm(a, g, c, row)
             if excess > -2.0 * a.hard_tolerance * norm:
                 active += 1
-                a.active_sets[labels[G_SET], k, labels[G_JOINT]] = 1.0
+                a.active_sets[labels[GroupLabel.SET], k, labels[GroupLabel.JOINT]] = 1.0
     return met, active
 
 
@@ -258,7 +243,7 @@ def _reach(a, minv, corners, reach, room):
     Leaving rows out changes no answer within the limits; where the hard rows and the limits
     conflict (no torque in the box meets them all) the penalty form's compromise may move,
     and the check decides."""
-    alpha, beta = a.work.point_rows[ALPHA], a.work.point_vectors[BETA]
+    alpha, beta = a.work.point_rows[PointRow.ALPHA], a.work.point_vectors[PointVector.BETA]
     s_grid, n = a.work.s_grid, minv.shape[0]
     for i in range(n):
         largest, spread, lowered = 0.0, 0.0, 0.0  # spread: a bound on ‖g‖₁

@@ -20,30 +20,7 @@ from ...dynamics.model import (
 )
 from ...numba_compat import no_refcount_jit
 from ..linalg import dot, invert, linear_part, product, small_symmetric_eigen
-from .scratch import (
-    ALPHA,
-    BETA,
-    EIGEN,
-    FRICTION,
-    GAMMA,
-    JAC,
-    JB,
-    JM,
-    KMAT,
-    LAM,
-    LU,
-    MOVED_BIAS,
-    NOMINAL,
-    NOMINAL_NOW,
-    PLANT_SHIFT,
-    PLUS,
-    POLAR_ROWS,
-    QUADRATIC,
-    ROWS_ERROR,
-    SHIFTED,
-    VEC,
-    E,
-)
+from .scratch import POLAR_ROWS, Matrix, PointRow, PointVector, Polar, Square, Vector
 
 
 @no_refcount_jit(cache=True)
@@ -51,7 +28,7 @@ def velocity_forms_into(model, q, bodies, payload, polar, out):
     """Γ of the model at q (its bodies times ``bodies``, a point mass ``payload`` at its
     payload point) into ``out`` (n, n, n), ``polar`` (POLAR_ROWS, n) its scratch."""
     model_geometry(model, q)
-    model_velocity_forms(model, bodies, payload, polar[E], polar[PLUS], out)
+    model_velocity_forms(model, bodies, payload, polar[Polar.E], polar[Polar.PLUS], out)
 
 
 def velocity_forms(model, q) -> np.ndarray:
@@ -157,14 +134,14 @@ def nominal_model(a, y, v, nominal, bias):
 def moved_model(a, y, v, mass, minv, base):
     """At a predicted state (y, v): M̂⁻¹ into ``minv`` and M̂⁻¹b̂ into ``base`` (so that
     q̈ = M̂⁻¹τ − base), with M̂ moved from row k's by the nominal model's change."""
-    matrices, moved_bias = a.work.matrices, a.work.vectors[MOVED_BIAS]
-    nominal, shifted = matrices[NOMINAL], matrices[SHIFTED]
+    matrices, moved_bias = a.work.matrices, a.work.vectors[Vector.MOVED_BIAS]
+    nominal, shifted = matrices[Matrix.NOMINAL], matrices[Matrix.SHIFTED]
     nominal_model(a, y, v, nominal, moved_bias)
     n = y.shape[0]
     for i in range(n):
         for j in range(n):
-            shifted[i, j] = mass[i, j] + nominal[i, j] - matrices[NOMINAL_NOW, i, j]
-    invert(shifted, minv, matrices[LU])
+            shifted[i, j] = mass[i, j] + nominal[i, j] - matrices[Matrix.NOMINAL_NOW, i, j]
+    invert(shifted, minv, matrices[Matrix.LU])
     product(minv, moved_bias, base)
 
 
@@ -174,10 +151,10 @@ def payload_structure(low, high, minv, base, point_rows, point_vectors, squares,
     ``point_rows`` and ``point_vectors``): K's eigenvalues and eigenvectors, s_j(Δm) on the
     grid, and the α_j = v_jᵀJM̂⁻¹ and β_j = v_jᵀ(γ − JM̂⁻¹b̂) a row is linear in."""
     n = minv.shape[0]
-    jac, jm, alpha = point_rows[JAC], point_rows[JM], point_rows[ALPHA]
-    gamma, jb, lam, beta = (point_vectors[GAMMA], point_vectors[JB], point_vectors[LAM],
-                            point_vectors[BETA])
-    kmat, vec = squares[KMAT], squares[VEC]
+    jac, jm, alpha = point_rows[PointRow.JAC], point_rows[PointRow.JM], point_rows[PointRow.ALPHA]
+    gamma, jb = point_vectors[PointVector.GAMMA], point_vectors[PointVector.JB]
+    lam, beta = point_vectors[PointVector.LAM], point_vectors[PointVector.BETA]
+    kmat, vec = squares[Square.KMAT], squares[Square.VEC]
     d = kmat.shape[0]
     for r in range(d):  # J M̂⁻¹ along M̂⁻¹'s rows (contiguous), each sum in the same order
         for col in range(n):
@@ -190,7 +167,7 @@ def payload_structure(low, high, minv, base, point_rows, point_vectors, squares,
     for r in range(d):
         for c in range(d):
             kmat[r, c] = dot(jm[r], jac[c])
-    small_symmetric_eigen(kmat, lam, vec, squares[EIGEN])
+    small_symmetric_eigen(kmat, lam, vec, squares[Square.EIGEN])
     grid = s_grid.shape[0] - 1
     for g in range(grid + 1):
         payload = low + (high - low) * g / grid
@@ -224,11 +201,12 @@ def robust_model(a, y, v, eps, minv, base):
         velocity_forms_into(a.model, y, 0.0, 1.0, w.polar, forms[1])
     acceleration_error_bound_into(a.model, v, eps, minv, a.payload_low, a.payload_high,
                                   a.disturbance, forms[0], forms[1], w.linear,
-                                  vectors[QUADRATIC], vectors[FRICTION], vectors[ROWS_ERROR])
+                                  vectors[Vector.QUADRATIC], vectors[Vector.FRICTION],
+                                  vectors[Vector.ROWS_ERROR])
     # the payload's structure (see the package docstring)
     corners = 1
-    jac, gamma = w.point_rows[JAC], w.point_vectors[GAMMA]
-    plant_shift = vectors[PLANT_SHIFT]
+    jac, gamma = w.point_rows[PointRow.JAC], w.point_vectors[PointVector.GAMMA]
+    plant_shift = vectors[Vector.PLANT_SHIFT]
     plant_shift[:] = 0.0
     if robust:
         model_payload(a.model, v, 1.0, jac, gamma)

@@ -12,16 +12,7 @@ from .backup import backup_at
 from .check import verified
 from .groups import groups_violated
 from .interval import inside
-from .scratch import (
-    ANSWER,
-    CONSISTENT,
-    PLAN,
-    PLAN_RESERVE,
-    R_CANDIDATE,
-    R_CENTRE,
-    R_HALF,
-    VIABLE_ONCE,
-)
+from .scratch import Authority, Flag, Rollout
 
 # Bisections of the blend between the QP's torque and the backup's, where the QP's alone is
 # not verified: the blend found is within 2⁻⁴ of the largest verified one.
@@ -36,7 +27,7 @@ POLICIES = 2
 def verified_policy(k, a, tau, limit):
     """The first backup policy under which ``tau``, held for the step, is verified with the
     backup within the torques ``limit`` (:func:`.check.verified`), else −1."""
-    y, v, eps = a.position[k], a.work.rollout[R_CENTRE], a.work.rollout[R_HALF]
+    y, v, eps = a.position[k], a.work.rollout[Rollout.CENTRE], a.work.rollout[Rollout.HALF]
     for policy in range(POLICIES):
         if verified(k, a, y, v, eps, tau, True, policy, limit):
             return policy
@@ -47,8 +38,8 @@ def verified_policy(k, a, tau, limit):
 def planned_with(a, policy, reserve):
     """Keeps the plan of the torque verified: its backup policy, and whether that backup
     brakes within the torque limits (1) or within braking_torque (0)."""
-    a.work.flags[PLAN] = policy
-    a.work.flags[PLAN_RESERVE] = 1.0 if reserve else 0.0
+    a.work.flags[Flag.PLAN] = policy
+    a.work.flags[Flag.PLAN_RESERVE] = 1.0 if reserve else 0.0
 
 
 @no_refcount_jit(cache=True)
@@ -69,7 +60,7 @@ def blend_verified(k, a, tau, limit, reserve):
     # verified (held for the step, then the backup within the limits): the state is braked
     # back into where braking_torque keeps it, not held at the edge of where the limits do
     # (where the estimate's next move would call for all of them).
-    y, v, eps = a.position[k], a.work.rollout[R_CENTRE], a.work.rollout[R_HALF]
+    y, v, eps = a.position[k], a.work.rollout[Rollout.CENTRE], a.work.rollout[Rollout.HALF]
     if reserve and a.braking_reserve:
         for policy in range(POLICIES):
             backup_at(k, a, policy, a.braking_torque, backup)
@@ -85,7 +76,7 @@ def blend_verified(k, a, tau, limit, reserve):
             break
     if found < 0:
         return -1.0
-    candidate = a.work.rollout[R_CANDIDATE]
+    candidate = a.work.rollout[Rollout.CANDIDATE]
     low, high = 0.0, 1.0  # λ = low is verified
     for _ in range(BISECTIONS):
         middle = 0.5 * (low + high)
@@ -123,7 +114,7 @@ def choose(k, a, tau):
     # not); the torque limits' rows the clip above meets.
     if not a.verify:
         return not groups_violated(a, tau), 0.0
-    answer = a.work.authority[ANSWER]  # free here (cbf_step is done with it)
+    answer = a.work.authority[Authority.ANSWER]  # free here (cbf_step is done with it)
     substituted = a.torque_limited and groups_violated(a, tau)
     if substituted:
         # The hard rows are not met within the torque limits: the QP's answer is a penalty
@@ -138,13 +129,13 @@ def choose(k, a, tau):
     flags = a.work.flags
     # If the step before was viable, its check proved the backup from every state its tube
     # allows, and the state is in that tube when the velocity is where it predicted
-    # (CONSISTENT): the backup, as planned, is still viable. The plan is followed where no
+    # (Flag.CONSISTENT): the backup, as planned, is still viable. The plan is followed where no
     # torque is verified afresh, and where the interval the filter now holds pokes past a
     # set (a torque verified from it would prove a recovery, not that the sets are kept).
-    planned = k > 0 and a.viable[k - 1] > 0.0 and flags[CONSISTENT] > 0.0
-    plan = a.torque_limit if flags[PLAN_RESERVE] > 0.0 else a.braking_torque
+    planned = k > 0 and a.viable[k - 1] > 0.0 and flags[Flag.CONSISTENT] > 0.0
+    plan = a.torque_limit if flags[Flag.PLAN_RESERVE] > 0.0 else a.braking_torque
     if not kept and planned:
-        backup_at(k, a, int(flags[PLAN]), plan, tau)
+        backup_at(k, a, int(flags[Flag.PLAN]), plan, tau)
         a.planned[k] = 1.0
         return True, 1.0
     braking = a.braking_torque
@@ -152,8 +143,8 @@ def choose(k, a, tau):
         share = blend_verified(k, a, tau, braking, False)
         if share >= 0.0:
             return kept, share
-        if planned and flags[PLAN_RESERVE] == 0.0:  # the plan needs no reserve
-            backup_at(k, a, int(flags[PLAN]), braking, tau)
+        if planned and flags[Flag.PLAN_RESERVE] == 0.0:  # the plan needs no reserve
+            backup_at(k, a, int(flags[Flag.PLAN]), braking, tau)
             a.planned[k] = 1.0
             return True, 1.0
     share = blend_verified(k, a, tau, a.torque_limit, True)
@@ -174,7 +165,7 @@ def choose(k, a, tau):
     # filter holds may be wider than the tube the plan was verified with, as it is what
     # the filter knows, not where the plan keeps the state.)
     # Before the first viable step (start-up), within the declared startup_torque.
-    unplanned = a.torque_limit if flags[VIABLE_ONCE] > 0.0 else a.startup_torque
-    backup_at(k, a, int(flags[PLAN]), plan if planned else unplanned, tau)
+    unplanned = a.torque_limit if flags[Flag.VIABLE_ONCE] > 0.0 else a.startup_torque
+    backup_at(k, a, int(flags[Flag.PLAN]), plan if planned else unplanned, tau)
     a.planned[k] = 1.0 if planned else 0.0
     return planned, 1.0

@@ -13,27 +13,7 @@ from ..linalg import dot, invert, product
 from .groups import add_corner, hard_groups
 from .interval import velocity_interval
 from .model import moved_model, nominal_model
-from .scratch import (
-    ACCELERATION,
-    BASE,
-    BASE_END,
-    BASE_MID,
-    BIAS,
-    DRIFT,
-    G_CORNERS,
-    GROUPS,
-    LU,
-    MINV,
-    MINV_END,
-    MINV_MID,
-    NOMINAL_NOW,
-    ROW,
-    V_END,
-    V_MID,
-    Y_END,
-    Y_MID,
-    X,
-)
+from .scratch import Flag, GroupLabel, Matrix, Vector
 from .solver import add_row
 
 
@@ -54,12 +34,13 @@ def step_rows(k, a, every):
     vectors, matrices = a.work.vectors, a.work.matrices
     y, v, eps = a.position[k], a.velocity[k], a.velocity_bound[k]
     mass = a.M_model[k]
-    minv, bias, base = matrices[MINV], vectors[BIAS], vectors[BASE]  # u = M̂⁻¹τ − base
-    nominal_model(a, y, v, matrices[NOMINAL_NOW], bias)
-    invert(mass, minv, matrices[LU])
+    # u = M̂⁻¹τ − base
+    minv, bias, base = matrices[Matrix.MINV], vectors[Vector.BIAS], vectors[Vector.BASE]
+    nominal_model(a, y, v, matrices[Matrix.NOMINAL_NOW], bias)
+    invert(mass, minv, matrices[Matrix.LU])
     product(minv, bias, base)
     velocity_interval(k, a)
-    a.work.flags[GROUPS] = 0.0
+    a.work.flags[Flag.GROUPS] = 0.0
     # ε infinite (the observer confirmed no enclosure of q̇): no hard row holds for every
     # velocity, and none is made; the check verifies nothing from such a state either
     known = True
@@ -68,8 +49,8 @@ def step_rows(k, a, every):
     if known:
         hard_groups(a, k, y, v, eps, minv, base, False)
     _predict_hold(k, a, y, v, minv, base)
-    y_end, v_end = vectors[Y_END], vectors[V_END]
-    minv_end, base_end = matrices[MINV_END], vectors[BASE_END]
+    y_end, v_end = vectors[Vector.Y_END], vectors[Vector.V_END]
+    minv_end, base_end = matrices[Matrix.MINV_END], vectors[Vector.BASE_END]
     moved_model(a, y_end, v_end, mass, minv_end, base_end)
     if known:
         hard_groups(a, k, y_end, v_end, eps, minv_end, base_end, True)
@@ -77,16 +58,16 @@ def step_rows(k, a, every):
     # of a set, q̈'s drift within one 1 ms hold is what would carry the state across), and
     # how v moves: the observer's drift + M̂⁻¹τ (the observer holds M̂ over the step), or the
     # plant's q̈ for the plant's q̇.
-    minv_mid, base_mid = matrices[MINV_MID], vectors[BASE_MID]
-    moved_model(a, vectors[Y_MID], vectors[V_MID], mass, minv_mid, base_mid)
+    minv_mid, base_mid = matrices[Matrix.MINV_MID], vectors[Vector.BASE_MID]
+    moved_model(a, vectors[Vector.Y_MID], vectors[Vector.V_MID], mass, minv_mid, base_mid)
     observed = np.isfinite(a.drift[k, 0])
     rate_minv = minv if observed else minv_mid
     _set_states(k, a, y, v, observed, base_mid)
     _barrier_values(k, a, eps)
     count = 0
     if every:
-        for g in range(int(a.work.flags[GROUPS])):
-            for c in range(a.work.group_labels[g, G_CORNERS]):
+        for g in range(int(a.work.flags[Flag.GROUPS])):
+            for c in range(a.work.group_labels[g, GroupLabel.CORNERS]):
                 count = add_corner(a, count, g, c)
     for s in range(4):
         count = _soft_rows(k, a, count, s, rate_minv, minv_mid, base_mid)
@@ -99,9 +80,10 @@ def _predict_hold(k, a, y, v, minv, base):
     predicted with the torque of the step before (the nominal model's q̈)."""
     vectors = a.work.vectors
     held = a.tau[k - 1] if k > 0 else a.tau_nominal[k]
-    acceleration = vectors[ACCELERATION]
+    acceleration = vectors[Vector.ACCELERATION]
     product(minv, held, acceleration)
-    y_end, v_end, y_mid, v_mid = vectors[Y_END], vectors[V_END], vectors[Y_MID], vectors[V_MID]
+    y_end, v_end = vectors[Vector.Y_END], vectors[Vector.V_END]
+    y_mid, v_mid = vectors[Vector.Y_MID], vectors[Vector.V_MID]
     for i in range(y.shape[0]):
         acceleration[i] -= base[i]
         y_end[i] = y[i] + a.dt * v[i] + 0.5 * a.dt * a.dt * acceleration[i]
@@ -115,7 +97,7 @@ def _set_states(k, a, y, v, observed, base_mid):
     """Each set's x (rows X … of the work vectors, SETS order) and how v moves (DRIFT):
     the observer's drift, else the plant's q̈ less M̂⁻¹τ at the hold's midpoint."""
     vectors = a.work.vectors
-    drift, x = vectors[DRIFT], vectors[X:X + 4]
+    drift, x = vectors[Vector.DRIFT], vectors[Vector.X:Vector.X + 4]
     for i in range(y.shape[0]):
         drift[i] = a.drift[k, i] if observed else -base_mid[i]
         x[0, i] = y[i] - a.centres[0, i]
@@ -128,7 +110,7 @@ def _set_states(k, a, y, v, observed, base_mid):
 def _barrier_values(k, a, eps):
     """Row k's barrier values per set and joint (robust: the worst case of the true state
     within the declared bounds) and as norms, their activity cleared for the record."""
-    x = a.work.vectors[X:X + 4]
+    x = a.work.vectors[Vector.X:Vector.X + 4]
     for s in range(4):
         beta_s = a.bounds[s]
         tight = 0.0  # the worst case of the true state within the declared bounds
@@ -150,7 +132,7 @@ def _soft_rows(k, a, count, s, rate_minv, minv_mid, base_mid):
     """The soft rows of set s: per joint and side (if ``a.soft[s]``), then as a norm,
     h = β² − ‖x‖² (if ``a.soft_norms[s]``); returns the next row's index."""
     vectors = a.work.vectors
-    drift, x, row = vectors[DRIFT], vectors[X:X + 4], vectors[ROW]
+    drift, x, row = vectors[Vector.DRIFT], vectors[Vector.X:Vector.X + 4], vectors[Vector.ROW]
     qp = (a.rows, a.limits, a.weights, a.is_hard, a.kinds, a.joints)
     rate_error = x[3]  # q̇_d − v
     beta_s = a.bounds[s]
@@ -200,7 +182,7 @@ def _soft_rows(k, a, count, s, rate_minv, minv_mid, base_mid):
 def _torque_rows(a, count):
     """The finite torque limits |τ_i| ≤ τ_max,i as hard rows; returns the next row's
     index."""
-    row = a.work.vectors[ROW]
+    row = a.work.vectors[Vector.ROW]
     qp = (a.rows, a.limits, a.weights, a.is_hard, a.kinds, a.joints)
     n = row.shape[0]
     for i in range(n):

@@ -3,13 +3,16 @@
 
 from __future__ import annotations
 
+from enum import auto
 from typing import NamedTuple
 
 import numpy as np
 
 from ...blocks.binding import (
+    Rows,
     master_step,
     parameter,
+    published,
     reads,
     scratch,
     uncertainty,
@@ -17,91 +20,219 @@ from ...blocks.binding import (
 )
 from ...dynamics.model import RigidBodyModel
 from ...records import kernel_record
-from .assumptions import BACKUP, VIABLE
+from .assumptions import BACKUP, FILTER_ASSUMES, VIABLE
 
 SETS = ("position", "velocity", "error", "error_rate")
 SET_UNITS = {"position": "rad", "velocity": "rad/s", "error": "rad", "error_rate": "rad/s"}
 
 # The filter's scratch, made once at reset (a step allocates nothing), is a few arrays with
-# named rows. Both records are kernel records (cosim.records): compiled code takes each as
-# one pointer, however many arrays it holds.
+# named rows: each array's rows are a Rows class (cosim.blocks.binding), numbered by their
+# order, whose count its shape names. Both records are kernel records (cosim.records):
+# compiled code takes each as one pointer, however many arrays it holds.
 
-# Rows of CbfWork.polar (n each): the polarisation's velocity and biases.
-E, PLUS = range(2)
-POLAR_ROWS = 2
-# Of CbfWork.solver (5, n): the iterate (then the answer), the line search's point, the
-# gradient, the step, a row being rotated into R.
-TAU, TRIAL, GRADIENT, DIRECTION, ROTATED = range(5)
-# Of CbfWork.vectors (n each): b̂ at (y, v) and at a predicted state; M̂⁻¹b̂ at (y, v), at the
-# hold's end and at its midpoint; the nominal model's q̈ under the held torque; the states
-# predicted at the hold's end and midpoint; dv/dt − M̂⁻¹τ; a row before its scaling; the bias
-# error's quadratic part, and its bound on |M̂⁻¹(Δb + d)|; M̂⁻¹Jᵀγ when M̂ is the plant's;
-# per joint, the most a hard row's g·τ reaches within the torque limits and the most its
-# payload corners lower its limit (groups.py, _reach); the friction's error per joint at
-# (y, v); from X, 4 rows: each set's x, SETS order.
-(BIAS, MOVED_BIAS, BASE, BASE_END, BASE_MID, ACCELERATION, Y_END, V_END, Y_MID, V_MID, DRIFT,
- ROW, QUADRATIC, ROWS_ERROR, PLANT_SHIFT, REACH, ROOM, FRICTION, X) = range(19)
-# Of CbfWork.matrices (n×n each): the nominal model's M at y and at a predicted position, M̂
-# moved there, M̂⁻¹ at y, at the hold's end and at its midpoint, elimination scratch, and R.
-NOMINAL_NOW, NOMINAL, SHIFTED, MINV, MINV_END, MINV_MID, LU, FACTOR = range(8)
-# … then the backup's rollout (cosim.paper.cbf_filter.check): M at its state, M⁻¹, scratch.
-ROLL_MASS, ROLL_MINV, ROLL_LU, BACKUP_FACTOR = range(8, 12)
-# Of CbfWork.rollout (n each): the rollout's state, the tube's half-widths δq, δv, its torque,
-# nominal q̈ and b̂; the bound D on q̈'s departure; what each set allows; the backup's target
-# velocities; scratch; a blend of the QP's torque and the backup's; the true velocity's
-# interval at this step (its centre and half-width) and the one predicted for the next step;
-# the backup's √weight per joint; D's part that is fixed over a rollout (the bias error's
-# quadratic part and the disturbance, per row of b); the friction's error per joint at the
-# rollout's state; the tube's widening per step (TUBE_SAFETY D); the box the plan predicts
-# for the true state at the next step (position centre and half-width, velocity centre and
-# half-width); the check's bound on the true q̈ over the held step (its low and high ends);
-# the held step's start (q, q̇, q̈) while the check looks at its predicted end; the
-# rollout's q̈ over its step's first hold (:func:`.check.held_average`).
-(R_Q, R_V, R_DQ, R_DV, R_TAU, R_ACC, R_BIAS, R_DEV, R_LIMIT_Q, R_LIMIT_V, R_TARGET, R_SCRATCH,
- R_CANDIDATE, R_CENTRE, R_HALF, R_NEXT_LOW, R_NEXT_HIGH, R_WEIGHT, R_QUADRATIC,
- R_FRICTION, R_WIDEN, R_BOX_Q, R_BOX_Q_HALF, R_BOX_V, R_BOX_V_HALF, R_ACC_LOW,
- R_ACC_HIGH, R_HELD_Q, R_HELD_V, R_HELD_ACC, R_HOLD_ACC) = range(31)
-ROLLOUT_ROWS = 31
-# CbfWork.flags: CONSISTENT, 1 where the velocity's intervals met at this step; PLAN, the
-# backup policy of the last torque verified (a row of their own: an arm of one joint has a
-# rollout row of one)
-CONSISTENT, PLAN = 0, 1
-# … and PLAN_RESERVE, 1 where that torque was verified with the backup within the torque
-# limits, 0 within braking_torque; GROUPS, the number of hard row groups at this step
-PLAN_RESERVE, GROUPS = 2, 3
-# … the tube's buffers (CbfWork.tube): TUBE_TRIAL, the one a check writes its rollout into,
-# PLAN_TUBE, the one that holds the rollout of the last torque verified, PLAN_STEP, the step
-# it was verified at (TUBE_TRIAL, not TRIAL: that is the solver's row of CbfWork.solver)
-TUBE_TRIAL, PLAN_TUBE, PLAN_STEP = 4, 5, 6
-# … and VIABLE_ONCE, 1 from the run's first viable step on (before it: start-up)
-VIABLE_ONCE = 7
-FLAGS = 8
-# Of CbfWork.tube[buffer, segment] (n each): a rollout's segment, kept so that the plan it
-# verified can say where it puts the true state later (the tube measured along the run):
-# the nominal state at its start (q, q̇), the tube's half-widths there (δq, δv), its nominal
-# q̈ (over its first hold, and on average over its holds), the tube's widening
-# (TUBE_SAFETY D) and the share of δv the backup's feedback removes over it; and of
-# CbfWork.tube_steps[buffer, segment]: the segment's length, s (0 past the rollout's last
-# segment).
-T_Q, T_V, T_DQ, T_DV, T_ACC_FIRST, T_ACC, T_WIDEN, T_FEEDBACK = range(8)
-TUBE_ROWS = 8
+
+class Polar(Rows):
+    """Rows of CbfWork.polar (n each)."""
+
+    E = auto()  # the polarisation's velocity
+    PLUS = auto()  # its biases
+
+
+POLAR_ROWS = len(Polar)  # for the kernels that make their own (len of a class: Python's)
+
+
+class Solver(Rows):
+    """Rows of CbfWork.solver and .backup_solver (n each)."""
+
+    TAU = auto()  # the iterate (then the answer)
+    TRIAL = auto()  # the line search's point
+    GRADIENT = auto()
+    DIRECTION = auto()  # the step
+    ROTATED = auto()  # a row being rotated into R
+
+
+class Vector(Rows):
+    """Rows of CbfWork.vectors (n each)."""
+
+    BIAS = auto()  # b̂ at (y, v)
+    MOVED_BIAS = auto()  # b̂ at a predicted state
+    BASE = auto()  # M̂⁻¹b̂ at (y, v)
+    BASE_END = auto()  # … at the hold's end
+    BASE_MID = auto()  # … and at its midpoint
+    ACCELERATION = auto()  # the nominal model's q̈ under the held torque
+    Y_END = auto()  # the state predicted at the hold's end
+    V_END = auto()
+    Y_MID = auto()  # … and at its midpoint
+    V_MID = auto()
+    DRIFT = auto()  # dv/dt − M̂⁻¹τ
+    ROW = auto()  # a row before its scaling
+    QUADRATIC = auto()  # the bias error's quadratic part
+    ROWS_ERROR = auto()  # … and its bound on |M̂⁻¹(Δb + d)|
+    PLANT_SHIFT = auto()  # M̂⁻¹Jᵀγ when M̂ is the plant's
+    # per joint, the most a hard row's g·τ reaches within the torque limits, and the most
+    # its payload corners lower its limit (groups.py, _reach)
+    REACH = auto()
+    ROOM = auto()
+    FRICTION = auto()  # the friction's error per joint at (y, v)
+    X = auto()  # each set's x, SETS order: this row and the three below
+    X_VELOCITY = auto()
+    X_ERROR = auto()
+    X_ERROR_RATE = auto()
+
+
+class Matrix(Rows):
+    """Of CbfWork.matrices (n×n each)."""
+
+    NOMINAL_NOW = auto()  # the nominal model's M at y
+    NOMINAL = auto()  # … and at a predicted position
+    SHIFTED = auto()  # M̂ moved there
+    MINV = auto()  # M̂⁻¹ at y
+    MINV_END = auto()  # … at the hold's end
+    MINV_MID = auto()  # … and at its midpoint
+    LU = auto()  # elimination scratch
+    FACTOR = auto()  # R
+    # the backup's rollout (cosim.paper.cbf_filter.check): M at its state, M⁻¹, scratch, R
+    ROLL_MASS = auto()
+    ROLL_MINV = auto()
+    ROLL_LU = auto()
+    BACKUP_FACTOR = auto()
+
+
+class Rollout(Rows):
+    """Rows of CbfWork.rollout (n each)."""
+
+    Q = auto()  # the rollout's state
+    V = auto()
+    DQ = auto()  # the tube's half-widths δq, δv
+    DV = auto()
+    TAU = auto()  # its torque
+    ACC = auto()  # nominal q̈
+    BIAS = auto()  # b̂
+    DEV = auto()  # the bound D on q̈'s departure
+    LIMIT_Q = auto()  # what each set allows
+    LIMIT_V = auto()
+    TARGET = auto()  # the backup's target velocities
+    SCRATCH = auto()
+    CANDIDATE = auto()  # a blend of the QP's torque and the backup's
+    # the true velocity's interval at this step (its centre and half-width), and the one
+    # predicted for the next step
+    CENTRE = auto()
+    HALF = auto()
+    NEXT_LOW = auto()
+    NEXT_HIGH = auto()
+    WEIGHT = auto()  # the backup's √weight per joint
+    # D's part that is fixed over a rollout (the bias error's quadratic part and the
+    # disturbance, per row of b)
+    QUADRATIC = auto()
+    FRICTION = auto()  # the friction's error per joint at the rollout's state
+    WIDEN = auto()  # the tube's widening per step (TUBE_SAFETY D)
+    # the box the plan predicts for the true state at the next step (position centre and
+    # half-width, velocity centre and half-width)
+    BOX_Q = auto()
+    BOX_Q_HALF = auto()
+    BOX_V = auto()
+    BOX_V_HALF = auto()
+    ACC_LOW = auto()  # the check's bound on the true q̈ over the held step, its low end
+    ACC_HIGH = auto()  # … and its high end
+    # the held step's start (q, q̇, q̈) while the check looks at its predicted end
+    HELD_Q = auto()
+    HELD_V = auto()
+    HELD_ACC = auto()
+    HOLD_ACC = auto()  # the rollout's q̈ over its step's first hold (.check.held_average)
+
+
+class Flag(Rows):
+    """Of CbfWork.flags (one each; a row of their own: an arm of one joint has a rollout row
+    of one)."""
+
+    CONSISTENT = auto()  # 1 where the velocity's intervals met at this step
+    PLAN = auto()  # the backup policy of the last torque verified
+    # 1 where that torque was verified with the backup within the torque limits, 0 within
+    # braking_torque
+    PLAN_RESERVE = auto()
+    GROUPS = auto()  # the number of hard row groups at this step
+    # the tube's buffers (CbfWork.tube): the one a check writes its rollout into, the one
+    # that holds the rollout of the last torque verified, the step it was verified at
+    # (TUBE_TRIAL, not TRIAL: that is the solver's row)
+    TUBE_TRIAL = auto()
+    PLAN_TUBE = auto()
+    PLAN_STEP = auto()
+    VIABLE_ONCE = auto()  # 1 from the run's first viable step on (before it: start-up)
+
+
+class Tube(Rows):
+    """Of CbfWork.tube[buffer, segment] (n each): a rollout's segment, kept so that the plan
+    it verified can say where it puts the true state later (the tube measured along the
+    run). CbfWork.tube_steps[buffer, segment] holds the segment's length, s (0 past the
+    rollout's last segment)."""
+
+    Q = auto()  # the nominal state at its start
+    V = auto()
+    DQ = auto()  # the tube's half-widths there
+    DV = auto()
+    ACC_FIRST = auto()  # its nominal q̈ over its first hold
+    ACC = auto()  # … and on average over its holds
+    WIDEN = auto()  # the tube's widening (TUBE_SAFETY D)
+    FEEDBACK = auto()  # the share of δv the backup's feedback removes over it
+
+
 # The hard rows in groups (cosim.paper.cbf_filter.rows): a joint's side of a hard set, now or
 # at the hold's end, one row per payload corner c, g_c = g_0 + Σ_j s_cj u_j with the limit
-# h_c = h_0 + Σ_j s_cj o_j (unscaled). Of CbfWork.group_values: h_0, a bound on every ‖g_c‖,
-# then o_1 … o_d; of .group_labels: the set, the joint, the phase (0 now, 1 at the hold's
-# end: the row of CbfWork.s_phase its s_cj are in) and the number of corners; .group_added
-# flags the corners already among the QP's rows.
-H_ZERO, NORM_BOUND, OFFSETS = 0, 1, 2
-G_SET, G_JOINT, G_PHASE, G_CORNERS = range(4)
-# Of CbfWork.authority (n each)
-PEAK, ANSWER = range(2)
+# h_c = h_0 + Σ_j s_cj o_j (unscaled). CbfWork.group_added flags the corners already among
+# the QP's rows.
+
+
+class GroupValue(Rows):
+    """Of CbfWork.group_values (one each)."""
+
+    H_ZERO = auto()  # h_0
+    NORM_BOUND = auto()  # a bound on every ‖g_c‖
+    OFFSETS = auto()  # o_1 … o_d: this row and the d − 1 after it
+
+
+class GroupLabel(Rows):
+    """Of CbfWork.group_labels (one each)."""
+
+    SET = auto()
+    JOINT = auto()
+    PHASE = auto()  # 0 now, 1 at the hold's end: the row of CbfWork.s_phase its s_cj are in
+    CORNERS = auto()  # the number of corners
+
+
+class Authority(Rows):
+    """Of CbfWork.authority (n each), tracking_torque = "controller"."""
+
+    PEAK = auto()  # the largest |τ_nom,i| so far
+    ANSWER = auto()  # the QP's answer with the tracking rows while the hard rows' is solved
+
+
 # The payload's structure, its point of d coordinates (the model's dim: 2 in the plane, 3 in
-# space): of CbfWork.point_rows (d×n each) J of its point, J M̂⁻¹ and α; of .point_vectors (d each)
-# γ = J̇v − g, J M̂⁻¹b̂, K's eigenvalues (ascending) and β; of .squares (d×d each)
-# K = J M̂⁻¹ Jᵀ, its eigenvectors (columns) and the eigensolver's scratch.
-JAC, JM, ALPHA = range(3)
-GAMMA, JB, LAM, BETA = range(4)
-KMAT, VEC, EIGEN = range(3)
+# space).
+
+
+class PointRow(Rows):
+    """Of CbfWork.point_rows (d×n each)."""
+
+    JAC = auto()  # J of its point
+    JM = auto()  # J M̂⁻¹
+    ALPHA = auto()  # α
+
+
+class PointVector(Rows):
+    """Of CbfWork.point_vectors (d each)."""
+
+    GAMMA = auto()  # γ = J̇v − g
+    JB = auto()  # J M̂⁻¹b̂
+    LAM = auto()  # K's eigenvalues (ascending)
+    BETA = auto()  # β
+
+
+class Square(Rows):
+    """Of CbfWork.squares (d×d each)."""
+
+    KMAT = auto()  # K = J M̂⁻¹ Jᵀ
+    VEC = auto()  # its eigenvectors (columns)
+    EIGEN = auto()  # the eigensolver's scratch
 
 
 @kernel_record
@@ -110,42 +241,42 @@ class CbfWork(NamedTuple):
     coordinates, ``corners`` = (2^d − 1) payload_grid + 1 box corners, rollouts of at most
     ``segments`` segments."""
 
-    polar: scratch("POLAR_ROWS, n")  # E, PLUS
-    solver: scratch("5, n")  # TAU …
-    vectors: scratch("X + 4, n")  # BIAS …
-    matrices: scratch("12, n, n")  # NOMINAL_NOW …, ROLL_MASS …
+    polar: scratch("Polar, n")
+    solver: scratch("Solver, n")
+    vectors: scratch("Vector, n")
+    matrices: scratch("Matrix, n, n")
     # Γ of the nominal model, of a unit payload (zero without a payload range)
     forms: scratch("2, n, n, n")
     linear: scratch("2, n, n")  # B at each end of the payload range
-    point_rows: scratch("3, d, n")  # JAC …
-    point_vectors: scratch("4, d")  # GAMMA …
-    squares: scratch("3, d, d")  # KMAT, VEC, EIGEN
+    point_rows: scratch("PointRow, d, n")
+    point_vectors: scratch("PointVector, d")
+    squares: scratch("Square, d, d")
     s_grid: scratch("payload_grid + 1, d")  # s_j(Δm) at Δm = low … high
     corner_index: np.ndarray  # (corners, d) the grid points of each box corner
     per_row: scratch("2, rows")  # the limits and the weights the QP is solved with
     binding: scratch("rows", bool)  # the rows violated at the solver's iterate
-    rollout: scratch("ROLLOUT_ROWS, n")  # R_Q …
-    flags: scratch("FLAGS")  # CONSISTENT, PLAN, PLAN_RESERVE, GROUPS, TUBE_TRIAL …
+    rollout: scratch("Rollout, n")
+    flags: scratch("Flag")
     # tracking_torque = "controller": the largest |τ_nom,i| so far and the QP's answer
     # with the tracking rows while the hard rows' alone is solved, PEAK, ANSWER
-    authority: scratch("2, n")
+    authority: scratch("Authority, n")
     # the backup's torque as a small QP in q̈ (cosim.paper.cbf_filter.backup): its rows,
     # their limits and weights, its solver's vectors and the rows bound at its iterate
     backup_rows: scratch("2 * n, n")
     backup_limits: scratch("2, 2 * n")
-    backup_solver: scratch("5, n")
+    backup_solver: scratch("Solver, n")
     backup_binding: scratch("2 * n", bool)
     # the hard rows' groups, at most 8n (2 phases, 2 sets, n joints, 2 sides): g_0, u_1 …
-    # u_d; H_ZERO … (the last row: scratch); G_SET …; the corners among the QP's rows;
+    # u_d; GroupValue (the last row: scratch); GroupLabel; the corners among the QP's rows;
     # s_j(Δm) on the grid now and at the hold's end
     group_rows: scratch("8 * n, 1 + d, n")
-    group_values: scratch("8 * n + 1, 2 + d")
-    group_labels: scratch("8 * n, 4", int)
+    group_values: scratch("8 * n + 1, GroupValue.OFFSETS + d")
+    group_labels: scratch("8 * n, GroupLabel", int)
     group_added: scratch("8 * n, corners", bool)
     s_phase: scratch("2, payload_grid + 1, d")
     # two rollouts (the trial a check writes, the plan last verified), segment by segment:
-    # T_Q …, their lengths and the velocity error ε each was checked with
-    tube: scratch("2, segments, TUBE_ROWS, n")
+    # Tube, their lengths and the velocity error ε each was checked with
+    tube: scratch("2, segments, Tube, n")
     tube_steps: scratch("2, segments")
     tube_eps: scratch("2, n")
 
@@ -186,7 +317,7 @@ class CbfArgs(NamedTuple):
     tracking_k0: float  # p²
     k_velocity: parameter("velocity_rate")
     dt: master_step()  # the hold, s
-    torque_limit: np.ndarray  # (n,) |τ_i| ≤ this, N·m (inf: none)
+    torque_limit: published(FILTER_ASSUMES)  # (n,) |τ_i| ≤ this, N·m (inf: none)
     rho_soft: parameter("tracking_weight")
     rho_hard: parameter("hard_weight")
     hard_tolerance: parameter()

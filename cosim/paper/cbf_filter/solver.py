@@ -9,7 +9,7 @@ from numba import njit
 
 from ...numba_compat import no_refcount_jit
 from ..linalg import dot
-from .scratch import DIRECTION, GRADIENT, ROTATED, TAU, TRIAL
+from .scratch import Solver
 
 
 @no_refcount_jit(cache=True, inline="always")
@@ -100,10 +100,10 @@ def newton(tau_nominal, G, h, weights, count, iterations, tolerance, solver, fac
     violated there are those, it is the answer (the convex function's gradient is that
     piece's, zero), at no iteration."""
     n = tau_nominal.shape[0]
-    tau, trial, gradient, direction = solver[TAU], solver[TRIAL], solver[GRADIENT], \
-        solver[DIRECTION]
+    tau, trial = solver[Solver.TAU], solver[Solver.TRIAL]
+    gradient, direction = solver[Solver.GRADIENT], solver[Solver.DIRECTION]
     if warm:
-        piece_minimiser(tau_nominal, G, h, weights, count, binding, factor, solver[ROTATED],
+        piece_minimiser(tau_nominal, G, h, weights, count, binding, factor, solver[Solver.ROTATED],
                         tau)
     else:
         for i in range(n):
@@ -129,7 +129,7 @@ def newton(tau_nominal, G, h, weights, count, iterations, tolerance, solver, fac
         if np.sqrt(dot(gradient, gradient)) <= tolerance * scale:
             return it
         # The piece is quadratic: the Newton step goes to its minimiser.
-        piece_minimiser(tau_nominal, G, h, weights, count, binding, factor, solver[ROTATED],
+        piece_minimiser(tau_nominal, G, h, weights, count, binding, factor, solver[Solver.ROTATED],
                         direction)
         for i in range(n):
             direction[i] -= tau[i]
@@ -166,5 +166,5 @@ def solve_soft_qp(tau_nominal, G, h, weights, iterations, tolerance):
     solver = np.zeros((5, n))
     used = newton(tau_nominal, G, h, weights, m, iterations, tolerance, solver,
                   np.zeros((n, n)), np.zeros(m, np.bool_), False)
-    return solver[TAU], used
+    return solver[Solver.TAU], used
 

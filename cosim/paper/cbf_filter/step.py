@@ -15,19 +15,7 @@ from .groups import add_cuts, groups_record
 from .interval import predict_interval
 from .policy import choose
 from .rows import step_rows
-from .scratch import (
-    ANSWER,
-    FACTOR,
-    PEAK,
-    R_ACC_HIGH,
-    R_ACC_LOW,
-    R_BOX_Q,
-    R_BOX_Q_HALF,
-    R_BOX_V,
-    R_BOX_V_HALF,
-    TAU,
-    VIABLE_ONCE,
-)
+from .scratch import Authority, Flag, Matrix, Rollout, Solver
 from .solver import newton
 
 
@@ -48,10 +36,10 @@ def solve_with_cuts(k, a, count):
     the same minimiser, over the few rows that can bind instead of every payload corner's.
     Returns the number of rows the QP then has."""
     w = a.work
-    h, weights, tau = w.per_row[0], w.per_row[1], w.solver[TAU]
+    h, weights, tau = w.per_row[0], w.per_row[1], w.solver[Solver.TAU]
     while True:
         newton(a.tau_nominal[k], a.rows, h, weights, count, a.iterations, a.tolerance,
-               w.solver, w.matrices[FACTOR], w.binding, True)
+               w.solver, w.matrices[Matrix.FACTOR], w.binding, True)
         more = add_cuts(a, count, tau)
         if more == count:
             return count
@@ -72,25 +60,27 @@ def step_record(k, a, count, tau):
     step before put this row's state in, and the check's bound on q̈ over this step."""
     r = a.work.rollout
     for i in range(tau.shape[0]):
-        a.tube_position[k, i] = r[R_BOX_Q, i] if k > 0 else np.nan
-        a.tube_position_spread[k, i] = r[R_BOX_Q_HALF, i] if k > 0 else np.nan
-        a.tube_velocity[k, i] = r[R_BOX_V, i] if k > 0 else np.nan
-        a.tube_velocity_spread[k, i] = r[R_BOX_V_HALF, i] if k > 0 else np.nan
+        a.tube_position[k, i] = r[Rollout.BOX_Q, i] if k > 0 else np.nan
+        a.tube_position_spread[k, i] = r[Rollout.BOX_Q_HALF, i] if k > 0 else np.nan
+        a.tube_velocity[k, i] = r[Rollout.BOX_V, i] if k > 0 else np.nan
+        a.tube_velocity_spread[k, i] = r[Rollout.BOX_V_HALF, i] if k > 0 else np.nan
     viable, share = choose(k, a, tau)
     for i in range(tau.shape[0]):
         a.tau[k, i] = tau[i]
     predict_interval(k, a, tau)
     for i in range(tau.shape[0]):
-        a.acceleration_low[k, i], a.acceleration_high[k, i] = r[R_ACC_LOW, i], r[R_ACC_HIGH, i]
+        a.acceleration_low[k, i] = r[Rollout.ACC_LOW, i]
+        a.acceleration_high[k, i] = r[Rollout.ACC_HIGH, i]
     if viable:  # the plan in force (verified now, or followed) says where the state goes
         plan_box(k, a)
     else:
         for i in range(tau.shape[0]):
-            r[R_BOX_Q, i] = r[R_BOX_Q_HALF, i] = r[R_BOX_V, i] = r[R_BOX_V_HALF, i] = np.nan
+            r[Rollout.BOX_Q, i] = r[Rollout.BOX_Q_HALF, i] = np.nan
+            r[Rollout.BOX_V, i] = r[Rollout.BOX_V_HALF, i] = np.nan
     chosen = a.tau[k]
     a.viable[k] = 1.0 if viable else 0.0
     if viable:
-        a.work.flags[VIABLE_ONCE] = 1.0
+        a.work.flags[Flag.VIABLE_ONCE] = 1.0
     a.infeasible[k] = 0.0 if viable else 1.0
     a.backup_share[k] = share
     # the hard rows of the groups, every payload corner's (those among the QP's rows too)
@@ -126,7 +116,7 @@ def step_record(k, a, count, tau):
 def beyond_authority(k, a, tau):
     """Whether τ asks a joint for more torque than the controller has so far (the largest
     |τ_nom,i| up to row k, kept up to date here: tracking_torque = "controller")."""
-    peak = a.work.authority[PEAK]
+    peak = a.work.authority[Authority.PEAK]
     beyond = False
     for i in range(tau.shape[0]):
         peak[i] = max(peak[i], abs(a.tau_nominal[k, i]))
@@ -140,7 +130,7 @@ def within_authority(a, tau, tau_hard):
     the controller's peak (or within |τ_h,i| where the hard rows alone ask more): the
     tracking rows' share of the correction scaled back. Both ends meet the hard rows, which
     are linear, so the blend does too."""
-    peak = a.work.authority[PEAK]
+    peak = a.work.authority[Authority.PEAK]
     mu = 1.0
     for i in range(tau.shape[0]):
         cap = max(peak[i], abs(tau_hard[i]))
@@ -154,7 +144,7 @@ def within_authority(a, tau, tau_hard):
 def cbf_step(k, a):
     count = step_rows(k, a, False)
     w = a.work
-    h, weights, tau = w.per_row[0], w.per_row[1], w.solver[TAU]
+    h, weights, tau = w.per_row[0], w.per_row[1], w.solver[Solver.TAU]
     for j in range(count):  # solve with the hard limits lowered: checked as given after
         h[j] = a.limits[j] - a.hard_tolerance if a.is_hard[j] > 0.0 else a.limits[j]
         weights[j] = a.weights[j]
@@ -175,7 +165,7 @@ def cbf_step(k, a):
         count = solve_with_cuts(k, a, count)
     if a.tracking_authority and beyond_authority(k, a, tau):
         # the hard rows' answer alone, then the tracking rows' share scaled back to it
-        answer = w.authority[ANSWER]
+        answer = w.authority[Authority.ANSWER]
         for i in range(tau.shape[0]):
             answer[i] = tau[i]
         for j in range(count):
