@@ -145,6 +145,14 @@ def index_constants(path: Path) -> int:
     return count
 
 
+def range_constants(path: Path) -> int:
+    """Module-level names bound by unpacking ``range(...)``: row indices numbered by hand."""
+    return sum(len(node.targets[0].elts) if isinstance(node.targets[0], ast.Tuple) else 1
+               for node in ast.parse(path.read_text(encoding="utf-8")).body
+               if isinstance(node, ast.Assign) and isinstance(node.value, ast.Call)
+               and getattr(node.value.func, "id", None) == "range")
+
+
 def declared_rows() -> tuple[int, int]:
     """(rows declared as members of a ``Rows`` class, numbered by their order, the classes)
     over cosim/."""
@@ -207,6 +215,12 @@ def main() -> None:
     print(f"blocks listing per_joint by hand: {len(lists)}")
     scratch = ROOT / "cosim/paper/cbf_filter/scratch.py"
     print(f"index constants by hand in {scratch.relative_to(ROOT)}: {index_constants(scratch)}")
+    by_range = {path: count for path in python_files()
+                if (count := range_constants(path))}
+    print(f"  row constants numbered by range() over cosim/ and plant_fmu/: "
+          f"{sum(by_range.values())}")
+    for path, count in by_range.items():
+        print(f"    {count:4d}  {path.relative_to(ROOT)}")
     members, classes = declared_rows()
     print(f"  rows declared by name (Rows classes, numbered by the framework): {members} in "
           f"{classes} classes")

@@ -46,10 +46,10 @@ RULES = ["tests/test_check_rules.py", "tests/test_viability.py"]
 MUTANTS = [
     # the paper's laws
     ("inertia-centripetal", "cosim/dynamics/planar.py",
-     "chain[FX, i] = m[i] * (ax - w2 * chain[CX, i])",
-     "chain[FX, i] = m[i] * (ax + w2 * chain[CX, i])", LAWS),
+     "chain[Link.FX, i] = m[i] * (ax - w2 * chain[Link.CX, i])",
+     "chain[Link.FX, i] = m[i] * (ax + w2 * chain[Link.CX, i])", LAWS),
     ("inertia-link-vs-com", "cosim/dynamics/planar.py",
-     "        ax -= w2 * chain[LX, i]\n", "        ax -= w2 * chain[CX, i]\n", LAWS),
+     "        ax -= w2 * chain[Link.LX, i]\n", "        ax -= w2 * chain[Link.CX, i]\n", LAWS),
     ("obs-gain-sqrt", "cosim/paper/observer_block.py",
      "den_scale=2.0 * math.sqrt(p.kp * p.kd)", "den_scale=2.0 * (p.kp * p.kd)", LAWS),
     ("obs-input-one-substep-off", "cosim/paper/observer.py",
@@ -255,8 +255,8 @@ MUTANTS = [
      "reach = np.abs(centre - sets[2]) + spread", "reach = (centre - sets[2]) + spread",
      COMPARISONS),
     ("within-smoothing-both-coulomb", "cosim/paper/within_bounds.py",
-     "if (coulomb or table[COULOMB, i - 1]) and", "if (coulomb and table[COULOMB, i - 1]) and",
-     COMPARISONS),
+     "if (coulomb or table[Friction.COULOMB, i - 1])",
+     "if (coulomb and table[Friction.COULOMB, i - 1])", COMPARISONS),
     ("within-drives-budget-whole", "cosim/paper/within_bounds.py",
      "budget = np.maximum(uncertainty.disturbance\n"
      "                        - _disturbance_errors(parameters, tau_d_model, n), 0.0)",

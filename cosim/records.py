@@ -15,6 +15,9 @@ NumPy array itself), so compiled code never counts references to them (the kerne
 compiled without reference counting anyway, :func:`~cosim.numba_compat.no_refcount_jit`).
 Python reads the fields through the reference as from the NamedTuple.
 
+A record's scratch arrays name their rows with :class:`Rows` (numbered by their order), which
+compiled code reads as integer constants.
+
 This module uses numba's extension API (a type, its data model, its attributes, its unboxing)
 and its internal ``cgutils``; tests/test_records.py checks it against the numba
 installed.
@@ -23,6 +26,7 @@ installed.
 from __future__ import annotations
 
 import ctypes
+import enum
 import functools
 from typing import Any, NamedTuple, TypeVar
 
@@ -34,6 +38,17 @@ from numba.core.typing.templates import AttributeTemplate, infer_getattr
 from numba.extending import NativeValue, models, register_model, typeof_impl, unbox
 
 Record = TypeVar("Record", bound=type)
+
+
+class Rows(enum.IntEnum):
+    """The named rows of a scratch array, numbered 0, 1, … in the order they are declared
+    (each member ``= enum.auto()``). A kernel indexes by member, which compiled code reads as
+    the integer constant; a scratch shape naming the class (``"Rollout, n"``) takes its
+    count, and ``Rollout.X + 2`` the member two rows on."""
+
+    @staticmethod
+    def _generate_next_value_(name: str, start: int, count: int, last_values: list) -> int:
+        return count
 
 
 def kernel_record(record: Record) -> Record:

@@ -15,7 +15,6 @@ from pydantic import Field
 
 from cosim.blocks.base import Block, BlockContext, Ports
 from cosim.blocks.binding import (
-    Rows,
     master_step,
     parameter,
     published,
@@ -26,7 +25,7 @@ from cosim.blocks.binding import (
     writes,
 )
 from cosim.declared import Uncertainty
-from cosim.records import RecordReference, kernel_record
+from cosim.records import RecordReference, Rows, kernel_record
 from cosim.schema import JointList, PerJoint, PositiveFloat, Section, per_joint_keys
 from cosim.signals import Trace
 

@@ -15,7 +15,8 @@ in its annotation, so that the block's ``reset`` writes only what it computes:
 
     self.args = self.bind(PdArgs, ports, position=...)
 
-A scratch array with named rows declares them as a :class:`Rows` class beside the record,
+A scratch array with named rows declares them as a :class:`~cosim.records.Rows` class
+beside the record,
 one member a row, numbered by their order; its shape names the class for their count, and
 a kernel indexes the array by member (``w.rollout[Rollout.DV]``): no row number or count
 is written by hand.
@@ -30,7 +31,6 @@ mistake, not a user's).
 from __future__ import annotations
 
 import ast
-import enum
 import sys
 import typing
 from dataclasses import dataclass
@@ -38,7 +38,7 @@ from typing import Annotated, TypeVar
 
 import numpy as np
 
-from ..records import is_kernel_record, reference
+from ..records import Rows, is_kernel_record, reference
 from ..schema import per_joint_array
 
 Record = TypeVar("Record", bound=tuple)
@@ -54,17 +54,6 @@ class Source:
     constant: str = ""  # published: the block's own published constant the field is read from
     shape: str = ""  # scratch: its shape, comma-separated sizes ("n", "hidden + 1", "2, n")
     dtype: type = float  # scratch: float, int (int64) or bool
-
-
-class Rows(enum.IntEnum):
-    """The named rows of a scratch array, numbered 0, 1, … in the order they are declared
-    (each member ``= enum.auto()``). A kernel indexes by member, which compiled code reads as
-    the integer constant; a scratch shape naming the class (``"Rollout, n"``) takes its
-    count, and ``Rollout.X + 2`` the member two rows on."""
-
-    @staticmethod
-    def _generate_next_value_(name: str, start: int, count: int, last_values: list) -> int:
-        return count
 
 
 def parameter(name: str | None = None) -> object:
@@ -104,9 +93,10 @@ def master_step() -> object:
 def scratch(shape: str, dtype: type = float) -> object:
     """Zeros of ``shape``: comma-separated sizes, each a sum or product of integers and
     names: ``n`` the joint count, the block's integer parameters, the sizes given to
-    :func:`bind`, the integer constants of the record's module and its :class:`Rows`
-    classes, a class for its count and ``Class.MEMBER`` for a member's row (``"hidden + 1"``,
-    ``"2, n, n"``, ``"Rollout, n"``, ``"GroupValue.OFFSETS + d"``)."""
+    :func:`bind`, the integer constants of the record's module and its
+    :class:`~cosim.records.Rows` classes, a class for its count and ``Class.MEMBER`` for a
+    member's row (``"hidden + 1"``, ``"2, n, n"``, ``"Rollout, n"``,
+    ``"GroupValue.OFFSETS + d"``)."""
     return Annotated[np.ndarray, Source("scratch", shape=shape, dtype=dtype)]
 
 
@@ -209,7 +199,7 @@ _OPERATORS = {ast.Add: int.__add__, ast.Sub: int.__sub__, ast.Mult: int.__mul__}
 
 def _size(term: str, sizes: dict[str, int | type[Rows]], where: str) -> int:
     """One size of a scratch's shape: integers and names joined by +, − and ×; a
-    :class:`Rows` class its count, ``Class.MEMBER`` that member's row."""
+    :class:`~cosim.records.Rows` class its count, ``Class.MEMBER`` that member's row."""
 
     def evaluate(node: ast.AST) -> int:
         if isinstance(node, ast.Constant) and type(node.value) is int:

@@ -29,22 +29,15 @@ from __future__ import annotations
 import functools
 import inspect
 from collections.abc import Callable
+from enum import auto
 from typing import NamedTuple
 
 import numpy as np
 from numba.extending import overload
 
 from ..numba_compat import no_refcount_jit
-from ..records import kernel_record
-from .planar import (
-    CHAIN_ROWS,
-    CX,
-    LX,
-    chain_bias,
-    chain_geometry,
-    chain_mass,
-    com_kinematics,
-)
+from ..records import Rows, kernel_record
+from .planar import CHAIN_ROWS, Link, chain_bias, chain_geometry, chain_mass, com_kinematics
 from .spatial import (
     SpatialChain,
     spatial_bias,
@@ -79,11 +72,18 @@ RIGID_BODY_MODELS = (PlanarModel, SpatialChain)  # the same, for isinstance and 
 PLANAR_DIM, SPATIAL_DIM = 2, 3  # the payload point's coordinates: the plane's, space's
 
 
-# Rows of a model's ``friction`` (n each): the nominal viscous friction b̂ (N·m·s/rad), the
-# nominal Coulomb friction f̂c (N·m), its smoothing velocity (rad/s), and the declared bounds
-# on the true friction's departure from them, |b − b̂| and |fc − f̂c|.
-DAMPING, COULOMB, COULOMB_VELOCITY, DAMPING_ERROR, COULOMB_ERROR = range(5)
-FRICTION_ROWS = 5
+class Friction(Rows):
+    """Rows of a model's ``friction`` (n each): the nominal friction, and the declared bounds
+    on the true friction's departure from it."""
+
+    DAMPING = auto()  # the nominal viscous friction b̂, N·m·s/rad
+    COULOMB = auto()  # the nominal Coulomb friction f̂c, N·m
+    COULOMB_VELOCITY = auto()  # its smoothing velocity, rad/s
+    DAMPING_ERROR = auto()  # |b − b̂| at most, N·m·s/rad
+    COULOMB_ERROR = auto()  # |fc − f̂c| at most, N·m
+
+
+FRICTION_ROWS = len(Friction)
 NO_FRICTION_VELOCITY = 0.01  # rad/s: the plant FMUs' default fc_vel
 
 
@@ -122,10 +122,10 @@ def model_friction(model, v, out):
     per joint (a model of either kind)."""
     f = model.friction
     for i in range(v.shape[0]):  # a term without its coefficient is 0, even at v = ±inf
-        if f[DAMPING, i] != 0.0:
-            out[i] += f[DAMPING, i] * v[i]
-        if f[COULOMB, i] != 0.0:
-            out[i] += f[COULOMB, i] * np.tanh(v[i] / f[COULOMB_VELOCITY, i])
+        if f[Friction.DAMPING, i] != 0.0:
+            out[i] += f[Friction.DAMPING, i] * v[i]
+        if f[Friction.COULOMB, i] != 0.0:
+            out[i] += f[Friction.COULOMB, i] * np.tanh(v[i] / f[Friction.COULOMB_VELOCITY, i])
 
 
 @no_refcount_jit(cache=True)
@@ -137,19 +137,19 @@ def model_friction_spread(model, centre, radius, out):
     departure from it, |b − b̂| |e| + |fc − f̂c| (|tanh| ≤ 1)."""
     f = model.friction
     for i in range(centre.shape[0]):  # a term without its coefficient is 0, even at r = inf
-        c, r, w = centre[i], radius[i], f[COULOMB_VELOCITY, i]
+        c, r, w = centre[i], radius[i], f[Friction.COULOMB_VELOCITY, i]
         worst = 0.0
         for side in (-1.0, 1.0):
             end = c + side * r
             total = 0.0
-            if f[DAMPING, i] != 0.0:
-                total += f[DAMPING, i] * r
-            if f[COULOMB, i] != 0.0:
-                total += f[COULOMB, i] * abs(np.tanh(end / w) - np.tanh(c / w))
-            if f[DAMPING_ERROR, i] != 0.0:
-                total += f[DAMPING_ERROR, i] * abs(end)
+            if f[Friction.DAMPING, i] != 0.0:
+                total += f[Friction.DAMPING, i] * r
+            if f[Friction.COULOMB, i] != 0.0:
+                total += f[Friction.COULOMB, i] * abs(np.tanh(end / w) - np.tanh(c / w))
+            if f[Friction.DAMPING_ERROR, i] != 0.0:
+                total += f[Friction.DAMPING_ERROR, i] * abs(end)
             worst = max(worst, total)
-        out[i] += worst + f[COULOMB_ERROR, i]
+        out[i] += worst + f[Friction.COULOMB_ERROR, i]
 
 
 def own_scratch(model: RigidBodyModel) -> RigidBodyModel:
@@ -272,7 +272,7 @@ def _planar_point_forms(model, e, jac, gamma, out, lift):
     for r in range(PLANAR_DIM):
         tail = 0.0  # Σ_{k ≥ j} a_k,r, from the last link down
         for j in range(n - 1, -1, -1):
-            tail += chain[CX + r, j] if j == n - 1 else chain[LX + r, j]
+            tail += chain[Link.CX + r, j] if j == n - 1 else chain[Link.LX + r, j]
             for i in range(j + 1):
                 out[r, i, j] = out[r, j, i] = -tail
 

@@ -12,17 +12,31 @@ bias b = C q̇ + G by recursive Newton–Euler. SI units, radians.
 
 from __future__ import annotations
 
+from enum import auto
+
 import numpy as np
 from numba import njit
 
 from ..numba_compat import no_refcount_jit
+from ..records import Rows
 
-# The chain's geometry at one position and the forces of its bias, per link: the rows of a
-# (CHAIN_ROWS, n) scratch array, so that a kernel evaluating the chain every step allocates
-# nothing. Joint i's centre-of-mass offset (CX, CY) and link vector (LX, LY), its origin
-# (OX, OY), and m_i a_ci, the force link i's own motion needs (FX, FY).
-CX, CY, LX, LY, OX, OY, FX, FY = range(8)
-CHAIN_ROWS = 8
+
+class Link(Rows):
+    """The chain's geometry at one position and the forces of its bias, per link: the rows of
+    a (CHAIN_ROWS, n) scratch array, so that a kernel evaluating the chain every step
+    allocates nothing."""
+
+    CX = auto()  # joint i's centre-of-mass offset
+    CY = auto()
+    LX = auto()  # its link vector
+    LY = auto()
+    OX = auto()  # its origin
+    OY = auto()
+    FX = auto()  # m_i a_ci, the force link i's own motion needs
+    FY = auto()
+
+
+CHAIN_ROWS = len(Link)
 
 
 @njit(cache=True, inline="always")
@@ -32,9 +46,9 @@ def chain_geometry(q, l, lc, chain):  # noqa: E741
     for k in range(q.shape[0]):
         theta += q[k]
         c, s = np.cos(theta), np.sin(theta)
-        chain[CX, k], chain[CY, k] = lc[k] * c, lc[k] * s
-        chain[LX, k], chain[LY, k] = l[k] * c, l[k] * s
-        chain[OX, k], chain[OY, k] = x, y
+        chain[Link.CX, k], chain[Link.CY, k] = lc[k] * c, lc[k] * s
+        chain[Link.LX, k], chain[Link.LY, k] = l[k] * c, l[k] * s
+        chain[Link.OX, k], chain[Link.OY, k] = x, y
         x += l[k] * c
         y += l[k] * s
 
@@ -48,9 +62,11 @@ def chain_mass(chain, m, inertia, out):
         for j in range(i, n):
             total = 0.0
             for k in range(j, n):
-                px, py = chain[OX, k] + chain[CX, k], chain[OY, k] + chain[CY, k]
-                total += (m[k] * ((px - chain[OX, i]) * (px - chain[OX, j])
-                                  + (py - chain[OY, i]) * (py - chain[OY, j])) + inertia[k])
+                px = chain[Link.OX, k] + chain[Link.CX, k]
+                py = chain[Link.OY, k] + chain[Link.CY, k]
+                total += (m[k] * ((px - chain[Link.OX, i]) * (px - chain[Link.OX, j])
+                                  + (py - chain[Link.OY, i]) * (py - chain[Link.OY, j]))
+                          + inertia[k])
             out[i, j] = total
             out[j, i] = total
 
@@ -66,18 +82,18 @@ def chain_bias(chain, qdot, m, gravity, out):
     for i in range(n):
         omega += qdot[i]
         w2 = omega * omega  # no angular acceleration: q̈ = 0
-        chain[FX, i] = m[i] * (ax - w2 * chain[CX, i])
-        chain[FY, i] = m[i] * (ay - w2 * chain[CY, i])
-        ax -= w2 * chain[LX, i]
-        ay -= w2 * chain[LY, i]
+        chain[Link.FX, i] = m[i] * (ax - w2 * chain[Link.CX, i])
+        chain[Link.FY, i] = m[i] * (ay - w2 * chain[Link.CY, i])
+        ax -= w2 * chain[Link.LX, i]
+        ay -= w2 * chain[Link.LY, i]
     force_x, force_y, moment = 0.0, 0.0, 0.0  # what link i+1 exerts, about joint i+1
     for i in range(n - 1, -1, -1):
         # moment about joint i: the next link's moment, its force at the link's end, and
         # this link's own inertial force at its centre of mass (I α = 0)
-        moment += (chain[LX, i] * force_y - chain[LY, i] * force_x
-                   + chain[CX, i] * chain[FY, i] - chain[CY, i] * chain[FX, i])
-        force_x += chain[FX, i]
-        force_y += chain[FY, i]
+        moment += (chain[Link.LX, i] * force_y - chain[Link.LY, i] * force_x
+                   + chain[Link.CX, i] * chain[Link.FY, i] - chain[Link.CY, i] * chain[Link.FX, i])
+        force_x += chain[Link.FX, i]
+        force_y += chain[Link.FY, i]
         out[i] = moment
 
 

@@ -23,19 +23,33 @@ Pinocchio's crba + rnea called from Python. SI units, radians.
 
 from __future__ import annotations
 
+from enum import auto
 from typing import NamedTuple
 
 import numpy as np
 
 from ..numba_compat import no_refcount_jit
-from ..records import kernel_record
+from ..records import Rows, kernel_record
 
 REVOLUTE, PRISMATIC = 0, 1
-# Rows of SpatialWork.kin (n × 3 each): per body its world axis, origin, centre of mass,
-# angular velocity, angular acceleration, its origin's acceleration, the force and the moment
-# about the world origin it needs (with the bodies after it, after the backward pass).
-Z, O, C, W, AL, A, F, N = range(8)  # noqa: E741
-KIN_ROWS = 8
+
+
+class Kin(Rows):
+    """Rows of SpatialWork.kin (n × 3 each), per body, in the world frame."""
+
+    AXIS = auto()  # its joint's axis z
+    ORIGIN = auto()  # its origin o
+    CENTRE = auto()  # its centre of mass c
+    OMEGA = auto()  # its angular velocity ω
+    ALPHA = auto()  # its angular acceleration α
+    ACCELERATION = auto()  # its origin's acceleration a
+    # the force and the moment about the world origin it needs (with the bodies after it,
+    # after the backward pass)
+    FORCE = auto()
+    MOMENT = auto()
+
+
+KIN_ROWS = len(Kin)
 
 
 @kernel_record
@@ -54,7 +68,7 @@ class SpatialChain(NamedTuple):
     friction: np.ndarray  # (FRICTION_ROWS, n) the joints' friction (cosim.dynamics.model)
     # scratch
     frames: np.ndarray  # (n, 4, 4) each body's frame in the base frame
-    kin: np.ndarray  # (KIN_ROWS, n, 3) Z …
+    kin: np.ndarray  # (KIN_ROWS, n, 3): Kin
     world_inertia: np.ndarray  # (n, 3, 3) each body's inertia about its centre, base axes
     composite: np.ndarray  # (n, 3, 3) the composite body's rotational inertia about o = 0
     first: np.ndarray  # (n, 3) its first moment Σ m c, kg·m
@@ -116,10 +130,11 @@ def spatial_geometry(s, q):
         frame[3, 0] = frame[3, 1] = frame[3, 2] = 0.0
         frame[3, 3] = 1.0
         for r in range(3):  # the world axis (a joint's motion leaves its axis alone)
-            kin[Z, i, r] = frame[r, 0] * axis[0] + frame[r, 1] * axis[1] + frame[r, 2] * axis[2]
+            kin[Kin.AXIS, i, r] = frame[r, 0] * axis[0] + frame[r, 1] * axis[1] \
+                + frame[r, 2] * axis[2]
         if s.kind[i] == PRISMATIC:
             for r in range(3):
-                frame[r, 3] += kin[Z, i, r] * q[i]
+                frame[r, 3] += kin[Kin.AXIS, i, r] * q[i]
         else:  # frame's rotation · Rodrigues' rotation about the axis by q_i
             cq, sq = np.cos(q[i]), np.sin(q[i])
             x, y, z = axis[0], axis[1], axis[2]
@@ -134,8 +149,8 @@ def spatial_geometry(s, q):
                 frame[r, 2] = f0 * r02 + f1 * r12 + f2 * r22
         com, local, world = s.com[i], s.inertia[i], s.world_inertia[i]
         for r in range(3):
-            kin[O, i, r] = frame[r, 3]
-            kin[C, i, r] = frame[r, 3] + frame[r, 0] * com[0] + frame[r, 1] * com[1] \
+            kin[Kin.ORIGIN, i, r] = frame[r, 3]
+            kin[Kin.CENTRE, i, r] = frame[r, 3] + frame[r, 0] * com[0] + frame[r, 1] * com[1] \
                 + frame[r, 2] * com[2]
         for r in range(3):  # R I Rᵀ
             for c in range(3):
@@ -155,10 +170,10 @@ def _motion_dot(s, i, angular, linear):
     """S_iᵀ (angular; linear): joint i's share of a force (moment about the origin, force)
     or the power of a twist's dual."""
     kin = s.kin
-    z = kin[Z, i]
+    z = kin[Kin.AXIS, i]
     if s.kind[i] == PRISMATIC:
         return z[0] * linear[0] + z[1] * linear[1] + z[2] * linear[2]
-    o = kin[O, i]
+    o = kin[Kin.ORIGIN, i]
     total = 0.0
     for r in range(3):  # z·n + (o × z)·f
         total += z[r] * angular[r] + _cross(o, z, r) * linear[r]
@@ -173,7 +188,7 @@ def _composites(s, bodies, payload):
     n = s.mass.shape[0]
     kin, comp, first, total = s.kin, s.composite, s.first, s.total
     for i in range(n):
-        c, m = kin[C, i], bodies * s.mass[i]
+        c, m = kin[Kin.CENTRE, i], bodies * s.mass[i]
         cc = c[0] * c[0] + c[1] * c[1] + c[2] * c[2]
         for r in range(3):
             first[i, r] = m * c[r]
@@ -210,16 +225,16 @@ def spatial_mass(s, bodies, payload, out):
     for i in range(n):
         for j in range(n):
             out[i, j] = 0.0
-    angular, linear = s.point[1], kin[F, 0]  # scratch: the composite's force under S_i
+    angular, linear = s.point[1], kin[Kin.FORCE, 0]  # scratch: the composite's force under S_i
     for i in range(n):
-        z = kin[Z, i]
+        z = kin[Kin.AXIS, i]
         h = first[i]
         if s.kind[i] == PRISMATIC:  # S = (0, z): f = (h × z, m z)
             for r in range(3):
                 angular[r] = _cross(h, z, r)
                 linear[r] = total[i] * z[r]
         else:  # S = (z, v = o × z): f = (Ī z + h × v, m v + z × h)
-            o = kin[O, i]
+            o = kin[Kin.ORIGIN, i]
             for r in range(3):
                 linear[r] = _cross(o, z, r)
             for r in range(3):
@@ -245,13 +260,13 @@ def spatial_forward(s, v, gravity):
     kin = s.kin
     for i in range(n):
         p = s.parent[i]
-        z, o = kin[Z, i], kin[O, i]
-        w, al, a = kin[W, i], kin[AL, i], kin[A, i]
+        z, o = kin[Kin.AXIS, i], kin[Kin.ORIGIN, i]
+        w, al, a = kin[Kin.OMEGA, i], kin[Kin.ALPHA, i], kin[Kin.ACCELERATION, i]
         if p < 0:
             for r in range(3):
                 w[r], al[r], a[r] = 0.0, 0.0, -gravity * s.gravity[r]
         else:
-            wp, ap = kin[W, p], kin[AL, p]
+            wp, ap = kin[Kin.OMEGA, p], kin[Kin.ALPHA, p]
             _point_acceleration(s, p, o, a)  # o_i's, as a point of body p
             for r in range(3):
                 w[r], al[r] = wp[r], ap[r]
@@ -270,7 +285,7 @@ def _point_acceleration(s, i, point, out):
     """The acceleration of ``point`` (base frame) fixed to body i, from the forward pass:
     a_i + α_i × r + ω_i × (ω_i × r), r = point − o_i."""
     kin = s.kin
-    w, al, a, o = kin[W, i], kin[AL, i], kin[A, i], kin[O, i]
+    w, al, a, o = kin[Kin.OMEGA, i], kin[Kin.ALPHA, i], kin[Kin.ACCELERATION, i], kin[Kin.ORIGIN, i]
     rx, ry, rz = point[0] - o[0], point[1] - o[1], point[2] - o[2]
     cx = w[1] * rz - w[2] * ry
     cy = w[2] * rx - w[0] * rz
@@ -290,8 +305,8 @@ def spatial_bias(s, v, bodies, payload, gravity, out):
     spatial_forward(s, v, gravity)
     acc = s.point[1]
     for i in range(n):
-        f, moment = kin[F, i], kin[N, i]
-        c, w, al = kin[C, i], kin[W, i], kin[AL, i]
+        f, moment = kin[Kin.FORCE, i], kin[Kin.MOMENT, i]
+        c, w, al = kin[Kin.CENTRE, i], kin[Kin.OMEGA, i], kin[Kin.ALPHA, i]
         _point_acceleration(s, i, c, acc)
         m = bodies * s.mass[i]
         for r in range(3):
@@ -317,12 +332,12 @@ def spatial_bias(s, v, bodies, payload, gravity, out):
             for r in range(3):
                 moment[r] += payload * _cross(point, acc, r)
     for i in range(n - 1, -1, -1):
-        out[i] = _motion_dot(s, i, kin[N, i], kin[F, i])
+        out[i] = _motion_dot(s, i, kin[Kin.MOMENT, i], kin[Kin.FORCE, i])
         p = s.parent[i]
         if p >= 0:
             for r in range(3):
-                kin[F, p, r] += kin[F, i, r]
-                kin[N, p, r] += kin[N, i, r]
+                kin[Kin.FORCE, p, r] += kin[Kin.FORCE, i, r]
+                kin[Kin.MOMENT, p, r] += kin[Kin.MOMENT, i, r]
 
 
 @no_refcount_jit(cache=True, inline="always")
@@ -337,12 +352,12 @@ def _tip_jacobian(s, jac):
             jac[r, j] = 0.0
     j = n - 1
     while j >= 0:
-        z = kin[Z, j]
+        z = kin[Kin.AXIS, j]
         if s.kind[j] == PRISMATIC:
             for r in range(3):
                 jac[r, j] = z[r]
         else:  # z × (p − o_j)
-            o = kin[O, j]
+            o = kin[Kin.ORIGIN, j]
             rx, ry, rz = point[0] - o[0], point[1] - o[1], point[2] - o[2]
             jac[0, j] = z[1] * rz - z[2] * ry
             jac[1, j] = z[2] * rx - z[0] * rz

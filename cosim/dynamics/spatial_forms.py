@@ -8,7 +8,7 @@ read. SI units, radians.
 from __future__ import annotations
 
 from ..numba_compat import no_refcount_jit
-from .spatial import PRISMATIC, O, Z, _composites, _cross, _tip_jacobian
+from .spatial import PRISMATIC, Kin, _composites, _cross, _tip_jacobian
 
 
 @no_refcount_jit(cache=True)
@@ -31,7 +31,7 @@ def spatial_point_forms(s, jac, out):
         a = b
         while a >= 0:
             if s.kind[a] != PRISMATIC:
-                z = kin[Z, a]
+                z = kin[Kin.AXIS, a]
                 x, y, w = jac[0, b], jac[1, b], jac[2, b]
                 out[0, a, b] = out[0, b, a] = z[1] * w - z[2] * y
                 out[1, a, b] = out[1, b, a] = z[2] * x - z[0] * w
@@ -80,7 +80,7 @@ def spatial_velocity_forms(s, bodies, payload, out):
     motion, crosses, momenta = s.motion, s.crosses, s.momenta
     _composites(s, bodies, payload)
     for j in range(n):  # S_j = (z, o × z) revolute, (0, z) prismatic
-        z, o = kin[Z, j], kin[O, j]
+        z, o = kin[Kin.AXIS, j], kin[Kin.ORIGIN, j]
         revolute = s.kind[j] != PRISMATIC
         for r in range(3):
             motion[j, r] = z[r] if revolute else 0.0

@@ -60,6 +60,7 @@ with one payload cell (benchmarks/bench_cosim.py --profile; the fused closed loo
 
 from __future__ import annotations
 
+from enum import auto
 from typing import NamedTuple
 
 import numpy as np
@@ -78,7 +79,7 @@ from ..dynamics.model import (
     payload_dim,
 )
 from ..numba_compat import no_refcount_jit
-from ..records import kernel_record
+from ..records import Rows, kernel_record
 from .linalg import invert, linear_part, small_symmetric_eigen
 from .position_windows import envelope_windows
 
@@ -118,7 +119,7 @@ class Envelope(NamedTuple):
     kmat: scratch("d, d")
     lam: scratch("d")
     eigen_work: scratch("d, d")
-    work: scratch("8, n")  # e, plus, minus, u, centre, radius, acc lo, acc hi
+    work: scratch("EnvelopeRow, n")
     bmat: scratch("2, n, n")  # B(Δm) at the payload cell's ends
     linear: scratch("2, n, n")  # M̂⁻¹B(Δm) at the cell's ends
     projected: scratch("2, d, n")  # RᵀB(Δm) at the cell's ends
@@ -126,7 +127,17 @@ class Envelope(NamedTuple):
     jac_work: scratch("d, n")
 
 
-E_, PLUS_, MINUS_, U_, CENTRE_, RADIUS_, ALO_, AHI_ = range(8)
+class EnvelopeRow(Rows):
+    """Rows of Envelope.work (n each)."""
+
+    E = auto()
+    PLUS = auto()
+    MINUS = auto()
+    U = auto()
+    CENTRE = auto()
+    RADIUS = auto()
+    ACC_LOW = auto()
+    ACC_HIGH = auto()
 
 
 @no_refcount_jit(cache=True)
@@ -181,7 +192,7 @@ def envelope_position(env, y, slot):
                     low -= max(s[0, j] * term, s[1, j] * term)
                     high -= min(s[0, j] * term, s[1, j] * term)
                 pabs[i, col] = max(abs(low), abs(high))
-    e, plus = env.work[E_], env.work[PLUS_]
+    e, plus = env.work[EnvelopeRow.E], env.work[EnvelopeRow.PLUS]
     model_velocity_forms(model, 1.0, 0.0, e, plus, env.forms[slot, 0])
     model_velocity_forms(model, 0.0, 1.0, e, plus, env.forms[slot, 1])
     model_point_forms(model, e, env.jac_work, env.point, env.point_forms[slot], env.lift[slot])
@@ -249,7 +260,7 @@ def envelope_acceleration(env, slot, cell, tau, tau_d, centre, radius, lo, hi):
     point_forms, lift = env.point_forms[slot], env.lift[slot]
     pabs = env.pabs[slot, cell]
     payload_low, payload_high = env.cells[cell], env.cells[cell + 1]
-    u, work = env.work[U_], env.work[E_]
+    u, work = env.work[EnvelopeRow.U], env.work[EnvelopeRow.E]
     linear, projected = env.linear, env.projected
     for l in range(n):  # noqa: E741
         bias = env.grav[slot, l] + tau_d[l]
@@ -257,7 +268,7 @@ def envelope_acceleration(env, slot, cell, tau, tau_d, centre, radius, lo, hi):
             for k in range(n):
                 bias += forms[0, l, j, k] * centre[j] * centre[k]
         work[l] = tau[l] - bias
-    friction, spread_of_friction = env.work[PLUS_], env.work[MINUS_]
+    friction, spread_of_friction = env.work[EnvelopeRow.PLUS], env.work[EnvelopeRow.MINUS]
     friction[:] = 0.0
     model_friction(env.model, centre, friction)
     spread_of_friction[:] = 0.0
@@ -316,8 +327,8 @@ def envelope_cell(k, dt, y, tau, tau_d, noise, env, cell):
     propagated by it, then intersected with the windows. False when the cell's payloads
     cannot explain the measurements."""
     n = y.shape[1]
-    centre, radius = env.work[CENTRE_], env.work[RADIUS_]
-    alo, ahi = env.work[ALO_], env.work[AHI_]
+    centre, radius = env.work[EnvelopeRow.CENTRE], env.work[EnvelopeRow.RADIUS]
+    alo, ahi = env.work[EnvelopeRow.ACC_LOW], env.work[EnvelopeRow.ACC_HIGH]
     interval, rho, acc = env.interval[cell], env.rho[cell], env.acc[cell]
     for i in range(n):
         centre[i] = 0.5 * (interval[0, i] + interval[1, i])

@@ -35,14 +35,7 @@ from ..dynamics.model import (
 )
 from ..dynamics.planar import (  # noqa: F401  (re-exported: the planar chain's kernels)
     CHAIN_ROWS,
-    CX,
-    CY,
-    FX,
-    FY,
-    LX,
-    LY,
-    OX,
-    OY,
+    Link,
     chain_bias,
     chain_geometry,
     chain_mass,

@@ -246,16 +246,16 @@ def check_friction_step(block, published: Mapping[str, object]) -> None:
     configuration of the reference (the light end of the payload range), naming the joint,
     its friction and inertia, and the step it needs. Without the model or the reference:
     nothing to check."""
-    from ..dynamics.model import DAMPING, DAMPING_ERROR
+    from ..dynamics.model import Friction
 
     model = published.get("nominal_model")
     reference = published.get("reference_trajectory")
     friction = getattr(model, "friction", None)
-    if reference is None or friction is None or not np.any(friction[DAMPING]
-                                                           + friction[DAMPING_ERROR]):
+    if reference is None or friction is None or not np.any(friction[Friction.DAMPING]
+                                                           + friction[Friction.DAMPING_ERROR]):
         return
     context = block.context
-    damping = friction[DAMPING] + friction[DAMPING_ERROR]
+    damping = friction[Friction.DAMPING] + friction[Friction.DAMPING_ERROR]
     loop = cases(model, reference_positions(reference, context.duration),
                  [float(context.uncertainty.payload[0])], False)
     worst, where = 0.0, (0, 0)
@@ -272,7 +272,8 @@ def check_friction_step(block, published: Mapping[str, object]) -> None:
     name = f" ('{chain.joints[joint]}')" if chain is not None else ""
     raise PipelineError(
         f"run '{context.run}': joint {joint + 1}{name}'s viscous friction (the nominal model's "
-        f"b̂ = {friction[DAMPING, joint]:g} N·m·s/rad, the URDF's <dynamics damping> unless "
+        f"b̂ = {friction[Friction.DAMPING, joint]:g} N·m·s/rad, the URDF's <dynamics damping> "
+        "unless "
         f"inertia_model.b) against its inertia {mass[joint, joint]:.3g} kg·m² damps in "
         f"{1e3 / worst:.3g} ms, too fast for simulation.step = {context.dt * 1e3:g} ms: the "
         "observer's certified bound takes friction as a bounded error, which holds for a "

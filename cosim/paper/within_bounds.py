@@ -21,14 +21,7 @@ from plant_fmu.models.planar_arm import MAX_LINKS
 from plant_fmu.models.planar_arm import variables as rigid_arm_variables
 
 from ..declared import Uncertainty
-from ..dynamics.model import (
-    COULOMB,
-    COULOMB_ERROR,
-    COULOMB_VELOCITY,
-    DAMPING,
-    DAMPING_ERROR,
-    friction_table,
-)
+from ..dynamics.model import Friction, friction_table
 from ..evaluate.safety import SafeSet, Signals
 from .barrier_bounds import barrier_bounds
 from .cbf_filter.assumptions import FilterAssumptions
@@ -176,7 +169,8 @@ def undeclared_differences(parameters: Mapping[str, float], chain, uncertainty: 
                    "is not declared uncertain")
     table = friction_table(links) if friction is None else friction
     for (name, what, unit), row, error, key in zip(
-            FRICTION, (DAMPING, COULOMB), (DAMPING_ERROR, COULOMB_ERROR),
+            FRICTION, (Friction.DAMPING, Friction.COULOMB),
+            (Friction.DAMPING_ERROR, Friction.COULOMB_ERROR),
             ("viscous_friction", "coulomb_friction"), strict=True):
         for i in range(1, links + 1):
             value = float(parameters.get(f"{name}[{i}]", table[row, i - 1]))
@@ -190,9 +184,10 @@ def undeclared_differences(parameters: Mapping[str, float], chain, uncertainty: 
     for i in range(1, links + 1):  # a URDF arm's fc_vel[i], the planar arm's one fc_vel
         coulomb = float(parameters.get(f"fc[{i}]", 0.0))
         key = f"fc_vel[{i}]" if f"fc_vel[{i}]" in parameters else "fc_vel"
-        nominal = table[COULOMB_VELOCITY, i - 1]
+        nominal = table[Friction.COULOMB_VELOCITY, i - 1]
         smoothing = float(parameters.get(key, nominal))
-        if (coulomb or table[COULOMB, i - 1]) and abs(smoothing - nominal) > PARAMETER_TOLERANCE:
+        if (coulomb or table[Friction.COULOMB, i - 1]) \
+                and abs(smoothing - nominal) > PARAMETER_TOLERANCE:
             named = (f"{key} = {apart(smoothing, nominal)} rad/s (the nominal model's "
                      f"{nominal:g} rad/s, ")
             if named not in "".join(out):  # the planar arm's one value, named once

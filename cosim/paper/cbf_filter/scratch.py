@@ -9,7 +9,6 @@ from typing import NamedTuple
 import numpy as np
 
 from ...blocks.binding import (
-    Rows,
     master_step,
     parameter,
     published,
@@ -19,7 +18,7 @@ from ...blocks.binding import (
     writes,
 )
 from ...dynamics.model import RigidBodyModel
-from ...records import kernel_record
+from ...records import Rows, kernel_record
 from .assumptions import BACKUP, FILTER_ASSUMES, VIABLE
 
 SETS = ("position", "velocity", "error", "error_rate")

@@ -40,7 +40,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from ...declared import joint_boxes
-from ...dynamics.model import DAMPING, DAMPING_ERROR, model_geometry, model_mass, own_scratch
+from ...dynamics.model import Friction, model_geometry, model_mass, own_scratch
 from ...schema import PipelineError
 from ..sampled_loop import CONFIGURATIONS, reference_positions
 from .model import velocity_forms_into
@@ -60,7 +60,8 @@ def envelope_gain(model, positions, payloads, velocity_centre: np.ndarray,
     largest at."""
     model = own_scratch(model)
     n = len(velocity_centre)
-    damping = np.zeros(n) if friction is None else friction[DAMPING] + friction[DAMPING_ERROR]
+    damping = np.zeros(n) if friction is None \
+        else friction[Friction.DAMPING] + friction[Friction.DAMPING_ERROR]
     polar = np.zeros((POLAR_ROWS, n))
     worst = (0.0, np.zeros(n), 0.0)
     for q in positions:
