@@ -212,6 +212,27 @@ def test_a_published_field_is_the_blocks_own_constant_and_a_missing_one_is_named
         _bound(record=Laid)
 
 
+def test_a_signal_chosen_by_the_block_is_read_from_the_attribute_that_names_it():
+    """``reads(chosen_by=...)``: the input the block chose as it was made (a controller's
+    measured or true position), named by its attribute; an attribute naming a signal the
+    block does not read is refused, named."""
+
+    @kernel_record
+    class Chosen(NamedTuple):
+        position: reads(chosen_by="position")
+
+    Toy.position = "q"
+    try:
+        args, q, _ = _bound(record=Chosen)
+        assert args.position is q
+        Toy.position = "q_meas"
+        with pytest.raises(TypeError, match=r"Chosen.position reads signal 'q_meas', which toy "
+                                            r"does not read"):
+            _bound(record=Chosen)
+    finally:
+        del Toy.position
+
+
 def test_per_joint_is_read_from_the_parameters_types_at_any_depth():
     assert per_joint_keys(ToyParams) == ("gain", "rate", "masses", "lambda")
     assert Toy.per_joint == ("gain", "rate", "masses", "lambda", "extra")

@@ -52,6 +52,7 @@ class Source:
     kind: str
     name: str | None = None  # the parameter, signal or declared key (default: the field's)
     constant: str = ""  # published: the block's own published constant the field is read from
+    chosen_by: str = ""  # reads: the block's attribute that names the signal (set as it is made)
     shape: str = ""  # scratch: its shape, comma-separated sizes ("n", "hidden + 1", "2, n")
     dtype: type = float  # scratch: float, int (int64) or bool
 
@@ -63,9 +64,11 @@ def parameter(name: str | None = None) -> object:
     return Annotated[object, Source("parameter", name)]
 
 
-def reads(signal: str | None = None) -> object:
-    """The input signal ``signal`` (default: the field's name): its array of every row."""
-    return Annotated[np.ndarray, Source("reads", signal)]
+def reads(signal: str | None = None, *, chosen_by: str = "") -> object:
+    """The input signal ``signal`` (default: the field's name): its array of every row. With
+    ``chosen_by``, the signal the block chose as it was made, named by that attribute of it
+    (a controller's ``position``: ``self.position = "q_meas"`` where it reads the sensor)."""
+    return Annotated[np.ndarray, Source("reads", signal, chosen_by=chosen_by)]
 
 
 def writes(signal: str | None = None) -> object:
@@ -158,6 +161,8 @@ def _value(record: type, field: str, source: Source, block, ports,
     where = f"{record.__name__}.{field}"
     if source.kind == "parameter":
         return _parameter(block, key, where)
+    if source.chosen_by:
+        key = getattr(block, source.chosen_by)
     if source.kind in ("reads", "writes"):
         signals = ports.inputs if source.kind == "reads" else ports.outputs
         if key not in signals:

@@ -126,8 +126,8 @@ class ControllerArgs(NamedTuple):
     inertia_scaled: bool  # τ = M̂(q)(f̂ + Kv r̂ − v): scale = "inertia"
     M_model: np.ndarray  # M̂ per row (steps, n, n); (1, n, n) zeros when not scaled
     state: np.ndarray  # Ŵ ((hidden+1) × n), V̂ ((1+5n) × hidden), flat
-    position: np.ndarray  # q (baseline) or q_meas (proposed)
-    velocity: np.ndarray  # q̇ (baseline) or x̂2 (proposed)
+    position: reads(chosen_by="position")  # q (baseline) or q_meas (proposed)
+    velocity: reads(chosen_by="velocity")  # q̇ (baseline) or x̂2 (proposed)
     q_d: reads()
     qdot_d: reads()
     qddot_d: reads()
@@ -393,5 +393,4 @@ class NnController(Block):
             z_w=p.z_b if p.variant == "baseline" else p.z_wc,
             inertia_scaled=p.scale == "inertia",
             M_model=inp["M_model"] if p.scale == "inertia" else np.zeros((1, n, n)),
-            state=self.initial_weights(), position=inp[self.position],
-            velocity=inp[self.velocity])
+            state=self.initial_weights())

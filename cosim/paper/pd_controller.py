@@ -66,8 +66,8 @@ class PdArgs(NamedTuple):
     model: RigidBodyModel  # the nominal model, for Ĝ(q)
     gravity_torque: scratch("n")
     zero_velocity: scratch("n")  # Ĝ is the bias at q̇ = 0
-    position: np.ndarray  # q (plant) or q_meas (finite difference)
-    velocity: np.ndarray  # q̇ (plant); unused for the finite difference
+    position: reads(chosen_by="position")  # q (plant) or q_meas (finite difference)
+    velocity: reads(chosen_by="velocity")  # q̇ (plant); unused for the finite difference
     q_d: reads()
     qdot_d: reads()
     tau: writes()
@@ -146,5 +146,4 @@ class PdController(Block):
             PdArgs, ports, finite_difference=p.velocity == "finite_difference",
             inertia_scaled=p.scale == "inertia",
             M_model=inp["M_model"] if p.scale == "inertia" else np.zeros((1, n, n)),
-            model=own_scratch(model), position=inp[self.position],
-            velocity=inp[self.velocity])
+            model=own_scratch(model))

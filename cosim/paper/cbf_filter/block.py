@@ -302,7 +302,6 @@ class CbfFilter(Block):
             inertia_is_plant=bool(const["inertia_is_plant"]),
             model=own_scratch(model),
             tau_d=per_joint_array(tau_d, n),
-            position=inp[self.position], velocity=inp[self.velocity],
             velocity_bound=velocity_bound, drift=drift, envelope_centre=envelope_centre,
             **{field: _per_set(ports.trace, f"cbf_{{}}{suffix}", shape)
                for field, suffix, shape in (("h_sets", "", (steps, n)),

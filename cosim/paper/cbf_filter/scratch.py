@@ -354,8 +354,8 @@ class CbfArgs(NamedTuple):
     kinds: scratch("rows", int)  # set index of each row (4 + set for norms, -1 torque)
     joints: scratch("rows", int)  # joint of each row (-1: a norm)
     backup: scratch("n")  # the backup's torque at this step
-    position: np.ndarray
-    velocity: np.ndarray
+    position: reads(chosen_by="position")  # q_meas (observer) or q, rad
+    velocity: reads(chosen_by="velocity")  # x̂2 (observer) or q̇, rad/s
     velocity_bound: np.ndarray  # ε per row and joint (zeros for the plant's q̇)
     # the centre c of the certified interval ε is taken from: q̇ ∈ c ± (ε − |v − c|)
     # (the plant's q̇ itself where the filter reads it)
