@@ -147,6 +147,13 @@ def _closure(name: str, path: Path) -> tuple[str, ...]:
     return _closures[name]
 
 
+def closure(name: str) -> tuple[str, ...]:
+    """Module ``name`` and every kernel module it imports, directly or through others
+    (none but itself where it has no source file)."""
+    path = module_file(name)
+    return _closure(name, path) if path is not None else (name,)
+
+
 def module_digest(name: str, path: Path | None = None) -> str:
     """The digest of module ``name``'s kernel sources: its own source, the sources of its
     kernel-module closure, and the plain values those modules import from the project's

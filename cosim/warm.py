@@ -208,11 +208,14 @@ def _kernel_jobs(pipelines: list[Path]) -> tuple[dict[str, list], list, list[Pat
                 for block in plan.blocks:
                     if block.kernel is None:
                         continue
-                    function = block.kernel.py_func
                     signature = (types.int64, typeof(block.args))
-                    jobs = modules.setdefault(function.__module__, [])
-                    if (function.__name__, signature) not in jobs:
-                        jobs.append((function.__name__, signature))
+                    for dispatcher, types_ in [(block.kernel, signature),
+                                               *block.warm_parts()]:
+                        function = dispatcher.py_func
+                        jobs = modules.setdefault(function.__module__, [])
+                        if (function.__name__, types_) not in jobs:
+                            jobs.append((function.__name__, types_))
+                    function = block.kernel.py_func
                     kernels.append((f"{function.__module__}.{function.__name__}", signature))
                 # A fused loop per chain of kernels *and their argument types*: the same
                 # kernels on another arm's model (planar, spatial) are another loop.
@@ -245,12 +248,15 @@ def run_short(jobs: list[tuple[str, str]]) -> None:
         run(pipeline, None, progress=False, record=False, figures=False)
 
 
-def _spread(items: list, workers: int) -> list[list]:
-    """``items`` in at most ``workers`` groups, round robin (the costliest first, when the
-    caller sorted them so)."""
+def _spread(items: list, workers: int, cost=None) -> list[list]:
+    """``items`` in at most ``workers`` groups: each, the costliest first, to the group
+    whose estimated cost is least so far (``cost``: an item's, else 1 each: round robin)."""
     groups: list[list] = [[] for _ in range(max(1, min(workers, len(items))))]
-    for i, item in enumerate(items):
-        groups[i % len(groups)].append(item)
+    loads = [0] * len(groups)
+    for item in sorted(items, key=lambda i: -cost(i)) if cost else items:
+        least = loads.index(min(loads))
+        groups[least].append(item)
+        loads[least] += cost(item) if cost else 1
     return [g for g in groups if g]
 
 
@@ -304,14 +310,16 @@ def warm_up(pipelines: list[Path], workers: int | None = None,
     print("  compiling the numba kernels and fused loops not cached yet (once per version of "
           "their sources; kept for later runs):", file=stream, flush=True)
     # Modules whose kernels are all cached already need no worker (a cached kernel loads
-    # in milliseconds); the others compile in parallel, a job per signature (the filter's
-    # step for the planar and the spatial chain is ~1.5 min each: in two processes at once,
-    # as numba's cache saves are serialised, cosim.jit_cache), the largest source first
-    # (the costliest, roughly), then the fused loops, which link the cached kernels.
-    missing = sorted(((m, [kernel]) for m, k in modules.items() if not _cached(m, k)
-                      for kernel in k), key=lambda job: -_source_size(job[0]))
+    # in milliseconds); the others compile in parallel, a job per signature (a kernel, or a
+    # large callee a block names, Block.warm_parts, which the kernel then loads from the
+    # cache), each to the process with the least work so far, the costliest first (the
+    # sources its machine code is compiled from, roughly: cosim.kernel_digest), as numba's
+    # cache saves are serialised (cosim.jit_cache); then the fused loops, which link the
+    # cached kernels.
+    missing = [(m, [kernel]) for m, k in modules.items() if not _cached(m, k) for kernel in k]
     if missing:
-        _in_parallel("kernels", _spread(missing, workers), stream)
+        _in_parallel("kernels", _spread(missing, workers, lambda job: _source_size(job[0])),
+                     stream)
     if loops:
         _in_parallel("loops", _spread(loops, workers), stream)
     _warm_matplotlib()
@@ -332,8 +340,11 @@ def warm_up(pipelines: list[Path], workers: int | None = None,
 
 
 def _source_size(module: str) -> int:
-    path = kernel_digest.module_file(module)
-    return path.stat().st_size if path is not None else 0
+    """The bytes of ``module``'s source and of the kernel modules it imports (its
+    closure): what its compile grows with, roughly."""
+    return sum(path.stat().st_size for path in map(kernel_digest.module_file,
+                                                    kernel_digest.closure(module))
+               if path is not None)
 
 
 def _cached(module: str, kernels: list) -> bool:

@@ -58,6 +58,39 @@ def test_the_same_kernels_on_another_arm_are_another_fused_loop():
     assert len(modules["cosim.paper.cbf_filter.step"]) == 2  # cbf_step, planar and spatial
 
 
+def test_the_filters_check_is_a_job_of_its_own_with_the_types_the_step_calls_it_with():
+    """The filter names its check (Block.warm_parts) for a warm-up job of its own, compiled
+    in another process while the step's other callees compile; the job is only worth its
+    compile if the step then loads it from the cache: every signature the check was ever
+    compiled with here (its cache index: the warm-up's parts and every run's steps, planar
+    and spatial) is the part's, but for the arguments' record (a changed argument of
+    ``verified`` would make the part a wasted compile, and this index two entries per arm)."""
+    from numba import types
+
+    from cosim.paper.cbf_filter.check import verified
+    from cosim.warm import _kernel_jobs
+
+    modules, _, _ = _kernel_jobs([ROOT / "pipelines/paper_safety.toml"])
+    (name, part), = modules["cosim.paper.cbf_filter.check"]
+    assert name == "verified" and part[0] == types.int64
+    compiled = [key[0] for key in verified._cache._cache_file._load_index()]
+    assert compiled, "the warm-up compiled no check"  # make test warms paper_safety first
+    assert all(signature[0] == part[0] and signature[2:] == part[2:]
+               for signature in compiled), compiled
+
+
+def test_jobs_go_to_the_least_loaded_process_the_costliest_first():
+    """The filter's step and its check, the two costliest, in two processes; the observer
+    after the lighter of them (round robin would have put it after the step, in order of
+    the list)."""
+    from cosim.warm import _spread
+
+    cost = {"step": 160, "observer": 100, "check": 115, "controller": 28, "sensor": 11}
+    groups = _spread(list(cost), 2, cost.get)
+    assert groups == [["step", "controller", "sensor"], ["check", "observer"]]
+    assert _spread(["a", "b", "c"], 2) == [["a", "c"], ["b"]]  # without costs: round robin
+
+
 def test_a_missing_pipeline_is_one_message(tmp_path):
     done = cosim(["warm-up", str(tmp_path / "nope.toml")], dict(os.environ))
     assert done.returncode == 2

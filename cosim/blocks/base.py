@@ -131,6 +131,14 @@ class Block:
         the reference, say). Called as the run is assembled, so `--dry-run` refuses them
         too. Nothing by default."""
 
+    def warm_parts(self) -> list[tuple[object, tuple]]:
+        """Compiled callees of the kernel that a warm-up compiles as jobs of their own, each
+        with the argument types the kernel calls it with: (dispatcher, signature), after
+        reset. A large callee compiled in another process while the kernel's other callees
+        compile in this one shortens a cold warm-up; the kernel then loads it from the cache.
+        None by default."""
+        return []
+
     def describe(self) -> dict:
         """What summary.json records of this block beyond its parameters (none by default)."""
         return {}

@@ -15,6 +15,7 @@ from ...dynamics.model import own_scratch, payload_dim
 from ...schema import FiniteFloat, PerJoint, PipelineError, PositiveFloat, Section, per_joint_array
 from ...signals import Signal
 from .assumptions import BACKUP, FILTER_ASSUMES, KEPT_CHECKS, VIABLE, FilterAssumptions
+from .check import verified
 from .rows import cbf_rows
 from .scratch import (
     SET_UNITS,
@@ -312,6 +313,17 @@ class CbfFilter(Block):
                 "rows": rows, "d": dim, "corners": (2**dim - 1) * p.payload_grid + 1,
                 "segments": self.segments},
                 corner_index=payload_corners(p.payload_grid, dim)))
+
+    def warm_parts(self) -> list[tuple[object, tuple]]:
+        """The check (:func:`.check.verified`, a third of the step's compile with the
+        backup it rolls out), with the types the policy calls it with."""
+        if self.kernel is None:
+            return []
+        from numba import typeof, types
+
+        vector = typeof(np.zeros(self.context.links))
+        return [(verified, (types.int64, typeof(self.args), vector, vector, vector, vector,
+                            types.boolean, types.int64, vector))]
 
     def step(self, k: int) -> bool:
         """With a qpsolvers solver (no kernel): the same rows, the hard ones as hard

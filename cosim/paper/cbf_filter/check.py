@@ -177,7 +177,7 @@ def held_travel(a, h, s):
     return a.dt * (1.0 - remains) / c + (s - holds * a.dt) * remains
 
 
-@no_refcount_jit(cache=True)
+@no_refcount_jit(cache=True, inline="always")
 def plan_box(k, a):
     """The box the plan in force (the rollout of the last torque verified, at step k0) puts
     the true state in at row k + 1, into Rollout.BOX_Q … Rollout.BOX_V_HALF: its tube

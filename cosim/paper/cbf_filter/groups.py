@@ -157,7 +157,7 @@ def add_corner(a, count, g, c):
                    w.group_labels[g, GroupLabel.JOINT])
 
 
-@no_refcount_jit(cache=True)
+@no_refcount_jit(cache=True, inline="always")
 def add_cuts(a, count, tau):
     """Appends to the QP's first ``count`` rows every hard row of the groups not among them
     with g_c·τ − h_c > −hard_tolerance × (a bound on ‖g_c‖): at least every one that τ
@@ -198,7 +198,7 @@ def groups_violated(a, tau):
     return False
 
 
-@no_refcount_jit(cache=True)
+@no_refcount_jit(cache=True, inline="always")
 def groups_record(k, a, tau):
     """Row k's activity of the hard rows in groups under τ: each row within twice the
     hard_tolerance of its limit (scaled to unit norm, as the QP has it) binds, and marks its

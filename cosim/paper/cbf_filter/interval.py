@@ -51,7 +51,7 @@ def velocity_interval(k, a):
     a.work.flags[Flag.CONSISTENT] = 1.0 if consistent else 0.0
 
 
-@no_refcount_jit(cache=True)
+@no_refcount_jit(cache=True, inline="always")
 def predict_interval(k, a, tau):
     """The interval of the true velocity at row k + 1 under τ held over the step (into
     Rollout.NEXT_LOW, Rollout.NEXT_HIGH): row k's moved by dt times the hull of q̈ ± D at the step's
@@ -87,7 +87,7 @@ def predict_interval(k, a, tau):
         high[i] = r[Rollout.CENTRE, i] + r[Rollout.HALF, i] + a.dt * high[i]
 
 
-@no_refcount_jit(cache=True)
+@no_refcount_jit(cache=True, inline="always")
 def inside(k, a):
     """Whether every state row k's bounds allow (|q − y| ≤ n̄, q̇ in its interval) is inside
     every hard set (as the check holds them): a state verified but not inside is one the

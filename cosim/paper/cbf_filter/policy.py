@@ -23,7 +23,7 @@ BISECTIONS = 4
 POLICIES = 2
 
 
-@no_refcount_jit(cache=True)
+@no_refcount_jit(cache=True, inline="always")
 def verified_policy(k, a, tau, limit):
     """The first backup policy under which ``tau``, held for the step, is verified with the
     backup within the torques ``limit`` (:func:`.check.verified`), else −1."""
@@ -34,7 +34,7 @@ def verified_policy(k, a, tau, limit):
     return -1
 
 
-@no_refcount_jit(cache=True)
+@no_refcount_jit(cache=True, inline="always")
 def planned_with(a, policy, reserve):
     """Keeps the plan of the torque verified: its backup policy, and whether that backup
     brakes within the torque limits (1) or within braking_torque (0)."""
@@ -42,7 +42,7 @@ def planned_with(a, policy, reserve):
     a.work.flags[Flag.PLAN_RESERVE] = 1.0 if reserve else 0.0
 
 
-@no_refcount_jit(cache=True)
+@no_refcount_jit(cache=True, inline="always")
 def blend_verified(k, a, tau, limit, reserve):
     """With the backup within the torques ``limit`` (the torque limits if ``reserve``, else
     braking_torque): 0 if ``tau`` is verified (kept as it is), else the backup's share
@@ -92,7 +92,7 @@ def blend_verified(k, a, tau, limit, reserve):
     return 1.0 - low
 
 
-@no_refcount_jit(cache=True)
+@no_refcount_jit(cache=True, inline="always")
 def choose(k, a, tau):
     """The torque to apply, into ``tau``: the QP's answer clipped to the torque limits (the
     controller's, clipped, where the QP's hard rows are not met within the limits), itself

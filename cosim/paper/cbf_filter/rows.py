@@ -25,7 +25,7 @@ def cbf_rows(k, a):
     return step_rows(k, a, True)
 
 
-@no_refcount_jit(cache=True)
+@no_refcount_jit(cache=True, inline="always")
 def step_rows(k, a, every):
     """Row k's QP: the hard rows in groups (:func:`.groups.hard_groups`), each of their
     rows first if ``every`` (:func:`cbf_rows`), else none (the step's solve adds those it

@@ -53,7 +53,7 @@ def cbf_record(k, a, count, tau):
     return step_record(k, a, count, tau)
 
 
-@no_refcount_jit(cache=True)
+@no_refcount_jit(cache=True, inline="always")
 def step_record(k, a, count, tau):
     """cbf_record, as the step calls it. ``tau`` is the solver's, changed in place. Also
     what the run's classifier measures the check's premises with: the box the plan of the
