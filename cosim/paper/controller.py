@@ -165,7 +165,7 @@ def _torques(mass, vector, scratch):
     return square
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _errors(k, a, e, edot, r, xi):
     """e, ė and r̂ = ė + Λe at step k (ė from the velocity read, or from the positions'
     difference), and the NN's input ξ = [1; e; ė; q_d; q̇_d; q̈_d]; returns ‖r̂‖²."""
@@ -192,7 +192,7 @@ def _errors(k, a, e, edot, r, xi):
     return r_sq
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _learn(a, W, V, r, r_norm):
     """The weight laws (25)-(26) over [t_k, t_k+1), the κ‖r̂‖ decay implicit:
     Ŵ⁺ = (Ŵ + dt F (σ̂ − σ̂'V̂ᵀξ) r̂ᵀ) / (1 + dt κ F ‖r̂‖),

@@ -199,7 +199,7 @@ def envelope_position(env, y, slot):
     model_bias(model, env.zeros, 1.0, 0.0, 1.0, env.grav[slot])
 
 
-@no_refcount_jit(cache=True)
+@no_refcount_jit(cache=True, inline="always")
 def _linear_part_at_ends(env, slot, centre, payload_low, payload_high):
     """b's part linear in q̇ − centre, B(Δm), at each end of the payload cell (into
     ``env.bmat``), and M̂⁻¹B and RᵀB there (``env.linear``, ``env.projected``), B's column j
@@ -224,7 +224,7 @@ def _linear_part_at_ends(env, slot, centre, payload_low, payload_high):
                     projected[end, r, j] += rmat[l, r] * entry
 
 
-@no_refcount_jit(cache=True)
+@no_refcount_jit(cache=True, inline="always")
 def _quadratic_part(env, slot, radius, payload_low, payload_high, spread_of_friction, work):
     """Per equation l, the most b's part quadratic in q̇ − centre reaches over the box of
     half-widths ``radius`` and the payload cell's ends, plus d̄ and the friction's spread,
@@ -320,7 +320,7 @@ def envelope_acceleration(env, slot, cell, tau, tau_d, centre, radius, lo, hi):
         hi[i] = max(hi[i], high + size)
 
 
-@no_refcount_jit(cache=True)
+@no_refcount_jit(cache=True, inline="always")
 def envelope_cell(k, dt, y, tau, tau_d, noise, env, cell):
     """One payload cell from t_k−1 to t_k: q̈'s bound over the step on an a-priori enclosure
     of q̇ that the bound itself must confirm (widened until it does), the interval
@@ -358,7 +358,7 @@ def envelope_cell(k, dt, y, tau, tau_d, noise, env, cell):
                             interval)
 
 
-@no_refcount_jit(cache=True)
+@no_refcount_jit(cache=True, inline="always")
 def envelope_step(k, dt, y, tau, tau_d, noise, env):
     """The envelope from t_k−1 to t_k: each live payload cell (envelope_cell); a cell no
     q̇ fits is dropped (the payload is constant: it is not in that cell), unless every live

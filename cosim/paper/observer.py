@@ -222,7 +222,7 @@ def observer_step(k, a):
     return _publish(k, a, w_sq)
 
 
-@njit(cache=True)
+@njit(cache=True, inline="always")
 def _publish(k, a, w_sq):
     """The observer's outputs at t_k from its state there (``w_sq``: ‖Ŵo‖²): x̂1, x̂2, k0,
     ‖Ŵo‖, the certified bound ε(t) and the envelope's centre, and x̂2's drift; False where
