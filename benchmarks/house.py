@@ -10,7 +10,7 @@ Figures (each printed with what it counts):
 - fields of the kernels' argument and work records (NamedTuple classes), written by hand;
 - row-index constants written by hand (``A, B, C = range(3)`` and ``NAME = <int>`` in the
   filter's scratch), and the rows declared by name instead (members of a ``Rows`` class,
-  cosim.blocks.binding, numbered by their order);
+  cosim.records, numbered by their order);
 - the lines of cosim/paper;
 - cosim/paper's imports of project modules that docs/api.md does not document;
 - the parameter's occurrences as a name in code (not in comments or strings), and in how

@@ -8,6 +8,7 @@ imports from the project's other modules, which numba freezes into machine code.
 from __future__ import annotations
 
 import ast
+import enum
 import functools
 import hashlib
 import importlib.util
@@ -117,9 +118,13 @@ def is_kernel_module(path: Path) -> bool:
 
 
 def _plain(value) -> bytes | None:
-    """A plain value's bytes (what numba would freeze into machine code), else None."""
+    """A plain value's bytes (what numba would freeze into machine code), else None: an
+    IntEnum class (a scratch array's named rows, cosim.records.Rows) by its members' names
+    and numbers, which kernels index with."""
     if value is None or isinstance(value, bool | int | float | complex | str | bytes):
         return repr(value).encode()
+    if isinstance(value, type) and issubclass(value, enum.IntEnum):
+        return repr([(member.name, int(member)) for member in value]).encode()
     if isinstance(value, tuple | list | frozenset):
         items = [_plain(v) for v in value]
         return None if any(i is None for i in items) else b"(" + b",".join(items) + b")"

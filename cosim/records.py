@@ -44,7 +44,7 @@ class Rows(enum.IntEnum):
     """The named rows of a scratch array, numbered 0, 1, … in the order they are declared
     (each member ``= enum.auto()``). A kernel indexes by member, which compiled code reads as
     the integer constant; a scratch shape naming the class (``"Rollout, n"``) takes its
-    count, and ``Rollout.X + 2`` the member two rows on."""
+    count, and ``Vector.X + 2`` the member two rows on."""
 
     @staticmethod
     def _generate_next_value_(name: str, start: int, count: int, last_values: list) -> int:

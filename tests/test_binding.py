@@ -185,6 +185,13 @@ def test_named_rows_are_numbered_by_their_order_and_sized_by_their_class():
         B = auto()
 
     assert (Longer.A, Longer.B, len(Longer)) == (1, 2, 3)
+
+    class Misnamed(NamedTuple):
+        rows: scratch("Layout.D + n")
+
+    with pytest.raises(TypeError, match=r"Misnamed.rows: scratch size 'Layout.D \+ n': Layout "
+                                        r"has no row D \(its rows: A, B, C\)"):
+        _bound(record=Misnamed)
     args, _, _ = _bound(record=Laid, published={"assumes": Published(np.full(3, 5.0))})
     assert args.rows.shape == (3, 3) and args.tail.shape == (2 + 3,)
 
@@ -210,6 +217,9 @@ def test_a_published_field_is_the_blocks_own_constant_and_a_missing_one_is_named
     with pytest.raises(TypeError, match=r"Laid.limit: toy publishes no 'assumes' \(it "
                                         r"publishes: nothing\)"):
         _bound(record=Laid)
+    with pytest.raises(TypeError, match=r"Laid.limit: toy's 'assumes' has no field 'limit' "
+                                        r"\(its fields: bound\)"):
+        _bound(record=Laid, published={"assumes": NamedTuple("Other", [("bound", float)])(1.0)})
 
 
 def test_a_signal_chosen_by_the_block_is_read_from_the_attribute_that_names_it():
@@ -221,6 +231,11 @@ def test_a_signal_chosen_by_the_block_is_read_from_the_attribute_that_names_it()
     class Chosen(NamedTuple):
         position: reads(chosen_by="position")
 
+    with pytest.raises(TypeError, match=r"Chosen.position reads the signal toy's attribute "
+                                        r"'position' names, but it names none"):
+        _bound(record=Chosen)
+    with pytest.raises(TypeError, match=r"reads\('q', chosen_by='position'\): one or the other"):
+        reads("q", chosen_by="position")
     Toy.position = "q"
     try:
         args, q, _ = _bound(record=Chosen)

@@ -155,6 +155,26 @@ def test_a_fused_loop_is_versioned_by_the_kernels_it_calls(tmp_path, monkeypatch
     assert kernel_digest.module_digest("cosim.paper.sensor") == sensor
 
 
+def test_a_kernel_is_versioned_by_the_rows_it_indexes_with(monkeypatch):
+    """The filter's kernels index their scratch by Rows classes of cosim/paper/cbf_filter/
+    scratch.py, a module without numba (not in their closure): a row added, moved or
+    renamed there changes the numbers numba froze into their machine code, so it changes
+    their digest (an int imported from it always did)."""
+    from cosim import kernel_digest
+    from cosim.paper.cbf_filter import scratch
+    from cosim.records import Rows
+
+    monkeypatch.setattr(kernel_digest, "_digests", {})
+    check = kernel_digest.module_digest("cosim.paper.cbf_filter.check")
+
+    # the same rows, one added first: every number moves on
+    Rollout = Rows("Rollout", ["ADDED", *(member.name for member in scratch.Rollout)])
+    assert Rollout.Q == scratch.Rollout.Q + 1
+    monkeypatch.setattr(scratch, "Rollout", Rollout)
+    monkeypatch.setattr(kernel_digest, "_digests", {})
+    assert kernel_digest.module_digest("cosim.paper.cbf_filter.check") != check
+
+
 def test_a_kernel_that_cannot_be_cached_is_numbas_warning_naming_its_file(tmp_path):
     """A function of ours numba cannot cache (it reads a large global array: a dynamic
     global) runs, with numba's warning naming its file and line; the cache's locator once

@@ -135,8 +135,9 @@ class Block:
         """Compiled callees of the kernel that a warm-up compiles as jobs of their own, each
         with the argument types the kernel calls it with: (dispatcher, signature), after
         reset. A large callee compiled in another process while the kernel's other callees
-        compile in this one shortens a cold warm-up; the kernel then loads it from the cache.
-        None by default."""
+        compile in this one shortens a cold warm-up; the kernel loads it from the cache
+        where it is done first (else compiles it too: the warm-up is as long as without).
+        None by default (an empty list)."""
         return []
 
     def describe(self) -> dict:

@@ -11,15 +11,14 @@ in its annotation, so that the block's ``reset`` writes only what it computes:
         tau: writes()                    # the output signal ``tau``, all rows
         acceleration: scratch("n")       # zeros (n,), the step's own
         rollout: scratch("Rollout, n")   # a row per member of the Rows class Rollout
-        position: np.ndarray             # no source: ``reset`` computes it
+        model: RigidBodyModel            # no source: ``reset`` computes it
 
-    self.args = self.bind(PdArgs, ports, position=...)
+    self.args = self.bind(PdArgs, ports, model=...)
 
-A scratch array with named rows declares them as a :class:`~cosim.records.Rows` class
-beside the record,
-one member a row, numbered by their order; its shape names the class for their count, and
-a kernel indexes the array by member (``w.rollout[Rollout.DV]``): no row number or count
-is written by hand.
+A scratch array with named rows declares them as a :class:`~cosim.records.Rows` class beside
+the record, one member a row, numbered by their order; its shape names the class for their
+count, and a kernel indexes the array by member (``w.rollout[Rollout.DV]``): no row number
+or count is written by hand.
 
 A parameter is thus declared once, in the block's ``Params`` (name, type, default, units,
 per joint or not), and named once more where the kernel reads it; nothing copies it by hand
@@ -65,9 +64,12 @@ def parameter(name: str | None = None) -> object:
 
 
 def reads(signal: str | None = None, *, chosen_by: str = "") -> object:
-    """The input signal ``signal`` (default: the field's name): its array of every row. With
-    ``chosen_by``, the signal the block chose as it was made, named by that attribute of it
-    (a controller's ``position``: ``self.position = "q_meas"`` where it reads the sensor)."""
+    """The input signal ``signal`` (default: the field's name): its array of every row. Or,
+    with ``chosen_by`` instead, the signal the block chose as it was made, named by that
+    attribute of it (a controller's ``position``: ``self.position = "q_meas"`` where it
+    reads the sensor)."""
+    if signal is not None and chosen_by:
+        raise TypeError(f"reads({signal!r}, chosen_by={chosen_by!r}): one or the other")
     return Annotated[np.ndarray, Source("reads", signal, chosen_by=chosen_by)]
 
 
@@ -147,7 +149,8 @@ def bind(record: type[Record], block, ports, sizes: dict[str, int] | None = None
         raise TypeError(f"{record.__name__}: {', '.join(twice)} declared bound from "
                         f"{', '.join(declared[name].kind for name in twice)} and given too")
     constants = {name: value for name, value in vars(sys.modules[record.__module__]).items()
-                 if type(value) is int or isinstance(value, type) and issubclass(value, Rows)}
+                 if type(value) is int
+                 or isinstance(value, type) and issubclass(value, Rows) and value is not Rows}
     integers = {name: value for name, value in block.params if type(value) is int}
     names = {**constants, **integers, "n": block.context.links, **(sizes or {})}
     values = {name: _value(record, name, source, block, ports, names)
@@ -162,7 +165,11 @@ def _value(record: type, field: str, source: Source, block, ports,
     if source.kind == "parameter":
         return _parameter(block, key, where)
     if source.chosen_by:
-        key = getattr(block, source.chosen_by)
+        key = getattr(block, source.chosen_by, None)
+        if not isinstance(key, str):
+            raise TypeError(f"{where} reads the signal {block.kind}'s attribute "
+                            f"{source.chosen_by!r} names, but it names none (set it to a "
+                            "signal's name as the block is made)")
     if source.kind in ("reads", "writes"):
         signals = ports.inputs if source.kind == "reads" else ports.outputs
         if key not in signals:
@@ -178,7 +185,11 @@ def _value(record: type, field: str, source: Source, block, ports,
         if source.constant not in block.publishes:
             raise TypeError(f"{where}: {block.kind} publishes no {source.constant!r} (it "
                             f"publishes: {', '.join(block.publishes) or 'nothing'})")
-        return getattr(block.publishes[source.constant], key)
+        constant = block.publishes[source.constant]
+        if key not in getattr(constant, "_fields", ()):
+            raise TypeError(f"{where}: {block.kind}'s {source.constant!r} has no field {key!r} "
+                            f"(its fields: {', '.join(getattr(constant, '_fields', ()))})")
+        return getattr(constant, key)
     shape = tuple(_size(term, sizes, where) for term in source.shape.split(","))
     return np.zeros(shape, np.int64 if source.dtype is int else source.dtype)
 
@@ -214,7 +225,11 @@ def _size(term: str, sizes: dict[str, int | type[Rows]], where: str) -> int:
             return len(size) if isinstance(size, type) else int(size)
         if isinstance(node, ast.Attribute) and isinstance(node.value, ast.Name):
             rows = sizes.get(node.value.id)
-            if isinstance(rows, type) and node.attr in rows.__members__:
+            if isinstance(rows, type):
+                if node.attr not in rows.__members__:
+                    raise TypeError(f"{where}: scratch size {term.strip()!r}: {rows.__name__} "
+                                    f"has no row {node.attr} (its rows: "
+                                    f"{', '.join(rows.__members__)})")
                 return int(rows[node.attr])
         if isinstance(node, ast.BinOp) and type(node.op) in _OPERATORS:
             return _OPERATORS[type(node.op)](evaluate(node.left), evaluate(node.right))

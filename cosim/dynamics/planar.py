@@ -41,7 +41,7 @@ CHAIN_ROWS = len(Link)
 
 @njit(cache=True, inline="always")
 def chain_geometry(q, l, lc, chain):  # noqa: E741
-    """The chain's geometry at q into rows CX … OY of ``chain``."""
+    """The chain's geometry at q into rows Link.CX … Link.OY of ``chain``."""
     theta, x, y = 0.0, 0.0, 0.0
     for k in range(q.shape[0]):
         theta += q[k]

@@ -35,7 +35,7 @@ REVOLUTE, PRISMATIC = 0, 1
 
 
 class Kin(Rows):
-    """Rows of SpatialWork.kin (n × 3 each), per body, in the world frame."""
+    """Rows of SpatialChain.kin (n × 3 each), per body, in the world frame."""
 
     AXIS = auto()  # its joint's axis z
     ORIGIN = auto()  # its origin o

@@ -128,16 +128,20 @@ class Envelope(NamedTuple):
 
 
 class EnvelopeRow(Rows):
-    """Rows of Envelope.work (n each)."""
+    """Rows of Envelope.work (n each): each a scratch vector of one stage of a step, some
+    reused by the next."""
 
+    # the polarisation's unit vector and its scratch (the velocity forms at a position);
+    # then τ less the bias at the enclosure's centre (E), the nominal friction there (PLUS)
+    # and its spread over the enclosure (MINUS)
     E = auto()
     PLUS = auto()
     MINUS = auto()
-    U = auto()
-    CENTRE = auto()
-    RADIUS = auto()
-    ACC_LOW = auto()
-    ACC_HIGH = auto()
+    U = auto()  # M̂⁻¹ applied to that torque
+    CENTRE = auto()  # the a-priori enclosure of q̇ over the step: its centre
+    RADIUS = auto()  # … and half-width
+    ACC_LOW = auto()  # q̈'s bound over the step: its low end
+    ACC_HIGH = auto()  # … and its high end
 
 
 @no_refcount_jit(cache=True)

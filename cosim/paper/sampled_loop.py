@@ -273,8 +273,7 @@ def check_friction_step(block, published: Mapping[str, object]) -> None:
     raise PipelineError(
         f"run '{context.run}': joint {joint + 1}{name}'s viscous friction (the nominal model's "
         f"b̂ = {friction[Friction.DAMPING, joint]:g} N·m·s/rad, the URDF's <dynamics damping> "
-        "unless "
-        f"inertia_model.b) against its inertia {mass[joint, joint]:.3g} kg·m² damps in "
+        f"unless inertia_model.b) against its inertia {mass[joint, joint]:.3g} kg·m² damps in "
         f"{1e3 / worst:.3g} ms, too fast for simulation.step = {context.dt * 1e3:g} ms: the "
         "observer's certified bound takes friction as a bounded error, which holds for a "
         f"step up to {FRICTION_STEP_SHARE / worst * 1e3:.3g} ms; shorten the step, or leave "

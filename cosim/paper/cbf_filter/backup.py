@@ -37,8 +37,8 @@ def backup_torque(k, a, q, v, mass, bias, out, policy, limit):
     the torques ``limit`` allow (the torque limits, or braking_torque:
     :func:`.policy.choose`), τ_b = M̂ q̈ + b̂ (a small QP in q̈: clipping each τ_i alone
     would turn the coupled arm's braking of one joint into accelerating another), w the
-    recovery velocity of a joint outside its position set (into the rollout's Rollout.TARGET row,
-    relative to q̇_s). ``policy`` 1 weighs the q̈ of joints near their position bound first
+    recovery velocity of a joint outside its position set (into Rollout.TARGET, relative to
+    q̇_s). ``policy`` 1 weighs the q̈ of joints near their position bound first
     (0: every joint alike). Returns whether a torque limit binds."""
     n = q.shape[0]
     w = a.work
@@ -86,7 +86,7 @@ def backup_torque(k, a, q, v, mass, bias, out, policy, limit):
 @no_refcount_jit(cache=True, inline="always")
 def _limited_acceleration(n, limit, mass, bias, scale, desired, w):
     """The q̈ nearest ``desired`` (in z = √W q̈) whose torque M̂ q̈ + b̂ keeps every finite
-    ``limit``, into the backup solver's TAU: the small QP of :func:`backup_torque`."""
+    ``limit``, into the backup solver's Solver.TAU: the small QP of :func:`backup_torque`."""
     rows, limits, weights = w.backup_rows, w.backup_limits[0], w.backup_limits[1]
     count = 0
     for i in range(n):  # ±(M̂ q̈ + b̂)_i ≤ τ_max,i, scaled to unit rows
@@ -124,10 +124,9 @@ def rollout_payload(a):
 @no_refcount_jit(cache=True)
 def nominal_acceleration(k, a, first, backup, policy, limit):
     """The rollout's torque (``first``, or the backup's within ``limit`` if ``backup``) into
-    Rollout.TAU and the nominal model's q̈ under it into Rollout.ACC; the model's geometry left
-    at the
-    rollout's q.
-    Returns whether the torque is held or limited (the backup's feedback does not act)."""
+    Rollout.TAU and the nominal model's q̈ under it into Rollout.ACC; the model's geometry
+    left at the rollout's q. Returns whether the torque is held or limited (the backup's
+    feedback does not act)."""
     w = a.work
     r, matrices = w.rollout, w.matrices
     q, vel, tau = r[Rollout.Q], r[Rollout.V], r[Rollout.TAU]

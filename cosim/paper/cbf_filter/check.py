@@ -98,11 +98,11 @@ def feedback_contraction(rate, h, dt):
 
 @no_refcount_jit(cache=True)
 def held_end(k, a, tau, limit, spread):
-    """A held step's predicted end: the rollout's row state (Rollout.Q, Rollout.V) moved by dt
-    under its
-    q̈ (Rollout.ACC), and there the nominal q̈ under τ held (Rollout.ACC) and D for the velocity error
-    ``spread`` (Rollout.DEV). The true q̈ over the step lies in the hull of q̈ ± 1.5 D at the
-    step's start and at this end (:func:`_held_drift`, :func:`.interval.predict_interval`)."""
+    """A held step's predicted end: the rollout's row state (Rollout.Q, Rollout.V) moved by
+    dt under its q̈ (Rollout.ACC), and there the nominal q̈ under τ held (Rollout.ACC) and D
+    for the velocity error ``spread`` (Rollout.DEV). The true q̈ over the step lies in the
+    hull of q̈ ± 1.5 D at the step's start and at this end (:func:`_held_drift`,
+    :func:`.interval.predict_interval`)."""
     r = a.work.rollout
     q, vel, acc = r[Rollout.Q], r[Rollout.V], r[Rollout.ACC]
     for i in range(q.shape[0]):
@@ -139,7 +139,8 @@ def _held_drift(k, a, first, limit, eps, widen):
 @no_refcount_jit(cache=True, inline="always")
 def held_average(a, h, contraction):
     """The rollout's q̈ over a step of h = m dt, m > 1 holds of a backup no torque limit
-    binds: its q̈ at each hold, averaged (into Rollout.ACC; the first hold's into Rollout.HOLD_ACC).
+    binds: its q̈ at each hold, averaged (into Rollout.ACC; the first hold's into
+    Rollout.HOLD_ACC).
     The filter re-evaluates the backup at every control step dt and holds it, so over the
     step its q̈ = k_b (w − (v − q̇_s)) falls as it acts: (1 − c)^k q̈_0 at hold k,
     c = min(k_b dt, 1). Taken at the first hold's q̈ for the whole step, the rollout braked
@@ -181,9 +182,8 @@ def held_travel(a, h, s):
 def plan_box(k, a):
     """The box the plan in force (the rollout of the last torque verified, at step k0) puts
     the true state in at row k + 1, into Rollout.BOX_Q … Rollout.BOX_V_HALF: its tube
-    (k + 1 − k0)·dt
-    after its start, within the segment holding that time (the nominal state exactly, q̈
-    constant over a segment; δq, δv as the check grows them). NaN past the rollout's end.
+    (k + 1 − k0)·dt after its start, within the segment holding that time (the nominal state
+    exactly, q̈ constant over a segment; δq, δv as the check grows them). NaN past the rollout's end.
     The classifier holds the true state to it (the tube measured along the run)."""
     w = a.work
     r = w.rollout

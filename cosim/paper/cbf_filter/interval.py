@@ -54,8 +54,8 @@ def velocity_interval(k, a):
 @no_refcount_jit(cache=True, inline="always")
 def predict_interval(k, a, tau):
     """The interval of the true velocity at row k + 1 under τ held over the step (into
-    Rollout.NEXT_LOW, Rollout.NEXT_HIGH): row k's moved by dt times the hull of q̈ ± D at the step's
-    start and at its predicted end (q̈ drifts over the hold as q and q̇ move), D taken
+    Rollout.NEXT_LOW, Rollout.NEXT_HIGH): row k's moved by dt times the hull of q̈ ± D at the
+    step's start and at its predicted end (q̈ drifts over the hold as q and q̇ move), D taken
     TUBE_SAFETY times as the check's tube takes it: a velocity outside a narrower prediction
     may still be in the tube the check verified."""
     r = a.work.rollout

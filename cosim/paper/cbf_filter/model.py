@@ -190,8 +190,8 @@ def payload_structure(low, high, minv, base, point_rows, point_vectors, squares,
 @no_refcount_jit(cache=True)
 def robust_model(a, y, v, eps, minv, base):
     """What the hard rows at (y, v) need beyond M̂⁻¹ and M̂⁻¹b̂: the bound on |M̂⁻¹(Δb + d)|
-    (ROWS_ERROR of the work vectors) and the payload's structure, or, when M̂ is the plant's,
-    M̂⁻¹Jᵀγ (PLANT_SHIFT). Returns the number of payload corners a row is taken at."""
+    (Vector.ROWS_ERROR) and the payload's structure, or, when M̂ is the plant's, M̂⁻¹Jᵀγ
+    (Vector.PLANT_SHIFT). Returns the number of payload corners a row is taken at."""
     n = y.shape[0]
     w = a.work
     vectors, forms = w.vectors, w.forms

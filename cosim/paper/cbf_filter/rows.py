@@ -76,7 +76,7 @@ def step_rows(k, a, every):
 
 @no_refcount_jit(cache=True)
 def _predict_hold(k, a, y, v, minv, base):
-    """The states at the hold's end and midpoint (Y_END … V_MID of the work vectors),
+    """The states at the hold's end and midpoint (Vector.Y_END … Vector.V_MID),
     predicted with the torque of the step before (the nominal model's q̈)."""
     vectors = a.work.vectors
     held = a.tau[k - 1] if k > 0 else a.tau_nominal[k]
@@ -94,7 +94,7 @@ def _predict_hold(k, a, y, v, minv, base):
 
 @no_refcount_jit(cache=True)
 def _set_states(k, a, y, v, observed, base_mid):
-    """Each set's x (rows X … of the work vectors, SETS order) and how v moves (DRIFT):
+    """Each set's x (Vector.X …, SETS order) and how v moves (Vector.DRIFT):
     the observer's drift, else the plant's q̈ less M̂⁻¹τ at the hold's midpoint."""
     vectors = a.work.vectors
     drift, x = vectors[Vector.DRIFT], vectors[Vector.X:Vector.X + 4]

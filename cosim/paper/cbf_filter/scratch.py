@@ -25,7 +25,7 @@ SETS = ("position", "velocity", "error", "error_rate")
 SET_UNITS = {"position": "rad", "velocity": "rad/s", "error": "rad", "error_rate": "rad/s"}
 
 # The filter's scratch, made once at reset (a step allocates nothing), is a few arrays with
-# named rows: each array's rows are a Rows class (cosim.blocks.binding), numbered by their
+# named rows: each array's rows are a Rows class (cosim.records), numbered by their
 # order, whose count its shape names. Both records are kernel records (cosim.records):
 # compiled code takes each as one pointer, however many arrays it holds.
 
@@ -152,7 +152,6 @@ class Flag(Rows):
     GROUPS = auto()  # the number of hard row groups at this step
     # the tube's buffers (CbfWork.tube): the one a check writes its rollout into, the one
     # that holds the rollout of the last torque verified, the step it was verified at
-    # (TUBE_TRIAL, not TRIAL: that is the solver's row)
     TUBE_TRIAL = auto()
     PLAN_TUBE = auto()
     PLAN_STEP = auto()
@@ -202,7 +201,8 @@ class Authority(Rows):
     """Of CbfWork.authority (n each), tracking_torque = "controller"."""
 
     PEAK = auto()  # the largest |τ_nom,i| so far
-    ANSWER = auto()  # the QP's answer with the tracking rows while the hard rows' is solved
+    # the QP's answer with the tracking rows while the hard rows' alone is solved
+    ANSWER = auto()
 
 
 # The payload's structure, its point of d coordinates (the model's dim: 2 in the plane, 3 in

@@ -11,6 +11,8 @@ from ...numba_compat import no_refcount_jit
 from ..linalg import dot
 from .scratch import Solver
 
+SOLVER_ROWS = len(Solver)  # a constant: compiled code takes no len() of a class
+
 
 @no_refcount_jit(cache=True, inline="always")
 def add_row(qp, count, row, limit, weight, hard, kind, joint):
@@ -93,8 +95,8 @@ def piece_minimiser(tau_nominal, G, h, weights, count, binding, factor, rotated,
 def newton(tau_nominal, G, h, weights, count, iterations, tolerance, solver, factor,
            binding, warm):
     """solve_soft_qp on the first ``count`` rows of G, h and the weights, its vectors in
-    ``solver`` (5, n: TAU …), R in ``factor`` and the rows violated in ``binding``: τ into
-    ``solver[TAU]``; returns the iterations used. ``warm``: start from the minimiser of the
+    ``solver`` (Solver, n), R in ``factor`` and the rows violated in ``binding``: τ into
+    ``solver[Solver.TAU]``; returns the iterations used. ``warm``: start from the minimiser of the
     piece the rows flagged in ``binding`` make (the step before's, where the rows keep their
     order; other rows' flags only make a worse start), not from τ_nom; where the rows
     violated there are those, it is the answer (the convex function's gradient is that
@@ -163,7 +165,7 @@ def solve_soft_qp(tau_nominal, G, h, weights, iterations, tolerance):
     for opposing or conflicting rows, where a dual method stalls. Returns (τ, iterations
     used). From τ_nom (the filter's step starts from the step before's binding rows)."""
     n, m = tau_nominal.shape[0], G.shape[0]
-    solver = np.zeros((5, n))
+    solver = np.zeros((SOLVER_ROWS, n))
     used = newton(tau_nominal, G, h, weights, m, iterations, tolerance, solver,
                   np.zeros((n, n)), np.zeros(m, np.bool_), False)
     return solver[Solver.TAU], used

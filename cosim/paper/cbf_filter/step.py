@@ -30,7 +30,7 @@ def hard_violated(G, h, is_hard, count, tau):
 
 @no_refcount_jit(cache=True)
 def solve_with_cuts(k, a, count):
-    """The QP's answer over every row (the groups' included) into the solver's TAU, by
+    """The QP's answer over every row (the groups' included) into Solver.TAU, by
     Newton over the first ``count`` rows, then again with the hard rows it violates (or
     comes within hard_tolerance of) added, until there are none (:func:`.groups.add_cuts`):
     the same minimiser, over the few rows that can bind instead of every payload corner's.
