@@ -184,10 +184,9 @@ def _short(path: Path):
 
 
 def _kernel_jobs(pipelines: list[Path]) -> tuple[dict[str, list], list, list[Path]]:
-    """Per kernel module, the (kernel name, signature) its blocks step with, and the large
-    callees they name for jobs of their own (Block.warm_parts); one (pipeline,
-    run) per distinct chain of kernels, their signatures and the FMI version (a fused loop
-    each); and the plant FMU files (built here, into their cache)."""
+    """Per kernel module, the (kernel name, signature) its blocks step with and their parts
+    (Block.warm_parts); one (pipeline, run) per distinct chain of kernels, their signatures
+    and the FMI version (a fused loop each); and the plant FMU files (built here)."""
     from numba import typeof, types
 
     from .assemble import assemble
@@ -251,8 +250,7 @@ def run_short(jobs: list[tuple[str, str]]) -> None:
 
 def _spread(items: list, workers: int, cost=None) -> list[list]:
     """``items`` in at most ``workers`` groups: each, the costliest first, to the group
-    whose estimated cost is least so far, the one with fewest items among equals (``cost``:
-    an item's, else 1 each: round robin)."""
+    whose cost is least so far, fewest items first (``cost``, else 1 each: round robin)."""
     groups: list[list] = [[] for _ in range(max(1, min(workers, len(items))))]
     loads = [0] * len(groups)
     for item in sorted(items, key=lambda i: -cost(i)) if cost else items:
@@ -263,8 +261,7 @@ def _spread(items: list, workers: int, cost=None) -> list[list]:
 
 
 def _callees_first(group: list[tuple[str, list]]) -> list[tuple[str, list]]:
-    """A process's kernel jobs, those whose module another job's kernels import (a part,
-    Block.warm_parts) before it: compiled first, the kernel loads it from the cache."""
+    """A process's kernel jobs, a part (Block.warm_parts) before the kernels that call it."""
     return sorted(group, key=lambda job: not any(
         job[0] != other[0] and job[0] in kernel_digest.closure(other[0]) for other in group))
 
@@ -318,14 +315,10 @@ def warm_up(pipelines: list[Path], workers: int | None = None,
     modules, loops, fmus = _kernel_jobs(cold)
     print("  compiling the numba kernels and fused loops not cached yet (once per version of "
           "their sources; kept for later runs):", file=stream, flush=True)
-    # Modules whose kernels are all cached already need no worker (a cached kernel loads
-    # in milliseconds); the others compile in parallel, a job per signature (a kernel, or a
-    # large callee a block names, Block.warm_parts, which the kernel loads from the cache
-    # where it is done first), each to the process with the least work so far, the
-    # costliest first (the
-    # sources its machine code is compiled from, roughly: cosim.kernel_digest), as numba's
-    # cache saves are serialised (cosim.jit_cache); then the fused loops, which link the
-    # cached kernels.
+    # Kernels not cached compile in parallel (a cached one loads in milliseconds), a job per
+    # signature (a kernel, or a large callee a block names: Block.warm_parts), the costliest
+    # first to the process with the least work so far, its callees' parts first; then the
+    # fused loops, which link the cached kernels.
     missing = [(m, [kernel]) for m, k in modules.items() if not _cached(m, k) for kernel in k]
     if missing:
         groups = _spread(missing, workers, lambda job: _source_size(job[0]))
@@ -350,8 +343,7 @@ def warm_up(pipelines: list[Path], workers: int | None = None,
 
 
 def _source_size(module: str) -> int:
-    """The bytes of ``module``'s source and of the kernel modules it imports (its
-    closure): what its compile grows with, roughly."""
+    """The bytes of ``module``'s kernel closure: what its compile grows with, roughly."""
     paths = map(kernel_digest.module_file, kernel_digest.closure(module))
     return sum(path.stat().st_size for path in paths if path is not None)
 

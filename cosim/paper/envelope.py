@@ -128,8 +128,7 @@ class Envelope(NamedTuple):
 
 
 class EnvelopeRow(Rows):
-    """Rows of Envelope.work (n each): each a scratch vector of one stage of a step, some
-    reused by the next."""
+    """Rows of Envelope.work (n each), each a stage's scratch, some reused by the next."""
 
     # the polarisation's unit vector and its scratch (the velocity forms at a position);
     # then τ less the bias at the enclosure's centre (E), the nominal friction there (PLUS)
