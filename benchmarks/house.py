@@ -79,6 +79,12 @@ SOURCES = ("parameter", "reads", "writes", "uncertainty", "master_step", "scratc
            "published")
 
 
+def declares_source(field: ast.AnnAssign) -> bool:
+    """Whether a record's field names its source in its annotation (``reads()`` …)."""
+    return isinstance(field.annotation, ast.Call) and getattr(
+        field.annotation.func, "id", None) in SOURCES
+
+
 def declared_fields() -> dict[str, int]:
     """Kernel record (Args, Work, Envelope) -> its fields whose annotation names a source."""
     out = {}
@@ -86,8 +92,7 @@ def declared_fields() -> dict[str, int]:
         for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
             if isinstance(node, ast.ClassDef) and re.search(r"(Args|Work|Envelope)$", node.name):
                 out[f"{path.relative_to(ROOT)}:{node.name}"] = sum(
-                    isinstance(item, ast.AnnAssign) and isinstance(item.annotation, ast.Call)
-                    and getattr(item.annotation.func, "id", None) in SOURCES
+                    isinstance(item, ast.AnnAssign) and declares_source(item)
                     for item in node.body)
     return out
 
@@ -101,43 +106,39 @@ def per_joint_lists() -> list[str]:
                 for item in node.body)]
 
 
-def writes_of(name: str) -> list[str]:
-    """Where ``name`` is written over cosim/: a class field declared with it, a keyword
-    argument, an assignment to it (a name or an attribute), a ``per_joint`` entry; and the
-    kernel records' fields that declare its source (cosim.blocks.binding), listed apart: the
-    framework binds them, nothing writes them by hand."""
+def writes_of(name: str) -> list[tuple[str, str]]:
+    """(where, how) ``name`` is written over cosim/: a class field declared with it, a
+    keyword argument, an assignment to it (a name or an attribute), a ``per_joint`` entry;
+    and, as "bound", the kernel records' fields that declare its source
+    (cosim.blocks.binding): the framework binds them, nothing writes them by hand."""
     out = []
     for path in sorted(ROOT.glob("cosim/**/*.py")):
         for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
             where = f"{path.relative_to(ROOT)}:{getattr(node, 'lineno', '')}"
             if isinstance(node, ast.AnnAssign) and getattr(node.target, "id", None) == name:
-                declared = isinstance(node.annotation, ast.Call) and getattr(
-                    node.annotation.func, "id", None) in SOURCES
-                out.append(f"{where} {'bound from its declared source' if declared else 'field'}")
+                out.append((where, "bound" if declares_source(node) else "field"))
             elif isinstance(node, ast.keyword) and node.arg == name:
-                out.append(f"{path.relative_to(ROOT)}:{node.value.lineno} keyword")
+                out.append((f"{path.relative_to(ROOT)}:{node.value.lineno}", "keyword"))
             elif isinstance(node, ast.Assign):
                 targets = [t for target in node.targets
                            for t in (target.elts if isinstance(target, ast.Tuple) else [target])]
                 if any(getattr(t, "id", getattr(t, "attr", None)) == name for t in targets):
-                    out.append(f"{where} assignment")
+                    out.append((where, "assignment"))
                 if any(getattr(t, "id", None) == "per_joint" for t in targets) and any(
                         isinstance(c, ast.Constant) and c.value == name
                         for c in ast.walk(node.value)):
-                    out.append(f"{where} per_joint")
+                    out.append((where, "per_joint"))
     return out
 
 
 def index_constants(path: Path) -> int:
     """Module-level names bound to ``range(...)`` unpacking or to an int literal."""
-    count = 0
+    count = range_constants(path)
     for node in ast.parse(path.read_text(encoding="utf-8")).body:
         if not isinstance(node, ast.Assign):
             continue
-        target, value = node.targets[0], node.value
-        if isinstance(value, ast.Call) and getattr(value.func, "id", None) == "range":
-            count += len(target.elts) if isinstance(target, ast.Tuple) else 1
-        elif isinstance(value, ast.Constant) and type(value.value) is int:
+        value = node.value
+        if isinstance(value, ast.Constant) and type(value.value) is int:
             count += 1
         elif isinstance(value, ast.Tuple) and all(
                 isinstance(e, ast.Constant) and type(e.value) is int for e in value.elts):
@@ -234,11 +235,11 @@ def main() -> None:
     total, files = name_occurrences(args.parameter)
     print(f"'{args.parameter}' as a name in code: {total} times in {files} files of cosim/")
     places = writes_of(args.parameter)
-    written = [where for where in places if not where.endswith("declared source")]
+    written = [(where, how) for where, how in places if how != "bound"]
     print(f"'{args.parameter}' written: {len(written)} places")
-    for where in written:
-        print(f"  {where}")
-    bound = [where for where in places if where.endswith("declared source")]
+    for where, how in written:
+        print(f"  {where} {how}")
+    bound = [where for where, how in places if how == "bound"]
     print(f"'{args.parameter}' read by a kernel record through a declared source: {len(bound)}")
     for where in bound:
         print(f"  {where}")

@@ -209,14 +209,14 @@ def _kernel_jobs(pipelines: list[Path]) -> tuple[dict[str, list], list, list[Pat
                     if block.kernel is None:
                         continue
                     signature = (types.int64, typeof(block.args))
+                    kernel = block.kernel.py_func
+                    kernels.append((f"{kernel.__module__}.{kernel.__name__}", signature))
                     for dispatcher, types_ in [(block.kernel, signature),
                                                *block.warm_parts()]:
                         function = dispatcher.py_func
                         jobs = modules.setdefault(function.__module__, [])
                         if (function.__name__, types_) not in jobs:
                             jobs.append((function.__name__, types_))
-                    function = block.kernel.py_func
-                    kernels.append((f"{function.__module__}.{function.__name__}", signature))
                 # A fused loop per chain of kernels *and their argument types*: the same
                 # kernels on another arm's model (planar, spatial) are another loop.
                 chain = (tuple(kernels), getattr(scenario.plant, "fmi_version", None))
@@ -248,15 +248,15 @@ def run_short(jobs: list[tuple[str, str]]) -> None:
         run(pipeline, None, progress=False, record=False, figures=False)
 
 
-def _spread(items: list, workers: int, cost=None) -> list[list]:
+def _spread(items: list, workers: int, cost=lambda item: 1) -> list[list]:
     """``items`` in at most ``workers`` groups: each, the costliest first, to the group
-    whose cost is least so far, fewest items first (``cost``, else 1 each: round robin)."""
+    whose cost is least so far, fewest items first (1 each by default: round robin)."""
     groups: list[list] = [[] for _ in range(max(1, min(workers, len(items))))]
     loads = [0] * len(groups)
-    for item in sorted(items, key=lambda i: -cost(i)) if cost else items:
+    for item in sorted(items, key=lambda i: -cost(i)):  # stable: equals keep their order
         least = min(range(len(groups)), key=lambda g: (loads[g], len(groups[g])))
         groups[least].append(item)
-        loads[least] += cost(item) if cost else 1
+        loads[least] += cost(item)
     return [g for g in groups if g]
 
 
