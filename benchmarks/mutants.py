@@ -41,6 +41,7 @@ COMPARISONS = ["tests/test_guarantee_comparisons.py", "tests/test_guarantee.py",
                "tests/test_premises.py"]
 URDF = ["tests/test_urdf_plant.py", "tests/test_guarantee_comparisons.py"]
 RULES = ["tests/test_check_rules.py", "tests/test_viability.py"]
+GROWTH = ["tests/test_rollout_growth.py"]
 
 # (id, file, text, replacement, tests): the text must occur exactly once in the file.
 MUTANTS = [
@@ -146,6 +147,19 @@ MUTANTS = [
     ("cbf-limited-step-several-holds", "cosim/paper/cbf_filter/check.py",
      "h = a.backup_step if backup and not clipped else a.dt",
      "h = a.backup_step if backup else a.dt", ["tests/test_rollout_holds.py"]),
+    # the steps that grow: the holds' average q̈ held over a grown step, for the rollout's
+    # position and for the plan's box inside it; D at the step's start alone; the band
+    # where the backup steers a joint in left out of what keeps a step from growing
+    ("cbf-grown-position-average", "cosim/paper/cbf_filter/check.py",
+     "q[i] += h * vel[i] + travel * r[Rollout.HOLD_ACC, i]",
+     "q[i] += h * vel[i] + 0.5 * h * h * acc[i]", GROWTH),
+    ("cbf-grown-box-first-hold", "cosim/paper/cbf_filter/check.py",
+     "+ held_position(a, h, s) * segment[Tube.ACC_FIRST, i])",
+     "+ 0.5 * s * s * segment[Tube.ACC_FIRST, i])", GROWTH),
+    ("cbf-grown-end-deviation-dropped", "cosim/paper/cbf_filter/check.py",
+     "                _grown_deviation(a, h, eps, widen)\n", "                pass\n", GROWTH),
+    ("cbf-grown-band-guard", "cosim/paper/cbf_filter/check.py",
+     "if a.hard[0] and reach > a.viable_bounds[0, i] - HOLD:", "if False:", GROWTH),
     # the plan's box inside a step of several holds at the first hold's q̈ throughout
     ("cbf-held-travel-first-order", "cosim/paper/cbf_filter/check.py",
      "    remains = (1.0 - c) ** holds\n", "    remains = 1.0 - c * holds\n",

@@ -64,7 +64,8 @@ def carried(a) -> float:
 def brake_apart(a, q, v, seconds: float = 1.0, payload: float = 0.0,
                 estimate_error: np.ndarray | None = None,
                 disturbance: np.ndarray | None = None,
-                velocities: list | None = None, hold: float = 1e-3) -> tuple[float, float]:
+                velocities: list | None = None, hold: float = 1e-3,
+                positions: list | None = None) -> tuple[float, float]:
     """The true arm (carrying ``payload`` kg at its tip) braked by the backup's policy
     recomputed apart on the nominal arm carrying what the filter's rollout model carries
     (the middle of the declared payload range), from the velocity it is given (the true one
@@ -73,8 +74,8 @@ def brake_apart(a, q, v, seconds: float = 1.0, payload: float = 0.0,
     torque held ``hold`` (1 ms), RK4 at a tenth of it, until stopped (without an estimate
     error). The true
     arm feels ``disturbance`` (N·m per joint, constant) beside the τ_d the model has. Returns
-    (the largest |q_i| and |q̇_i| over the braking, rad and rad/s); ``velocities``, if given,
-    gets the true q̇ at the start of every hold."""
+    (the largest |q_i| and |q̇_i| over the braking, rad and rad/s); ``velocities`` and
+    ``positions``, if given, get the true q̇ and q at the start of every hold."""
     import qpsolvers
 
     q, v = np.array(q, float), np.array(v, float)
@@ -92,6 +93,8 @@ def brake_apart(a, q, v, seconds: float = 1.0, payload: float = 0.0,
     for _ in range(int(round(seconds / hold))):
         if velocities is not None:
             velocities.append(v.copy())
+        if positions is not None:
+            positions.append(q.copy())
         seen = v + offset
         # inward within HOLD of the bound (the backup's position hold), HOLD_RATE per rad
         depth = np.abs(q) + a.noise_bound - (bound - HOLD)
@@ -365,7 +368,8 @@ def test_the_rollout_follows_the_arm_braked_by_the_backup_held_at_the_control_st
     pytest.importorskip("qpsolvers")
     from cosim.paper.cbf_filter.scratch import Flag, Tube
 
-    a = filter_args._replace(backup_rate=200.0)
+    # steps of backup_step alone (tests/test_rollout_growth.py: the steps that grow)
+    a = filter_args._replace(backup_rate=200.0, backup_step_max=filter_args.backup_step)
     q, v = np.array([0.1, 0.5]), np.array(velocity)
     assert is_verified(a, q, v)
     buffer = int(a.work.flags[Flag.PLAN_TUBE])

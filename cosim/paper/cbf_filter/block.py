@@ -102,6 +102,11 @@ class CbfFilterParams(Section):
     # step of the backup's rollout (its first step is the control step), s: rounded to a
     # whole number of control steps, at least one
     backup_step: PositiveFloat = 0.002
+    # longest step of the backup's rollout, s: a step where no torque limit binds and no
+    # joint can reach the band near its position bound where the backup steers it doubles
+    # from backup_step up to this (rounded to whole control steps; at most backup_step: no
+    # step grows)
+    backup_step_max: PositiveFloat = 0.016
     # longest the backup may take to stop every joint, s
     backup_horizon: PositiveFloat = 1.0
     # boxes over which the payload's worst case is taken, at their corners, covering the
@@ -218,6 +223,8 @@ class CbfFilter(Block):
         self.publishes = {FILTER_ASSUMES: FilterAssumptions(
             self.position, self.velocity, limit, np.zeros(context.links), keeps)}
         self.backup_step = rollout_step(params.backup_step, context.dt)
+        self.backup_step_max = max(self.backup_step,
+                                   rollout_step(params.backup_step_max, context.dt))
         # a rollout step where a torque limit binds is one control step (check.verified)
         self.segments = int(np.ceil(params.backup_horizon / context.dt)) + 2
         if params.solver == "newton":
@@ -299,7 +306,8 @@ class CbfFilter(Block):
             verify=p.backup == "verified",
             tracking_authority=p.tracking_torque == "controller" and any(
                 getattr(p, name) for name in ("soft", "soft_norms")),
-            backup_step=self.backup_step, payload_low=payload_low, payload_high=payload_high,
+            backup_step=self.backup_step, backup_step_max=self.backup_step_max,
+            payload_low=payload_low, payload_high=payload_high,
             inertia_is_plant=bool(const["inertia_is_plant"]),
             model=own_scratch(model),
             tau_d=per_joint_array(tau_d, n),

@@ -65,7 +65,7 @@ import numpy as np
 
 from ...numba_compat import no_refcount_jit
 from ..linalg import invert, product
-from .backup import nominal_acceleration
+from .backup import HOLD, nominal_acceleration
 from .deviation import deviation_bound, fixed_deviation
 from .model import nominal_model, robust_model
 from .scratch import Flag, Matrix, Rollout, Tube, Vector
@@ -77,6 +77,8 @@ STOPPED = 0.05  # rad/s: a joint within this of its backup's target velocity has
 # velocity's interval, D alone let joint 1 pass its bound by 0.015 rad
 # (tests/test_viability.py), 1.5 D keeps it inside. An empirical factor, stated as such.
 TUBE_SAFETY = 1.5
+# rad/s: a velocity set's centre this small is a 0 (filtered) to the rollout's steps
+TINY_CENTRE = 1e-6
 
 
 @no_refcount_jit(cache=True)
@@ -179,6 +181,28 @@ def held_travel(a, h, s):
 
 
 @no_refcount_jit(cache=True, inline="always")
+def held_position(a, h, s):
+    """The position a step of h moves by after s beyond s times its start's velocity, per
+    unit of its first hold's q̈: ½ s² where the step is one hold (its q̈ constant), else
+    the holds' own sum, their q̈ falling by (1 − c) at each (:func:`held_average`). The
+    holds' average q̈ held over the step put the position ahead of theirs in the direction
+    of motion, by c dt² |q̈_0| m (m² − 1)/12 to first order: 2e-3 rad from 13 rad/s over a
+    step of 16 holds at 50 1/s."""
+    c = min(a.backup_rate * a.dt, 1.0)
+    if h <= a.dt * (1.0 + 1e-9) or c <= 0.0:
+        return 0.5 * s * s
+    holds = int(np.floor(s / a.dt + 1e-9))
+    position = travel = 0.0  # per unit of q̈_0: so far, and the velocity gained so far
+    share = 1.0  # (1 − c)^j: hold j's q̈ per unit of the first's
+    for _ in range(holds):
+        position += a.dt * travel + 0.5 * a.dt * a.dt * share
+        travel += a.dt * share
+        share *= 1.0 - c
+    rest = s - holds * a.dt
+    return position + rest * travel + 0.5 * rest * rest * share
+
+
+@no_refcount_jit(cache=True, inline="always")
 def plan_box(k, a):
     """The box the plan in force (the rollout of the last torque verified, at step k0) puts
     the true state in at row k + 1, into Rollout.BOX_Q … Rollout.BOX_V_HALF: its tube
@@ -204,7 +228,7 @@ def plan_box(k, a):
             segment = tube[j]
             for i in range(n):
                 r[Rollout.BOX_Q, i] = (segment[Tube.Q, i] + s * segment[Tube.V, i]
-                                       + 0.5 * s * s * segment[Tube.ACC, i])
+                                       + held_position(a, h, s) * segment[Tube.ACC_FIRST, i])
                 r[Rollout.BOX_Q_HALF, i] = (segment[Tube.DQ, i] + s * segment[Tube.DV, i]
                                             + 0.5 * s * s * segment[Tube.WIDEN, i])
                 r[Rollout.BOX_V, i] = segment[Tube.V, i] \
@@ -229,21 +253,23 @@ def _advance(a, segment, h, eps, backup, stopped, limit, decay, contraction):
     acc, widen = r[Rollout.ACC], r[Rollout.WIDEN]
     limit_q, limit_v = r[Rollout.LIMIT_Q], r[Rollout.LIMIT_V]
     n = q.shape[0]
+    travel = held_position(a, h, h)  # the nominal's, per unit of its first hold's q̈
     for i in range(n):
         # the backup's feedback acts on a joint whose torque is free (the held torque:
         # on none): a limited joint brakes as hard as it can, the others still steer
         free = backup and abs(r[Rollout.TAU, i]) < limit[i] * (1.0 - 1e-9)
         feedback = contraction if free else 0.0
-        segment[Tube.Q, i], segment[Tube.V, i], segment[Tube.ACC, i] = q[i], vel[i], acc[i]
+        segment[Tube.Q, i], segment[Tube.V, i] = q[i], vel[i]
         segment[Tube.ACC_FIRST, i] = r[Rollout.HOLD_ACC, i]
         segment[Tube.DQ, i], segment[Tube.DV, i] = dq[i], dv[i]
         segment[Tube.WIDEN, i], segment[Tube.FEEDBACK, i] = widen[i], feedback
-        # exact for q̈ constant over the step (the position's error would be ~v·h/2),
-        # with its turning point inside the step checked too
+        # exact for q̈ constant over the step (the position's error would be ~v·h/2), and
+        # for a free backup's over several holds (held_position), with its turning point
+        # inside the step checked too (the holds' average q̈ taken for it)
         turn = q[i]
         if vel[i] * acc[i] < 0.0 and abs(vel[i]) < abs(acc[i]) * h:
             turn = q[i] - 0.5 * vel[i] * vel[i] / acc[i]
-        q[i] += h * vel[i] + 0.5 * h * h * acc[i]
+        q[i] += h * vel[i] + travel * r[Rollout.HOLD_ACC, i]
         vel[i] += h * acc[i]
         dq[i] += h * dv[i] + 0.5 * h * h * widen[i]
         # the feedback acts on the estimate e within ε of the true velocity: the true
@@ -259,6 +285,50 @@ def _advance(a, segment, h, eps, backup, stopped, limit, decay, contraction):
             return -1
         stopped = stopped and abs(vel[i] - a.centres[1, i] - r[Rollout.TARGET, i]) <= STOPPED
     return 1 if stopped else 0
+
+
+@no_refcount_jit(cache=True, inline="always")
+def _may_grow(a, h):
+    """Whether a free backup's step may take h (longer than ``backup_step``): its target
+    stays w = 0 over it for every joint, as the rollout holds it. No joint is steered
+    (Rollout.TARGET 0), and none can reach the band within HOLD of its position bound
+    where the backup steers it, at its speed, which only falls over a free step (towards
+    q̇_s, on the same side of 0: else the velocity crosses 0 and the position turns, by
+    up to |q̇_s| h, left to the room ``bound_margin`` leaves between the check's points
+    only where |q̇_s| ≤ TINY_CENTRE, a filtered 0). Then every joint's velocity and q̈
+    fall by the same factor at each hold, and its position moves one way."""
+    r = a.work.rollout
+    if a.backup_rate * a.dt >= 1.0:
+        return False
+    for i in range(r.shape[1]):
+        speed, centre = r[Rollout.V, i], a.centres[1, i]
+        if r[Rollout.TARGET, i] != 0.0 or (speed * centre < 0.0 and abs(centre) > TINY_CENTRE):
+            return False
+        reach = abs(r[Rollout.Q, i] - a.centres[0, i]) + a.noise_bound \
+            + (abs(speed - centre) + abs(centre)) * h
+        if a.hard[0] and reach > a.viable_bounds[0, i] - HOLD:
+            return False
+    return True
+
+
+@no_refcount_jit(cache=True, inline="always")
+def _grown_deviation(a, h, eps, widen):
+    """Over a step longer than ``backup_step`` (:func:`_may_grow`), D at its end too: the
+    tube's widening the larger of 1.5 D at the step's start and at its end, the nominal
+    velocity and q̈ there (Rollout.HELD_V, Rollout.HELD_ACC) at the start's configuration.
+    Along the step every joint's velocity departs from q̇_s by the same falling factor: the
+    bias error's part linear in it is largest at an end; the friction's and the payload's
+    need not be (docs/safety/filter.md, "Steps that grow")."""
+    r = a.work.rollout
+    vel, acc, first = r[Rollout.V], r[Rollout.ACC], r[Rollout.HOLD_ACC]
+    end_v, end_acc, deviation = r[Rollout.HELD_V], r[Rollout.HELD_ACC], r[Rollout.DEV]
+    remains = (1.0 - min(a.backup_rate * a.dt, 1.0)) ** max(1, round(h / a.dt))
+    for i in range(vel.shape[0]):
+        end_v[i] = vel[i] + h * acc[i]
+        end_acc[i] = first[i] * remains
+    deviation_bound(a, end_v, eps, end_acc, deviation)
+    for i in range(vel.shape[0]):
+        widen[i] = max(widen[i], TUBE_SAFETY * deviation[i])
 
 
 @no_refcount_jit(cache=True)
@@ -291,6 +361,7 @@ def verified(k, a, y, v, eps, first, hold, policy, limit):
     # steps is a torque the filter holds over the whole step, as the candidate's always is:
     # q̈'s drift over it is taken
     held = a.backup_step <= a.dt
+    stride = a.backup_step  # the next free step's length: doubles while it may (_may_grow)
     while t < a.backup_horizon and step < lengths.shape[0]:
         backup = not (hold and step == 0)
         clipped = nominal_acceleration(k, a, first, backup, policy, limit)
@@ -298,6 +369,9 @@ def verified(k, a, y, v, eps, first, hold, policy, limit):
         # taken: under a limit the backup's q̈ is no longer its linear feedback's, and moves
         # with the state's bias as a held torque's does
         h = a.backup_step if backup and not clipped else a.dt
+        if h > a.dt and stride > h and _may_grow(a, stride):
+            h = stride
+        stride = min(2.0 * h, a.backup_step_max) if h > a.dt else a.backup_step
         # the bias error's velocity error is the estimate's, ε: the backup acts on the
         # state as measured, whatever the tube (the true state's spread about the rollout)
         deviation_bound(a, vel, eps, acc, deviation)
@@ -310,6 +384,8 @@ def verified(k, a, y, v, eps, first, hold, policy, limit):
                 r[Rollout.HOLD_ACC, i] = acc[i]
         else:  # a step of several holds, the backup re-evaluated at each
             held_average(a, h, contraction)
+            if h > a.backup_step * (1.0 + 1e-9):
+                _grown_deviation(a, h, eps, widen)
         decay = np.exp(-a.recovery_rate * (t + h))
         state = _advance(a, tube[step], h, eps, backup, backup and not clipped, limit, decay,
                          contraction)

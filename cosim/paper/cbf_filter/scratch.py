@@ -169,7 +169,6 @@ class Tube(Rows):
     DQ = auto()  # the tube's half-widths there
     DV = auto()
     ACC_FIRST = auto()  # its nominal q̈ over its first hold
-    ACC = auto()  # … and on average over its holds
     WIDEN = auto()  # the tube's widening (TUBE_SAFETY D)
     FEEDBACK = auto()  # the share of δv the backup's feedback removes over it
 
@@ -336,6 +335,7 @@ class CbfArgs(NamedTuple):
     recovery_speed: parameter()  # rad/s
     recovery_rate: parameter()  # 1/s
     backup_step: float  # s
+    backup_step_max: float  # s, at least backup_step
     backup_horizon: parameter()  # s
     payload_grid: parameter()
     iterations: parameter()
