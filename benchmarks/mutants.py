@@ -118,10 +118,10 @@ MUTANTS = [
      "dv[i] = max(dv[i] * (1.0 - feedback) + feedback * eps[i] + widen[i] * h, eps[i])",
      "dv[i] = max(dv[i] * (1.0 - feedback) + widen[i] * h, eps[i])", VIABILITY),
     # the tube's contraction first order, k_b h, not the holds' 1 − (1 − k_b dt)^(h/dt)
-    ("cbf-tube-contraction-first-order", "cosim/paper/cbf_filter/check.py",
+    ("cbf-tube-contraction-first-order", "cosim/paper/cbf_filter/holds.py",
      "    return 1.0 - (1.0 - held) ** holds\n", "    return min(rate * h, 1.0)\n", VIABILITY),
     # D taken once, not 1.5 times (the tube's empirical factor, docs/safety/filter.md)
-    ("cbf-tube-factor-one", "cosim/paper/cbf_filter/check.py",
+    ("cbf-tube-factor-one", "cosim/paper/cbf_filter/holds.py",
      "TUBE_SAFETY = 1.5", "TUBE_SAFETY = 1.0", VIABILITY),
     ("cbf-tube-start-estimate", "cosim/paper/cbf_filter/check.py",
      "q[i], vel[i], dq[i], dv[i] = y[i], v[i], a.noise_bound, eps[i]",
@@ -133,7 +133,7 @@ MUTANTS = [
      "    _payload_deviation(a, q_dot, acceleration, deviation)\n", "", VIABILITY),
     # the held steps' tube without q̈'s drift over the hold (taken at each step's start)
     ("cbf-held-drift-dropped", "cosim/paper/cbf_filter/check.py",
-     "            _held_drift(k, a, r[Rollout.TAU], limit, eps, widen)\n", "            pass\n",
+     "            held_drift(k, a, r[Rollout.TAU], limit, eps, widen)\n", "            pass\n",
      ["tests/test_steps.py"]),
     # the candidate's held step at 1 ms without q̈'s drift over it (backup_step > dt)
     ("cbf-candidate-drift-dropped", "cosim/paper/cbf_filter/check.py",
@@ -148,7 +148,7 @@ MUTANTS = [
      "h = a.backup_step if backup and not clipped else a.dt",
      "h = a.backup_step if backup else a.dt", ["tests/test_rollout_holds.py"]),
     # the steps that grow: the holds' average q̈ held over a grown step, for the rollout's
-    # position and for the plan's box inside it; D at the step's start alone; the band
+    # position and for the plan's box inside it; D at a free step's start alone; the band
     # where the backup steers a joint in left out of what keeps a step from growing
     ("cbf-grown-position-average", "cosim/paper/cbf_filter/check.py",
      "q[i] += h * vel[i] + travel * r[Rollout.HOLD_ACC, i]",
@@ -156,12 +156,12 @@ MUTANTS = [
     ("cbf-grown-box-first-hold", "cosim/paper/cbf_filter/check.py",
      "+ held_position(a, h, s) * segment[Tube.ACC_FIRST, i])",
      "+ 0.5 * s * s * segment[Tube.ACC_FIRST, i])", GROWTH),
-    ("cbf-grown-end-deviation-dropped", "cosim/paper/cbf_filter/check.py",
-     "                _grown_deviation(a, h, eps, widen)\n", "                pass\n", GROWTH),
-    ("cbf-grown-band-guard", "cosim/paper/cbf_filter/check.py",
+    ("cbf-end-deviation-dropped", "cosim/paper/cbf_filter/check.py",
+     "            end_deviation(a, h, eps, widen)\n", "            pass\n", GROWTH),
+    ("cbf-grown-band-guard", "cosim/paper/cbf_filter/holds.py",
      "if a.hard[0] and reach > a.viable_bounds[0, i] - HOLD:", "if False:", GROWTH),
     # the plan's box inside a step of several holds at the first hold's q̈ throughout
-    ("cbf-held-travel-first-order", "cosim/paper/cbf_filter/check.py",
+    ("cbf-held-travel-first-order", "cosim/paper/cbf_filter/holds.py",
      "    remains = (1.0 - c) ** holds\n", "    remains = 1.0 - c * holds\n",
      ["tests/test_viability.py"]),
     # a free backup's step at its first hold's q̈ throughout (not the holds' average)

@@ -508,7 +508,7 @@ def test_the_backup_brakes_within_braking_torque_where_that_is_verified():
 
     The start: the first draw of the distribution (numpy's default_rng(23), the benchmark's
     project_point, joint speeds within 13 rad/s) where this holds with the check taking the
-    candidate step's drift (check._held_drift). It holds at 12 of the first 140 such draws.
+    candidate step's drift (holds.held_drift). It holds at 12 of the first 140 such draws.
     At the start the test used before, (−0.221, 0.240) rad, (9.673, 8.705) rad/s, the
     check keeps the state farther from its edge now, and after start-up the filter spends
     1639 N·m at most with nothing in reserve (1511 N·m within 1000 N·m)."""

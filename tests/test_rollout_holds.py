@@ -3,7 +3,7 @@
 The filter re-evaluates the backup at every control step dt and holds it; the check's
 rollout takes steps of ``backup_step`` (2 ms at 1 kHz). Where no torque limit binds, the
 rollout's q̈ over a step is the average of the holds' (``held_average``); where one binds,
-its step is one hold, with q̈'s drift over it taken (``_held_drift``). Before, a 2 ms step
+its step is one hold, with q̈'s drift over it taken (``held_drift``). Before, a 2 ms step
 took the first hold's q̈ throughout, so the rollout braked faster than the filter did: with
 a strong backup (``backup_rate`` = 200 1/s, as near_boundary_disturbance.toml sets it) the
 true velocity lagged the plan's by up to 0.24 rad/s past the tube's room, and covered runs

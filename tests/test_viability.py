@@ -329,12 +329,12 @@ def test_the_tubes_feedback_contracts_no_more_than_the_backup_held_at_the_contro
     velocity's departure u from the rollout's moves per hold as u ← (1 − c) u − c e + Δ dt,
     c = min(k_b dt, 1), |e| ≤ ε, |Δ| ≤ D. Over a rollout step of ``holds`` control steps,
     for every sign of e and Δ at every hold, |u| stays within the tube's
-    δv (1 − f) + f ε + D h (check.feedback_contraction), and after j of the holds within
+    δv (1 − f) + f ε + D h (holds.feedback_contraction), and after j of the holds within
     what plan_box says of the step's inside, f j/holds in place of f. The first-order
     f = k_b h claimed more: at 200 1/s and h = 2 ms, 0.4 where the holds give 0.36."""
     import itertools
 
-    from cosim.paper.cbf_filter.check import feedback_contraction
+    from cosim.paper.cbf_filter.holds import feedback_contraction
 
     dt, spread, deviation, start = 1e-3, 0.3, 40.0, 1.0  # s, rad/s, rad/s², rad/s
     h = holds * dt
@@ -393,7 +393,7 @@ def test_the_plans_box_inside_a_step_of_four_holds_is_where_the_held_arm_is(filt
     """At a 0.5 ms control step the rollout's 2 ms steps span four holds of the backup. The
     plan's box (check.plan_box) says where the true state is at every control step inside
     them: with the holds' own velocities, v + q̈_0 Σ_{k<j} (1 − c)^k dt at hold j
-    (check.held_travel), not a line from the first hold to the step's end (that was
+    (holds.held_travel), not a line from the first hold to the step's end (that was
     0.85 c dt |q̈_0| too fast at holds 2 and 3). On the paper's arm, the filter's model
     exactly, free throughout at 200 1/s: the box's velocity centre is the arm's braked apart
     (held 0.5 ms) at every row within 5e-4 rad/s, where the line was 3.5e-3 rad/s off at holds 2

@@ -183,7 +183,7 @@ def filter_signals() -> dict[str, Signal]:
 def rollout_step(backup_step: float, dt: float) -> float:
     """``backup_step`` (s) rounded to a whole number of control steps ``dt``, at least one:
     the check's rollout steps a whole number of the holds it models (the backup is applied
-    and held at the control step; check.feedback_contraction counts them)."""
+    and held at the control step; holds.feedback_contraction counts them)."""
     holds = max(1, round(backup_step / dt))
     return backup_step if abs(backup_step - holds * dt) <= 1e-9 * dt else holds * dt
 

@@ -11,8 +11,8 @@ import numpy as np
 
 from ...numba_compat import no_refcount_jit
 from .backup import nominal_acceleration
-from .check import TUBE_SAFETY, held_end
 from .deviation import deviation_bound, fixed_deviation
+from .holds import TUBE_SAFETY, held_end
 from .scratch import Flag, Rollout
 
 

@@ -137,7 +137,7 @@ class Rollout(Rows):
     HELD_Q = auto()
     HELD_V = auto()
     HELD_ACC = auto()
-    HOLD_ACC = auto()  # the rollout's q̈ over its step's first hold (.check.held_average)
+    HOLD_ACC = auto()  # the rollout's q̈ over its step's first hold (.holds.held_average)
 
 
 class Flag(Rows):

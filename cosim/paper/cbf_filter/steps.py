@@ -7,7 +7,7 @@ Two things set the range (docs/safety/filter.md, "The steps it supports"):
 - **The braking backup's hold.** Following its plan the filter applies the backup computed
   at each sample and held over the step h, and the check models the velocity's error under
   it as decaying by 1 − k_b h per hold (k_b = ``backup_rate``;
-  check.feedback_contraction). The held feedback v⁺ − w = (1 − k_b h)(v − w) overshoots
+  holds.feedback_contraction). The held feedback v⁺ − w = (1 − k_b h)(v − w) overshoots
   its target for k_b h > 1 (deadbeat at 1): refused from k_b h ≥ 1. The check's rollout
   steps a whole number of holds (``backup_step`` rounded to a multiple of h, at least h).
 - **The observer's certified bound ε(t)** (an output-feedback filter reads it). Each step
