@@ -156,6 +156,14 @@ MUTANTS = [
     ("cbf-grown-box-first-hold", "cosim/paper/cbf_filter/check.py",
      "+ held_position(a, h, s) * segment[Tube.ACC_FIRST, i])",
      "+ 0.5 * s * s * segment[Tube.ACC_FIRST, i])", GROWTH),
+    # a free step's tube over several holds: the within-hold growth of the position's
+    # departure left out; the velocity's gathered D counted without the holds' contraction
+    ("cbf-free-growth-within-hold", "cosim/paper/cbf_filter/holds.py",
+     "from_widen = a.dt * a.dt * ((1.0 - 0.5 * c) * within / c + 0.5 * holds)",
+     "from_widen = a.dt * a.dt * ((1.0 - 0.5 * c) * within / c)", RULES),
+    ("cbf-free-growth-eps-dropped", "cosim/paper/cbf_filter/holds.py",
+     "from_eps = a.dt * ((1.0 - 0.5 * c) * within + 0.5 * c * holds)",
+     "from_eps = a.dt * (1.0 - 0.5 * c) * within", RULES),
     ("cbf-end-deviation-dropped", "cosim/paper/cbf_filter/check.py",
      "            end_deviation(a, h, eps, widen)\n", "            pass\n", GROWTH),
     ("cbf-grown-band-guard", "cosim/paper/cbf_filter/holds.py",

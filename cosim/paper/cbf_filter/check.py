@@ -74,6 +74,7 @@ from .holds import (
     TUBE_SAFETY,
     end_deviation,
     feedback_contraction,
+    free_growth,
     held_average,
     held_drift,
     held_position,
@@ -139,6 +140,8 @@ def _advance(a, segment, h, eps, backup, stopped, limit, decay, contraction):
     limit_q, limit_v = r[Rollout.LIMIT_Q], r[Rollout.LIMIT_V]
     n = q.shape[0]
     travel = held_position(a, h, h)  # the nominal's, per unit of its first hold's q̈
+    several = h > a.dt * (1.0 + 1e-9)
+    from_start, from_eps, from_widen, gathered = free_growth(a, h, contraction)
     for i in range(n):
         # the backup's feedback acts on a joint whose torque is free (the held torque:
         # on none): a limited joint brakes as hard as it can, the others still steer
@@ -156,11 +159,17 @@ def _advance(a, segment, h, eps, backup, stopped, limit, decay, contraction):
             turn = q[i] - 0.5 * vel[i] * vel[i] / acc[i]
         q[i] += h * vel[i] + travel * r[Rollout.HOLD_ACC, i]
         vel[i] += h * acc[i]
-        dq[i] += h * dv[i] + 0.5 * h * h * widen[i]
         # the feedback acts on the estimate e within ε of the true velocity: the true
         # velocity's departure u from the rollout's obeys u̇ = −k_b (u + e) + Δ, |Δ| ≤ D,
-        # so |u| grows by at most f ε + D h a step as the feedback f contracts it
-        dv[i] = max(dv[i] * (1.0 - feedback) + feedback * eps[i] + widen[i] * h, eps[i])
+        # so |u| grows by at most f ε + D h a step as the feedback f contracts it; over a
+        # free step of several holds, hold by hold (holds.free_growth)
+        if free and several:
+            dq[i] += from_start * dv[i] + from_eps * eps[i] + from_widen * widen[i]
+            dv[i] = max(dv[i] * (1.0 - feedback) + feedback * eps[i] + widen[i] * gathered,
+                        eps[i])
+        else:
+            dq[i] += h * dv[i] + 0.5 * h * h * widen[i]
+            dv[i] = max(dv[i] * (1.0 - feedback) + feedback * eps[i] + widen[i] * h, eps[i])
         allowed_q = a.viable_bounds[0, i] + (limit_q[i] - a.viable_bounds[0, i]) * decay
         allowed_v = a.viable_bounds[1, i] + (limit_v[i] - a.viable_bounds[1, i]) * decay
         if a.hard[0] and max(abs(q[i] - a.centres[0, i]), abs(turn - a.centres[0, i])) + dq[i] \
