@@ -90,9 +90,9 @@ def deviation_along_steps(a, samples: int, seed: int,
     """On ``samples`` states drawn within 0.8 of each position bound and 0.6 of each velocity
     bound (ε one of 0, 0.02, 0.1, 0.5 rad/s), of every verified rollout's free steps of
     several holds, longer than ``backup_step`` (``grown``) or of it: (the steps; the
-    largest ratio of D at a hold inside a step, its nominal velocity and q̈ there at the
-    step's configuration, to the D the step's widening took, WIDEN / TUBE_SAFETY; and the
-    largest to D at the step's start alone)."""
+    largest ratio of D inside a step, each hold's q̈ at the nominal velocity at its start
+    and at its end, the step's configuration, to the D the step's widening took,
+    WIDEN / TUBE_SAFETY; and the largest to D at the step's start alone)."""
     n = a.viable_bounds.shape[1]
     rng = np.random.default_rng(seed)
     c = min(a.backup_rate * a.dt, 1.0)
@@ -112,14 +112,17 @@ def deviation_along_steps(a, samples: int, seed: int,
             # the model at the step's start, as the check took it there
             nominal_acceleration(0, a, np.zeros(n), True, 0, a.torque_limit)
             covered = {"widening": np.maximum(segment[Tube.WIDEN] / TUBE_SAFETY, 1e-300)}
-            for j in range(int(round(h / a.dt)) + 1):
-                velocity = segment[Tube.V] + segment[Tube.ACC_FIRST] * held_travel(a, h, j * a.dt)
-                deviation_bound(a, velocity, np.full(n, eps),
-                                segment[Tube.ACC_FIRST] * (1.0 - c) ** j, deviation)
-                if j == 0:
-                    covered["start"] = np.maximum(deviation.copy(), 1e-300)
-                for name, taken in covered.items():
-                    worst[name] = max(worst[name], float(np.max(deviation / taken)))
+            # hold j's q̈ at its start's velocity and at its end's (the states inside it)
+            for j in range(int(round(h / a.dt))):
+                for at in (j, j + 1):
+                    velocity = segment[Tube.V] \
+                        + segment[Tube.ACC_FIRST] * held_travel(a, h, at * a.dt)
+                    deviation_bound(a, velocity, np.full(n, eps),
+                                    segment[Tube.ACC_FIRST] * (1.0 - c) ** j, deviation)
+                    if at == 0:
+                        covered["start"] = np.maximum(deviation.copy(), 1e-300)
+                    for name, taken in covered.items():
+                        worst[name] = max(worst[name], float(np.max(deviation / taken)))
     return steps, worst["widening"], worst["start"]
 
 

@@ -156,16 +156,14 @@ MUTANTS = [
     ("cbf-grown-box-first-hold", "cosim/paper/cbf_filter/check.py",
      "+ held_position(a, h, s) * segment[Tube.ACC_FIRST, i])",
      "+ 0.5 * s * s * segment[Tube.ACC_FIRST, i])", GROWTH),
-    # a free step's tube over several holds: the within-hold growth of the position's
-    # departure left out; the velocity's gathered D counted without the holds' contraction
-    ("cbf-free-growth-within-hold", "cosim/paper/cbf_filter/holds.py",
-     "from_widen = a.dt * a.dt * ((1.0 - 0.5 * c) * within / c + 0.5 * holds)",
-     "from_widen = a.dt * a.dt * ((1.0 - 0.5 * c) * within / c)", RULES),
-    ("cbf-free-growth-eps-dropped", "cosim/paper/cbf_filter/holds.py",
-     "from_eps = a.dt * ((1.0 - 0.5 * c) * within + 0.5 * c * holds)",
-     "from_eps = a.dt * (1.0 - 0.5 * c) * within", RULES),
+    # a free step's tube over several holds: the position's departure contracted by the
+    # step's whole feedback from its start; the grown step's torque not looked at its end
+    ("cbf-free-share-whole", "cosim/paper/cbf_filter/check.py",
+     "contracted = held_share(a, h)[1]", "contracted = h * (1.0 - contraction)", RULES),
+    ("cbf-grown-end-torque", "cosim/paper/cbf_filter/check.py",
+     "may_grow(a, stride) and free_at_end(a, stride, limit)", "may_grow(a, stride)", GROWTH),
     ("cbf-end-deviation-dropped", "cosim/paper/cbf_filter/check.py",
-     "            end_deviation(a, h, eps, widen)\n", "            pass\n", GROWTH),
+     "            later_deviation(a, h, eps, widen)\n", "            pass\n", GROWTH),
     ("cbf-grown-band-guard", "cosim/paper/cbf_filter/holds.py",
      "if a.hard[0] and reach > a.viable_bounds[0, i] - HOLD:", "if False:", GROWTH),
     # the plan's box inside a step of several holds at the first hold's q̈ throughout
@@ -263,7 +261,7 @@ MUTANTS = [
      "dq[i] += h * dv[i] + 0.5 * h * h * widen[i]",
      "dq[i] += h * dv[i] + 0.5 * a.dt * a.dt * widen[i]", RULES),
     ("cbf-plan-box-share-whole", "cosim/paper/cbf_filter/check.py",
-     "share = segment[Tube.FEEDBACK, i] * s / h", "share = segment[Tube.FEEDBACK, i]", RULES),
+     "remains, contracted = held_share(a, s)", "remains, contracted = held_share(a, h)", RULES),
     ("guarantee-every-hard-set", "cosim/paper/guarantee.py",
      "if c.declared.family in assumes.keeps or c.declared.family not in KEPT_SETS}",
      "if c.declared.family}", ["tests/test_guarantee.py"]),

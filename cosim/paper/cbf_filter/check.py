@@ -37,7 +37,7 @@ middle of the hull of q̈ ± 1.5 D at the step's start and at its predicted end,
 backup is re-evaluated at each: its feedback on the departure is what f models, the
 fall of its own q̈ is the holds' average (:func:`.holds.held_average`), its position the holds'
 own (:func:`.holds.held_position`), and D the larger at the step's two ends
-(:func:`.holds.end_deviation`). Without
+(:func:`.holds.later_deviation`). Without
 the candidate's drift at 1 ms, 22 of 73 covered full-state runs on the project's
 distribution left the tube at start-up braking (docs/safety/measurements.md, "The tube
 premise"). D_i is the
@@ -72,13 +72,14 @@ from .backup import nominal_acceleration
 from .deviation import deviation_bound, fixed_deviation
 from .holds import (
     TUBE_SAFETY,
-    end_deviation,
     feedback_contraction,
-    free_growth,
+    free_at_end,
     held_average,
     held_drift,
     held_position,
+    held_share,
     held_travel,
+    later_deviation,
     may_grow,
 )
 from .model import nominal_model, robust_model
@@ -115,14 +116,23 @@ def plan_box(k, a):
             for i in range(n):
                 r[Rollout.BOX_Q, i] = (segment[Tube.Q, i] + s * segment[Tube.V, i]
                                        + held_position(a, h, s) * segment[Tube.ACC_FIRST, i])
-                r[Rollout.BOX_Q_HALF, i] = (segment[Tube.DQ, i] + s * segment[Tube.DV, i]
-                                            + 0.5 * s * s * segment[Tube.WIDEN, i])
                 r[Rollout.BOX_V, i] = segment[Tube.V, i] \
                     + segment[Tube.ACC_FIRST, i] * held_travel(a, h, s)
+                spread, widen = segment[Tube.DV, i], segment[Tube.WIDEN, i]
+                if segment[Tube.FEEDBACK, i] > 0.0 and h > a.dt * (1.0 + 1e-9):
+                    # a free joint over several holds, contracted hold by hold as the check
+                    # grew its tube (holds.held_share)
+                    remains, contracted = held_share(a, s)
+                    r[Rollout.BOX_Q_HALF, i] = (segment[Tube.DQ, i] + eps[i] * s
+                                                + (spread - eps[i]) * contracted
+                                                + 0.5 * s * s * widen)
+                    r[Rollout.BOX_V_HALF, i] = max(eps[i] + remains * (spread - eps[i])
+                                                   + widen * s, eps[i])
+                    continue
+                r[Rollout.BOX_Q_HALF, i] = segment[Tube.DQ, i] + s * spread + 0.5 * s * s * widen
                 share = segment[Tube.FEEDBACK, i] * s / h
-                r[Rollout.BOX_V_HALF, i] = max(segment[Tube.DV, i] * (1.0 - share)
-                                               + share * eps[i] + segment[Tube.WIDEN, i] * s,
-                                               eps[i])
+                r[Rollout.BOX_V_HALF, i] = max(spread * (1.0 - share) + share * eps[i]
+                                               + widen * s, eps[i])
             return
         start += h
 
@@ -141,7 +151,7 @@ def _advance(a, segment, h, eps, backup, stopped, limit, decay, contraction):
     n = q.shape[0]
     travel = held_position(a, h, h)  # the nominal's, per unit of its first hold's q̈
     several = h > a.dt * (1.0 + 1e-9)
-    from_start, from_eps, from_widen, gathered = free_growth(a, h, contraction)
+    contracted = held_share(a, h)[1]  # ∫ of a free joint's remaining share over the step
     for i in range(n):
         # the backup's feedback acts on a joint whose torque is free (the held torque:
         # on none): a limited joint brakes as hard as it can, the others still steer
@@ -159,17 +169,16 @@ def _advance(a, segment, h, eps, backup, stopped, limit, decay, contraction):
             turn = q[i] - 0.5 * vel[i] * vel[i] / acc[i]
         q[i] += h * vel[i] + travel * r[Rollout.HOLD_ACC, i]
         vel[i] += h * acc[i]
-        # the feedback acts on the estimate e within ε of the true velocity: the true
-        # velocity's departure u from the rollout's obeys u̇ = −k_b (u + e) + Δ, |Δ| ≤ D,
-        # so |u| grows by at most f ε + D h a step as the feedback f contracts it; over a
-        # free step of several holds, hold by hold (holds.free_growth)
+        # over a free step of several holds the feedback contracts the velocity's
+        # departure hold by hold as the position's grows (holds.held_share)
         if free and several:
-            dq[i] += from_start * dv[i] + from_eps * eps[i] + from_widen * widen[i]
-            dv[i] = max(dv[i] * (1.0 - feedback) + feedback * eps[i] + widen[i] * gathered,
-                        eps[i])
+            dq[i] += eps[i] * h + (dv[i] - eps[i]) * contracted + 0.5 * h * h * widen[i]
         else:
             dq[i] += h * dv[i] + 0.5 * h * h * widen[i]
-            dv[i] = max(dv[i] * (1.0 - feedback) + feedback * eps[i] + widen[i] * h, eps[i])
+        # the feedback acts on the estimate e within ε of the true velocity: the true
+        # velocity's departure u from the rollout's obeys u̇ = −k_b (u + e) + Δ, |Δ| ≤ D,
+        # so |u| grows by at most f ε + D h a step as the feedback f contracts it
+        dv[i] = max(dv[i] * (1.0 - feedback) + feedback * eps[i] + widen[i] * h, eps[i])
         allowed_q = a.viable_bounds[0, i] + (limit_q[i] - a.viable_bounds[0, i]) * decay
         allowed_v = a.viable_bounds[1, i] + (limit_v[i] - a.viable_bounds[1, i]) * decay
         if a.hard[0] and max(abs(q[i] - a.centres[0, i]), abs(turn - a.centres[0, i])) + dq[i] \
@@ -219,7 +228,7 @@ def verified(k, a, y, v, eps, first, hold, policy, limit):
         # taken: under a limit the backup's q̈ is no longer its linear feedback's, and moves
         # with the state's bias as a held torque's does
         h = a.backup_step if backup and not clipped else a.dt
-        if h > a.dt and stride > h and may_grow(a, stride):
+        if h > a.dt and stride > h and may_grow(a, stride) and free_at_end(a, stride, limit):
             h = stride
         stride = min(2.0 * h, a.backup_step_max) if h > a.dt else a.backup_step
         # the bias error's velocity error is the estimate's, ε: the backup acts on the
@@ -234,7 +243,7 @@ def verified(k, a, y, v, eps, first, hold, policy, limit):
                 r[Rollout.HOLD_ACC, i] = acc[i]
         else:  # a step of several holds, the backup re-evaluated at each
             held_average(a, h, contraction)
-            end_deviation(a, h, eps, widen)
+            later_deviation(a, h, eps, widen)
         decay = np.exp(-a.recovery_rate * (t + h))
         state = _advance(a, tube[step], h, eps, backup, backup and not clipped, limit, decay,
                          contraction)

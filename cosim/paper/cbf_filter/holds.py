@@ -5,7 +5,7 @@ binds) is one hold whose q̈ drifts as the state moves (:func:`held_drift`). A f
 backup's q̈ falls by (1 − c) at each hold, c = min(k_b dt, 1): its average over the step
 (:func:`held_average`), its position the holds' own (:func:`held_position`), its velocity
 inside the step (:func:`held_travel`), the feedback's share of the tube it removes
-(:func:`feedback_contraction`) and D at the step's end (:func:`end_deviation`). Where no
+(:func:`feedback_contraction`) and D later in the step (:func:`later_deviation`). Where no
 joint's target moves, its steps grow (:func:`may_grow`). docs/safety/filter.md, "The
 check" and "Steps that grow"."""
 
@@ -13,10 +13,11 @@ from __future__ import annotations
 
 import numpy as np
 
+from ...dynamics.model import model_bias, model_friction
 from ...numba_compat import no_refcount_jit
-from .backup import HOLD, nominal_acceleration
+from .backup import HOLD, nominal_acceleration, rollout_payload
 from .deviation import deviation_bound
-from .scratch import Rollout
+from .scratch import Matrix, Rollout
 
 # The tube's D is taken this many times: its linear model of the backup's feedback (each
 # free joint pulled to its target at k_b, the torque recomputed from the true state) is first
@@ -46,25 +47,26 @@ def feedback_contraction(rate, h, dt):
 
 
 @no_refcount_jit(cache=True, inline="always")
-def free_growth(a, h, contraction):
-    """A free joint's tube over a step of m = h/dt holds, the backup's feedback removing the
-    share c = min(k_b dt, 1) of the velocity's departure u at each: u_{j+1} = (1 − c) u_j
-    − c e_j + ∫Δ, |e| ≤ ε, |Δ| ≤ W (1.5 D), so |u_j| ≤ U_j = (1 − c)^j δv + (1 − (1 − c)^j) ε
-    + W dt S_j, S_j = Σ_{k<j} (1 − c)^k, and inside hold j (the feedback held)
-    |u| ≤ (1 − cτ/dt) U_j + (cτ/dt) ε + W τ. Returns the position's growth over the step,
-    Σ_j ∫|u| = dt Σ_j ((1 − c/2) U_j + (c/2) ε) + ½ W dt² m, per unit of δv, ε and W, and
-    the W gathered into the velocity's, dt S_m = dt f/c (``contraction`` f = 1 − (1 − c)^m).
-    Against δq + δv h + ½ W h² and δv (1 − f) + f ε + W h, which leave out the contraction
-    within the step: at m = 16 (16 ms at 50 1/s) 0.68 h δv and 0.79 ½ W h² of position,
-    0.70 W h of velocity."""
+def held_share(a, s):
+    """A free joint's departure over a step of several holds, the backup's feedback removing
+    the share c = min(k_b dt, 1) of the velocity's departure u at each hold: with
+    u_{j+1} = (1 − c) u_j − c e_j + ∫Δ, |e| ≤ ε, |Δ| ≤ W, and inside hold j (the feedback
+    held) u(τ) = u_j − (cτ/dt)(u_j + e_j) + ∫_0^τ Δ, |u| ≤ ε + A (δv − ε) + W t after t,
+    A = (1 − c)^j (1 − cτ/dt) at t = j dt + τ. Returns (A, ∫_0^s A): what remains of
+    the excess δv − ε over ε after s, and its integral, which the position's departure
+    grows by (δq + ε s + (δv − ε) ∫A + ½ W s²). The step's δv h left the contraction
+    within the step out: 0.68 h δv at 16 holds and 50 1/s. (W t leaves out that the
+    feedback contracts the D gathered too, 0.70 W h at the end of such a step: the plan's
+    box, which the run measures the true state against, takes W t as the tube does.)"""
     c = min(a.backup_rate * a.dt, 1.0)
-    holds = max(1, round(h / a.dt))
-    total = contraction / c  # S_m
-    within = holds - total  # Σ_j S_j c
-    from_start = a.dt * (1.0 - 0.5 * c) * total
-    from_eps = a.dt * ((1.0 - 0.5 * c) * within + 0.5 * c * holds)
-    from_widen = a.dt * a.dt * ((1.0 - 0.5 * c) * within / c + 0.5 * holds)
-    return from_start, from_eps, from_widen, a.dt * total
+    holds = int(np.floor(s / a.dt + 1e-9))
+    remains, integral = 1.0, 0.0
+    for _ in range(holds):
+        integral += a.dt * remains * (1.0 - 0.5 * c)
+        remains *= 1.0 - c
+    rest = s - holds * a.dt
+    integral += remains * rest * (1.0 - 0.5 * c * rest / a.dt)
+    return remains * (1.0 - c * rest / a.dt), integral
 
 
 @no_refcount_jit(cache=True)
@@ -196,21 +198,55 @@ def may_grow(a, h):
 
 
 @no_refcount_jit(cache=True, inline="always")
-def end_deviation(a, h, eps, widen):
-    """Over a free step of several holds, D at its end too: the tube's widening the larger
-    of 1.5 D at the step's start and at its end, the nominal velocity and q̈ there
-    (Rollout.HELD_V, Rollout.HELD_ACC) at the start's configuration. Along the step every
-    joint's velocity departs from q̇_s + w by the same falling factor: the bias error's part
-    linear in it is largest at an end; the friction's and the payload's need not be
-    (docs/safety/filter.md, "Steps that grow"). D at the start alone was up to 7.5 times
-    short at a 2 ms step's second hold (benchmarks/check_rollout.py --premise)."""
+def free_at_end(a, h, limit):
+    """Whether the backup's torque at a grown step's end, M̂ q̈ + b̂ at the nominal velocity
+    and q̈ there (the start's configuration, Rollout.HELD_V, Rollout.HELD_ACC, b̂ into
+    Rollout.HELD_Q), is within ``limit`` as at its start (:func:`may_grow`'s step is free
+    only if a limit binds at neither end; between them the torque moves with the falling q̈
+    and the bias, taken at its ends as D is). Call with the rollout's model at the step's
+    start (:func:`.backup.nominal_acceleration`); its geometry is left there."""
     r = a.work.rollout
-    vel, acc, first = r[Rollout.V], r[Rollout.ACC], r[Rollout.HOLD_ACC]
-    end_v, end_acc, deviation = r[Rollout.HELD_V], r[Rollout.HELD_ACC], r[Rollout.DEV]
+    vel, first = r[Rollout.V], r[Rollout.ACC]
+    end_v, end_acc, bias = r[Rollout.HELD_V], r[Rollout.HELD_ACC], r[Rollout.HELD_Q]
     remains = (1.0 - min(a.backup_rate * a.dt, 1.0)) ** max(1, round(h / a.dt))
+    travel = held_travel(a, h, h)
     for i in range(vel.shape[0]):
-        end_v[i] = vel[i] + h * acc[i]
+        end_v[i] = vel[i] + travel * first[i]
         end_acc[i] = first[i] * remains
-    deviation_bound(a, end_v, eps, end_acc, deviation)
+    mass = a.work.matrices[Matrix.ROLL_MASS]
+    centre = rollout_payload(a)
+    model_bias(a.model, end_v, 1.0, centre, 1.0, bias)
+    model_friction(a.model, end_v, bias)
     for i in range(vel.shape[0]):
-        widen[i] = max(widen[i], TUBE_SAFETY * deviation[i])
+        torque = bias[i] + a.tau_d[i]
+        for j in range(vel.shape[0]):
+            torque += mass[i, j] * end_acc[j]
+        if abs(torque) >= limit[i] * (1.0 - 1e-9):
+            return False
+    return True
+
+
+@no_refcount_jit(cache=True, inline="always")
+def later_deviation(a, h, eps, widen):
+    """Over a free step of several holds, D later in it too: the tube's widening the largest
+    of 1.5 D at the step's start, at the end of its first hold and at its end, each at the
+    nominal velocity there under the q̈ of the hold that reaches it (Rollout.HELD_V,
+    Rollout.HELD_ACC), the start's configuration. Along the step every joint's velocity
+    departs from q̇_s + w by the same falling factor: the bias error's part linear in it is
+    largest at an end; the friction's and the payload's need not be (docs/safety/filter.md,
+    "Steps that grow"): D at the start alone was up to 26 times short in a grown step and
+    4.3 times at a 2 ms step's end, at the ends alone 1.11 times
+    (benchmarks/check_rollout.py --premise)."""
+    r = a.work.rollout
+    vel, first = r[Rollout.V], r[Rollout.HOLD_ACC]
+    later_v, later_acc, deviation = r[Rollout.HELD_V], r[Rollout.HELD_ACC], r[Rollout.DEV]
+    c = min(a.backup_rate * a.dt, 1.0)
+    holds = max(1, round(h / a.dt))
+    for reached in (1, holds):  # the first hold's end, the step's end
+        travel = held_travel(a, h, reached * a.dt)
+        for i in range(vel.shape[0]):
+            later_v[i] = vel[i] + travel * first[i]
+            later_acc[i] = first[i] * (1.0 - c) ** (reached - 1)
+        deviation_bound(a, later_v, eps, later_acc, deviation)
+        for i in range(vel.shape[0]):
+            widen[i] = max(widen[i], TUBE_SAFETY * deviation[i])
