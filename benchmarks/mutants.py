@@ -159,7 +159,12 @@ MUTANTS = [
     # a free step's tube over several holds: the position's departure contracted by the
     # step's whole feedback from its start; the grown step's torque not looked at its end
     ("cbf-free-share-whole", "cosim/paper/cbf_filter/check.py",
-     "contracted = held_share(a, h)[1]", "contracted = h * (1.0 - contraction)", RULES),
+     "_, contracted, gathered, gathered_integral = held_share(a, h)",
+     "_, contracted, gathered, gathered_integral = held_share(a, h)\n"
+     "    contracted = h * (1.0 - contraction)", RULES),
+    ("cbf-free-gathered-within-hold", "cosim/paper/cbf_filter/holds.py",
+     "gathered_integral += a.dt * gathered * (1.0 - 0.5 * c) + 0.5 * a.dt * a.dt",
+     "gathered_integral += a.dt * gathered * (1.0 - 0.5 * c)", RULES),
     ("cbf-grown-end-torque", "cosim/paper/cbf_filter/check.py",
      "may_grow(a, stride) and free_at_end(a, stride, limit)", "may_grow(a, stride)", GROWTH),
     ("cbf-end-deviation-dropped", "cosim/paper/cbf_filter/check.py",
@@ -261,7 +266,8 @@ MUTANTS = [
      "dq[i] += h * dv[i] + 0.5 * h * h * widen[i]",
      "dq[i] += h * dv[i] + 0.5 * a.dt * a.dt * widen[i]", RULES),
     ("cbf-plan-box-share-whole", "cosim/paper/cbf_filter/check.py",
-     "remains, contracted = held_share(a, s)", "remains, contracted = held_share(a, h)", RULES),
+     "remains, contracted = held_share(a, s)[:2]", "remains, contracted = held_share(a, h)[:2]",
+     RULES),
     ("guarantee-every-hard-set", "cosim/paper/guarantee.py",
      "if c.declared.family in assumes.keeps or c.declared.family not in KEPT_SETS}",
      "if c.declared.family}", ["tests/test_guarantee.py"]),

@@ -82,11 +82,13 @@ def test_a_joint_moving_either_way_is_braked_to_its_target_and_stops(paper_args,
 
 def test_the_tubes_half_widths_grow_by_the_recurrence_the_check_states(uncertain_args):
     """A rollout of steps of 1 and 2 ms (and longer, grown) near the position bound with the
-    payload and an estimate within 0.5 rad/s: segment by segment, δv' = max(δv (1 − f) + f ε
-    + h·widen, ε), f the feedback's share; δq' = δq + h δv + ½h²·widen for a joint held or
-    at its limit, or over one hold, and for a free joint over m > 1 holds, each removing the
-    share c = k_b dt of its departure's excess over ε, hold by hold: δq' = δq + ε h
-    + (δv − ε) Σ_j dt (1 − c)^j (1 − c/2) + ½h²·widen; to rounding."""
+    payload and an estimate within 0.5 rad/s: segment by segment, a joint held or at its
+    limit, or over one hold, δq' = δq + h δv + ½h²·widen and δv' = max(δv (1 − f) + f ε
+    + h·widen, ε), f the feedback's share; a free joint over m > 1 holds, each removing the
+    share c = k_b dt of its departure u, hold by hold: with |u_j| ≤ U_j = (1 − c)^j δv
+    + (1 − (1 − c)^j) ε + widen dt Σ_{k<j} (1 − c)^k and inside hold j
+    (1 − cτ/dt) U_j + (cτ/dt) ε + widen τ, δq' = δq + Σ_j ∫ over hold j and
+    δv' = max(U_m, ε); to rounding."""
     a = uncertain_args
     bound = a.viable_bounds[0, 0]
     eps = 0.5
@@ -100,15 +102,18 @@ def test_the_tubes_half_widths_grow_by_the_recurrence_the_check_states(uncertain
         f = now[Tube.FEEDBACK]
         holds = int(round(h / a.dt))
         dq = now[Tube.DQ] + h * now[Tube.DV] + 0.5 * h * h * now[Tube.WIDEN]
+        dv = now[Tube.DV] * (1.0 - f) + f * eps + now[Tube.WIDEN] * h
         if holds > 1 and (f > 0.0).any():
             several += 1
-            remaining = sum(a.dt * (1.0 - c) ** k * (1.0 - 0.5 * c) for k in range(holds))
-            contracted = now[Tube.DQ] + eps * h + (now[Tube.DV] - eps) * remaining \
-                + 0.5 * h * h * now[Tube.WIDEN]
-            dq = np.where(f > 0.0, contracted, dq)
+            bounds = [now[Tube.DV] * (1.0 - c) ** k + (1.0 - (1.0 - c) ** k) * eps
+                      + now[Tube.WIDEN] * a.dt * sum((1.0 - c) ** i for i in range(k))
+                      for k in range(holds + 1)]
+            inside = sum(a.dt * ((1.0 - 0.5 * c) * bounds[k] + 0.5 * c * eps)
+                         + 0.5 * now[Tube.WIDEN] * a.dt * a.dt for k in range(holds))
+            dq = np.where(f > 0.0, now[Tube.DQ] + inside, dq)
+            dv = np.where(f > 0.0, bounds[holds], dv)
         np.testing.assert_allclose(then[Tube.DQ], dq, rtol=1e-12, atol=1e-15)
-        np.testing.assert_allclose(then[Tube.DV], np.maximum(
-            now[Tube.DV] * (1.0 - f) + f * eps + now[Tube.WIDEN] * h, eps), rtol=1e-12, atol=1e-15)
+        np.testing.assert_allclose(then[Tube.DV], np.maximum(dv, eps), rtol=1e-12, atol=1e-15)
     assert several > 3, several
 
 

@@ -53,12 +53,17 @@ set already left, within the excess it started with, decaying at ``recovery_rate
 
 What it assumes, besides the declared bounds: the tube's linear feedback model of the
 backup (exact for a joint the backup does not clip), b's velocity forms Γ taken at the
-step's configuration for the whole rollout, and the
-excursion between two rollout steps within half of ``bound_margin``: the check holds the
-sets shrunk by half the margin the QP's rows keep (``viable_bounds``), so that the QP's
-states leave the check that slack, and the check leaves the rest for what happens between
-its points (with |q̈| ≤ Ā at most Ā h²/8: 5e-4 rad at Ā = 1000 rad/s², h = 2 ms, against
-0.02 rad of a 20 rad bound).
+step's configuration for the whole rollout, over a step of several holds the configuration
+of its start for D and for the torque at its end, D inside such a step no more than at the
+points it is taken (the start, the first hold's end, the end: measured, :func:`.holds.
+later_deviation`), a torque limit binding at neither end of a grown step binding at none of
+its holds, and the excursion between two rollout steps within half of ``bound_margin``:
+the check holds the sets shrunk by half the margin the QP's rows keep (``viable_bounds``),
+so that the QP's states leave the check that slack, and the check leaves the rest for what
+happens between its points (with |q̈| ≤ Ā at most Ā h²/8: 5e-4 rad at Ā = 1000 rad/s²,
+h = 2 ms, against 0.02 rad of a 20 rad bound). A grown step needs none of that room: its
+nominal position moves one way over it (:func:`.holds.may_grow`), and its tube grows with
+it, so its ends bound it.
 
 """
 
@@ -120,9 +125,10 @@ def plan_box(k, a):
                     + segment[Tube.ACC_FIRST, i] * held_travel(a, h, s)
                 spread, widen = segment[Tube.DV, i], segment[Tube.WIDEN, i]
                 if segment[Tube.FEEDBACK, i] > 0.0 and h > a.dt * (1.0 + 1e-9):
-                    # a free joint over several holds, contracted hold by hold as the check
-                    # grew its tube (holds.held_share)
-                    remains, contracted = held_share(a, s)
+                    # a free joint over several holds, δv's excess over ε contracted hold by
+                    # hold as the check grew its tube (holds.held_share); the D gathered
+                    # taken whole, W s, at least the holds' (test_check_rules)
+                    remains, contracted = held_share(a, s)[:2]
                     r[Rollout.BOX_Q_HALF, i] = (segment[Tube.DQ, i] + eps[i] * s
                                                 + (spread - eps[i]) * contracted
                                                 + 0.5 * s * s * widen)
@@ -151,7 +157,8 @@ def _advance(a, segment, h, eps, backup, stopped, limit, decay, contraction):
     n = q.shape[0]
     travel = held_position(a, h, h)  # the nominal's, per unit of its first hold's q̈
     several = h > a.dt * (1.0 + 1e-9)
-    contracted = held_share(a, h)[1]  # ∫ of a free joint's remaining share over the step
+    # a free joint's δv − ε left, its integral, the D gathered and its integral, over the step
+    _, contracted, gathered, gathered_integral = held_share(a, h)
     for i in range(n):
         # the backup's feedback acts on a joint whose torque is free (the held torque:
         # on none): a limited joint brakes as hard as it can, the others still steer
@@ -169,16 +176,17 @@ def _advance(a, segment, h, eps, backup, stopped, limit, decay, contraction):
             turn = q[i] - 0.5 * vel[i] * vel[i] / acc[i]
         q[i] += h * vel[i] + travel * r[Rollout.HOLD_ACC, i]
         vel[i] += h * acc[i]
-        # over a free step of several holds the feedback contracts the velocity's
-        # departure hold by hold as the position's grows (holds.held_share)
-        if free and several:
-            dq[i] += eps[i] * h + (dv[i] - eps[i]) * contracted + 0.5 * h * h * widen[i]
-        else:
-            dq[i] += h * dv[i] + 0.5 * h * h * widen[i]
         # the feedback acts on the estimate e within ε of the true velocity: the true
         # velocity's departure u from the rollout's obeys u̇ = −k_b (u + e) + Δ, |Δ| ≤ D,
-        # so |u| grows by at most f ε + D h a step as the feedback f contracts it
-        dv[i] = max(dv[i] * (1.0 - feedback) + feedback * eps[i] + widen[i] * h, eps[i])
+        # so |u| grows by at most f ε + D h a step as the feedback f contracts it; over a
+        # free step of several holds it contracts u hold by hold (holds.held_share)
+        if free and several:
+            dq[i] += eps[i] * h + (dv[i] - eps[i]) * contracted + widen[i] * gathered_integral
+            dv[i] = max(dv[i] * (1.0 - feedback) + feedback * eps[i] + widen[i] * gathered,
+                        eps[i])
+        else:
+            dq[i] += h * dv[i] + 0.5 * h * h * widen[i]
+            dv[i] = max(dv[i] * (1.0 - feedback) + feedback * eps[i] + widen[i] * h, eps[i])
         allowed_q = a.viable_bounds[0, i] + (limit_q[i] - a.viable_bounds[0, i]) * decay
         allowed_v = a.viable_bounds[1, i] + (limit_v[i] - a.viable_bounds[1, i]) * decay
         if a.hard[0] and max(abs(q[i] - a.centres[0, i]), abs(turn - a.centres[0, i])) + dq[i] \

@@ -51,22 +51,28 @@ def held_share(a, s):
     """A free joint's departure over a step of several holds, the backup's feedback removing
     the share c = min(k_b dt, 1) of the velocity's departure u at each hold: with
     u_{j+1} = (1 − c) u_j − c e_j + ∫Δ, |e| ≤ ε, |Δ| ≤ W, and inside hold j (the feedback
-    held) u(τ) = u_j − (cτ/dt)(u_j + e_j) + ∫_0^τ Δ, |u| ≤ ε + A (δv − ε) + W t after t,
-    A = (1 − c)^j (1 − cτ/dt) at t = j dt + τ. Returns (A, ∫_0^s A): what remains of
-    the excess δv − ε over ε after s, and its integral, which the position's departure
-    grows by (δq + ε s + (δv − ε) ∫A + ½ W s²). The step's δv h left the contraction
-    within the step out: 0.68 h δv at 16 holds and 50 1/s. (W t leaves out that the
-    feedback contracts the D gathered too, 0.70 W h at the end of such a step: the plan's
-    box, which the run measures the true state against, takes W t as the tube does.)"""
+    held) u(τ) = u_j − (cτ/dt)(u_j + e_j) + ∫_0^τ Δ, after t = j dt + τ
+
+        |u| ≤ ε + A (δv − ε) + G W,  A = (1 − c)^j (1 − cτ/dt),
+        G = dt Σ_{k<j} (1 − c)^k (1 − cτ/dt) + τ
+
+    Returns (A, ∫_0^s A, G, ∫_0^s G): the position's departure grows by
+    ε s + (δv − ε) ∫A + W ∫G. The step's δv h + ½ W h² and W h left out that the feedback
+    contracts the departure within the step: at 16 holds and 50 1/s, ∫A = 0.68 h,
+    ∫G = 0.79 ½ h², G = 0.70 h."""
     c = min(a.backup_rate * a.dt, 1.0)
     holds = int(np.floor(s / a.dt + 1e-9))
-    remains, integral = 1.0, 0.0
+    remains, integral, gathered, gathered_integral = 1.0, 0.0, 0.0, 0.0
     for _ in range(holds):
         integral += a.dt * remains * (1.0 - 0.5 * c)
+        gathered_integral += a.dt * gathered * (1.0 - 0.5 * c) + 0.5 * a.dt * a.dt
         remains *= 1.0 - c
+        gathered = gathered * (1.0 - c) + a.dt
     rest = s - holds * a.dt
+    kept = 1.0 - c * rest / a.dt
     integral += remains * rest * (1.0 - 0.5 * c * rest / a.dt)
-    return remains * (1.0 - c * rest / a.dt), integral
+    gathered_integral += gathered * rest * (1.0 - 0.5 * c * rest / a.dt) + 0.5 * rest * rest
+    return remains * kept, integral, gathered * kept + rest, gathered_integral
 
 
 @no_refcount_jit(cache=True)
@@ -120,12 +126,10 @@ def held_average(a, h, contraction):
     faster than the filter does, by c dt |q̈_0| m (m − 1)/2 in velocity after a step to first
     order: 0.2 dt |q̈_0| at 200 1/s and m = 2, up to 0.24 rad/s along a rollout
     (docs/safety/filter.md, "The check"). With the average, Σ_k (1 − c)^k / m = f / (m c),
-    the rollout's velocity after the step is the holds'. Its position is ahead of theirs in
-    the direction of motion (conservative) by c dt² |q̈_0| m (m² − 1)/12 a step to first
-    order (½ dt² c |q̈_0| at m = 2; over a braking from 13 rad/s at 1 ms, 1.7e-4 rad at
-    50 1/s and 7.2e-4 rad at 200 1/s, in the room ``bound_margin`` leaves between the
-    check's points). Inside the step, the plan's box takes the holds' own velocities
-    (:func:`held_travel`). A step where a limit binds is one hold (:func:`.check.verified`).
+    the rollout's velocity after the step is the holds'. Its position is the holds' own
+    (:func:`held_position`), and inside the step the plan's box takes the holds' own
+    velocities (:func:`held_travel`). A step where a limit binds is one hold
+    (:func:`.check.verified`).
     ``contraction``: the step's f (:func:`feedback_contraction`)."""
     r = a.work.rollout
     acc, first = r[Rollout.ACC], r[Rollout.HOLD_ACC]
@@ -157,8 +161,8 @@ def held_position(a, h, s):
     unit of its first hold's q̈: ½ s² where the step is one hold (its q̈ constant), else
     the holds' own sum, their q̈ falling by (1 − c) at each (:func:`held_average`). The
     holds' average q̈ held over the step put the position ahead of theirs in the direction
-    of motion, by c dt² |q̈_0| m (m² − 1)/12 to first order: 2e-3 rad from 13 rad/s over a
-    step of 16 holds at 50 1/s."""
+    of motion, by c dt² |q̈_0| m (m² − 1)/12 to first order: 0.011 rad (0.0078 exactly)
+    from 13 rad/s over a step of 16 holds at 50 1/s."""
     c = min(a.backup_rate * a.dt, 1.0)
     if h <= a.dt * (1.0 + 1e-9) or c <= 0.0:
         return 0.5 * s * s
