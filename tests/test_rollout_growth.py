@@ -140,6 +140,27 @@ def test_a_grown_step_ends_with_the_backups_torque_within_the_limit():
     assert grown >= 20, grown
 
 
+def test_no_step_grows_where_the_backups_torque_would_bind_at_its_end():
+    """Joint 1 level (its gravity torque ~52 N·m), rising at 0.15 rad/s, braked at a 30 N·m
+    limit: the braking q̈ lowers the torque the gravity asks at first, and as it falls the
+    torque climbs back towards the gravity's. The rollout grows to 4 ms, then not to 8 ms,
+    whose end would ask 31 N·m on the closed-form arm (mutant cbf-grown-end-torque: it
+    grew): every grown step ends within the limit."""
+    a = filter_args_of(SAFETY, 30.0)
+    c = min(a.backup_rate * a.dt, 1.0)
+    grown = 0
+    for segment, h in planned(a, np.zeros(2), np.array([0.15, 0.0]), 0.0):
+        if h <= a.backup_step * (1.0 + 1e-9):
+            continue
+        grown += 1
+        first = segment[Tube.ACC_FIRST]
+        velocity = segment[Tube.V] + first * held_travel(a, h, h)
+        mass, bias = two_link_closed_form(segment[Tube.Q], velocity, **ARM)
+        torque = mass @ (first * (1.0 - c) ** int(round(h / a.dt))) + bias + TAU_D
+        assert np.all(np.abs(torque) <= 30.0 * (1.0 + 1e-6)), (h, torque)
+    assert grown >= 1
+
+
 @pytest.mark.parametrize("path", ["pipelines/near_boundary.toml", SAFETY])
 @pytest.mark.parametrize("grown", [True, False])
 def test_a_free_steps_widening_covers_d_at_every_hold_inside_it(path, grown):
