@@ -161,7 +161,7 @@ MUTANTS = [
     ("cbf-free-share-whole", "cosim/paper/cbf_filter/check.py",
      "_, contracted, gathered, gathered_integral = held_share(a, h)",
      "_, contracted, gathered, gathered_integral = held_share(a, h)\n"
-     "    contracted = h * (1.0 - contraction)", RULES),
+     "        contracted = h * (1.0 - contraction)", RULES),
     ("cbf-free-gathered-within-hold", "cosim/paper/cbf_filter/holds.py",
      "gathered_integral += a.dt * gathered * (1.0 - 0.5 * c) + 0.5 * a.dt * a.dt",
      "gathered_integral += a.dt * gathered * (1.0 - 0.5 * c)", RULES),

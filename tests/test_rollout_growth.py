@@ -113,6 +113,17 @@ def test_no_step_grows_into_the_band_where_the_backup_steers_a_joint_in(
         start += h
 
 
+def torque_at_end(a, segment: np.ndarray, h: float) -> np.ndarray:
+    """The backup's torque at a grown step's end on the closed-form arm: M q̈ + b + τ_d at the
+    end's nominal velocity and q̈ (each hold's q̈ (1 − c) times the one before), the step's
+    configuration, N·m."""
+    c = min(a.backup_rate * a.dt, 1.0)
+    first = segment[Tube.ACC_FIRST]
+    velocity = segment[Tube.V] + first * held_travel(a, h, h)
+    mass, bias = two_link_closed_form(segment[Tube.Q], velocity, **ARM)
+    return mass @ (first * (1.0 - c) ** int(round(h / a.dt))) + bias + TAU_D
+
+
 def test_a_grown_step_ends_with_the_backups_torque_within_the_limit():
     """At a 40 N·m limit, near the arm's own gravity torque, the braking torque falls with
     the backup's q̈ over a free step while the bias stays: a step may grow only where the
@@ -122,7 +133,6 @@ def test_a_grown_step_ends_with_the_backups_torque_within_the_limit():
     closed-form arm (tests/test_references.py) at the end's nominal velocity and q̈, the
     step's configuration, within the limit."""
     a = filter_args_of(SAFETY, 40.0)
-    c = min(a.backup_rate * a.dt, 1.0)
     rng = np.random.default_rng(3)
     grown = 0
     for _ in range(60):
@@ -132,10 +142,7 @@ def test_a_grown_step_ends_with_the_backups_torque_within_the_limit():
             if h <= a.backup_step * (1.0 + 1e-9):
                 continue
             grown += 1
-            first = segment[Tube.ACC_FIRST]
-            velocity = segment[Tube.V] + first * held_travel(a, h, h)
-            mass, bias = two_link_closed_form(segment[Tube.Q], velocity, **ARM)
-            torque = mass @ (first * (1.0 - c) ** int(round(h / a.dt))) + bias + TAU_D
+            torque = torque_at_end(a, segment, h)
             assert np.all(np.abs(torque) <= 40.0 * (1.0 + 1e-6)), (h, torque)
     assert grown >= 20, grown
 
@@ -147,16 +154,12 @@ def test_no_step_grows_where_the_backups_torque_would_bind_at_its_end():
     whose end would ask 31 N·m on the closed-form arm (mutant cbf-grown-end-torque: it
     grew): every grown step ends within the limit."""
     a = filter_args_of(SAFETY, 30.0)
-    c = min(a.backup_rate * a.dt, 1.0)
     grown = 0
     for segment, h in planned(a, np.zeros(2), np.array([0.15, 0.0]), 0.0):
         if h <= a.backup_step * (1.0 + 1e-9):
             continue
         grown += 1
-        first = segment[Tube.ACC_FIRST]
-        velocity = segment[Tube.V] + first * held_travel(a, h, h)
-        mass, bias = two_link_closed_form(segment[Tube.Q], velocity, **ARM)
-        torque = mass @ (first * (1.0 - c) ** int(round(h / a.dt))) + bias + TAU_D
+        torque = torque_at_end(a, segment, h)
         assert np.all(np.abs(torque) <= 30.0 * (1.0 + 1e-6)), (h, torque)
     assert grown >= 1
 

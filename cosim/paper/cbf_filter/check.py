@@ -157,8 +157,9 @@ def _advance(a, segment, h, eps, backup, stopped, limit, decay, contraction):
     n = q.shape[0]
     travel = held_position(a, h, h)  # the nominal's, per unit of its first hold's q̈
     several = h > a.dt * (1.0 + 1e-9)
-    # a free joint's δv − ε left, its integral, the D gathered and its integral, over the step
-    _, contracted, gathered, gathered_integral = held_share(a, h)
+    contracted = gathered = gathered_integral = 0.0
+    if several:  # a free joint's δv − ε left, its integral, the D gathered and its integral
+        _, contracted, gathered, gathered_integral = held_share(a, h)
     for i in range(n):
         # the backup's feedback acts on a joint whose torque is free (the held torque:
         # on none): a limited joint brakes as hard as it can, the others still steer
