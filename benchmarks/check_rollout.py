@@ -148,8 +148,12 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=3, help="repetitions (best is kept)")
     parser.add_argument("--premise", type=int, metavar="SAMPLES", default=0,
                         help="also D along the steps on this many sampled states")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="a pipeline override, as cosim run's (repeatable)")
     args = parser.parse_args()
-    sets = [] if args.duration is None else [f"simulation.duration={args.duration}"]
+    sets = list(args.set)
+    if args.duration is not None:
+        sets.append(f"simulation.duration={args.duration}")
     grown, steps, name = filter_args(args.pipeline, args.run, sets)
     # steps of backup_step alone: the same run with no step longer (not the record changed
     # by _replace: a type of its own to numba, whose loop measured 4x slower here)
