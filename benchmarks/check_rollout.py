@@ -118,7 +118,7 @@ def deviation_along_steps(a, samples: int, seed: int,
                     velocity = segment[Tube.V] \
                         + segment[Tube.ACC_FIRST] * held_travel(a, h, at * a.dt)
                     deviation_bound(a, velocity, np.full(n, eps),
-                                    segment[Tube.ACC_FIRST] * (1.0 - c) ** j, deviation)
+                                    segment[Tube.ACC_FIRST] * (1.0 - c) ** j, deviation, False)
                     if at == 0:
                         covered["start"] = np.maximum(deviation.copy(), 1e-300)
                     for name, taken in covered.items():

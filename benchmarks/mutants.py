@@ -130,7 +130,8 @@ MUTANTS = [
     ("cbf-disturbance-dropped", "cosim/paper/cbf_filter/model.py",
      "    quadratic[:] = disturbance\n", "    quadratic[:] = 0.0\n", ["tests/test_viability.py"]),
     ("cbf-payload-deviation-dropped", "cosim/paper/cbf_filter/deviation.py",
-     "    _payload_deviation(a, q_dot, acceleration, deviation)\n", "", VIABILITY),
+     "    _payload_deviation(a, q_dot, acceleration, deviation, structure_taken)\n", "",
+     VIABILITY),
     # the held steps' tube without q̈'s drift over the hold (taken at each step's start)
     ("cbf-held-drift-dropped", "cosim/paper/cbf_filter/check.py",
      "            held_drift(k, a, r[Rollout.TAU], limit, eps, widen)\n", "            pass\n",
@@ -169,6 +170,11 @@ MUTANTS = [
      "may_grow(a, stride) and free_at_end(a, stride, limit)", "may_grow(a, stride)", GROWTH),
     ("cbf-end-deviation-dropped", "cosim/paper/cbf_filter/check.py",
      "            later_deviation(a, h, eps, widen)\n", "            pass\n", GROWTH),
+    # the start's D with the payload's structure of whatever D was taken before (the step
+    # before's end), not its own configuration's
+    ("cbf-structure-stale", "cosim/paper/cbf_filter/check.py",
+     "deviation_bound(a, vel, eps, acc, deviation, False)",
+     "deviation_bound(a, vel, eps, acc, deviation, True)", GROWTH),
     ("cbf-grown-band-guard", "cosim/paper/cbf_filter/holds.py",
      "if a.hard[0] and reach > a.viable_bounds[0, i] - HOLD:", "if False:", GROWTH),
     # the plan's box inside a step of several holds at the first hold's q̈ throughout

@@ -194,7 +194,7 @@ def payload_deviation_bound(a, q, v, tau) -> np.ndarray:
     r[Rollout.Q], r[Rollout.V] = q, v
     nominal_acceleration(0, a, np.asarray(tau, float), False, 0, a.torque_limit)
     out = np.zeros(2)
-    deviation_bound(a, r[Rollout.V], np.zeros(2), r[Rollout.ACC], out)
+    deviation_bound(a, r[Rollout.V], np.zeros(2), r[Rollout.ACC], out, False)
     return out
 
 

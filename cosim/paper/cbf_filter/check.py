@@ -242,7 +242,7 @@ def verified(k, a, y, v, eps, first, hold, policy, limit):
         stride = min(2.0 * h, a.backup_step_max) if h > a.dt else a.backup_step
         # the bias error's velocity error is the estimate's, ε: the backup acts on the
         # state as measured, whatever the tube (the true state's spread about the rollout)
-        deviation_bound(a, vel, eps, acc, deviation)
+        deviation_bound(a, vel, eps, acc, deviation, False)
         for i in range(n):
             widen[i] = TUBE_SAFETY * deviation[i]
         contraction = feedback_contraction(a.backup_rate, h, a.dt)  # the step's, every joint's

@@ -88,7 +88,7 @@ def held_end(k, a, tau, limit, spread):
         q[i] += a.dt * vel[i] + 0.5 * a.dt * a.dt * acc[i]
         vel[i] += a.dt * acc[i]
     nominal_acceleration(k, a, tau, False, 0, limit)
-    deviation_bound(a, vel, spread, acc, r[Rollout.DEV])
+    deviation_bound(a, vel, spread, acc, r[Rollout.DEV], False)
 
 
 @no_refcount_jit(cache=True)
@@ -251,6 +251,7 @@ def later_deviation(a, h, eps, widen):
         for i in range(vel.shape[0]):
             later_v[i] = vel[i] + travel * first[i]
             later_acc[i] = first[i] * (1.0 - c) ** (reached - 1)
-        deviation_bound(a, later_v, eps, later_acc, deviation)
+        # the payload's structure is the start's D's: the same configuration and M̂⁻¹
+        deviation_bound(a, later_v, eps, later_acc, deviation, True)
         for i in range(vel.shape[0]):
             widen[i] = max(widen[i], TUBE_SAFETY * deviation[i])

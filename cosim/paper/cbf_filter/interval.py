@@ -74,7 +74,7 @@ def predict_interval(k, a, tau):
     deviation, acceleration = r[Rollout.DEV], r[Rollout.ACC]
     fixed_deviation(a, r[Rollout.HALF])
     nominal_acceleration(k, a, tau, False, 0, a.torque_limit)
-    deviation_bound(a, r[Rollout.V], r[Rollout.HALF], acceleration, deviation)
+    deviation_bound(a, r[Rollout.V], r[Rollout.HALF], acceleration, deviation, False)
     for end in range(2):
         if end == 1:  # the step's predicted end
             held_end(k, a, tau, a.torque_limit, r[Rollout.HALF])
