@@ -134,7 +134,8 @@ MUTANTS = [
      VIABILITY),
     # the held steps' tube without q̈'s drift over the hold (taken at each step's start)
     ("cbf-held-drift-dropped", "cosim/paper/cbf_filter/check.py",
-     "            held_drift(k, a, r[Rollout.TAU], limit, eps, widen)\n", "            pass\n",
+     "            held_drift(k, a, r[Rollout.TAU], limit, eps, widen, hold and step == 0)\n",
+     "            pass\n",
      ["tests/test_steps.py"]),
     # the candidate's held step at 1 ms without q̈'s drift over it (backup_step > dt)
     ("cbf-candidate-drift-dropped", "cosim/paper/cbf_filter/check.py",
@@ -175,6 +176,10 @@ MUTANTS = [
     ("cbf-structure-stale", "cosim/paper/cbf_filter/check.py",
      "deviation_bound(a, vel, eps, acc, deviation, False)",
      "deviation_bound(a, vel, eps, acc, deviation, True)", GROWTH),
+    # the interval predicted with the hull the check took for another torque
+    ("cbf-checked-torque-ignored", "cosim/paper/cbf_filter/interval.py",
+     "if (r[Rollout.CHECKED_TAU, i] != tau[i] or r[Rollout.CHECKED_Q, i] != y[i]",
+     "if (r[Rollout.CHECKED_Q, i] != y[i]", ["tests/test_filter_speed.py"]),
     ("cbf-grown-band-guard", "cosim/paper/cbf_filter/holds.py",
      "if a.hard[0] and reach > a.viable_bounds[0, i] - HOLD:", "if False:", GROWTH),
     # the plan's box inside a step of several holds at the first hold's q̈ throughout

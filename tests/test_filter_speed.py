@@ -6,7 +6,9 @@ against DAQP."""
 
 from __future__ import annotations
 
+import sys
 from fractions import Fraction
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -17,6 +19,9 @@ from cosim.dynamics.model import planar_model
 from cosim.dynamics.planar import CHAIN_ROWS
 from cosim.engine import simulate
 from cosim.paper import cbf_filter as cf
+from cosim.paper.cbf_filter.check import verified
+from cosim.paper.cbf_filter.interval import checked, predict_interval
+from cosim.paper.cbf_filter.scratch import Flag, Rollout
 from cosim.paper.inertia import (
     chain_bias,
     chain_geometry,
@@ -26,6 +31,8 @@ from cosim.paper.inertia import (
 )
 
 SAFETY = "pipelines/paper_safety.toml"
+sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "benchmarks"))
+from deceleration import filter_args as filter_args_of  # noqa: E402
 
 
 def closed_form_chain(q, v, m, lengths, lc, inertia, gravity):
@@ -197,6 +204,39 @@ def test_every_filtered_torque_is_its_steps_qp_answer(name):
     assert binding_steps > 1000  # the filter acts at many steps
     assert worst_penalty < 1e-12, worst_penalty
     assert worst_daqp < 1e-6, worst_daqp
+
+
+def test_the_interval_takes_the_checks_hull_only_where_it_checked_that_torque():
+    """The velocity's interval for the next step takes the hull of q̈ the check's candidate
+    step took where that step was the torque applied, from row k's state; it is then, bit
+    for bit, the interval taken afresh. Where the last check was of another torque (a
+    blend's candidate that failed), or from another velocity interval, it is taken afresh
+    (mutant cbf-checked-torque-ignored). The filter of near_boundary.toml (a payload of
+    0-1 kg, so D has every part), row 0, the velocity 1 and −0.5 rad/s ± 0.1."""
+    a = filter_args_of("pipelines/near_boundary.toml", 1000.0)
+    r, k = a.work.rollout, 0
+    rows = [Rollout.NEXT_LOW, Rollout.NEXT_HIGH, Rollout.ACC_LOW, Rollout.ACC_HIGH]
+
+    def interval(tau, half, after=None):
+        """The interval predicted for τ at the half-width ``half``, after a check of
+        ``after`` at the half-width 0.1 if given."""
+        a.work.flags[Flag.CHECKED_ROW] = 0.0
+        r[Rollout.CENTRE], r[Rollout.HALF] = [1.0, -0.5], 0.1
+        if after is not None:
+            verified(k, a, a.position[k], r[Rollout.CENTRE], r[Rollout.HALF], after, True, 0,
+                     a.torque_limit)
+        r[Rollout.HALF] = half
+        predict_interval(k, a, tau)
+        return r[rows].copy()
+
+    applied, other = np.array([20.0, -5.0]), np.array([-10.0, 8.0])
+    afresh = interval(applied, 0.1)
+    assert np.all(np.isfinite(afresh)) and np.all(afresh[1] > afresh[0])
+    assert np.array_equal(interval(applied, 0.1, after=applied), afresh)
+    assert checked(k, a, applied)  # the check's hull was taken
+    assert np.array_equal(interval(other, 0.1, after=applied), interval(other, 0.1))
+    assert np.array_equal(interval(applied, 0.2, after=applied), interval(applied, 0.2))
+    assert not np.array_equal(interval(applied, 0.2), afresh)
 
 
 def test_the_small_eigen_decomposition_is_numpys():

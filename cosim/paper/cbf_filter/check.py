@@ -247,7 +247,7 @@ def verified(k, a, y, v, eps, first, hold, policy, limit):
             widen[i] = TUBE_SAFETY * deviation[i]
         contraction = feedback_contraction(a.backup_rate, h, a.dt)  # the step's, every joint's
         if held or clipped:
-            held_drift(k, a, r[Rollout.TAU], limit, eps, widen)
+            held_drift(k, a, r[Rollout.TAU], limit, eps, widen, hold and step == 0)
             for i in range(n):
                 r[Rollout.HOLD_ACC, i] = acc[i]
         else:  # a step of several holds, the backup re-evaluated at each

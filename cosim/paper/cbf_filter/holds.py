@@ -17,7 +17,7 @@ from ...dynamics.model import model_bias, model_friction
 from ...numba_compat import no_refcount_jit
 from .backup import HOLD, nominal_acceleration, rollout_payload
 from .deviation import deviation_bound
-from .scratch import Matrix, Rollout
+from .scratch import Flag, Matrix, Rollout
 
 # The tube's D is taken this many times: its linear model of the backup's feedback (each
 # free joint pulled to its target at k_b, the torque recomputed from the true state) is first
@@ -92,14 +92,17 @@ def held_end(k, a, tau, limit, spread):
 
 
 @no_refcount_jit(cache=True)
-def held_drift(k, a, first, limit, eps, widen):
+def held_drift(k, a, first, limit, eps, widen, keep):
     """Take q̈'s drift over a held step (``first`` held for dt) into the tube: the true q̈
     over the step lies in the hull of q̈ ± ``widen`` at the step's start (1.5 D there, per
     joint) and q̈ ± 1.5 D at its predicted end (the premise :func:`.interval.predict_interval`
     takes too). The rollout's q̈ (the tube's centre over the step) becomes the hull's
     middle and ``widen`` its half-width; q and q̇ are the start's again on return. (The
     start's q̈ as the centre, widened to max(1.5 D, |q̈(end) − q̈| + 1.5 D(end)), is as sound
-    and wider by up to half the drift.)"""
+    and wider by up to half the drift.) With ``keep`` (the check's candidate step), the hull
+    is kept with its start and torque (Rollout.CHECKED_TAU …, Flag.CHECKED_ROW): it is the
+    bound on q̈ the velocity's interval is predicted with for that torque from that state
+    (:func:`.interval.predict_interval`, which then need not take it again)."""
     r = a.work.rollout
     q, vel, acc, deviation = r[Rollout.Q], r[Rollout.V], r[Rollout.ACC], r[Rollout.DEV]
     held_q, held_v, held_acc = r[Rollout.HELD_Q], r[Rollout.HELD_V], r[Rollout.HELD_ACC]
@@ -113,6 +116,12 @@ def held_drift(k, a, first, limit, eps, widen):
         high = max(held_acc[i] + widen[i], acc[i] + TUBE_SAFETY * deviation[i])
         widen[i] = 0.5 * (high - low)
         q[i], vel[i], acc[i] = held_q[i], held_v[i], 0.5 * (low + high)
+        if keep:
+            r[Rollout.CHECKED_LOW, i], r[Rollout.CHECKED_HIGH, i] = low, high
+            r[Rollout.CHECKED_TAU, i], r[Rollout.CHECKED_Q, i] = first[i], q[i]
+            r[Rollout.CHECKED_V, i], r[Rollout.CHECKED_HALF, i] = vel[i], eps[i]
+    if keep:
+        a.work.flags[Flag.CHECKED_ROW] = k + 1
 
 
 @no_refcount_jit(cache=True, inline="always")

@@ -41,6 +41,7 @@ def step_rows(k, a, every):
     product(minv, bias, base)
     velocity_interval(k, a)
     a.work.flags[Flag.GROUPS] = 0.0
+    a.work.flags[Flag.CHECKED_ROW] = 0.0  # no check's hull is this row's yet
     # ε infinite (the observer confirmed no enclosure of q̇): no hard row holds for every
     # velocity, and none is made; the check verifies nothing from such a state either
     known = True

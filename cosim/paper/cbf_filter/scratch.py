@@ -138,6 +138,14 @@ class Rollout(Rows):
     HELD_V = auto()
     HELD_ACC = auto()
     HOLD_ACC = auto()  # the rollout's q̈ over its step's first hold (.holds.held_average)
+    # the last check's candidate step: its torque, start (q, q̇ and its half-width) and the
+    # hull of q̈ it took, the interval's prediction for that torque (.holds.held_drift)
+    CHECKED_TAU = auto()
+    CHECKED_Q = auto()
+    CHECKED_V = auto()
+    CHECKED_HALF = auto()
+    CHECKED_LOW = auto()
+    CHECKED_HIGH = auto()
 
 
 class Flag(Rows):
@@ -156,6 +164,7 @@ class Flag(Rows):
     PLAN_TUBE = auto()
     PLAN_STEP = auto()
     VIABLE_ONCE = auto()  # 1 from the run's first viable step on (before it: start-up)
+    CHECKED_ROW = auto()  # k + 1 for the row whose check kept its candidate's hull, else 0
 
 
 class Tube(Rows):
