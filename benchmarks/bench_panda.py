@@ -15,9 +15,14 @@ model at the state and at the hold's end, the hard rows' groups, the soft rows),
 record (the backup's check of the torque, the next velocity interval, the outputs) and
 the QP's solve (compiling those loops for the 7-joint chain takes a minute or two).
 
+With ``--blocks``, also each block of proposed_cbf alone: its kernel driven over the run's
+rows after its reset, reading what the blocks before it wrote (bench_cosim.py --profile's
+way for the paper's run), µs per step.
+
 Each figure is the best of ``--repeat`` repetitions.
 
 Run: .venv/bin/python benchmarks/bench_panda.py [--duration 3] [--repeat 3] [--parts]
+[--blocks]
 """
 
 from __future__ import annotations
@@ -27,10 +32,11 @@ import time
 from pathlib import Path
 
 import numpy as np
-from bench_cosim import fmu_only_compiled
+from bench_cosim import _drive, fmu_only_compiled
 from numba import njit
 
 from cosim.assemble import assemble_run
+from cosim.blocks import Ports
 from cosim.config import load_pipeline
 from cosim.dynamics.model import chain_model, model_bias, model_geometry, model_mass
 from cosim.engine import simulate
@@ -83,12 +89,37 @@ def nominal_model_cost(repeat: int) -> tuple[float, float]:
     return 1e6 * ours, 1e6 * theirs
 
 
+def block_costs(plan, trace, steps: int, repeat: int) -> dict[str, float]:
+    """µs per step of each block's kernel alone over the run in ``trace`` (in chain order:
+    each reset reads what the blocks before it wrote; 0 for a block with no kernel)."""
+    us = {}
+    for block, ins, outs, constants in zip(plan.blocks, plan.inputs, plan.outputs,
+                                           plan.constants, strict=True):
+        best = np.inf
+        for _ in range(repeat):
+            block.reset(Ports({port: trace[key] for port, key in ins.items()},
+                              {port: trace[key] for port, key in outs.items()}, trace,
+                              constants))
+            if block.kernel is None:
+                best = 0.0
+                break
+            _drive(block.kernel, 0, 0, block.args)  # compile outside the timing
+            start = time.perf_counter()
+            done = _drive(block.kernel, 0, steps, block.args)
+            assert done == steps, f"{block.kind} failed at row {done}"
+            best = min(best, time.perf_counter() - start)
+        us[block.kind] = 1e6 * best / steps
+    return us
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--duration", type=float, default=3.0, help="simulated seconds")
     parser.add_argument("--repeat", type=int, default=3, help="repetitions (best is kept)")
     parser.add_argument("--parts", action="store_true",
                         help="also time the filter's step in parts (rows, record, solve)")
+    parser.add_argument("--blocks", action="store_true",
+                        help="also time each block of proposed_cbf alone over its run")
     args = parser.parse_args()
     pipeline = load_pipeline(PIPELINE, [f"simulation.duration={args.duration}"])
     steps = int(round(args.duration / pipeline.simulation.step))
@@ -103,12 +134,14 @@ def main() -> int:
                 best = min(best, simulate(plant, plan, trace, engine="fused"))
             us[run] = 1e6 * best / steps
             torques[run] = trace["tau"].copy()
-            filtered = plan  # proposed_cbf's, last: its filter's arguments hold its trace
+            filtered, filtered_trace = plan, trace  # proposed_cbf's, last
         # The FMU alone along the filtered run's own trajectory (its torques replayed): the
         # same RK4 sub-steps as in the closed loop (a constant torque would let the arm fall
         # through its limits, where the FMU's sub-steps shorten: rk4_motion).
         floor = min(1e6 * fmu_only_compiled(plant, args.duration, tau=torques["proposed_cbf"])
                     for _ in range(args.repeat))
+        blocks = block_costs(filtered, filtered_trace, steps, args.repeat) if args.blocks \
+            else {}
     finally:
         plant.close()
     if args.parts:
@@ -125,6 +158,9 @@ def main() -> int:
         print(f"  the filter's step in compiled loops: rows {cost['rows']:.2f}, record "
               f"{cost['record']:.2f} (the backup's check, the next interval, the outputs), "
               f"solve {cost['solve']:.2f}; the whole step {cost['step']:.2f} us")
+    if blocks:
+        print("  proposed_cbf's blocks alone, us/step: " + ", ".join(
+            f"{name} {value:.2f}" for name, value in blocks.items()))
     print(f"nominal model M + b (7 joints): {ours:.2f} us compiled (cosim.dynamics), "
           f"{theirs:.2f} us Pinocchio crba + rnea through Python")
     print(f"panda_closed_loop_us_per_step={us['proposed_cbf']:.2f} floor_us_per_step="
