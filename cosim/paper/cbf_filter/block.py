@@ -16,14 +16,9 @@ from ...schema import FiniteFloat, PerJoint, PipelineError, PositiveFloat, Secti
 from ...signals import Signal
 from .assumptions import BACKUP, FILTER_ASSUMES, KEPT_CHECKS, VIABLE, FilterAssumptions
 from .check import verified
+from .groups import payload_corners
 from .rows import cbf_rows
-from .scratch import (
-    SET_UNITS,
-    SETS,
-    CbfArgs,
-    CbfWork,
-    payload_corners,
-)
+from .scratch import SET_UNITS, SETS, CbfArgs, CbfWork
 from .step import beyond_authority, cbf_record, cbf_step, within_authority
 from .steps import check_step_range
 

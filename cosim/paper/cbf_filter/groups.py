@@ -2,7 +2,8 @@
 hold's end, with a row per payload corner (unscaled), robust to the declared uncertainty
 (see the package docstring); the solve takes rows from them as it needs them (cutting
 planes, :func:`add_cuts`), and :func:`groups_record` says which bind and how close each
-comes. :mod:`.rows` builds a step's QP around them."""
+comes; :func:`payload_corners`, the payload grid's box corners a group's rows are taken
+at. :mod:`.rows` builds a step's QP around them."""
 
 from __future__ import annotations
 
@@ -259,3 +260,21 @@ def _reach(a, minv, corners, reach, room):
                     spread += weight * abs(alpha[j, col])
         reach[i] = largest * 1.001 + 1e-3 * spread
         room[i] = lowered
+
+
+def payload_corners(grid: int, d: int) -> np.ndarray:
+    """The grid points (of s_1 … s_d) of the box corners the payload's rows are taken at:
+    s_j increases with Δm, so between two grid points (s_1 … s_d) lies in their box: its
+    corner (g, …, g), then its 2^d − 2 mixed corners ((g, g+1), (g+1, g) in the plane); the
+    last grid point's at the end. (2^d − 1) grid + 1 corners."""
+    corner_index = np.zeros(((2**d - 1) * grid + 1, d), np.int64)
+    corners = 0
+    for g in range(grid + 1):
+        corner_index[corners, :] = g
+        corners += 1
+        if g < grid:
+            for mask in range(2**d - 2, 0, -1):  # coordinate j at g + bit j of the mask
+                for j in range(d):
+                    corner_index[corners, j] = g + ((mask >> j) & 1)
+                corners += 1
+    return corner_index

@@ -288,24 +288,6 @@ class CbfWork(NamedTuple):
     tube_eps: scratch("2, n")
 
 
-def payload_corners(grid: int, d: int) -> np.ndarray:
-    """The grid points (of s_1 … s_d) of the box corners the payload's rows are taken at:
-    s_j increases with Δm, so between two grid points (s_1 … s_d) lies in their box: its
-    corner (g, …, g), then its 2^d − 2 mixed corners ((g, g+1), (g+1, g) in the plane); the
-    last grid point's at the end. (2^d − 1) grid + 1 corners."""
-    corner_index = np.zeros(((2**d - 1) * grid + 1, d), np.int64)
-    corners = 0
-    for g in range(grid + 1):
-        corner_index[corners, :] = g
-        corners += 1
-        if g < grid:
-            for mask in range(2**d - 2, 0, -1):  # coordinate j at g + bit j of the mask
-                for j in range(d):
-                    corner_index[corners, j] = g + ((mask >> j) & 1)
-                corners += 1
-    return corner_index
-
-
 @kernel_record
 class CbfArgs(NamedTuple):
     hard: np.ndarray  # (4,) 1 where the set is a hard per-joint set, SETS order
