@@ -91,7 +91,7 @@ MUTANTS = [
     # (It drops the plane's box corner (g, g+1), mask 2. Dropping (g+1, g) instead is an
     # equivalent mutant: s2 = s1/(1 + (λ2 − λ1)s1) is concave in s1 with λ1 ≤ λ2, so the
     # curve never leaves the other three.)
-    ("cbf-payload-corners", "cosim/paper/cbf_filter/scratch.py",
+    ("cbf-payload-corners", "cosim/paper/cbf_filter/groups.py",
      "for mask in range(2**d - 2, 0, -1):", "for mask in range(2**d - 3, 0, -1):", FILTER),
     ("cbf-hold-end-dropped", "cosim/paper/cbf_filter/rows.py",
      "    if known:\n        hard_groups(a, k, y_end, v_end, eps, minv_end, base_end, True)\n",

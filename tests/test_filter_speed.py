@@ -210,33 +210,38 @@ def test_the_interval_takes_the_checks_hull_only_where_it_checked_that_torque():
     """The velocity's interval for the next step takes the hull of q̈ the check's candidate
     step took where that step was the torque applied, from row k's state; it is then, bit
     for bit, the interval taken afresh. Where the last check was of another torque (a
-    blend's candidate that failed), or from another velocity interval, it is taken afresh
-    (mutant cbf-checked-torque-ignored). The filter of near_boundary.toml (a payload of
-    0-1 kg, so D has every part), row 0, the velocity 1 and −0.5 rad/s ± 0.1."""
+    blend's candidate that failed), from another velocity interval or of another row, it is
+    taken afresh (mutant cbf-checked-torque-ignored). The filter of near_boundary.toml (a
+    payload of 0-1 kg, so D has every part), rows 0 and 1, the velocity 1 and −0.5 rad/s
+    ± 0.1."""
     a = filter_args_of("pipelines/near_boundary.toml", 1000.0)
-    r, k = a.work.rollout, 0
+    r = a.work.rollout
     rows = [Rollout.NEXT_LOW, Rollout.NEXT_HIGH, Rollout.ACC_LOW, Rollout.ACC_HIGH]
 
-    def interval(tau, half, after=None):
-        """The interval predicted for τ at the half-width ``half``, after a check of
-        ``after`` at the half-width 0.1 if given."""
+    def interval(tau, half=0.1, centre=(1.0, -0.5), after=None, k=0):
+        """The interval predicted at row k for τ from the velocity centre ± half, after a
+        check at row 0 of ``after`` from 1, −0.5 ± 0.1 rad/s if given."""
         a.work.flags[Flag.CHECKED_ROW] = 0.0
         r[Rollout.CENTRE], r[Rollout.HALF] = [1.0, -0.5], 0.1
         if after is not None:
-            verified(k, a, a.position[k], r[Rollout.CENTRE], r[Rollout.HALF], after, True, 0,
+            verified(0, a, a.position[0], r[Rollout.CENTRE], r[Rollout.HALF], after, True, 0,
                      a.torque_limit)
-        r[Rollout.HALF] = half
+        r[Rollout.CENTRE], r[Rollout.HALF] = centre, half
         predict_interval(k, a, tau)
         return r[rows].copy()
 
     applied, other = np.array([20.0, -5.0]), np.array([-10.0, 8.0])
-    afresh = interval(applied, 0.1)
+    afresh = interval(applied)
     assert np.all(np.isfinite(afresh)) and np.all(afresh[1] > afresh[0])
-    assert np.array_equal(interval(applied, 0.1, after=applied), afresh)
-    assert checked(k, a, applied)  # the check's hull was taken
-    assert np.array_equal(interval(other, 0.1, after=applied), interval(other, 0.1))
+    assert np.array_equal(interval(applied, after=applied), afresh)
+    assert checked(0, a, applied)  # the check's hull was taken
+    assert np.array_equal(interval(other, after=applied), interval(other))
     assert np.array_equal(interval(applied, 0.2, after=applied), interval(applied, 0.2))
     assert not np.array_equal(interval(applied, 0.2), afresh)
+    assert np.array_equal(interval(applied, centre=(1.2, -0.5), after=applied),
+                          interval(applied, centre=(1.2, -0.5)))
+    assert not np.array_equal(a.position[1], a.position[0])
+    assert np.array_equal(interval(applied, after=applied, k=1), interval(applied, k=1))
 
 
 def test_the_small_eigen_decomposition_is_numpys():

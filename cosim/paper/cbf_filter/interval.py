@@ -54,9 +54,10 @@ def velocity_interval(k, a):
 @no_refcount_jit(cache=True, inline="always")
 def checked(k, a, tau):
     """Whether the last check's candidate step was τ held from row k's state (its position,
-    the velocity's interval): then the hull of q̈ it took (:func:`.holds.held_drift`) is
-    the one :func:`predict_interval` takes, the same calls on the same numbers (the rows'
-    forms Γ are row k's for both)."""
+    the velocity's interval), with a hull of numbers: then the hull of q̈ it took
+    (:func:`.holds.held_drift`) is the one :func:`predict_interval` takes, the same calls
+    on the same numbers (both with the forms Γ the rows left). A NaN in it is taken afresh:
+    the prediction's min and max drop a NaN at the step's start, the check's hull keeps it."""
     r = a.work.rollout
     if a.work.flags[Flag.CHECKED_ROW] != k + 1:
         return False
@@ -64,7 +65,8 @@ def checked(k, a, tau):
     for i in range(y.shape[0]):
         if (r[Rollout.CHECKED_TAU, i] != tau[i] or r[Rollout.CHECKED_Q, i] != y[i]
                 or r[Rollout.CHECKED_V, i] != r[Rollout.CENTRE, i]
-                or r[Rollout.CHECKED_HALF, i] != r[Rollout.HALF, i]):
+                or r[Rollout.CHECKED_HALF, i] != r[Rollout.HALF, i]
+                or np.isnan(r[Rollout.CHECKED_LOW, i] + r[Rollout.CHECKED_HIGH, i])):
             return False
     return True
 
