@@ -156,8 +156,8 @@ MUTANTS = [
      "q[i] += h * vel[i] + travel * r[Rollout.HOLD_ACC, i]",
      "q[i] += h * vel[i] + 0.5 * h * h * acc[i]", GROWTH),
     ("cbf-grown-box-first-hold", "cosim/paper/cbf_filter/check.py",
-     "+ held_position(a, h, s) * segment[Tube.ACC_FIRST, i])",
-     "+ 0.5 * s * s * segment[Tube.ACC_FIRST, i])", GROWTH),
+     "position, travel = held_position(a, h, s), held_travel(a, h, s)",
+     "position, travel = 0.5 * s * s, held_travel(a, h, s)", GROWTH),
     # a free step's tube over several holds: the position's departure contracted by the
     # step's whole feedback from its start; the grown step's torque not looked at its end
     ("cbf-free-share-whole", "cosim/paper/cbf_filter/check.py",

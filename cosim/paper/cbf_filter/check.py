@@ -118,17 +118,23 @@ def plan_box(k, a):
         if offset <= start + h * (1.0 + 1e-9):
             s = offset - start
             segment = tube[j]
+            # the same for every joint: the nominal's position and velocity after s per unit
+            # of its first hold's q̈, and over several holds the share of a free joint's
+            # δv − ε left and its integral (holds.held_share)
+            position, travel = held_position(a, h, s), held_travel(a, h, s)
+            several = h > a.dt * (1.0 + 1e-9)
+            remains, contracted = 1.0, 0.0
+            if several:
+                remains, contracted = held_share(a, s)[:2]
             for i in range(n):
                 r[Rollout.BOX_Q, i] = (segment[Tube.Q, i] + s * segment[Tube.V, i]
-                                       + held_position(a, h, s) * segment[Tube.ACC_FIRST, i])
-                r[Rollout.BOX_V, i] = segment[Tube.V, i] \
-                    + segment[Tube.ACC_FIRST, i] * held_travel(a, h, s)
+                                       + position * segment[Tube.ACC_FIRST, i])
+                r[Rollout.BOX_V, i] = segment[Tube.V, i] + segment[Tube.ACC_FIRST, i] * travel
                 spread, widen = segment[Tube.DV, i], segment[Tube.WIDEN, i]
-                if segment[Tube.FEEDBACK, i] > 0.0 and h > a.dt * (1.0 + 1e-9):
+                if segment[Tube.FEEDBACK, i] > 0.0 and several:
                     # a free joint over several holds, δv's excess over ε contracted hold by
-                    # hold as the check grew its tube (holds.held_share); the D gathered
-                    # taken whole, W s, at least the holds' (test_check_rules)
-                    remains, contracted = held_share(a, s)[:2]
+                    # hold as the check grew its tube; the D gathered taken whole, W s, at
+                    # least the holds' (test_check_rules)
                     r[Rollout.BOX_Q_HALF, i] = (segment[Tube.DQ, i] + eps[i] * s
                                                 + (spread - eps[i]) * contracted
                                                 + 0.5 * s * s * widen)
