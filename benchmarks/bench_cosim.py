@@ -94,6 +94,22 @@ def _drive(kernel, start: int, stop: int, args) -> int:
     return stop
 
 
+def block_ports(trace, ins: dict, outs: dict, constants: dict) -> Ports:
+    """A block's ports on ``trace``, as the plan's reset builds them."""
+    return Ports({port: trace[key] for port, key in ins.items()},
+                 {port: trace[key] for port, key in outs.items()}, trace, constants)
+
+
+def kernel_seconds(block, steps: int) -> float:
+    """Seconds for the block's kernel alone over rows [0, steps), compiled outside the
+    timing; the block reset just before."""
+    _drive(block.kernel, 0, 0, block.args)
+    start = time.perf_counter()
+    done = _drive(block.kernel, 0, steps, block.args)
+    assert done == steps, f"{block.kind} failed at row {done}"
+    return time.perf_counter() - start
+
+
 def profile(plant, duration: float, repeat: int) -> dict[str, tuple[float, float]]:
     """µs per step of each block of the proposed run: its reset (once per run, spread over
     the steps) and its kernel alone (see the module docstring); and of the fused loop and
@@ -112,8 +128,7 @@ def profile(plant, duration: float, repeat: int) -> dict[str, tuple[float, float
     def reset(block, ins: dict, outs: dict, constants: dict) -> float:
         # the ports as the plan's reset builds them, after the blocks before this one (the
         # inertia model's reset puts the plant's M in the trace as M_model)
-        ports = Ports({port: trace[key] for port, key in ins.items()},
-                      {port: trace[key] for port, key in outs.items()}, trace, constants)
+        ports = block_ports(trace, ins, outs, constants)
         start = time.perf_counter()
         block.reset(ports)
         return 1e6 * (time.perf_counter() - start) / steps
@@ -132,11 +147,7 @@ def profile(plant, duration: float, repeat: int) -> dict[str, tuple[float, float
             if block.kernel is None:
                 us[name][1] = 0.0
                 continue
-            _drive(block.kernel, 0, 0, block.args)  # compile outside the timing
-            start = time.perf_counter()
-            done = _drive(block.kernel, 0, steps + 1, block.args)
-            assert done == steps + 1, f"{name} failed at row {done}"
-            us[name][1] = min(us[name][1], 1e6 * (time.perf_counter() - start) / (steps + 1))
+            us[name][1] = min(us[name][1], 1e6 * kernel_seconds(block, steps + 1) / (steps + 1))
     return {name: (value[0], value[1]) for name, value in us.items()}
 
 

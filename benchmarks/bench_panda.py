@@ -32,11 +32,10 @@ import time
 from pathlib import Path
 
 import numpy as np
-from bench_cosim import _drive, fmu_only_compiled
+from bench_cosim import block_ports, fmu_only_compiled, kernel_seconds
 from numba import njit
 
 from cosim.assemble import assemble_run
-from cosim.blocks import Ports
 from cosim.config import load_pipeline
 from cosim.dynamics.model import chain_model, model_bias, model_geometry, model_mass
 from cosim.engine import simulate
@@ -97,17 +96,11 @@ def block_costs(plan, trace, steps: int, repeat: int) -> dict[str, float]:
                                            plan.constants, strict=True):
         best = np.inf
         for _ in range(repeat):
-            block.reset(Ports({port: trace[key] for port, key in ins.items()},
-                              {port: trace[key] for port, key in outs.items()}, trace,
-                              constants))
+            block.reset(block_ports(trace, ins, outs, constants))
             if block.kernel is None:
                 best = 0.0
                 break
-            _drive(block.kernel, 0, 0, block.args)  # compile outside the timing
-            start = time.perf_counter()
-            done = _drive(block.kernel, 0, steps, block.args)
-            assert done == steps, f"{block.kind} failed at row {done}"
-            best = min(best, time.perf_counter() - start)
+            best = min(best, kernel_seconds(block, steps))
         us[block.kind] = 1e6 * best / steps
     return us
 
